@@ -1,0 +1,162 @@
+"""The ``hexcal`` command line: calibrate, study, simulate.
+
+Errors go to stderr with a non-zero exit status; ``--json`` prints one JSON object on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+EXIT_INPUT = 2  # bad input: a file, a field or a pose set the user must fix
+EXIT_REFUSED = 3  # the data cannot calibrate the robot: more or other poses are needed
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from hexcal.calibrate import calibrate
+    from hexcal.instruments import load_instruments
+    from hexcal.measurements import read_measurements
+    from hexcal.report_text import calibration_json, calibration_text
+    from hexcal.robot import load_robot, save_robot
+
+    design = load_robot(args.robot)
+    meas = read_measurements(args.measurements)
+    inst = load_instruments(args.instruments) if args.instruments else None
+    cal = calibrate(meas, design, model=args.model, instruments=inst, form=args.form, do_refine=not args.no_refine)
+    if inst is not None:
+        noise_src = f"stated in {args.instruments}"
+        noise_line = (
+            f"{noise_src}: tracker {inst.tracker.position_sigma_mm} mm, {inst.tracker.orientation_sigma_deg} deg; "
+            f"encoders {inst.encoders.reading_sigma_mm} mm (1 sigma)"
+        )
+    else:
+        noise_src = "estimated from the residual"
+        noise_line = (
+            "estimated from the residual (no --instruments given: relative weights of a typical tracker "
+            "and encoder, overall level from chi²/dof)"
+        )
+        if cal.refinement is not None:
+            noise_line += f"; the fit implies {cal.refinement.noise_scale:.2f}× those typical sigmas"
+    if args.out:
+        save_robot(cal.robot.model_copy(update={"name": f"{design.name}-calibrated"}), args.out)
+    if args.json:
+        print(calibration_json(cal, str(args.measurements), noise_src))
+    else:
+        print(calibration_text(cal, f"{args.measurements} ({len(meas)} poses)", noise_line))
+        if args.out:
+            print(f"\ncalibrated robot written to {args.out}")
+    return 0
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    from hexcal.simulate import PoseRanges
+    from hexcal.study import StudyConfig, factor_table, plot, run_study, to_json, write_csv
+
+    cfg = StudyConfig(
+        trials=args.trials,
+        err_p_mm=args.err_p_mm,
+        err_a_deg=args.err_a_deg,
+        err_l_mm=args.err_l_mm,
+        noise=args.noise,
+        seed=args.seed,
+        ranges=PoseRanges(stroke_mm=args.stroke_mm, tilt_deg=args.tilt_deg, cone_deg=args.cone_deg),
+    )
+    t0 = time.perf_counter()
+    result = run_study(cfg)
+    elapsed = time.perf_counter() - t0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(result, out / "study.csv")
+    (out / "study.json").write_text(to_json(result), encoding="utf-8")
+    pngs = [] if args.no_plots else plot(result, out)
+    if args.json:
+        print(to_json(result))
+    else:
+        print(factor_table(result))
+        print(f"\n{cfg.trials} trials per N, {elapsed:.1f} s; wrote {out / 'study.csv'}, {out / 'study.json'}"
+              + "".join(f", {p}" for p in pngs))
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from hexcal.robot import load_robot
+    from hexcal.session_sim import SessionPlan, write_session_dir
+    from hexcal.simulate import NoiseModel
+    from hexcal.study import left_hand
+
+    design = load_robot(args.robot) if args.robot else left_hand()
+    plan = SessionPlan(
+        n_type_i=args.n_type_i, n_type_ii=args.n_type_ii, n_type_iii=args.n_type_iii, n_free=args.n_free,
+        noise=NoiseModel(args.sigma_p_mm, args.sigma_a_deg, args.sigma_l_mm),
+    )
+    out = write_session_dir(args.out, design, args.seed, plan)
+    print(f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from hexcal import __version__
+
+    p = argparse.ArgumentParser(prog="hexcal", description="Calibrate Gough-Stewart platforms (units: mm, deg).")
+    p.add_argument("--version", action="version", version=f"hexcal {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    c = sub.add_parser("calibrate", help="calibrate Model 36 or 42 from a measurement table")
+    c.add_argument("measurements", type=Path, help="measurements.csv (INTERCHANGE.md)")
+    c.add_argument("--robot", type=Path, required=True, help="robot.json: design values, known offsets")
+    c.add_argument("--model", type=int, choices=(36, 42), default=42)
+    c.add_argument("--instruments", type=Path, help="instruments.json: the noise that weights the fit")
+    c.add_argument("--form", choices=("paper", "direct"), default="paper", help="linear seed: the paper's forms or the direct ones")
+    c.add_argument("--no-refine", action="store_true", help="stop after the linear methods")
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.add_argument("--out", type=Path, help="write the calibrated robot.json here")
+    c.set_defaults(func=_cmd_calibrate)
+
+    s = sub.add_parser("study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement")
+    s.add_argument("--trials", type=int, default=1000)
+    s.add_argument("--err-p-mm", type=float, default=0.1, help="position noise (uniform half-width or sigma), mm")
+    s.add_argument("--err-a-deg", type=float, default=0.01, help="orientation noise, deg")
+    s.add_argument("--err-l-mm", type=float, default=0.1, help="reading noise, mm")
+    s.add_argument("--noise", choices=("uniform", "gaussian"), default="uniform")
+    s.add_argument("--stroke-mm", type=float, default=30.0, help="Type I length range, ± mm about home")
+    s.add_argument("--tilt-deg", type=float, default=30.0, help="platform rotations, ± deg per axis")
+    s.add_argument("--cone-deg", type=float, default=30.0, help="Type III leg-direction cone half-angle, deg")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", default="study-out", help="directory for study.csv, study.json and the PNGs")
+    s.add_argument("--no-plots", action="store_true")
+    s.add_argument("--json", action="store_true", help="print the JSON on stdout too")
+    s.set_defaults(func=_cmd_study)
+
+    m = sub.add_parser("simulate", help="write a simulated session (robot, measurements, instruments, truth)")
+    m.add_argument("--out", type=Path, required=True)
+    m.add_argument("--robot", type=Path, help="design robot.json (default: the paper's Left Hand)")
+    m.add_argument("--seed", type=int, default=1)
+    m.add_argument("--n-type-i", type=int, default=8)
+    m.add_argument("--n-type-ii", type=int, default=8)
+    m.add_argument("--n-type-iii", type=int, default=8)
+    m.add_argument("--n-free", type=int, default=40)
+    m.add_argument("--sigma-p-mm", type=float, default=0.01)
+    m.add_argument("--sigma-a-deg", type=float, default=0.002)
+    m.add_argument("--sigma-l-mm", type=float, default=0.002)
+    m.set_defaults(func=_cmd_simulate)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from hexcal.solvers.whole_robot import CalibrationRefused
+
+    try:
+        return args.func(args)
+    except CalibrationRefused as exc:
+        print(f"hexcal: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    except (ValueError, OSError) as exc:
+        print(f"hexcal: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

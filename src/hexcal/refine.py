@@ -1,0 +1,225 @@
+"""Statistical refinement of the geometry over every recorded pose and all six legs.
+
+``scipy.optimize.least_squares`` minimises the leg-length residual ``|P + R b_k − a_k| − ρ_k −
+Δρ_k`` whitened by each pose's full 6×6 covariance (the six legs share the pose's tracker
+noise; see :mod:`hexcal.noise`). The covariance depends on the geometry, so it is evaluated at
+the linear seed, the fit is run, and it is re-evaluated at the solution for a second fit.
+
+The parameter covariance is ``(JᵀJ)⁻¹`` of the whitened Jacobian. With the instruments' noise
+stated, it is scaled by ``max(1, χ²/dof)`` (an under-fitting model widens the intervals, never
+narrows them); without it, the noise level is estimated from the residual and the covariance
+scaled by ``χ²/dof``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import least_squares
+
+from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+
+#: Relative eigenvalue of the scaled normal matrix below which a direction is not determined.
+NULL_TOL = 1e-10
+#: Variance inflation (σ against σ if it were the only unknown, squared) beyond which a
+#: parameter is reported as not separable from the parameters it correlates with.
+VIF_LIMIT = 1e6
+
+
+def parameter_names(fit_offsets: bool) -> list[str]:
+    """a1.x … a6.z, b1.x … b6.z, then offset1 … offset6 when fitted."""
+    names = [f"a{k}.{c}" for k in range(1, 7) for c in "xyz"]
+    names += [f"b{k}.{c}" for k in range(1, 7) for c in "xyz"]
+    if fit_offsets:
+        names += [f"offset{k}" for k in range(1, 7)]
+    return names
+
+
+@dataclass
+class Refinement:
+    """Result of :func:`refine`. Arrays in mm; ``residuals`` (M, 6) are length − prediction."""
+
+    names: list[str]
+    x: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    ci95: np.ndarray
+    corr: np.ndarray
+    chi2: float
+    dof: int
+    noise_scale: float
+    noise_source: str
+    residuals: np.ndarray
+    status: list[str]
+    notes: list[str] = field(default_factory=list)
+    strong_correlations: list[tuple[str, str, float]] = field(default_factory=list)
+    nfev: int = 0
+    success: bool = True
+
+    @property
+    def a(self) -> np.ndarray:
+        return self.x[:18].reshape(6, 3)
+
+    @property
+    def b(self) -> np.ndarray:
+        return self.x[18:36].reshape(6, 3)
+
+    def offsets(self, fixed: np.ndarray) -> np.ndarray:
+        return self.x[36:42] if len(self.x) > 36 else np.asarray(fixed, float)
+
+    @property
+    def rms_mm(self) -> float:
+        """Root mean square of the leg-length residual over every pose and leg, mm."""
+        return float(np.sqrt(np.mean(self.residuals**2)))
+
+    def ci95_of(self, prefix: str) -> np.ndarray:
+        idx = [i for i, n in enumerate(self.names) if n.startswith(prefix)]
+        return self.ci95[idx]
+
+
+def _whiteners(a, b, P, R, sig: NoiseSigmas) -> np.ndarray:
+    """W (M, 6, 6) with ``W Σ Wᵀ = I``: the inverse Cholesky factor of each pose's covariance."""
+    chol = np.linalg.cholesky(leg_covariance(a, b, P, R, sig))
+    return np.linalg.inv(chol)
+
+
+def _unpack(x: np.ndarray, fixed_offsets: np.ndarray):
+    a = x[:18].reshape(6, 3)
+    b = x[18:36].reshape(6, 3)
+    off = x[36:42] if len(x) > 36 else fixed_offsets
+    return a, b, off
+
+
+def _model(x, P, R, rho, fixed_offsets):
+    """Residual (M, 6) and raw Jacobian (M, 6, p)."""
+    a, b, off = _unpack(x, fixed_offsets)
+    v = P[:, None, :] + np.einsum("mij,kj->mki", R, b) - a[None]
+    length = np.linalg.norm(v, axis=-1)
+    n = v / length[..., None]
+    res = length - rho - off
+    m = len(P)
+    jac = np.zeros((m, 6, len(x)))
+    legs = np.arange(6)
+    for c in range(3):
+        jac[:, legs, 3 * legs + c] = -n[:, :, c]
+    jac[:, legs, 18 + 3 * legs] = 0.0
+    rtn = np.einsum("mji,mkj->mki", R, n)  # Rᵀ n: d|v|/db
+    for c in range(3):
+        jac[:, legs, 18 + 3 * legs + c] = rtn[:, :, c]
+    if len(x) > 36:
+        jac[:, legs, 36 + legs] = -1.0
+    return res, jac
+
+
+def refine(
+    P: np.ndarray,
+    R: np.ndarray,
+    rho: np.ndarray,
+    a0: np.ndarray,
+    b0: np.ndarray,
+    offsets0: np.ndarray,
+    fit_offsets: bool,
+    sigmas: NoiseSigmas | None = None,
+) -> Refinement:
+    """Weighted nonlinear least squares of the geometry, seeded by (a0, b0, offsets0).
+
+    P (M, 3) mm, R (M, 3, 3), rho (M, 6) mm readings; a0, b0 (6, 3) mm; offsets0 (6,) mm (kept
+    fixed unless ``fit_offsets``). ``sigmas`` are the instruments' noise; None means unknown.
+    """
+    known = sigmas is not None
+    sig = sigmas if known else DEFAULT_SIGMAS
+    fixed = np.asarray(offsets0, float)
+    x = np.concatenate([np.ravel(a0), np.ravel(b0)] + ([fixed] if fit_offsets else []))
+    nfev = 0
+    for _ in range(2):
+        a, b, _off = _unpack(x, fixed)
+        W = _whiteners(a, b, P, R, sig)
+
+        def fun(xx, W=W):
+            res, _ = _model(xx, P, R, rho, fixed)
+            return np.einsum("mij,mj->mi", W, res).ravel()
+
+        def jac(xx, W=W):
+            _, j = _model(xx, P, R, rho, fixed)
+            return np.einsum("mij,mjp->mip", W, j).reshape(-1, len(xx))
+
+        sol = least_squares(fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        x, nfev = sol.x, nfev + sol.nfev
+    res, _ = _model(x, P, R, rho, fixed)
+    jw = jac(x)
+    return _statistics(x, res, jw, sol.fun, known, fit_offsets, nfev, bool(sol.success))
+
+
+def _statistics(x, res, jw, wres, known, fit_offsets, nfev, success) -> Refinement:
+    names = parameter_names(fit_offsets)
+    p = len(x)
+    chi2 = float(wres @ wres)
+    dof = max(jw.shape[0] - p, 1)
+    s2 = chi2 / dof
+    scale2 = max(1.0, s2) if known else s2
+
+    jtj = jw.T @ jw
+    d = 1.0 / np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+    A = d[:, None] * jtj * d[None, :]
+    lam, V = np.linalg.eigh(A)
+    null = lam < NULL_TOL * lam.max()
+    inv_lam = np.where(null, 0.0, 1.0 / np.where(null, 1.0, lam))
+    a_inv = (V * inv_lam) @ V.T
+    cov = d[:, None] * a_inv * d[None, :] * scale2
+    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    status = ["ok"] * p
+    notes: list[str] = []
+
+    # Parameters in an undetermined direction: only combinations are known.
+    for col in np.where(null)[0]:
+        v = V[:, col]
+        big = np.where(np.abs(v) > 0.2 * np.abs(v).max())[0]
+        for i in big:
+            status[i] = "undetermined"
+            sigma[i] = np.inf
+        notes.append(
+            "not determined by these data, only a combination of: " + ", ".join(names[i] for i in big)
+        )
+
+    sd = np.where(np.isfinite(sigma) & (sigma > 0), sigma, 1.0)
+    corr = cov / sd[:, None] / sd[None, :]
+    np.fill_diagonal(corr, 1.0)
+    vif = np.diag(a_inv)
+    for i in np.where((vif > VIF_LIMIT) & (np.array(status) == "ok"))[0]:
+        status[i] = "not separable"
+        partners = [j for j in np.argsort(-np.abs(corr[i])) if j != i][:2]
+        notes.append(
+            f"{names[i]} is not separable from "
+            + " and ".join(f"{names[j]} (correlation {corr[i, j]:+.3f})" for j in partners)
+            + f": its uncertainty is {np.sqrt(vif[i]):.0f}× what it would be alone; add poses "
+            "that change the legs' directions more"
+        )
+
+    q = stats.norm.ppf(0.975) if known else stats.t.ppf(0.975, dof)
+    iu = np.triu_indices(p, 1)
+    order = np.argsort(-np.abs(corr[iu]))
+    strong = [
+        (names[iu[0][o]], names[iu[1][o]], float(corr[iu][o]))
+        for o in order[:10]
+        if abs(corr[iu][o]) > 0.9
+    ]
+    return Refinement(
+        names=names,
+        x=x,
+        cov=cov,
+        sigma=sigma,
+        ci95=q * sigma,
+        corr=corr,
+        chi2=chi2,
+        dof=dof,
+        noise_scale=float(np.sqrt(s2)),
+        noise_source="instruments" if known else "estimated from the residual",
+        residuals=-res,
+        status=status,
+        notes=notes,
+        strong_correlations=strong,
+        nfev=nfev,
+        success=success,
+    )

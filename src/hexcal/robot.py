@@ -1,0 +1,120 @@
+"""The robot description: six base points, six platform points, six leg offsets (robot.json).
+
+Leg k joins base point ``a_k`` (base / measurement frame) to platform point ``b_k`` (platform
+frame). Its geometric length is ``|P + R b_k - a_k|`` and, in the ideal model, equals the encoder
+reading plus ``offset_k``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from hexcal.fileio import write_text_atomic
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class RobotFileError(ValueError):
+    """robot.json could not be read; the message names the file and the field."""
+
+
+class Home(BaseModel):
+    """The platform's home pose: position (3,) mm, unit quaternion (4,) scalar first."""
+
+    model_config = ConfigDict(extra="allow")
+    position: Vec3 = [0.0, 0.0, 0.0]
+    quaternion: Annotated[list[float], Field(min_length=4, max_length=4)] = [1.0, 0.0, 0.0, 0.0]
+
+    @field_validator("quaternion")
+    @classmethod
+    def _unit(cls, q: list[float]) -> list[float]:
+        n = float(np.linalg.norm(q))
+        if abs(n - 1.0) > 1e-3:
+            raise ValueError(f"quaternion norm is {n:.6f}, expected 1 (scalar first: qw, qx, qy, qz)")
+        return q
+
+
+class Robot(BaseModel):
+    """A Gough platform's geometry as in robot.json (INTERCHANGE.md). Unknown keys are kept."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str = "robot"
+    units: str = "mm"
+    base_points: Annotated[list[Vec3], Field(min_length=6, max_length=6)]
+    platform_points: Annotated[list[Vec3], Field(min_length=6, max_length=6)]
+    leg_offsets: Annotated[list[float], Field(min_length=6, max_length=6)] = [0.0] * 6
+    home: Home = Home()
+    leadscrew_pitch_mm: float | None = None
+    platform_mass_kg: float | None = None
+    leg_range_mm: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None
+
+    @field_validator("units")
+    @classmethod
+    def _mm(cls, u: str) -> str:
+        if u != "mm":
+            raise ValueError(f"units must be 'mm' (got {u!r}); convert the file to millimetres")
+        return u
+
+    @property
+    def a(self) -> np.ndarray:
+        """Base points, (6, 3) mm, base frame."""
+        return np.asarray(self.base_points, dtype=float)
+
+    @property
+    def b(self) -> np.ndarray:
+        """Platform points, (6, 3) mm, platform frame."""
+        return np.asarray(self.platform_points, dtype=float)
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """Leg offsets, (6,) mm: geometric length = reading + offset."""
+        return np.asarray(self.leg_offsets, dtype=float)
+
+    def with_geometry(
+        self, a: np.ndarray, b: np.ndarray, offsets: np.ndarray | None = None, **extra: object
+    ) -> Robot:
+        """A copy with new points (6, 3) mm and offsets (6,) mm; other keys carried over."""
+        data = self.model_dump(exclude_none=True)
+        data["base_points"] = np.asarray(a, float).tolist()
+        data["platform_points"] = np.asarray(b, float).tolist()
+        if offsets is not None:
+            data["leg_offsets"] = np.asarray(offsets, float).tolist()
+        data.update(extra)
+        return Robot.model_validate(data)
+
+    def to_json(self) -> str:
+        """robot.json text (indent 2); absent optional keys stay absent."""
+        return json.dumps(self.model_dump(exclude_none=True), indent=2) + "\n"
+
+
+def load_robot(path: str | Path) -> Robot:
+    """Read robot.json; errors name the file and the field and say what to fix."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RobotFileError(f"{path}: no such file; pass the robot description with --robot") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RobotFileError(
+            f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})"
+        ) from None
+    try:
+        return Robot.model_validate(data)
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            field = ".".join(str(p) for p in err["loc"]) or "(top level)"
+            lines.append(f"{path}: field {field}: {err['msg']}")
+        raise RobotFileError("\n".join(lines)) from None
+
+
+def save_robot(robot: Robot, path: str | Path) -> None:
+    """Write robot.json atomically."""
+    write_text_atomic(path, robot.to_json())

@@ -1,0 +1,69 @@
+"""Direct linear forms (beyond the paper): noise-free recovery and first-order spread."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hexcal.simulate import NoiseModel, Simulator
+from hexcal.solvers import direct
+from test_solvers_paper import K, _pack, _unpack, rel_err
+from statcheck import delta_method_cov, trace_ratio_tolerance
+
+
+def test_type_i_direct_noise_free(clean_sim, truth, rng):
+    P, R = clean_sim.type_i(K, (20, 5), rng)
+    length = clean_sim.true_lengths(P, R)[..., K]
+    b, a, u = direct.type_i_direct(P, R, length)
+    assert rel_err(b, truth.b[K]) < 1e-9 and rel_err(a, truth.a[K]) < 1e-9
+    assert np.allclose(np.linalg.norm(u, axis=-1), 1.0, atol=1e-12)
+
+
+def test_type_i_model42_confounds_base_point_and_offset(clean_sim, truth, rng):
+    """With the direction clamped, only a + Δ·u is determined: the offset slides along the leg."""
+    P, R = clean_sim.type_i(K, (3, 6), rng)
+    reading = clean_sim.readings(P, R)[..., K]
+    b, u, a_plus = direct.type_i_direct_model42(P, R, reading)
+    assert rel_err(b, truth.b[K]) < 1e-9
+    assert rel_err(a_plus, truth.a[K] + truth.offsets[K] * u) < 1e-9
+
+
+def test_type_ii_direct_noise_free(clean_sim, truth, rng):
+    P, R = clean_sim.type_ii(K, (20, 4), rng)
+    b, c = direct.type_ii_direct(P, R)
+    assert rel_err(b, truth.b[K]) < 1e-9
+    u, length = clean_sim.home_leg(K)
+    assert rel_err(c, truth.a[K] + length * u) < 1e-9
+
+
+def test_type_iii_sphere_fit_noise_free(clean_sim, truth, rng):
+    P, R = clean_sim.type_iii(K, (20, 5), rng)
+    a, r = direct.type_iii_direct(P, R, np.broadcast_to(truth.b[K], (20, 3)))
+    assert rel_err(a, truth.a[K]) < 1e-9
+    assert np.allclose(r, clean_sim.home_leg(K)[1], rtol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["type_i", "type_ii", "type_iii"])
+def test_direct_noisy_spread_matches_first_order_theory(method, truth, rng):
+    sp, sa, sl = 0.01, 0.002, 0.002
+    sim = Simulator(truth, noise=NoiseModel(sp, sa, sl))
+    n = 8
+    P0, R0 = getattr(sim, method)(K, (n,), rng)
+    rho0 = sim.readings(P0, R0)[:, K]
+
+    def solve(P, R, rho):
+        if method == "type_i":
+            b, a, _ = direct.type_i_direct(P, R, rho + truth.offsets[K])
+            return np.concatenate([b, a], axis=-1)
+        if method == "type_ii":
+            return direct.type_ii_direct(P, R)[0]
+        return direct.type_iii_direct(P, R, np.broadcast_to(truth.b[K], (*P.shape[:-2], 3)))[0]
+
+    sigma = np.concatenate([np.full(3 * n, sp), np.full(3 * n, np.deg2rad(sa)), np.full(n, sl)])
+    cov = delta_method_cov(lambda z: solve(*_unpack(z, P0, R0)), _pack(P0, R0, rho0), sigma)
+    trials = 4000
+    Pm, Rm, rhom = sim.noise.apply(rng, np.broadcast_to(P0, (trials, n, 3)), np.broadcast_to(R0, (trials, n, 3, 3)),
+                                   np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)))
+    est = solve(Pm, Rm, rhom[..., K])
+    ratio = np.trace(np.cov(est.T)) / np.trace(cov)
+    assert abs(ratio - 1.0) < trace_ratio_tolerance(trials), ratio
