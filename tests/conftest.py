@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexcal.simulate import NoiseModel, Simulator
+from hexcal.simulate import Simulator
 from hexcal.study import left_hand
 
 SHARED_EXAMPLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "examples" / "left-hand"
@@ -22,7 +22,9 @@ def design():
 def truth(design):
     rng = np.random.default_rng(7)
     return design.with_geometry(
-        design.a + rng.normal(0, 0.3, (6, 3)), design.b + rng.normal(0, 0.3, (6, 3)), design.offsets + rng.uniform(-1, 1, 6)
+        design.a + rng.normal(0, 0.3, (6, 3)),
+        design.b + rng.normal(0, 0.3, (6, 3)),
+        design.offsets + rng.uniform(-1, 1, 6),
     )
 
 
@@ -34,7 +36,3 @@ def clean_sim(truth):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
-
-
-def noisy_sim(robot, p=0.01, a=0.002, l=0.002, kind="gaussian"):
-    return Simulator(robot, noise=NoiseModel(p, a, l, kind))

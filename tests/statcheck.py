@@ -14,7 +14,9 @@ from collections.abc import Callable
 import numpy as np
 
 
-def delta_method_cov(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, sigma: np.ndarray, h: float = 1e-6):
+def delta_method_cov(
+    f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, sigma: np.ndarray, h: float = 1e-6
+):
     """Covariance (p, p) of f(z) for z = z0 + noise of standard deviations sigma (m,), independent."""
     f0 = f(z0)
     jac = np.empty((f0.size, z0.size))

@@ -6,22 +6,30 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.kinematics import ForwardKinematicsError, forward_kinematics, inverse_kinematics, leg_vectors, platform_jacobian
+from hexcal.kinematics import (
+    ForwardKinematicsError,
+    forward_kinematics,
+    inverse_kinematics,
+    leg_vectors,
+    platform_jacobian,
+)
 
 
 def test_ik_vectorised_matches_loop(design, rng):
-    P = rng.normal(0, 10, (5, 3)) + [0, 0, 200]
+    P = rng.normal(0, 10, (5, 3)) + np.array([0.0, 0.0, 200.0])
     R = Rotation.from_rotvec(rng.normal(0, 0.1, (5, 3)))
     L = inverse_kinematics(design.a, design.b, P, R)
     for i in range(5):
         for k in range(6):
-            assert L[i, k] == pytest.approx(np.linalg.norm(P[i] + R[i].apply(design.b[k]) - design.a[k]), rel=1e-14)
+            assert L[i, k] == pytest.approx(
+                np.linalg.norm(P[i] + R[i].apply(design.b[k]) - design.a[k]), rel=1e-14
+            )
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_fk_inverts_ik(design, seed):
     rng = np.random.default_rng(seed)
-    P = rng.uniform(-15, 15, 3) + [0, 0, 200]
+    P = rng.uniform(-15, 15, 3) + np.array([0.0, 0.0, 200.0])
     R = Rotation.from_rotvec(rng.uniform(-0.2, 0.2, 3))
     L = inverse_kinematics(design.a, design.b, P[None], R)[0]
     p, r = forward_kinematics(design.a, design.b, L)

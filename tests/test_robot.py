@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from conftest import SHARED_EXAMPLE
 
 from hexcal.robot import RobotFileError, load_robot, save_robot
-from conftest import SHARED_EXAMPLE
 
 
 def test_round_trip_keeps_unknown_keys(tmp_path, design):
@@ -53,9 +53,9 @@ def test_bad_fields_are_named(tmp_path, design, mutate, match):
 
 def test_not_json_and_missing(tmp_path):
     (tmp_path / "x.json").write_text("{ nope")
-    with pytest.raises(RobotFileError, match="x.json: line 1"):
+    with pytest.raises(RobotFileError, match=r"x.json: line 1"):
         load_robot(tmp_path / "x.json")
-    with pytest.raises(RobotFileError, match="no such file"):
+    with pytest.raises(RobotFileError, match=r"no such file"):
         load_robot(tmp_path / "absent.json")
 
 

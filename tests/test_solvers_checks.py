@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from test_solvers_paper import K
 
 from hexcal.solvers.checks import DegenerateSet, check_type_i, check_type_ii, check_type_iii
-from test_solvers_paper import K
 
 
 def _about_one_axis(sim, n, rng, axis=(0.0, 0.0, 1.0)):
@@ -21,7 +21,7 @@ def _about_one_axis(sim, n, rng, axis=(0.0, 0.0, 1.0)):
 
 def test_type_ii_single_axis_refused(clean_sim, rng):
     P, R = _about_one_axis(clean_sim, 8, rng)
-    with pytest.raises(DegenerateSet, match="one axis.*second, perpendicular axis"):
+    with pytest.raises(DegenerateSet, match=r"one axis.*second, perpendicular axis"):
         check_type_ii(3, P, R)
 
 
@@ -34,7 +34,7 @@ def test_type_i_equal_lengths_refused(clean_sim, rng):
     u, length = clean_sim.home_leg(K)
     # Rebuild the set with the clamped length held constant.
     P = clean_sim.robot.a[K] + length * u - R @ clean_sim.robot.b[K]
-    with pytest.raises(DegenerateSet, match="length hardly changed.*extend and retract leg 3"):
+    with pytest.raises(DegenerateSet, match=r"length hardly changed.*extend and retract leg 3"):
         check_type_i(3, P, R, np.full(8, length))
 
 
@@ -43,13 +43,13 @@ def test_type_i_no_rotation_refused(clean_sim, rng):
     lengths = np.linspace(190, 230, 8)
     R = np.broadcast_to(np.eye(3), (8, 3, 3))
     P = clean_sim.robot.a[K] + lengths[:, None] * u - R @ clean_sim.robot.b[K]
-    with pytest.raises(DegenerateSet, match="hardly rotated.*two different axes"):
+    with pytest.raises(DegenerateSet, match=r"hardly rotated.*two different axes"):
         check_type_i(3, P, R, lengths)
 
 
 def test_too_few_poses_refused(clean_sim, rng):
     P, R = clean_sim.type_iii(K, (3,), rng)
-    with pytest.raises(DegenerateSet, match="3 recorded, at least 4 needed"):
+    with pytest.raises(DegenerateSet, match=r"3 recorded, at least 4 needed"):
         check_type_iii(3, P, R, clean_sim.robot.b[K])
 
 
@@ -61,5 +61,5 @@ def test_type_iii_one_direction_refused(clean_sim, rng):
     u = Rotation.from_rotvec(np.outer(angles, side)).apply(u0)
     R = np.broadcast_to(np.eye(3), (8, 3, 3))
     P = clean_sim.robot.a[K] + length * u - R @ clean_sim.robot.b[K]
-    with pytest.raises(DegenerateSet, match="one direction only.*sideways"):
+    with pytest.raises(DegenerateSet, match=r"one direction only.*sideways"):
         check_type_iii(3, P, R, clean_sim.robot.b[K])

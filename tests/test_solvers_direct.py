@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from statcheck import delta_method_cov, trace_ratio_tolerance
+from test_solvers_paper import K, _pack, _unpack, rel_err
 
 from hexcal.simulate import NoiseModel, Simulator
 from hexcal.solvers import direct
-from test_solvers_paper import K, _pack, _unpack, rel_err
-from statcheck import delta_method_cov, trace_ratio_tolerance
 
 
 def test_type_i_direct_noise_free(clean_sim, truth, rng):
@@ -62,8 +62,12 @@ def test_direct_noisy_spread_matches_first_order_theory(method, truth, rng):
     sigma = np.concatenate([np.full(3 * n, sp), np.full(3 * n, np.deg2rad(sa)), np.full(n, sl)])
     cov = delta_method_cov(lambda z: solve(*_unpack(z, P0, R0)), _pack(P0, R0, rho0), sigma)
     trials = 4000
-    Pm, Rm, rhom = sim.noise.apply(rng, np.broadcast_to(P0, (trials, n, 3)), np.broadcast_to(R0, (trials, n, 3, 3)),
-                                   np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)))
+    Pm, Rm, rhom = sim.noise.apply(
+        rng,
+        np.broadcast_to(P0, (trials, n, 3)),
+        np.broadcast_to(R0, (trials, n, 3, 3)),
+        np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)),
+    )
     est = solve(Pm, Rm, rhom[..., K])
     ratio = np.trace(np.cov(est.T)) / np.trace(cov)
     assert abs(ratio - 1.0) < trace_ratio_tolerance(trials), ratio

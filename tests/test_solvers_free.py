@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
+from test_solvers_paper import rel_err
 
 from hexcal.solvers import free
-from test_solvers_paper import rel_err
 
 
 @pytest.mark.parametrize("k", range(6))

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from statcheck import delta_method_cov, trace_ratio_tolerance
 
 from hexcal.solvers import paper
 from hexcal.solvers.linalg import lstsq
-from statcheck import delta_method_cov, trace_ratio_tolerance
 
 K = 2  # leg 3, as in the paper
 
@@ -84,13 +84,21 @@ def test_noisy_spread_matches_first_order_theory(method, truth, rng):
     cov = delta_method_cov(lambda z: solve(*_unpack(z, P0, R0)), _pack(P0, R0, rho0), sigma)
 
     trials = 4000
-    Pm, Rm, rhom = sim.noise.apply(rng, np.broadcast_to(P0, (trials, n, 3)), np.broadcast_to(R0, (trials, n, 3, 3)),
-                                   np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)))
+    Pm, Rm, rhom = sim.noise.apply(
+        rng,
+        np.broadcast_to(P0, (trials, n, 3)),
+        np.broadcast_to(R0, (trials, n, 3, 3)),
+        np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)),
+    )
     est = solve(Pm, Rm, rhom[..., K])
     mc = np.cov(est.T)
     ratio = np.trace(mc) / np.trace(cov)
     assert abs(ratio - 1.0) < trace_ratio_tolerance(trials), ratio
     # Unbiased to first order: the mean error is within 4 standard errors.
-    true = np.concatenate([truth.b[K], truth.a[K]]) if method == "type_i" else (b_true if method == "type_ii" else truth.a[K])
+    true = (
+        np.concatenate([truth.b[K], truth.a[K]])
+        if method == "type_i"
+        else (b_true if method == "type_ii" else truth.a[K])
+    )
     se = np.sqrt(np.diag(mc) / trials)
     assert np.all(np.abs(est.mean(axis=0) - true) < 4 * se + 1e-12)

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import least_squares
+from test_solvers_paper import K
 
 from hexcal.noise import NoiseSigmas
 from hexcal.simulate import NoiseModel, Simulator
 from hexcal.solvers import direct, weighted
 from hexcal.solvers.weighted import _inv3_sym, _point_cov
-from test_solvers_paper import K
 
 SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
 
@@ -30,7 +30,7 @@ def test_type_i_matches_least_squares(truth, rng):
     P, R, rho = sim.measure(rng, *sim.type_i(K, (8,), rng))
     length = rho[:, K] + truth.offsets[K]
     b0, a0, u0 = direct.type_i_direct(P, R, length)
-    b, a, u = weighted.refine_type_i(P, R, length, b0, a0, u0, SIG, iterations=6)
+    b, a, _u = weighted.refine_type_i(P, R, length, b0, a0, u0, SIG, iterations=6)
 
     def fun(x):
         uu = x[6:9] / np.linalg.norm(x[6:9])
@@ -75,7 +75,7 @@ def test_weighted_type_i_not_worse_than_direct(truth, rng):
     P, R, rho = sim.measure(rng, *sim.type_i(K, (2000, 8), rng))
     length = rho[..., K] + truth.offsets[K]
     b0, a0, u0 = direct.type_i_direct(P, R, length)
-    b, a, _ = weighted.refine_type_i(P, R, length, b0, a0, u0, SIG)
+    _b, a, _ = weighted.refine_type_i(P, R, length, b0, a0, u0, SIG)
     mse_d = np.mean(np.sum((a0 - truth.a[K]) ** 2, axis=-1))
     mse_w = np.mean(np.sum((a - truth.a[K]) ** 2, axis=-1))
     # Standard error of an MSE from 2000 samples is about sqrt(2/2000) ≈ 3 % relative.

@@ -9,11 +9,20 @@ from hexcal.session_sim import SessionPlan, simulate_session
 from hexcal.simulate import NoiseModel
 from hexcal.solvers.whole_robot import CalibrationRefused, calibrate_linear
 
-CLEAN = SessionPlan(noise=NoiseModel())
+CLEAN = SessionPlan(noise=NoiseModel(), resolution=None)
 
 
 def _run(meas, model, design, form="paper"):
-    return calibrate_linear(meas.position, meas.rotations.as_matrix(), meas.readings, meas.leg, meas.constraint, model, design.offsets, form)
+    return calibrate_linear(
+        meas.position,
+        meas.rotations.as_matrix(),
+        meas.readings,
+        meas.leg,
+        meas.constraint,
+        model,
+        design.offsets,
+        form,
+    )
 
 
 @pytest.mark.parametrize("form", ["paper", "direct"])
@@ -40,7 +49,9 @@ def test_falls_back_to_33_then_free(design):
 
 
 def test_refusal_lists_every_leg_and_what_to_add(design):
-    meas, _ = simulate_session(design, seed=5, plan=SessionPlan(n_type_i=0, n_type_ii=0, n_type_iii=0, n_free=10))
+    meas, _ = simulate_session(
+        design, seed=5, plan=SessionPlan(n_type_i=0, n_type_ii=0, n_type_iii=0, n_free=10)
+    )
     with pytest.raises(CalibrationRefused) as exc:
         _run(meas, 42, design)
     text = str(exc.value)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
+from hexcal.instruments import Instruments
 from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
 from hexcal.refine import Refinement, refine
@@ -49,7 +49,7 @@ def calibrate(
     meas: Measurements,
     design: Robot,
     model: int = 42,
-    instruments=None,
+    instruments: Instruments | None = None,
     form: Form = "paper",
     do_refine: bool = True,
 ) -> Calibration:
@@ -71,5 +71,10 @@ def calibrate(
         a, b, off = ref.a, ref.b, ref.offsets(off)
     robot = design.with_geometry(a, b, off)
     return Calibration(
-        model, robot, lin, ref, leg_residuals(a, b, off, meas), leg_residuals(lin.a, lin.b, lin.offsets, meas)
+        model,
+        robot,
+        lin,
+        ref,
+        leg_residuals(a, b, off, meas),
+        leg_residuals(lin.a, lin.b, lin.offsets, meas),
     )

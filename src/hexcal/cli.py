@@ -24,7 +24,14 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     design = load_robot(args.robot)
     meas = read_measurements(args.measurements)
     inst = load_instruments(args.instruments) if args.instruments else None
-    cal = calibrate(meas, design, model=args.model, instruments=inst, form=args.form, do_refine=not args.no_refine)
+    cal = calibrate(
+        meas,
+        design,
+        model=args.model,
+        instruments=inst,
+        form=args.form,
+        do_refine=not args.no_refine,
+    )
     if inst is not None:
         noise_src = f"stated in {args.instruments}"
         noise_line = (
@@ -38,7 +45,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             "and encoder, overall level from chi²/dof)"
         )
         if cal.refinement is not None:
-            noise_line += f"; the fit implies {cal.refinement.noise_scale:.2f}× those typical sigmas"
+            noise_line += (
+                f"; the fit implies {cal.refinement.noise_scale:.2f}× those typical sigmas"
+            )
     if args.out:
         save_robot(cal.robot.model_copy(update={"name": f"{design.name}-calibrated"}), args.out)
     if args.json:
@@ -75,8 +84,10 @@ def _cmd_study(args: argparse.Namespace) -> int:
         print(to_json(result))
     else:
         print(factor_table(result))
-        print(f"\n{cfg.trials} trials per N, {elapsed:.1f} s; wrote {out / 'study.csv'}, {out / 'study.json'}"
-              + "".join(f", {p}" for p in pngs))
+        print(
+            f"\n{cfg.trials} trials per N, {elapsed:.1f} s; wrote {out / 'study.csv'}, {out / 'study.json'}"
+            + "".join(f", {p}" for p in pngs)
+        )
     return 0
 
 
@@ -88,48 +99,81 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     design = load_robot(args.robot) if args.robot else left_hand()
     plan = SessionPlan(
-        n_type_i=args.n_type_i, n_type_ii=args.n_type_ii, n_type_iii=args.n_type_iii, n_free=args.n_free,
+        n_type_i=args.n_type_i,
+        n_type_ii=args.n_type_ii,
+        n_type_iii=args.n_type_iii,
+        n_free=args.n_free,
         noise=NoiseModel(args.sigma_p_mm, args.sigma_a_deg, args.sigma_l_mm),
     )
     out = write_session_dir(args.out, design, args.seed, plan)
-    print(f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json)")
+    print(
+        f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json)"
+    )
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     from hexcal import __version__
 
-    p = argparse.ArgumentParser(prog="hexcal", description="Calibrate Gough-Stewart platforms (units: mm, deg).")
+    p = argparse.ArgumentParser(
+        prog="hexcal", description="Calibrate Gough-Stewart platforms (units: mm, deg)."
+    )
     p.add_argument("--version", action="version", version=f"hexcal {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("calibrate", help="calibrate Model 36 or 42 from a measurement table")
     c.add_argument("measurements", type=Path, help="measurements.csv (INTERCHANGE.md)")
-    c.add_argument("--robot", type=Path, required=True, help="robot.json: design values, known offsets")
+    c.add_argument(
+        "--robot", type=Path, required=True, help="robot.json: design values, known offsets"
+    )
     c.add_argument("--model", type=int, choices=(36, 42), default=42)
-    c.add_argument("--instruments", type=Path, help="instruments.json: the noise that weights the fit")
-    c.add_argument("--form", choices=("paper", "direct"), default="paper", help="linear seed: the paper's forms or the direct ones")
+    c.add_argument(
+        "--instruments", type=Path, help="instruments.json: the noise that weights the fit"
+    )
+    c.add_argument(
+        "--form",
+        choices=("paper", "direct"),
+        default="paper",
+        help="linear seed: the paper's forms or the direct ones",
+    )
     c.add_argument("--no-refine", action="store_true", help="stop after the linear methods")
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.add_argument("--out", type=Path, help="write the calibrated robot.json here")
     c.set_defaults(func=_cmd_calibrate)
 
-    s = sub.add_parser("study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement")
+    s = sub.add_parser(
+        "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"
+    )
     s.add_argument("--trials", type=int, default=1000)
-    s.add_argument("--err-p-mm", type=float, default=0.1, help="position noise (uniform half-width or sigma), mm")
+    s.add_argument(
+        "--err-p-mm",
+        type=float,
+        default=0.1,
+        help="position noise (uniform half-width or sigma), mm",
+    )
     s.add_argument("--err-a-deg", type=float, default=0.01, help="orientation noise, deg")
     s.add_argument("--err-l-mm", type=float, default=0.1, help="reading noise, mm")
     s.add_argument("--noise", choices=("uniform", "gaussian"), default="uniform")
-    s.add_argument("--stroke-mm", type=float, default=30.0, help="Type I length range, ± mm about home")
-    s.add_argument("--tilt-deg", type=float, default=30.0, help="platform rotations, ± deg per axis")
-    s.add_argument("--cone-deg", type=float, default=30.0, help="Type III leg-direction cone half-angle, deg")
+    s.add_argument(
+        "--stroke-mm", type=float, default=30.0, help="Type I length range, ± mm about home"
+    )
+    s.add_argument(
+        "--tilt-deg", type=float, default=30.0, help="platform rotations, ± deg per axis"
+    )
+    s.add_argument(
+        "--cone-deg", type=float, default=30.0, help="Type III leg-direction cone half-angle, deg"
+    )
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", default="study-out", help="directory for study.csv, study.json and the PNGs")
+    s.add_argument(
+        "--out", default="study-out", help="directory for study.csv, study.json and the PNGs"
+    )
     s.add_argument("--no-plots", action="store_true")
     s.add_argument("--json", action="store_true", help="print the JSON on stdout too")
     s.set_defaults(func=_cmd_study)
 
-    m = sub.add_parser("simulate", help="write a simulated session (robot, measurements, instruments, truth)")
+    m = sub.add_parser(
+        "simulate", help="write a simulated session (robot, measurements, instruments, truth)"
+    )
     m.add_argument("--out", type=Path, required=True)
     m.add_argument("--robot", type=Path, help="design robot.json (default: the paper's Left Hand)")
     m.add_argument("--seed", type=int, default=1)

@@ -17,7 +17,9 @@ def rotation_matrices(rotations: Rotation) -> np.ndarray:
     return m[None] if m.ndim == 2 else m
 
 
-def leg_vectors(a: np.ndarray, b: np.ndarray, position: np.ndarray, rotations: Rotation) -> np.ndarray:
+def leg_vectors(
+    a: np.ndarray, b: np.ndarray, position: np.ndarray, rotations: Rotation
+) -> np.ndarray:
     """Vectors from base to platform attachment, ``P + R b_k - a_k``: (N, K, 3) mm.
 
     a, b: (K, 3) mm; position: (N, 3) mm; rotations: N rotations.
@@ -70,7 +72,7 @@ def forward_kinematics(
     """
     lengths = np.asarray(lengths, float)
     if guess_position is None:
-        guess_position = np.asarray(a, float).mean(axis=0) + [0.0, 0.0, float(np.mean(lengths))]
+        guess_position = np.asarray(a, float).mean(axis=0) + np.array([0.0, 0.0, float(np.mean(lengths))])
     if guess_rotation is None:
         guess_rotation = Rotation.identity()
 

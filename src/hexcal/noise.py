@@ -49,8 +49,12 @@ def pose_sensitivities(a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarra
     return n, g
 
 
-def leg_covariance(a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
+def leg_covariance(
+    a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray, sig: NoiseSigmas
+) -> np.ndarray:
     """Covariance (M, 6, 6) mm² of the six leg-length residuals of each pose."""
     n, g = pose_sensitivities(a, b, P, R)
-    cov = sig.position_mm**2 * n @ n.transpose(0, 2, 1) + sig.orientation_rad**2 * g @ g.transpose(0, 2, 1)
+    cov = sig.position_mm**2 * n @ n.transpose(0, 2, 1) + sig.orientation_rad**2 * g @ g.transpose(
+        0, 2, 1
+    )
     return cov + sig.reading_mm**2 * np.eye(a.shape[0])

@@ -180,7 +180,8 @@ def _statistics(x, res, jw, wres, known, fit_offsets, nfev, success) -> Refineme
             status[i] = "undetermined"
             sigma[i] = np.inf
         notes.append(
-            "not determined by these data, only a combination of: " + ", ".join(names[i] for i in big)
+            "not determined by these data, only a combination of: "
+            + ", ".join(names[i] for i in big)
         )
 
     sd = np.where(np.isfinite(sigma) & (sigma > 0), sigma, 1.0)

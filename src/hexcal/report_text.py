@@ -19,7 +19,12 @@ def _fmt(value: float, ci: float, status: str) -> str:
 def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
     """Human-readable report: geometry with 95 % intervals, methods per leg, residual RMS."""
     ref = cal.refinement
-    lines = [f"hexcal calibrate: Model {cal.model} from {source}", f"noise: {noise_line}", "", "method per leg (linear seed):"]
+    lines = [
+        f"hexcal calibrate: Model {cal.model} from {source}",
+        f"noise: {noise_line}",
+        "",
+        "method per leg (linear seed):",
+    ]
     lines += [f"  leg {i + 1}: {m}" for i, m in enumerate(cal.methods)]
     lines.append("")
     lines.append("calibrated geometry, mm (value ± 95 % interval; * = not separable, see notes):")
@@ -33,8 +38,12 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
         names = [f"a{k + 1}.{c}" for c in "xyz"] + [f"b{k + 1}.{c}" for c in "xyz"]
         if cal.model == 42:
             names.append(f"offset{k + 1}")
-        values = list(cal.robot.a[k]) + list(cal.robot.b[k]) + ([cal.robot.offsets[k]] if cal.model == 42 else [])
-        for name, v in zip(names, values):
+        values = (
+            list(cal.robot.a[k])
+            + list(cal.robot.b[k])
+            + ([cal.robot.offsets[k]] if cal.model == 42 else [])
+        )
+        for name, v in zip(names, values, strict=False):
             if ref:
                 i = idx[name]
                 cells.append(_fmt(v, ref.ci95[i], ref.status[i]))
@@ -42,12 +51,23 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
                 cells.append(f"{v:19.4f}")
         lines.append(f"  {k + 1:>3}" + "".join(cells))
     if cal.model == 36:
-        lines.append(f"  offsets (known, from the robot file): {np.array2string(cal.robot.offsets, precision=4)}")
+        lines.append(
+            f"  offsets (known, from the robot file): {np.array2string(cal.robot.offsets, precision=4)}"
+        )
     lines.append("")
     lin_rms = float(np.sqrt(np.mean(_linear_residuals(cal) ** 2)))
     lines.append(f"leg-length residual RMS: {cal.rms_mm:.4f} mm (linear seed: {lin_rms:.4f} mm)")
     if ref:
         lines.append(f"chi²/dof = {ref.chi2 / ref.dof:.3f} over {ref.dof} degrees of freedom")
+        if (
+            ref.noise_source == "instruments"
+            and ref.chi2 / ref.dof > 1.0 + 4.0 * (2.0 / ref.dof) ** 0.5
+        ):
+            lines.append(
+                f"  warning: the residual is {ref.noise_scale:.2f}× the stated noise: the model misses "
+                "something (an effect, a wrong known offset, a slipping clamp); the intervals above are "
+                "widened by that factor"
+            )
         if ref.strong_correlations:
             lines.append("strongest correlations (|r| > 0.9):")
             lines += [f"  {a} ~ {b}: {r:+.3f}" for a, b, r in ref.strong_correlations[:6]]
@@ -79,20 +99,30 @@ def calibration_json(cal: Calibration, source: str, noise_source: str) -> str:
     if ref:
 
         def block(prefix, shape):
-            vals = [ref.ci95[ref.names.index(f"{prefix}{k}.{c}")] for k in range(1, 7) for c in "xyz"]
+            vals = [
+                ref.ci95[ref.names.index(f"{prefix}{k}.{c}")] for k in range(1, 7) for c in "xyz"
+            ]
             return np.array(vals).reshape(shape).tolist()
 
         out["base_points_ci95"] = block("a", (6, 3))
         out["platform_points_ci95"] = block("b", (6, 3))
         out["leg_offsets_ci95"] = (
-            [float(ref.ci95[ref.names.index(f"offset{k}")]) for k in range(1, 7)] if cal.model == 42 else [0.0] * 6
+            [float(ref.ci95[ref.names.index(f"offset{k}")]) for k in range(1, 7)]
+            if cal.model == 42
+            else [0.0] * 6
         )
         out["chi2_per_dof"] = ref.chi2 / ref.dof
         out["parameters"] = [
             {"name": n, "value": float(v), "sigma": float(s), "ci95": float(c), "status": st}
-            for n, v, s, c, st in zip(ref.names, ref.x, ref.sigma, ref.ci95, ref.status)
+            for n, v, s, c, st in zip(
+                ref.names, ref.x, ref.sigma, ref.ci95, ref.status, strict=False
+            )
         ]
-        out["strong_correlations"] = [{"a": a, "b": b, "r": r} for a, b, r in ref.strong_correlations]
+        out["parameter_names"] = ref.names
+        out["covariance"] = ref.cov.tolist()
+        out["strong_correlations"] = [
+            {"a": a, "b": b, "r": r} for a, b, r in ref.strong_correlations
+        ]
         out["notes"] = ref.notes
 
     def finite(o):

@@ -35,7 +35,9 @@ class Home(BaseModel):
     def _unit(cls, q: list[float]) -> list[float]:
         n = float(np.linalg.norm(q))
         if abs(n - 1.0) > 1e-3:
-            raise ValueError(f"quaternion norm is {n:.6f}, expected 1 (scalar first: qw, qx, qy, qz)")
+            raise ValueError(
+                f"quaternion norm is {n:.6f}, expected 1 (scalar first: qw, qx, qy, qz)"
+            )
         return q
 
 
@@ -98,7 +100,9 @@ def load_robot(path: str | Path) -> Robot:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise RobotFileError(f"{path}: no such file; pass the robot description with --robot") from None
+        raise RobotFileError(
+            f"{path}: no such file; pass the robot description with --robot"
+        ) from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

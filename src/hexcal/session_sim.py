@@ -37,6 +37,8 @@ class SessionPlan:
     offset_halfwidth_mm: float = 1.0
     noise: NoiseModel = field(default_factory=lambda: NoiseModel(0.01, 0.002, 0.002))
     ranges: PoseRanges = field(default_factory=PoseRanges)
+    #: Decimals the instruments report (position mm, quaternion, readings mm); None = exact.
+    resolution: tuple[int, int, int] | None = (5, 9, 4)
 
 
 def perturbed_truth(design: Robot, rng: np.random.Generator, plan: SessionPlan) -> Robot:
@@ -61,7 +63,9 @@ def simulate_session(
     Ps, Rs, legs, cons, steps = [], [], [], [], []
     for k in range(6):
         for constraint, method in PROCEDURE:
-            n = {"type_i": plan.n_type_i, "type_ii": plan.n_type_ii, "type_iii": plan.n_type_iii}[method]
+            n = {"type_i": plan.n_type_i, "type_ii": plan.n_type_ii, "type_iii": plan.n_type_iii}[
+                method
+            ]
             if n == 0:
                 continue
             P, R = getattr(sim, method)(k, (n,), rng)
@@ -81,9 +85,13 @@ def simulate_session(
     temperature = np.round(20.0 + 1.5 * t / t[-1] + rng.normal(0.0, 0.05, m), 2)
     ctx = PoseContext(P, R, t, temperature)
     Pm, Rm, rho = sim.measure(rng, P, R, ctx)
+    q = Rotation.from_matrix(Rm).as_quat(scalar_first=True)
+    if plan.resolution is not None:  # an instrument's resolution, as in the shared example
+        dp, dq, dr = plan.resolution
+        Pm, q, rho = np.round(Pm, dp), np.round(q, dq), np.round(rho, dr)
     meas = Measurements.from_arrays(
         Pm,
-        Rotation.from_matrix(Rm),
+        q,
         rho,
         leg=np.array(legs),
         constraint=np.array(cons, dtype=object),
@@ -94,27 +102,34 @@ def simulate_session(
     return meas, truth
 
 
-def truth_json(truth: Robot, seed: int, plan: SessionPlan, effect: str = "none beyond Model 42") -> str:
+def truth_json(
+    truth: Robot, seed: int, plan: SessionPlan, effect: str = "none beyond Model 42"
+) -> str:
     """truth.json as in the shared example: the true geometry, the seed and the noise."""
-    return json.dumps(
-        {
-            "effect": effect,
-            "seed": seed,
-            "base_points": truth.a.tolist(),
-            "platform_points": truth.b.tolist(),
-            "leg_offsets": truth.offsets.tolist(),
-            "noise": {
-                "kind": plan.noise.kind,
-                "position_mm": plan.noise.position_mm,
-                "angle_deg": plan.noise.orientation_deg,
-                "leg_mm": plan.noise.reading_mm,
+    return (
+        json.dumps(
+            {
+                "effect": effect,
+                "seed": seed,
+                "base_points": truth.a.tolist(),
+                "platform_points": truth.b.tolist(),
+                "leg_offsets": truth.offsets.tolist(),
+                "noise": {
+                    "kind": plan.noise.kind,
+                    "position_mm": plan.noise.position_mm,
+                    "angle_deg": plan.noise.orientation_deg,
+                    "leg_mm": plan.noise.reading_mm,
+                },
             },
-        },
-        indent=2,
-    ) + "\n"
+            indent=2,
+        )
+        + "\n"
+    )
 
 
-def write_session_dir(outdir: str | Path, design: Robot, seed: int, plan: SessionPlan = SessionPlan()) -> Path:
+def write_session_dir(
+    outdir: str | Path, design: Robot, seed: int, plan: SessionPlan = SessionPlan()
+) -> Path:
     """Write robot.json (design), measurements.csv, instruments.json and truth.json."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -122,7 +137,10 @@ def write_session_dir(outdir: str | Path, design: Robot, seed: int, plan: Sessio
     save_robot(design, outdir / "robot.json")
     write_measurements(meas, outdir / "measurements.csv")
     inst = Instruments(
-        tracker=TrackerNoise(position_sigma_mm=plan.noise.sigma_position_mm, orientation_sigma_deg=float(np.rad2deg(plan.noise.sigma_orientation_rad))),
+        tracker=TrackerNoise(
+            position_sigma_mm=plan.noise.sigma_position_mm,
+            orientation_sigma_deg=float(np.rad2deg(plan.noise.sigma_orientation_rad)),
+        ),
         encoders=EncoderNoise(reading_sigma_mm=plan.noise.sigma_reading_mm),
     )
     save_instruments(inst, outdir / "instruments.json")

@@ -113,7 +113,11 @@ class NoiseModel:
         dtheta = self._draw(rng, np.deg2rad(self.orientation_deg), (*shape, 3))
         d = Rotation.from_rotvec(dtheta.reshape(-1, 3)).as_matrix().reshape(*shape, 3, 3)
         r = rotation @ d  # body-frame perturbation: R_meas = R exp([dtheta]x)
-        rho = None if readings is None else readings + self._draw(rng, self.reading_mm, readings.shape)
+        rho = (
+            None
+            if readings is None
+            else readings + self._draw(rng, self.reading_mm, readings.shape)
+        )
         return p, r, rho
 
 
@@ -201,7 +205,11 @@ class Simulator:
 
     # -- pose generators (true poses) ----------------------------------------------------------
     def type_i(
-        self, k: int, shape: tuple[int, ...], rng: np.random.Generator, direction: np.ndarray | None = None
+        self,
+        k: int,
+        shape: tuple[int, ...],
+        rng: np.random.Generator,
+        direction: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Type I poses of leg k (0-based): its direction clamped, length free. (P, R)."""
         u, l0 = self.home_leg(k)
@@ -216,7 +224,9 @@ class Simulator:
 
         return self._fill(rng, shape, draw)
 
-    def type_ii(self, k: int, shape: tuple[int, ...], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def type_ii(
+        self, k: int, shape: tuple[int, ...], rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Type II poses of leg k: direction and length clamped, B_k fixed in space. (P, R)."""
         u, l0 = self.home_leg(k)
         c = self.robot.a[k] + l0 * u
@@ -228,7 +238,9 @@ class Simulator:
 
         return self._fill(rng, shape, draw)
 
-    def type_iii(self, k: int, shape: tuple[int, ...], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def type_iii(
+        self, k: int, shape: tuple[int, ...], rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Type III poses of leg k: length clamped, direction free within the cone. (P, R)."""
         u0, l0 = self.home_leg(k)
         a, b = self.robot.a[k], self.robot.b[k]
@@ -240,7 +252,9 @@ class Simulator:
 
         return self._fill(rng, shape, draw)
 
-    def free(self, shape: tuple[int, ...], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def free(
+        self, shape: tuple[int, ...], rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Free poses: position in the box about home, rotation as the others. (P, R)."""
         box = np.asarray(self.ranges.box_mm, float)
 
@@ -256,7 +270,9 @@ class Simulator:
         v = position[..., None, :] + np.swapaxes(rotation @ self.robot.b.T, -1, -2) - self.robot.a
         return np.linalg.norm(v, axis=-1)
 
-    def readings(self, position: np.ndarray, rotation: np.ndarray, context: PoseContext | None = None) -> np.ndarray:
+    def readings(
+        self, position: np.ndarray, rotation: np.ndarray, context: PoseContext | None = None
+    ) -> np.ndarray:
         """Noise-free encoder readings (..., 6) mm: the r solving ``r + offset + effects(r) = L``.
 
         Effects are small against the stroke, so a fixed-point iteration converges in a few
@@ -277,7 +293,11 @@ class Simulator:
         return rho
 
     def measure(
-        self, rng: np.random.Generator, position: np.ndarray, rotation: np.ndarray, context: PoseContext | None = None
+        self,
+        rng: np.random.Generator,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        context: PoseContext | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the instruments report for true poses: (P (…,3) mm, R (…,3,3), readings (…,6) mm)."""
         return self.noise.apply(rng, position, rotation, self.readings(position, rotation, context))

@@ -31,7 +31,11 @@ from hexcal.solvers import direct, paper, weighted
 METHODS = ("paper", "direct", "refined")
 SETS = ("type_i", "type_ii", "type_iii")
 #: The paper's factors at N = 7 (§5.1, §5.2).
-PAPER_FACTORS = {"type_i": {"base": 13.0, "platform": 1.4}, "type_ii": {"platform": 1.4}, "type_iii": {"base": 2.8}}
+PAPER_FACTORS = {
+    "type_i": {"base": 13.0, "platform": 1.4},
+    "type_ii": {"platform": 1.4},
+    "type_iii": {"base": 2.8},
+}
 
 
 def left_hand() -> Robot:
@@ -55,7 +59,9 @@ class StudyConfig:
     n_type_iii: tuple[int, int] = (5, 30)
     n_type_ii_for_iii: int = 7
     seed: int = 0
-    ranges: PoseRanges = field(default_factory=lambda: PoseRanges(stroke_mm=30.0, tilt_deg=30.0, cone_deg=30.0))
+    ranges: PoseRanges = field(
+        default_factory=lambda: PoseRanges(stroke_mm=30.0, tilt_deg=30.0, cone_deg=30.0)
+    )
 
 
 @dataclass
@@ -73,7 +79,9 @@ class StudyResult:
         for r in self.rows:
             if r["n"] == n:
                 out.setdefault(r["set"], {})[r["method"]] = {
-                    k: r[f"{k}_factor"] for k in ("base", "platform") if np.isfinite(r[f"{k}_factor"])
+                    k: r[f"{k}_factor"]
+                    for k in ("base", "platform")
+                    if np.isfinite(r[f"{k}_factor"])
                 }
         return out
 
@@ -93,6 +101,8 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
     a_true, b_true, off_true = robot.a[k], robot.b[k], robot.offsets[k]
     T = config.trials
     rows: list[dict] = []
+    noisy = min(sig.position_mm, sig.orientation_rad, sig.reading_mm) > 0
+    ref_noise = config.err_p_mm if config.err_p_mm > 0 else float("nan")
 
     def add(pose_set, n, method, a=None, b=None, off=None):
         nan = float("nan")
@@ -100,8 +110,16 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
         eb = _errors(b, b_true) if b is not None else nan
         eo = float(np.mean(np.abs(off - off_true))) if off is not None else nan
         rows.append(
-            {"set": pose_set, "n": n, "method": method, "base_err_mm": ea, "platform_err_mm": eb,
-             "offset_err_mm": eo, "base_factor": ea / config.err_p_mm, "platform_factor": eb / config.err_p_mm}
+            {
+                "set": pose_set,
+                "n": n,
+                "method": method,
+                "base_err_mm": ea,
+                "platform_err_mm": eb,
+                "offset_err_mm": eo,
+                "base_factor": ea / ref_noise,
+                "platform_factor": eb / ref_noise,
+            }
         )
 
     lo, hi = config.n_type_i
@@ -110,7 +128,10 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
         length = rho[..., k] + off_true
         b_p, a_p = paper.type_i_paper(P, R, length)
         b_d, a_d, u_d = direct.type_i_direct(P, R, length)
-        b_r, a_r, _ = weighted.refine_type_i(P, R, length, b_d, a_d, u_d, sig)
+        # Without noise there is nothing to weight: the direct solution is already exact.
+        b_r, a_r, _ = (
+            weighted.refine_type_i(P, R, length, b_d, a_d, u_d, sig) if noisy else (b_d, a_d, u_d)
+        )
         add("type_i", n, "paper", a_p, b_p)
         add("type_i", n, "direct", a_d, b_d)
         add("type_i", n, "refined", a_r, b_r)
@@ -119,7 +140,7 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
         P, R, _ = sim.measure(rng, *sim.type_ii(k, (T, n), rng))
         b_p = paper.type_ii_paper(P, R)
         b_d, c_d = direct.type_ii_direct(P, R)
-        b_r, _ = weighted.refine_type_ii(P, R, b_d, c_d, sig)
+        b_r = weighted.refine_type_ii(P, R, b_d, c_d, sig)[0] if noisy else b_d
         return {"paper": b_p, "direct": b_d, "refined": b_r}
 
     lo, hi = config.n_type_ii
@@ -133,11 +154,24 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
         P, R, rho = sim.measure(rng, *sim.type_iii(k, (T, n), rng))
         r_k = rho[..., k]
         a_p = paper.type_iii_paper(P, R, bs["paper"])
-        a_d, rad_d = direct.type_iii_direct(P, R, bs["direct"])
+        a_d, _rad_d = direct.type_iii_direct(P, R, bs["direct"])
         a_s, rad_s = direct.type_iii_direct(P, R, bs["refined"])
-        a_r, rad_r = weighted.refine_type_iii(P, R, bs["refined"], a_s, rad_s, sig)
-        add("type_iii", n, "paper", a_p, bs["paper"], paper.offset_eq19(P, R, bs["paper"], a_p, r_k))
-        add("type_iii", n, "direct", a_d, bs["direct"], paper.offset_eq19(P, R, bs["direct"], a_d, r_k))
+        a_r, rad_r = (
+            weighted.refine_type_iii(P, R, bs["refined"], a_s, rad_s, sig)
+            if noisy
+            else (a_s, rad_s)
+        )
+        add(
+            "type_iii", n, "paper", a_p, bs["paper"], paper.offset_eq19(P, R, bs["paper"], a_p, r_k)
+        )
+        add(
+            "type_iii",
+            n,
+            "direct",
+            a_d,
+            bs["direct"],
+            paper.offset_eq19(P, R, bs["direct"], a_d, r_k),
+        )
         add("type_iii", n, "refined", a_r, bs["refined"], rad_r - r_k.mean(axis=-1))
     return StudyResult(config, rows)
 
@@ -181,16 +215,27 @@ def plot(result: StudyResult, outdir: str | Path) -> list[Path]:
         f"±{cfg.err_l_mm} mm reading; {cfg.trials} trials per N; leg {cfg.leg}"
     )
     panels = [
-        ("type_i", "§3.2 — Type I (direction clamped)", [("base_err_mm", "base point a"), ("platform_err_mm", "platform point b")]),
-        ("type_ii", "§3.3.1 — Type II (direction + length clamped)", [("platform_err_mm", "platform point b")]),
-        ("type_iii", f"§3.3.2-3 — Type III (length clamped), b from {cfg.n_type_ii_for_iii} Type II poses",
-         [("base_err_mm", "base point a"), ("offset_err_mm", "leg offset")]),
+        (
+            "type_i",
+            "§3.2 — Type I (direction clamped)",
+            [("base_err_mm", "base point a"), ("platform_err_mm", "platform point b")],
+        ),
+        (
+            "type_ii",
+            "§3.3.1 — Type II (direction + length clamped)",
+            [("platform_err_mm", "platform point b")],
+        ),
+        (
+            "type_iii",
+            f"§3.3.2-3 — Type III (length clamped), b from {cfg.n_type_ii_for_iii} Type II poses",
+            [("base_err_mm", "base point a"), ("offset_err_mm", "leg offset")],
+        ),
     ]
     style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
     paths = []
     for pose_set, title, keys in panels:
         fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.2), squeeze=False)
-        for ax, (key, label) in zip(axes[0], keys):
+        for ax, (key, label) in zip(axes[0], keys, strict=False):
             for method in METHODS:
                 n, e = result.curve(pose_set, method, key)
                 c, m = style[method]
@@ -212,9 +257,15 @@ def plot(result: StudyResult, outdir: str | Path) -> list[Path]:
 def factor_table(result: StudyResult, n: int = 7) -> str:
     """The N = n factors beside the paper's, as text."""
     f = result.factors(n)
-    lines = [f"output/input noise factors at N = {n} (mean error / err_p):",
-             f"  {'set':<28}{'quantity':<10}{'paper says':>11}" + "".join(f"{m:>10}" for m in METHODS)]
-    for pose_set, label in (("type_i", "§3.2 Type I"), ("type_ii", "§3.3.1 Type II"), ("type_iii", "§3.3.2 Type III")):
+    lines = [
+        f"output/input noise factors at N = {n} (mean error / err_p):",
+        f"  {'set':<28}{'quantity':<10}{'paper says':>11}" + "".join(f"{m:>10}" for m in METHODS),
+    ]
+    for pose_set, label in (
+        ("type_i", "§3.2 Type I"),
+        ("type_ii", "§3.3.1 Type II"),
+        ("type_iii", "§3.3.2 Type III"),
+    ):
         for q in ("base", "platform"):
             if pose_set == "type_ii" and q == "base":
                 continue

@@ -53,20 +53,26 @@ def _rotation_spread(R: np.ndarray) -> tuple[float, float, np.ndarray]:
 def _check_count(leg: int, constraint: str, n: int) -> None:
     need = MIN_POSES[constraint]
     if n < need:
-        raise DegenerateSet(leg, constraint, f"{n} recorded, at least {need} needed (7 or more advised): record more poses")
+        raise DegenerateSet(
+            leg,
+            constraint,
+            f"{n} recorded, at least {need} needed (7 or more advised): record more poses",
+        )
 
 
 def _check_rotations(leg: int, constraint: str, R: np.ndarray, pivot: str) -> None:
     s1, s2, axis = _rotation_spread(R)
     if s1 < MIN_ROTATION_DEG:
         raise DegenerateSet(
-            leg, constraint,
+            leg,
+            constraint,
             f"the platform hardly rotated ({s1:.2f} deg spread): tilt it about {pivot} by ±5 deg or more, about two different axes",
         )
     if s2 < MIN_SECOND_AXIS_RATIO * s1:
         ax = np.round(axis, 2).tolist()
         raise DegenerateSet(
-            leg, constraint,
+            leg,
+            constraint,
             f"all rotations are about one axis (≈ {ax} in the tracker frame; second-axis spread "
             f"{s2:.2f} deg against {s1:.2f} deg): tilt the platform about a second, perpendicular axis too",
         )
@@ -77,7 +83,8 @@ def _check_rank(leg: int, constraint: str, m: np.ndarray) -> None:
     cond = s[0] / max(s[-1], 1e-300)
     if cond > MAX_CONDITION:
         raise DegenerateSet(
-            leg, constraint,
+            leg,
+            constraint,
             f"the linear system is rank deficient (condition number {cond:.2g}): the poses do not vary enough; "
             "add poses with larger and more varied motions",
         )
@@ -91,7 +98,8 @@ def check_type_i(leg: int, P: np.ndarray, R: np.ndarray, reading: np.ndarray) ->
     span = float(np.ptp(reading))
     if span < MIN_LENGTH_RANGE_MM:
         raise DegenerateSet(
-            leg, "direction",
+            leg,
+            "direction",
             f"the clamped leg's length hardly changed ({span:.2f} mm range): extend and retract leg {leg} "
             f"along its clamped direction by ±10 mm or more",
         )
@@ -117,10 +125,15 @@ def check_type_iii(leg: int, P: np.ndarray, R: np.ndarray, b: np.ndarray) -> Non
     w = v - v.mean(axis=0)
     s = np.linalg.svd(w, compute_uv=False) / np.sqrt(len(v) - 1)
     if s[0] < 1.0:
-        raise DegenerateSet(leg, "length", f"the leg's end hardly moved ({s[0]:.2f} mm): swing leg {leg} about its base joint by ±5 deg or more in two directions")
+        raise DegenerateSet(
+            leg,
+            "length",
+            f"the leg's end hardly moved ({s[0]:.2f} mm): swing leg {leg} about its base joint by ±5 deg or more in two directions",
+        )
     if s[1] < MIN_SECOND_AXIS_RATIO * s[0]:
         raise DegenerateSet(
-            leg, "length",
+            leg,
+            "length",
             f"the leg swung in one direction only ({s[0]:.1f} mm against {s[1]:.1f} mm across): swing leg {leg} sideways too",
         )
     m = np.concatenate([2.0 * w, np.ones((len(w), 1))], axis=1)

@@ -21,7 +21,9 @@ from hexcal.solvers.linalg import lstsq
 from hexcal.solvers.paper import platform_point_positions
 
 
-def type_i_system(P: np.ndarray, R: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def type_i_system(
+    P: np.ndarray, R: np.ndarray, length: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Rows [R_i, −I, −ρ_i I] (..., 3N, 9) and right side −P_i (..., 3N) for [b; a; u]."""
     eye = np.broadcast_to(np.eye(3), R.shape)
     m = np.concatenate([R, -eye, -length[..., None, None] * eye], axis=-1)

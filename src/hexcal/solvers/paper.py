@@ -72,7 +72,9 @@ def type_iii_paper(P: np.ndarray, R: np.ndarray, b: np.ndarray) -> np.ndarray:
     return lstsq(*eq15_system(platform_point_positions(P, R, b)))
 
 
-def offset_eq19(P: np.ndarray, R: np.ndarray, b: np.ndarray, a: np.ndarray, reading: np.ndarray) -> np.ndarray:
+def offset_eq19(
+    P: np.ndarray, R: np.ndarray, b: np.ndarray, a: np.ndarray, reading: np.ndarray
+) -> np.ndarray:
     """Method 3.3.3, eq. (19) averaged over the poses: Δρ_k (...,) mm."""
     v = platform_point_positions(P, R, b) - a[..., None, :]
     return np.mean(np.linalg.norm(v, axis=-1) - reading, axis=-1)

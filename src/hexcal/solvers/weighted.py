@@ -42,7 +42,9 @@ def _point_cov(R: np.ndarray, b: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
     """
     rb = R @ b[..., None, :, None]
     b2 = np.sum(b * b, axis=-1)[..., None, None, None]
-    return (sig.position_mm**2 + sig.orientation_rad**2 * b2) * np.eye(3) - sig.orientation_rad**2 * (rb @ np.swapaxes(rb, -1, -2))
+    return (sig.position_mm**2 + sig.orientation_rad**2 * b2) * np.eye(
+        3
+    ) - sig.orientation_rad**2 * (rb @ np.swapaxes(rb, -1, -2))
 
 
 def _gn_step(jac: np.ndarray, w: np.ndarray, res: np.ndarray) -> np.ndarray:
@@ -71,9 +73,16 @@ def refine_type_i(P, R, length, b0, a0, u0, sig: NoiseSigmas, iterations: int = 
     for _ in range(iterations):
         w = _inv3_sym(_point_cov(R, b, sig) + sig.reading_mm**2 * _outer(u)[..., None, :, :])
         e1, e2 = _tangent_basis(u)
-        res = P + (R @ b[..., None, :, None])[..., 0] - a[..., None, :] - length[..., None] * u[..., None, :]
+        res = (
+            P
+            + (R @ b[..., None, :, None])[..., 0]
+            - a[..., None, :]
+            - length[..., None] * u[..., None, :]
+        )
         lt = -length[..., None, None]
-        j = np.concatenate([R, -eye, lt * e1[..., None, :, None], lt * e2[..., None, :, None]], axis=-1)
+        j = np.concatenate(
+            [R, -eye, lt * e1[..., None, :, None], lt * e2[..., None, :, None]], axis=-1
+        )
         dx = _gn_step(j, w, res)
         b = b + dx[..., :3]
         a = a + dx[..., 3:6]

@@ -103,7 +103,9 @@ def _solve_leg(
                     b, a = paper.type_i_paper(P[m], R[m], length)
                 else:
                     b, a, _ = direct.type_i_direct(P[m], R[m], length)
-                return LegResult(k, "§3.2", f"{n['direction']} Type I poses", a, b, design_offset), []
+                return LegResult(
+                    k, "§3.2", f"{n['direction']} Type I poses", a, b, design_offset
+                ), []
             except DegenerateSet as exc:
                 reasons.append(str(exc))
         else:
@@ -113,7 +115,11 @@ def _solve_leg(
     if n["direction+length"] and n["length"]:
         try:
             check_type_ii(k, P[m2], R[m2])
-            b = paper.type_ii_paper(P[m2], R[m2]) if form == "paper" else direct.type_ii_direct(P[m2], R[m2])[0]
+            b = (
+                paper.type_ii_paper(P[m2], R[m2])
+                if form == "paper"
+                else direct.type_ii_direct(P[m2], R[m2])[0]
+            )
             check_type_iii(k, P[m3], R[m3], b)
             if form == "paper":
                 a = paper.type_iii_paper(P[m3], R[m3], b)
@@ -129,7 +135,14 @@ def _solve_leg(
         except DegenerateSet as exc:
             reasons.append(str(exc))
     else:
-        missing = [name for c, name in (("direction+length", "Type II (direction and length clamped)"), ("length", "Type III (length clamped)")) if not n[c]]
+        missing = [
+            name
+            for c, name in (
+                ("direction+length", "Type II (direction and length clamped)"),
+                ("length", "Type III (length clamped)"),
+            )
+            if not n[c]
+        ]
         reasons.append(f"§3.3 needs {' and '.join(missing)} poses")
 
     # Every pose of the session is a free pose for this leg's inverse kinematics.
@@ -141,9 +154,13 @@ def _solve_leg(
         if s[0] / max(s[-1], 1e-300) < 1e8:
             b, a, off = free.free_linear(P, R, r, None if model == 42 else design_offset)
             return LegResult(k, "free-linear", f"{len(P)} poses, all types", a, b, off), []
-        reasons.append(f"the {len(P)} poses are too alike for the free-pose linear form: move and tilt the platform more widely")
+        reasons.append(
+            f"the {len(P)} poses are too alike for the free-pose linear form: move and tilt the platform more widely"
+        )
     else:
-        reasons.append(f"the free-pose linear form needs at least {free.MIN_POSES} poses ({len(P)} recorded)")
+        reasons.append(
+            f"the free-pose linear form needs at least {free.MIN_POSES} poses ({len(P)} recorded)"
+        )
     return None, reasons
 
 
@@ -169,7 +186,17 @@ def calibrate_linear(
     leg = np.asarray(leg)
     results, refused = [], {}
     for k in range(1, 7):
-        res, reasons = _solve_leg(k, position, rotation, readings, leg, constraint, model, float(design_offsets[k - 1]), form)
+        res, reasons = _solve_leg(
+            k,
+            position,
+            rotation,
+            readings,
+            leg,
+            constraint,
+            model,
+            float(design_offsets[k - 1]),
+            form,
+        )
         if res is None:
             refused[k] = reasons
         else:
