@@ -72,7 +72,9 @@ def forward_kinematics(
     """
     lengths = np.asarray(lengths, float)
     if guess_position is None:
-        guess_position = np.asarray(a, float).mean(axis=0) + np.array([0.0, 0.0, float(np.mean(lengths))])
+        guess_position = np.asarray(a, float).mean(axis=0) + np.array(
+            [0.0, 0.0, float(np.mean(lengths))]
+        )
     if guess_rotation is None:
         guess_rotation = Rotation.identity()
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -27,6 +28,7 @@ from hexcal.noise import NoiseSigmas
 from hexcal.robot import Robot
 from hexcal.simulate import NoiseModel, PoseRanges, Simulator
 from hexcal.solvers import direct, paper, weighted
+from hexcal.solvers.linalg import METHOD as lstsq_method
 
 METHODS = ("paper", "direct", "refined")
 SETS = ("type_i", "type_ii", "type_iii")
@@ -91,25 +93,48 @@ def _errors(est: np.ndarray, true: np.ndarray) -> float:
 
 
 def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -> StudyResult:
-    """Run the whole grid; every trial of one N is drawn and solved in one batch."""
-    robot = robot or left_hand()
-    noise = NoiseModel(config.err_p_mm, config.err_a_deg, config.err_l_mm, config.noise)
-    sim = Simulator(robot, ranges=config.ranges, noise=noise)
-    sig = NoiseSigmas(noise.sigma_position_mm, noise.sigma_orientation_rad, noise.sigma_reading_mm)
-    rng = np.random.default_rng(config.seed)
-    k = config.leg - 1
-    a_true, b_true, off_true = robot.a[k], robot.b[k], robot.offsets[k]
-    T = config.trials
-    rows: list[dict] = []
-    noisy = min(sig.position_mm, sig.orientation_rad, sig.reading_mm) > 0
-    ref_noise = config.err_p_mm if config.err_p_mm > 0 else float("nan")
+    """Run the whole grid. Every trial of one N is drawn and solved in one batch; the three
+    pose-set sweeps run on their own threads (numpy releases the GIL) with independent random
+    streams, so the result does not depend on the scheduling."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    def add(pose_set, n, method, a=None, b=None, off=None):
+    robot = robot or left_hand()
+    streams = np.random.SeedSequence(config.seed).spawn(3)
+    sweeps = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii)
+    with ThreadPoolExecutor(max_workers=min(3, os.cpu_count() or 1)) as pool:
+        futures = [
+            pool.submit(f, config, robot, np.random.default_rng(s))
+            for f, s in zip(sweeps, streams, strict=True)
+        ]
+        rows = [row for f in futures for row in f.result()]
+    return StudyResult(config, rows)
+
+
+class _Sweep:
+    """What every sweep needs: simulator, weights, truth, and a row writer."""
+
+    def __init__(self, config: StudyConfig, robot: Robot):
+        self.config = config
+        noise = NoiseModel(config.err_p_mm, config.err_a_deg, config.err_l_mm, config.noise)
+        self.sim = Simulator(robot, ranges=config.ranges, noise=noise)
+        self.sig = NoiseSigmas(
+            noise.sigma_position_mm, noise.sigma_orientation_rad, noise.sigma_reading_mm
+        )
+        #: Without noise there is nothing to weight: the direct solution is already exact.
+        self.noisy = min(self.sig.position_mm, self.sig.orientation_rad, self.sig.reading_mm) > 0
+        self.k = config.leg - 1
+        self.a, self.b, self.off = robot.a[self.k], robot.b[self.k], robot.offsets[self.k]
+        self.ref_noise = config.err_p_mm if config.err_p_mm > 0 else float("nan")
+        self.rows: list[dict] = []
+        # The batched solves use the paper's normal equations (eq. 7): same numbers, faster.
+        lstsq_method.set("normal")
+
+    def add(self, pose_set, n, method, a=None, b=None, off=None):
         nan = float("nan")
-        ea = _errors(a, a_true) if a is not None else nan
-        eb = _errors(b, b_true) if b is not None else nan
-        eo = float(np.mean(np.abs(off - off_true))) if off is not None else nan
-        rows.append(
+        ea = _errors(a, self.a) if a is not None else nan
+        eb = _errors(b, self.b) if b is not None else nan
+        eo = float(np.mean(np.abs(off - self.off))) if off is not None else nan
+        self.rows.append(
             {
                 "set": pose_set,
                 "n": n,
@@ -117,54 +142,67 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
                 "base_err_mm": ea,
                 "platform_err_mm": eb,
                 "offset_err_mm": eo,
-                "base_factor": ea / ref_noise,
-                "platform_factor": eb / ref_noise,
+                "base_factor": ea / self.ref_noise,
+                "platform_factor": eb / self.ref_noise,
             }
         )
 
-    lo, hi = config.n_type_i
-    for n in range(lo, hi + 1):
-        P, R, rho = sim.measure(rng, *sim.type_i(k, (T, n), rng))
-        length = rho[..., k] + off_true
-        b_p, a_p = paper.type_i_paper(P, R, length)
-        b_d, a_d, u_d = direct.type_i_direct(P, R, length)
-        # Without noise there is nothing to weight: the direct solution is already exact.
-        b_r, a_r, _ = (
-            weighted.refine_type_i(P, R, length, b_d, a_d, u_d, sig) if noisy else (b_d, a_d, u_d)
-        )
-        add("type_i", n, "paper", a_p, b_p)
-        add("type_i", n, "direct", a_d, b_d)
-        add("type_i", n, "refined", a_r, b_r)
-
-    def type_ii_solutions(n):
-        P, R, _ = sim.measure(rng, *sim.type_ii(k, (T, n), rng))
+    def type_ii(self, n, rng):
+        """b from T Type II sets of n poses by each method: {method: (T, 3)}."""
+        sim, k = self.sim, self.k
+        P, R, _ = sim.measure(rng, *sim.type_ii(k, (self.config.trials, n), rng))
         b_p = paper.type_ii_paper(P, R)
         b_d, c_d = direct.type_ii_direct(P, R)
-        b_r = weighted.refine_type_ii(P, R, b_d, c_d, sig)[0] if noisy else b_d
+        b_r = weighted.refine_type_ii(P, R, b_d, c_d, self.sig)[0] if self.noisy else b_d
         return {"paper": b_p, "direct": b_d, "refined": b_r}
 
-    lo, hi = config.n_type_ii
-    for n in range(lo, hi + 1):
-        for method, b in type_ii_solutions(n).items():
-            add("type_ii", n, method, b=b)
 
-    lo, hi = config.n_type_iii
-    for n in range(lo, hi + 1):
-        bs = type_ii_solutions(config.n_type_ii_for_iii)
-        P, R, rho = sim.measure(rng, *sim.type_iii(k, (T, n), rng))
+def _sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
+    sw = _Sweep(config, robot)
+    sim, k = sw.sim, sw.k
+    for n in range(config.n_type_i[0], config.n_type_i[1] + 1):
+        P, R, rho = sim.measure(rng, *sim.type_i(k, (config.trials, n), rng))
+        length = rho[..., k] + sw.off
+        b_p, a_p = paper.type_i_paper(P, R, length)
+        b_d, a_d, u_d = direct.type_i_direct(P, R, length)
+        b_r, a_r, _ = (
+            weighted.refine_type_i(P, R, length, b_d, a_d, u_d, sw.sig)
+            if sw.noisy
+            else (b_d, a_d, u_d)
+        )
+        sw.add("type_i", n, "paper", a_p, b_p)
+        sw.add("type_i", n, "direct", a_d, b_d)
+        sw.add("type_i", n, "refined", a_r, b_r)
+    return sw.rows
+
+
+def _sweep_type_ii(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
+    sw = _Sweep(config, robot)
+    for n in range(config.n_type_ii[0], config.n_type_ii[1] + 1):
+        for method, b in sw.type_ii(n, rng).items():
+            sw.add("type_ii", n, method, b=b)
+    return sw.rows
+
+
+def _sweep_type_iii(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
+    sw = _Sweep(config, robot)
+    sim, k = sw.sim, sw.k
+    for n in range(config.n_type_iii[0], config.n_type_iii[1] + 1):
+        bs = sw.type_ii(config.n_type_ii_for_iii, rng)
+        P, R, rho = sim.measure(rng, *sim.type_iii(k, (config.trials, n), rng))
         r_k = rho[..., k]
         a_p = paper.type_iii_paper(P, R, bs["paper"])
-        a_d, _rad_d = direct.type_iii_direct(P, R, bs["direct"])
+        a_d, _ = direct.type_iii_direct(P, R, bs["direct"])
         a_s, rad_s = direct.type_iii_direct(P, R, bs["refined"])
         a_r, rad_r = (
-            weighted.refine_type_iii(P, R, bs["refined"], a_s, rad_s, sig)
-            if noisy
+            weighted.refine_type_iii(P, R, bs["refined"], a_s, rad_s, sw.sig)
+            if sw.noisy
             else (a_s, rad_s)
         )
-        add(
+        sw.add(
             "type_iii", n, "paper", a_p, bs["paper"], paper.offset_eq19(P, R, bs["paper"], a_p, r_k)
         )
-        add(
+        sw.add(
             "type_iii",
             n,
             "direct",
@@ -172,8 +210,8 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
             bs["direct"],
             paper.offset_eq19(P, R, bs["direct"], a_d, r_k),
         )
-        add("type_iii", n, "refined", a_r, bs["refined"], rad_r - r_k.mean(axis=-1))
-    return StudyResult(config, rows)
+        sw.add("type_iii", n, "refined", a_r, bs["refined"], rad_r - r_k.mean(axis=-1))
+    return sw.rows
 
 
 # -- output -------------------------------------------------------------------------------------

@@ -1,0 +1,40 @@
+"""Benchmarks of the core (pytest-benchmark); run with
+
+    python -m pytest benchmarks --benchmark-only
+
+They are not part of the test suite (no wall-clock assertion anywhere): the figures go in the
+README and the closing note.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from hexcal.calibrate import calibrate
+from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.session_sim import SessionPlan, simulate_session
+from hexcal.study import StudyConfig, left_hand, run_study
+
+INST = Instruments(
+    tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+    encoders=EncoderNoise(reading_sigma_mm=0.002),
+)
+
+
+@pytest.fixture(scope="module")
+def session_7_7_40():
+    """6 legs × (7 Type II + 7 Type III) constrained poses + 40 free poses."""
+    meas, _ = simulate_session(left_hand(), 1, SessionPlan(n_type_i=0, n_type_ii=7, n_type_iii=7, n_free=40))
+    return meas
+
+
+def test_bench_calibrate_model42(benchmark, session_7_7_40):
+    """One whole-robot Model 42 calibration: linear seed and weighted refinement."""
+    cal = benchmark(calibrate, session_7_7_40, left_hand(), 42, INST)
+    assert cal.refinement is not None and cal.refinement.success
+
+
+def test_bench_study_full_grid(benchmark):
+    """`hexcal study` at its defaults: the full N grid, 1000 trials per N."""
+    res = benchmark.pedantic(run_study, args=(StudyConfig(),), rounds=1, iterations=1)
+    assert len(res.rows) == 3 * (47 + 27 + 26)
