@@ -57,6 +57,12 @@ class Refinement:
     strong_correlations: list[tuple[str, str, float]] = field(default_factory=list)
     nfev: int = 0
     success: bool = True
+    whitened_jacobian: np.ndarray | None = None  #: (6M, p) at the solution
+    whitened_residual: np.ndarray | None = None  #: (6M,)
+    whiteners: np.ndarray | None = None  #: (M, 6, 6) W with W Σ Wᵀ = I
+
+    def value(self, name: str) -> float:
+        return float(self.x[self.names.index(name)])
 
     @property
     def a(self) -> np.ndarray:
@@ -67,7 +73,9 @@ class Refinement:
         return self.x[18:36].reshape(6, 3)
 
     def offsets(self, fixed: np.ndarray) -> np.ndarray:
-        return self.x[36:42] if len(self.x) > 36 else np.asarray(fixed, float)
+        if "offset1" in self.names:
+            return self.x[36:42]
+        return np.asarray(fixed, float)
 
     @property
     def rms_mm(self) -> float:
@@ -85,20 +93,25 @@ def _whiteners(a, b, P, R, sig: NoiseSigmas) -> np.ndarray:
     return np.linalg.inv(chol)
 
 
-def _unpack(x: np.ndarray, fixed_offsets: np.ndarray):
+def _unpack(x: np.ndarray, fixed_offsets: np.ndarray, fit_offsets: bool):
     a = x[:18].reshape(6, 3)
     b = x[18:36].reshape(6, 3)
-    off = x[36:42] if len(x) > 36 else fixed_offsets
-    return a, b, off
+    off = x[36:42] if fit_offsets else fixed_offsets
+    return a, b, off, x[42 if fit_offsets else 36 :]
 
 
-def _model(x, P, R, rho, fixed_offsets):
-    """Residual (M, 6) and raw Jacobian (M, 6, p)."""
-    a, b, off = _unpack(x, fixed_offsets)
+def _model(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
+    """Residual (M, 6) and raw Jacobian (M, 6, p): geometric length − predicted length, where the
+    prediction is ``reading + offset + basis @ θ`` (θ the effect parameters)."""
+    if fit_offsets is None:
+        fit_offsets = len(x) > 36
+    a, b, off, theta = _unpack(x, fixed_offsets, fit_offsets)
     v = P[:, None, :] + np.einsum("mij,kj->mki", R, b) - a[None]
     length = np.linalg.norm(v, axis=-1)
     n = v / length[..., None]
     res = length - rho - off
+    if basis is not None and basis.shape[-1]:
+        res = res - basis @ theta
     m = len(P)
     jac = np.zeros((m, 6, len(x)))
     legs = np.arange(6)
@@ -108,8 +121,10 @@ def _model(x, P, R, rho, fixed_offsets):
     rtn = np.einsum("mji,mkj->mki", R, n)  # Rᵀ n: d|v|/db
     for c in range(3):
         jac[:, legs, 18 + 3 * legs + c] = rtn[:, :, c]
-    if len(x) > 36:
+    if fit_offsets:
         jac[:, legs, 36 + legs] = -1.0
+    if basis is not None and basis.shape[-1]:
+        jac[:, :, len(x) - basis.shape[-1] :] = -basis
     return res, jac
 
 
@@ -122,38 +137,51 @@ def refine(
     offsets0: np.ndarray,
     fit_offsets: bool,
     sigmas: NoiseSigmas | None = None,
+    basis: np.ndarray | None = None,
+    basis_names: list[str] | None = None,
+    theta0: np.ndarray | None = None,
+    passes: int = 2,
 ) -> Refinement:
     """Weighted nonlinear least squares of the geometry, seeded by (a0, b0, offsets0).
 
     P (M, 3) mm, R (M, 3, 3), rho (M, 6) mm readings; a0, b0 (6, 3) mm; offsets0 (6,) mm (kept
     fixed unless ``fit_offsets``). ``sigmas`` are the instruments' noise; None means unknown.
+    ``basis`` (M, 6, q) adds effect parameters θ (named ``basis_names``, seeded by ``theta0`` or
+    zeros) with predicted length ``reading + offset + basis @ θ``. ``passes`` re-evaluations of
+    the pose covariances (the second at the first pass's solution).
     """
     known = sigmas is not None
     sig = sigmas if known else DEFAULT_SIGMAS
     fixed = np.asarray(offsets0, float)
-    x = np.concatenate([np.ravel(a0), np.ravel(b0)] + ([fixed] if fit_offsets else []))
+    q = 0 if basis is None else basis.shape[-1]
+    th = np.zeros(q) if theta0 is None else np.asarray(theta0, float)
+    x = np.concatenate([np.ravel(a0), np.ravel(b0)] + ([fixed] if fit_offsets else []) + [th])
     nfev = 0
-    for _ in range(2):
-        a, b, _off = _unpack(x, fixed)
+    for _ in range(passes):
+        a, b, _off, _ = _unpack(x, fixed, fit_offsets)
         W = _whiteners(a, b, P, R, sig)
 
         def fun(xx, W=W):
-            res, _ = _model(xx, P, R, rho, fixed)
+            res, _ = _model(xx, P, R, rho, fixed, fit_offsets, basis)
             return np.einsum("mij,mj->mi", W, res).ravel()
 
         def jac(xx, W=W):
-            _, j = _model(xx, P, R, rho, fixed)
+            _, j = _model(xx, P, R, rho, fixed, fit_offsets, basis)
             return np.einsum("mij,mjp->mip", W, j).reshape(-1, len(xx))
 
-        sol = least_squares(fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        sol = least_squares(fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac")
         x, nfev = sol.x, nfev + sol.nfev
-    res, _ = _model(x, P, R, rho, fixed)
+    res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
     jw = jac(x)
-    return _statistics(x, res, jw, sol.fun, known, fit_offsets, nfev, bool(sol.success))
+    names = parameter_names(fit_offsets) + list(basis_names or [f"theta{i}" for i in range(q)])
+    out = _statistics(x, res, jw, sol.fun, known, names, nfev, bool(sol.success))
+    out.whitened_jacobian = jw
+    out.whitened_residual = sol.fun
+    out.whiteners = W
+    return out
 
 
-def _statistics(x, res, jw, wres, known, fit_offsets, nfev, success) -> Refinement:
-    names = parameter_names(fit_offsets)
+def _statistics(x, res, jw, wres, known, names, nfev, success) -> Refinement:
     p = len(x)
     chi2 = float(wres @ wres)
     dof = max(jw.shape[0] - p, 1)

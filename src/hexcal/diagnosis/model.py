@@ -1,0 +1,249 @@
+"""A model = Model 36 geometry + a set of catalogue effects (``offset`` makes it Model 42),
+fitted jointly by the weighted refinement, with cross-validation on held-out poses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
+from hexcal.measurements import Measurements
+from hexcal.noise import NoiseSigmas, leg_covariance
+from hexcal.refine import Refinement, _model, refine
+from hexcal.robot import Robot
+from hexcal.solvers.whole_robot import LinearCalibration, calibrate_linear
+
+#: Folds of the random k-fold and of the time-blocked cross-validation.
+K_FOLDS = 5
+
+
+@dataclass(frozen=True)
+class ParamRow:
+    """A fitted parameter in its spec unit: value, standard deviation, 95 % half-width."""
+
+    name: str
+    value: float
+    sigma: float
+    ci95: float
+    unit: str
+    plausible: tuple[float, float] | None
+    status: str
+
+    @property
+    def physical(self) -> bool:
+        if self.plausible is None:
+            return True
+        lo, hi = self.plausible
+        return lo <= self.value <= hi
+
+
+@dataclass
+class ModelFit:
+    """One fitted model and how it compares with the measurements.
+
+    residuals (M, 6) mm: reading − predicted reading (predicted from the measured pose).
+    """
+
+    effects: tuple[str, ...]
+    refinement: Refinement
+    residuals: np.ndarray
+    params: list[ParamRow]
+    basis_names: list[str]
+    cv_rms_mm: float = float("nan")
+    cv_blocked_rms_mm: float = float("nan")
+    cv_residuals: np.ndarray | None = None  #: (M, 6) held-out residuals, random folds
+    cv_blocked_residuals: np.ndarray | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def model_name(self) -> str:
+        base = "Model 42" if "offset" in self.effects else "Model 36"
+        extra = [e for e in self.effects if e != "offset"]
+        return base + ("".join(f" + {e}" for e in extra))
+
+    @property
+    def rms_mm(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals**2)))
+
+    @property
+    def rms_per_leg(self) -> np.ndarray:
+        return np.sqrt(np.mean(self.residuals**2, axis=0))
+
+    @property
+    def cv_rms_per_leg(self) -> np.ndarray:
+        return np.sqrt(np.mean(self.cv_residuals**2, axis=0))
+
+    @property
+    def n_params(self) -> int:
+        return len(self.refinement.x)
+
+    @property
+    def chi2(self) -> float:
+        return self.refinement.chi2
+
+    @property
+    def dof(self) -> int:
+        return self.refinement.dof
+
+    def nonphysical(self) -> list[ParamRow]:
+        return [p for p in self.params if not p.physical]
+
+
+@dataclass
+class Problem:
+    """Everything a fit needs, computed once per session: arrays, effect data, linear seed."""
+
+    meas: Measurements
+    design: Robot
+    sigmas: NoiseSigmas | None
+    linear36: LinearCalibration
+    linear42: LinearCalibration
+    data: EffectData
+    _bases: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, meas: Measurements, design: Robot, sigmas: NoiseSigmas | None) -> Problem:
+        R = meas.rotations.as_matrix()
+        args = (meas.position, R, meas.readings, meas.leg, meas.constraint)
+        lin36 = calibrate_linear(*args, 36, design.offsets)
+        lin42 = calibrate_linear(*args, 42, design.offsets)
+        data = EffectData(meas.readings, meas.position, R, meas.t, meas.temperature, design, lin42.a, lin42.b)
+        return cls(meas, design, sigmas, lin36, lin42, data)
+
+    @property
+    def R(self) -> np.ndarray:
+        return self.data.rotation
+
+    def basis(self, name: str) -> np.ndarray:
+        """(M, 6, p) basis of an effect over the whole session (history-dependent effects need
+        the whole recording order, so folds take rows of this)."""
+        if name not in self._bases:
+            self._bases[name] = get_effect(name).basis(self.data)
+        return self._bases[name]
+
+    def missing(self, name: str) -> str | None:
+        return get_effect(name).missing(self.data)
+
+
+def _specs(effects: tuple[str, ...], robot: Robot) -> list[ParamSpec]:
+    return [s for e in effects if e != "offset" for s in get_effect(e).params(robot)]
+
+
+def _stack(problem: Problem, effects: tuple[str, ...]) -> tuple[np.ndarray, list[ParamSpec]]:
+    specs = _specs(effects, problem.design)
+    cols = [problem.basis(e) for e in effects if e != "offset"]
+    m = len(problem.meas)
+    basis = np.concatenate(cols, axis=-1) if cols else np.zeros((m, 6, 0))
+    return basis, specs
+
+
+def fit_model(
+    problem: Problem,
+    effects: tuple[str, ...] | list[str],
+    cross_validate: bool = True,
+    seed_fit: ModelFit | None = None,
+) -> ModelFit:
+    """Fit the geometry with ``effects`` jointly; cross-validate on held-out poses.
+
+    Seeded by the linear methods (Model 42's when ``offset`` is in the model), or by
+    ``seed_fit``'s geometry when given (a model one effect larger than a fitted one).
+    """
+    effects = tuple(dict.fromkeys(effects))
+    for e in effects:
+        if e not in CATALOGUE:
+            get_effect(e)  # raises with the catalogue listed
+        why = problem.missing(e)
+        if why:
+            raise ValueError(f"effect {e!r} cannot be fitted to these data: {why}")
+    fit_offsets = "offset" in effects
+    basis, specs = _stack(problem, effects)
+    lin = problem.linear42 if fit_offsets else problem.linear36
+    a0, b0, off0 = lin.a, lin.b, lin.offsets if fit_offsets else problem.design.offsets
+    theta0 = None
+    if seed_fit is not None:
+        r = seed_fit.refinement
+        a0, b0 = r.a, r.b
+        if fit_offsets:
+            off0 = r.offsets(problem.design.offsets)
+        theta0 = np.array([r.value(s.name) if s.name in r.names else 0.0 for s in specs])
+    names = [s.name for s in specs]
+    ref = refine(problem.meas.position, problem.R, problem.meas.readings, a0, b0, off0, fit_offsets,
+                 problem.sigmas, basis=basis, basis_names=names, theta0=theta0)
+    fit = ModelFit(effects, ref, ref.residuals, _param_rows(ref, specs, problem.design), names)
+    if cross_validate:
+        cross_validation(problem, fit, basis)
+    notes = []
+    for p in fit.nonphysical():
+        lo, hi = p.plausible
+        notes.append(
+            f"{p.name} = {p.value:.4g} {p.unit} is outside its plausible range [{lo:g}, {hi:g}] {p.unit}: "
+            "non-physical — it is absorbing something else the model lacks"
+        )
+    fit.notes = notes + ref.notes
+    return fit
+
+
+def _param_rows(ref: Refinement, specs: list[ParamSpec], design: Robot) -> list[ParamRow]:
+    """Effect parameters in their spec units; offsets judged by their departure from design."""
+    by_name = {s.name: s for s in specs}
+    off_lo, off_hi = get_effect("offset").params(design)[0].plausible
+    rows = []
+    for i, name in enumerate(ref.names):
+        spec = by_name.get(name)
+        if spec is not None:
+            unit, plausible = spec.unit, spec.plausible
+        elif name.startswith("offset"):
+            d = design.offsets[int(name[6:]) - 1]
+            unit, plausible = "mm", (d + off_lo, d + off_hi)
+        else:
+            unit, plausible = "mm", None
+        rows.append(ParamRow(name, float(ref.x[i]), float(ref.sigma[i]), float(ref.ci95[i]), unit, plausible, ref.status[i]))
+    return rows
+
+
+def _folds(m: int, blocked: bool, seed: int = 0) -> list[np.ndarray]:
+    if blocked:
+        return np.array_split(np.arange(m), K_FOLDS)
+    perm = np.random.default_rng(seed).permutation(m)
+    return [np.sort(f) for f in np.array_split(perm, K_FOLDS)]
+
+
+def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None:
+    """Held-out residuals over whole poses: random folds and folds blocked in time.
+
+    Each fold is refitted from the full fit's solution (one covariance pass); the held-out
+    poses' residuals use the fold's parameters.
+    """
+    ref = fit.refinement
+    fit_offsets = "offset" in fit.effects
+    fixed = problem.design.offsets
+    P, R, rho = problem.meas.position, problem.R, problem.meas.readings
+    m = len(P)
+    for blocked in (False, True):
+        held = np.zeros((m, 6))
+        for test in _folds(m, blocked):
+            train = np.setdiff1d(np.arange(m), test)
+            x0 = ref.x
+            a0, b0 = x0[:18].reshape(6, 3), x0[18:36].reshape(6, 3)
+            off0 = x0[36:42] if fit_offsets else fixed
+            q = basis.shape[-1]
+            r = refine(P[train], R[train], rho[train], a0, b0, off0, fit_offsets, problem.sigmas,
+                       basis=basis[train], basis_names=fit.basis_names, theta0=x0[len(x0) - q:] if q else None,
+                       passes=1)
+            res, _ = _model(r.x, P[test], R[test], rho[test], fixed, fit_offsets, basis[test])
+            held[test] = -res
+        if blocked:
+            fit.cv_blocked_residuals = held
+            fit.cv_blocked_rms_mm = float(np.sqrt(np.mean(held**2)))
+        else:
+            fit.cv_residuals = held
+            fit.cv_rms_mm = float(np.sqrt(np.mean(held**2)))
+
+
+def noise_floor(problem: Problem, fit: ModelFit) -> np.ndarray:
+    """(M, 6) mm: the standard deviation of each residual that the stated noise alone gives,
+    propagated through the fitted geometry (the diagonal of each pose's 6×6 covariance)."""
+    r = fit.refinement
+    cov = leg_covariance(r.a, r.b, problem.meas.position, problem.R, problem.sigmas)
+    return np.sqrt(np.einsum("mkk->mk", cov))

@@ -1,0 +1,78 @@
+"""Where the residual concentrates: legs, procedure steps, time, workspace, worst poses.
+
+Each group's mean squared normalised residual ``(r / floor)²`` is compared with 1, the value
+noise alone gives; a group stands out when it exceeds 1 by more than 4 standard errors of a
+χ² mean over that many residuals and by at least half.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _group(z2: np.ndarray, mask: np.ndarray, label: str) -> dict | None:
+    n = int(mask.sum())
+    if n < 6:
+        return None
+    ratio = float(z2[mask].mean())
+    return {"group": label, "n": n, "excess_ratio": ratio, "stands_out": bool(ratio > max(1.5, 1 + 4 * np.sqrt(2 / n)))}
+
+
+def concentrations(problem, fit, floor: np.ndarray) -> dict:
+    """A dict: ``legs``, ``steps``, ``time``, ``region`` (lists of groups with their excess
+    ratio), ``worst_poses``, ``worst_legs`` and a one-line ``summary``."""
+    meas = problem.meas
+    r = fit.residuals
+    z2 = (r / floor) ** 2
+    m = len(r)
+    legs = [g for k in range(6) if (g := _group(z2[:, k], np.ones(m, bool), f"leg {k + 1}"))]
+    steps = []
+    for step in dict.fromkeys(meas.step.tolist()):
+        g = _group(z2, np.repeat((meas.step == step)[:, None], 6, 1), f"step {step}")
+        if g:
+            steps.append(g)
+    time = []
+    for i, block in enumerate(np.array_split(np.arange(m), 5)):
+        mask = np.zeros((m, 6), bool)
+        mask[block] = True
+        g = _group(z2, mask, f"time block {i + 1}/5 (poses {meas.pose_id[block[0]]}–{meas.pose_id[block[-1]]})")
+        if g:
+            time.append(g)
+    region = []
+    pos = meas.position - np.median(meas.position, axis=0)
+    tilt = meas.rotations.magnitude()
+    for label, sel in [
+        ("platform x > median", pos[:, 0] > 0), ("platform x < median", pos[:, 0] <= 0),
+        ("platform y > median", pos[:, 1] > 0), ("platform y < median", pos[:, 1] <= 0),
+        ("platform z > median", pos[:, 2] > 0), ("platform z < median", pos[:, 2] <= 0),
+        ("tilt > median", tilt > np.median(tilt)), ("tilt < median", tilt <= np.median(tilt)),
+    ]:
+        g = _group(z2, np.repeat(sel[:, None], 6, 1), label)
+        if g:
+            region.append(g)
+    # Within each leg, the workspace halves too: a local defect shows as leg × region.
+    leg_region = []
+    for k in range(6):
+        for label, sel in [("x >", pos[:, 0] > 0), ("x <", pos[:, 0] <= 0), ("y >", pos[:, 1] > 0), ("y <", pos[:, 1] <= 0),
+                           ("z >", pos[:, 2] > 0), ("z <", pos[:, 2] <= 0)]:
+            g = _group(z2[:, k], sel, f"leg {k + 1}, platform {label} median")
+            if g:
+                leg_region.append(g)
+    pose_score = z2.mean(axis=1)
+    worst = np.argsort(-pose_score)[:5]
+    worst_poses = [
+        {"pose_id": int(meas.pose_id[i]), "step": str(meas.step[i]), "excess_ratio": float(pose_score[i]),
+         "worst_leg": int(np.argmax(z2[i])) + 1}
+        for i in worst
+    ]
+    worst_legs = [g["group"] for g in sorted(legs, key=lambda g: -g["excess_ratio"]) if g["stands_out"]]
+    out = {"legs": legs, "steps": steps, "time": time, "region": region, "leg_region": leg_region,
+           "worst_poses": worst_poses, "worst_legs": worst_legs}
+    standouts = [g for key in ("legs", "steps", "time", "region", "leg_region") for g in out[key] if g["stands_out"]]
+    standouts.sort(key=lambda g: -g["excess_ratio"])
+    out["summary"] = (
+        "residual at the noise floor everywhere"
+        if not standouts
+        else "concentrated in " + "; ".join(f"{g['group']} ({g['excess_ratio']:.1f}× noise)" for g in standouts[:4])
+    )
+    return out

@@ -1,0 +1,123 @@
+"""What an effect is, the data it may use, and the registry of effects by name."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from hexcal.robot import Robot
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: prefixed name (``gain.g3``), unit, plausible range in that unit, and the
+    factor from the unit to the model's internal value (e.g. ppm → 1e-6)."""
+
+    name: str
+    unit: str
+    plausible: tuple[float, float]
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class EffectData:
+    """What effects may depend on, for M poses in recording order.
+
+    readings (M, 6) mm; position (M, 3) mm; rotation (M, 3, 3); t (M,) s; temperature (M,) degC
+    or None; robot: the design (pitch, mass, offsets); a, b (6, 3) mm: the geometry at which
+    geometry-dependent quantities (leg forces, lengths) are evaluated — the linear seed.
+    """
+
+    readings: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    t: np.ndarray
+    temperature: np.ndarray | None
+    robot: Robot
+    a: np.ndarray
+    b: np.ndarray
+    extras: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.readings)
+
+    @cached_property
+    def leg_vectors(self) -> np.ndarray:
+        """(M, 6, 3) mm, ``P + R b_k − a_k`` at the evaluation geometry."""
+        return self.position[:, None, :] + np.einsum("mij,kj->mki", self.rotation, self.b) - self.a[None]
+
+    @cached_property
+    def lengths(self) -> np.ndarray:
+        """(M, 6) mm geometric lengths at the evaluation geometry."""
+        return np.linalg.norm(self.leg_vectors, axis=-1)
+
+    def subset(self, idx: np.ndarray) -> EffectData:
+        t = None if self.temperature is None else self.temperature[idx]
+        return EffectData(self.readings[idx], self.position[idx], self.rotation[idx], self.t[idx], t,
+                          self.robot, self.a, self.b, self.extras)
+
+
+class Effect(ABC):
+    """One physical effect: contribution to the geometric length = ``basis(data) @ θ``.
+
+    Subclasses set ``name``, ``physics`` (one sentence), ``needs`` (what the data must hold),
+    ``separating_motion`` (the poses that tell it from the geometry), and implement
+    :meth:`params` and :meth:`basis`.
+    """
+
+    name: str = ""
+    physics: str = ""
+    needs: tuple[str, ...] = ()
+    separating_motion: str = ""
+
+    @abstractmethod
+    def params(self, robot: Robot) -> list[ParamSpec]:
+        """The parameters, in the order of the basis columns."""
+
+    @abstractmethod
+    def basis(self, data: EffectData) -> np.ndarray:
+        """(M, 6, p) mm per unit of each parameter (in the spec's unit × scale)."""
+
+    def missing(self, data: EffectData) -> str | None:
+        """Why these data cannot carry the effect (None when they can)."""
+        return None
+
+    def contribution(self, data: EffectData, values: np.ndarray) -> np.ndarray:
+        """(M, 6) mm extra length for parameter values in their spec units."""
+        return self.basis(data) @ np.asarray(values, float)
+
+
+CATALOGUE: dict[str, Effect] = {}
+
+
+def register(cls: type[Effect]) -> type[Effect]:
+    """Class decorator: add an effect to the catalogue under its ``name``."""
+    inst = cls()
+    if not inst.name or inst.name in CATALOGUE:
+        raise ValueError(f"effect name {inst.name!r} is empty or already registered")
+    CATALOGUE[inst.name] = inst
+    return cls
+
+
+def get_effect(name: str) -> Effect:
+    """The registered effect called ``name``; a clear error lists the catalogue otherwise."""
+    try:
+        return CATALOGUE[name]
+    except KeyError:
+        raise ValueError(f"unknown effect {name!r}; the catalogue has: {', '.join(sorted(CATALOGUE))}") from None
+
+
+def per_leg(prefix: str, symbol: str, unit: str, plausible: tuple[float, float], scale: float = 1.0) -> list[ParamSpec]:
+    """Six parameters ``prefix.symbol1`` … ``prefix.symbol6``."""
+    return [ParamSpec(f"{prefix}.{symbol}{k}", unit, plausible, scale) for k in range(1, 7)]
+
+
+def diagonal(values: np.ndarray) -> np.ndarray:
+    """(M, 6) per-leg values → (M, 6, 6) basis with each leg's value in its own column."""
+    out = np.zeros((*values.shape, 6))
+    idx = np.arange(6)
+    out[:, idx, idx] = values
+    return out
