@@ -28,6 +28,7 @@ class Calibration:
     refinement: Refinement | None
     residuals: np.ndarray  #: (M, 6) mm, measured length − predicted, at the final geometry
     linear_residuals: np.ndarray | None = None  #: (M, 6) mm at the linear seed
+    effects: tuple[str, ...] = ()  #: catalogue effects fitted with the geometry
 
     @property
     def methods(self) -> list[str]:
@@ -52,13 +53,18 @@ def calibrate(
     instruments: Instruments | None = None,
     form: Form = "paper",
     do_refine: bool = True,
+    effects: tuple[str, ...] | list[str] = (),
 ) -> Calibration:
     """Calibrate Model 36 or 42 from a measurement table.
 
     ``design`` supplies the known offsets for Model 36 and every key that is not geometry
     (name, home, pitch...); its points are never used as a starting guess. ``instruments``
     gives the noise that weights the refinement; without it the level is estimated.
+    ``effects`` (catalogue names) are fitted jointly with the geometry.
     """
+    effects = tuple(e for e in effects if not (e == "offset" and model == 42))
+    if effects:
+        return _calibrate_with_effects(meas, design, model, instruments, effects)
     R = meas.rotations.as_matrix()
     lin = calibrate_linear(
         meas.position, R, meas.readings, meas.leg, meas.constraint, model, design.offsets, form
@@ -78,3 +84,18 @@ def calibrate(
         leg_residuals(a, b, off, meas),
         leg_residuals(lin.a, lin.b, lin.offsets, meas),
     )
+
+
+def _calibrate_with_effects(meas, design, model, instruments, effects) -> Calibration:
+    from hexcal.diagnosis.model import Problem, fit_model
+
+    sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
+    problem = Problem.build(meas, design, sig)
+    full = (("offset",) if model == 42 else ()) + tuple(effects)
+    fit = fit_model(problem, full, cross_validate=False)
+    ref = fit.refinement
+    lin = problem.linear42 if model == 42 else problem.linear36
+    robot = design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
+    cal = Calibration(model, robot, lin, ref, fit.residuals, leg_residuals(lin.a, lin.b, lin.offsets, meas))
+    cal.effects = tuple(effects)
+    return cal

@@ -59,6 +59,61 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    import json
+
+    from hexcal.diagnosis import diagnose
+    from hexcal.diagnosis.text import before_after_text, diagnosis_text
+    from hexcal.instruments import load_instruments
+    from hexcal.measurements import read_measurements
+    from hexcal.robot import load_robot
+
+    design = load_robot(args.robot)
+    meas = read_measurements(args.measurements)
+    inst = load_instruments(args.instruments) if args.instruments else None
+    added = list(args.add or ())
+    steps = [diagnose(meas, design, args.model, add=added, instruments=inst)]
+    # --auto: add the named effect and diagnose again, until nothing identifiable is missing.
+    while args.auto and steps[-1].verdict not in ("none", "unexplained") and len(steps) < 8:
+        added.append(steps[-1].verdict)
+        steps.append(diagnose(meas, design, args.model, add=added, instruments=inst, problem=steps[0].problem))
+    if args.plots:
+        from hexcal.diagnosis.plots import before_after, write_plots
+
+        out = Path(args.plots)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = write_plots(steps[-1], out)
+        for i in range(1, len(steps)):
+            paths.append(before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png"))
+    if args.report:
+        from hexcal.diagnosis.report import write_report
+
+        inputs = {"measurements": Path(args.measurements), "robot": Path(args.robot)}
+        if args.instruments:
+            inputs["instruments"] = Path(args.instruments)
+        write_report(steps, Path(args.report), inputs)
+    if args.json:
+        out = steps[-1].to_dict()
+        if len(steps) > 1:
+            out["steps"] = [
+                {"model": d.fit.model_name, "effects": list(d.effects), "cv_rms_mm": d.fit.cv_rms_mm,
+                 "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm, "noise_floor_mm": d.noise_floor_mm, "verdict": d.verdict}
+                for d in steps
+            ]
+        print(json.dumps(out, indent=2))
+    else:
+        for d in steps:
+            print(diagnosis_text(d, f"{args.measurements} ({len(meas)} poses)"))
+            print()
+        if len(steps) > 1:
+            print(before_after_text(steps))
+        if args.plots:
+            print(f"plots written to {args.plots}/")
+        if args.report:
+            print(f"report written to {args.report}")
+    return 0
+
+
 def _cmd_study(args: argparse.Namespace) -> int:
     from hexcal.simulate import PoseRanges
     from hexcal.study import StudyConfig, factor_table, plot, run_study, to_json, write_csv
@@ -137,9 +192,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="linear seed: the paper's forms or the direct ones",
     )
     c.add_argument("--no-refine", action="store_true", help="stop after the linear methods")
+    c.add_argument("--add", nargs="+", metavar="EFFECT", help="catalogue effects to fit with the geometry")
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.add_argument("--out", type=Path, help="write the calibrated robot.json here")
     c.set_defaults(func=_cmd_calibrate)
+
+    d = sub.add_parser("diagnose", help="compare the model with the measurements and find the missing effect")
+    d.add_argument("measurements", type=Path, help="measurements.csv (INTERCHANGE.md)")
+    d.add_argument("--robot", type=Path, required=True)
+    d.add_argument("--model", type=int, choices=(36, 42), default=42)
+    d.add_argument("--instruments", type=Path, help="instruments.json: the noise that sets the floor")
+    d.add_argument("--add", nargs="+", metavar="EFFECT", help="catalogue effects already in the model")
+    d.add_argument("--auto", action="store_true", help="add the named effect and go on until the verdict is none")
+    d.add_argument("--json", action="store_true", help="print one JSON object")
+    d.add_argument("--plots", help="directory for the residual plots (PNG)")
+    d.add_argument("--report", help="write one self-contained HTML report here")
+    d.set_defaults(func=_cmd_diagnose)
 
     s = sub.add_parser(
         "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"

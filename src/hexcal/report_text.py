@@ -57,6 +57,11 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
     lines.append("")
     lin_rms = float(np.sqrt(np.mean(_linear_residuals(cal) ** 2)))
     lines.append(f"leg-length residual RMS: {cal.rms_mm:.4f} mm (linear seed: {lin_rms:.4f} mm)")
+    if ref and cal.effects:
+        lines.append(f"effects fitted with the geometry: {', '.join(cal.effects)}")
+        for name, v, c, st in zip(ref.names, ref.x, ref.ci95, ref.status, strict=True):
+            if "." in name:
+                lines.append(f"  {name:<16} {v:12.5g} ± {c:.3g}" + ("" if st == "ok" else f"  ({st})"))
     if ref:
         lines.append(f"chi²/dof = {ref.chi2 / ref.dof:.3f} over {ref.dof} degrees of freedom")
         if (
@@ -118,6 +123,7 @@ def calibration_json(cal: Calibration, source: str, noise_source: str) -> str:
                 ref.names, ref.x, ref.sigma, ref.ci95, ref.status, strict=False
             )
         ]
+        out["effects"] = list(cal.effects)
         out["parameter_names"] = ref.names
         out["covariance"] = ref.cov.tolist()
         out["strong_correlations"] = [

@@ -39,6 +39,8 @@ class SessionPlan:
     ranges: PoseRanges = field(default_factory=PoseRanges)
     #: Decimals the instruments report (position mm, quaternion, readings mm); None = exact.
     resolution: tuple[int, int, int] | None = (5, 9, 4)
+    #: Structure temperature rise over the session, K (linear drift plus 0.05 K jitter).
+    temperature_rise_k: float = 1.5
 
 
 def perturbed_truth(design: Robot, rng: np.random.Generator, plan: SessionPlan) -> Robot:
@@ -82,7 +84,7 @@ def simulate_session(
     P, R = np.concatenate(Ps), np.concatenate(Rs)
     m = len(P)
     t = np.round(np.cumsum(rng.uniform(8.0, 20.0, m)), 3)
-    temperature = np.round(20.0 + 1.5 * t / t[-1] + rng.normal(0.0, 0.05, m), 2)
+    temperature = np.round(20.0 + plan.temperature_rise_k * t / t[-1] + rng.normal(0.0, 0.05, m), 2)
     ctx = PoseContext(P, R, t, temperature)
     Pm, Rm, rho = sim.measure(rng, P, R, ctx)
     q = Rotation.from_matrix(Rm).as_quat(scalar_first=True)

@@ -35,7 +35,7 @@ class ParamRow:
         if self.plausible is None:
             return True
         lo, hi = self.plausible
-        return lo <= self.value <= hi
+        return bool(lo <= self.value <= hi)
 
 
 @dataclass

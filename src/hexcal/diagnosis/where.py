@@ -1,8 +1,10 @@
 """Where the residual concentrates: legs, procedure steps, time, workspace, worst poses.
 
 Each group's mean squared normalised residual ``(r / floor)²`` is compared with 1, the value
-noise alone gives; a group stands out when it exceeds 1 by more than 4 standard errors of a
-χ² mean over that many residuals and by at least half.
+noise alone gives. The six legs of a pose share its tracker noise, so a group of n residuals
+from n_p poses carries about n_p independent χ²₁ terms, not n; a group stands out when its mean
+exceeds 1 by more than 5 standard errors of a χ² mean over n_p terms (about forty groups are
+tested) and is at least twice the noise.
 """
 
 from __future__ import annotations
@@ -14,8 +16,10 @@ def _group(z2: np.ndarray, mask: np.ndarray, label: str) -> dict | None:
     n = int(mask.sum())
     if n < 6:
         return None
+    poses = int(mask.reshape(len(mask), -1).any(axis=1).sum())
     ratio = float(z2[mask].mean())
-    return {"group": label, "n": n, "excess_ratio": ratio, "stands_out": bool(ratio > max(1.5, 1 + 4 * np.sqrt(2 / n)))}
+    threshold = max(2.0, 1 + 5 * np.sqrt(2 / poses))
+    return {"group": label, "n": n, "excess_ratio": ratio, "stands_out": bool(ratio > threshold)}
 
 
 def concentrations(problem, fit, floor: np.ndarray) -> dict:

@@ -31,14 +31,19 @@ def leg_forces(data: EffectData, mass_kg: float, com: np.ndarray | None = None) 
 class Compliance(Effect):
     name = "compliance"
     physics = "Each leg shortens under its axial load like a spring: ΔL = −c·f, the forces from the platform's weight by statics."
-    needs = ("platform mass (robot.json platform_mass_kg; 1 kg assumed otherwise)",)
+    needs = ("platform mass (robot.json platform_mass_kg)",)
     separating_motion = "poses that shift the load between legs: the platform far off-centre and tilted"
 
     def params(self, robot) -> list[ParamSpec]:
         return [ParamSpec("compliance.c", "µm/N", (0.0, 5.0), 1e-3)]
 
     def basis(self, data: EffectData) -> np.ndarray:
-        mass = data.robot.platform_mass_kg or 1.0
+        mass = data.robot.platform_mass_kg
         com = getattr(data.robot, "platform_com_mm", None)
         f = leg_forces(data, mass, None if com is None else np.asarray(com, float))
         return (-f * 1e-3)[..., None]
+
+    def missing(self, data: EffectData) -> str | None:
+        if not data.robot.platform_mass_kg:
+            return "robot.json has no platform_mass_kg, so the leg forces are unknown"
+        return None

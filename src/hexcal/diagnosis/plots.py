@@ -1,0 +1,609 @@
+"""Residual plots of a :class:`~hexcal.diagnosis.diagnose.Diagnosis`: where the model fails.
+
+Each plot sets the residual (reading − predicted, shown in µm) against the quantity one
+catalogue effect depends on, so a missing effect shows as structure beside the ±2σ noise-floor
+band: a slope against the reading (gain), a step between motion directions (backlash), a trend
+with temperature (thermal) or axial force (compliance), a periodic ripple in the reading
+(lead screw), a constant per leg (offset).
+
+The scatter plots show the *held-out* residuals (random 5-fold cross-validation, each pose
+predicted by a fit that did not see it) because an in-sample residual is partly absorbed by the
+geometry; the normalised histogram uses the in-sample residual, which is what the noise floor
+describes. The figures use matplotlib's object API (:class:`matplotlib.figure.Figure`, Agg
+canvas) and never pyplot, so writing plots neither switches a caller's backend nor registers
+figures in pyplot's global list: a figure is freed as soon as it goes out of scope.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import NullFormatter
+from scipy.signal import lombscargle
+from scipy.stats import norm
+
+from hexcal.effects.backlash import motion_state
+from hexcal.effects.compliance import leg_forces
+
+if TYPE_CHECKING:
+    from hexcal.diagnosis.diagnose import Diagnosis
+
+#: Resolution of every PNG; sizes are chosen so 9–10 pt text stays legible at it.
+DPI = 100
+#: mm → µm: residuals are tens of µm, so µm keeps tick labels short.
+UM = 1e3
+LEG_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5")
+#: Periods searched by the periodogram, mm (a lead screw's pitch is typically 1–10 mm).
+PERIOD_RANGE_MM = (0.5, 20.0)
+#: False-alarm probability of the periodogram's noise line, over the whole band of one leg.
+FALSE_ALARM = 0.01
+MOTION_LABELS = {-1: "retracting\n(−1)", 0: "not yet\nmoved (0)", 1: "extending\n(+1)"}
+FLOOR_COLOUR = "0.82"
+
+#: File names written by :func:`write_plots`, in the order returned.
+PLOT_NAMES = (
+    "residuals_vs_reading.png",
+    "residuals_vs_motion.png",
+    "residuals_vs_force.png",
+    "residuals_vs_temperature.png",
+    "residuals_vs_time.png",
+    "residuals_vs_pose.png",
+    "residuals_vs_direction.png",
+    "periodogram.png",
+    "predicted_vs_measured.png",
+    "per_leg_rms.png",
+)
+
+
+@dataclass(frozen=True)
+class _View:
+    """What every plot of one diagnosis needs, in plot units.
+
+    resid_um (M, 6) µm: held-out residuals (in-sample when the fit was not cross-validated);
+    insample_um (M, 6) µm; floor_um (M, 6) µm: noise-floor standard deviation per residual.
+    """
+
+    diag: Diagnosis
+    model: str
+    resid_um: np.ndarray
+    resid_label: str
+    insample_um: np.ndarray
+    floor_um: np.ndarray
+    subtitle: str
+
+    @property
+    def meas(self):
+        return self.diag.problem.meas
+
+
+def _view(diag: Diagnosis) -> _View:
+    fit = diag.fit
+    held = fit.cv_residuals is not None
+    resid = fit.cv_residuals if held else fit.residuals
+    cv = fit.cv_rms_mm if held else float("nan")
+    subtitle = (
+        f"RMS {fit.rms_mm * UM:.1f} µm, held-out {cv * UM:.1f} µm, noise floor "
+        f"{diag.noise_floor_mm * UM:.1f} µm, χ²/dof {diag.chi2_per_dof:.2f} — verdict: {diag.verdict}"
+    )
+    return _View(
+        diag=diag,
+        model=fit.model_name,
+        resid_um=np.asarray(resid) * UM,
+        resid_label="held-out residual (µm)" if held else "residual (µm)",
+        insample_um=np.asarray(fit.residuals) * UM,
+        floor_um=np.asarray(diag.floor_per_residual) * UM,
+        subtitle=subtitle,
+    )
+
+
+# --- helpers -----------------------------------------------------------------------------------
+
+
+def _window(n: int) -> int:
+    """Points in a running window: a fifth of the data (a median of fewer points wanders with the
+    noise and hides a trend), at least 7, never more than the data."""
+    return min(n, max(7, n // 5))
+
+
+def _running(x: np.ndarray, y: np.ndarray, stat: Callable = np.median) -> tuple[np.ndarray, np.ndarray]:
+    """Running ``stat`` of ``y`` over ``x``: (sorted x, value at each), each (n,). The window is
+    centred and shrinks at the ends, so the line spans the whole range of ``x``; empty when
+    there are fewer than 5 finite points."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    n = len(x)
+    if n < 5:
+        return np.empty(0), np.empty(0)
+    order = np.argsort(x, kind="stable")
+    xs, ys = x[order], y[order]
+    h = _window(n) // 2
+    out = np.array([stat(ys[max(0, i - h) : i + h + 1]) for i in range(n)])
+    return xs, out
+
+
+def _floor_band(ax: Axes, x: np.ndarray, floor: np.ndarray) -> None:
+    """±2σ noise-floor band along ``x``; the per-pose floor is smoothed (running median) so the
+    band's edge shows the trend, not pose-to-pose jitter."""
+    xs, fs = _running(x, floor)
+    if len(xs) == 0:
+        return
+    ax.fill_between(xs, -2 * fs, 2 * fs, color=FLOOR_COLOUR, lw=0, zorder=0)
+
+
+def _finish(fig: Figure, outdir: Path, name: str, legend: list | None = None) -> Path:
+    """Legend along the bottom, tight layout, PNG at :data:`DPI`."""
+    bottom = 0.0
+    if legend:
+        fig.legend(handles=legend, loc="lower center", ncol=len(legend), fontsize=9, frameon=False)
+        bottom = 0.4 / fig.get_figheight()  # one row of 9 pt legend text, in figure fractions
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    path = outdir / name
+    fig.savefig(path, dpi=DPI)
+    fig.clear()  # drop the artists now rather than when the garbage collector gets round to it
+    return path
+
+
+def _title(fig: Figure, view: _View, what: str) -> None:
+    fig.suptitle(f"{view.model} — {what}\n{view.subtitle}", fontsize=11)
+
+
+def _legend_handles(view: _View, line: str = "running median") -> list:
+    return [
+        Line2D([], [], ls="", marker="o", ms=4, color="0.3", alpha=0.6, label=view.resid_label.split(" (")[0]),
+        Patch(color=FLOOR_COLOUR, label="±2σ noise floor"),
+        Line2D([], [], color="k", lw=1.6, label=line),
+    ]
+
+
+def _leg_grid(figsize: tuple[float, float] = (11, 6.6)) -> tuple[Figure, np.ndarray]:
+    fig = Figure(figsize=figsize)
+    axes = fig.subplots(2, 3, sharey=True, squeeze=False)
+    return fig, axes.ravel()
+
+
+def _leg_scatter(
+    view: _View, x: np.ndarray, xlabel: str, what: str, outdir: Path, name: str, note: str = ""
+) -> Path:
+    """Six panels, one per leg: held-out residual against ``x`` (M, 6), floor band, running
+    median."""
+    fig, axes = _leg_grid()
+    for k, ax in enumerate(axes):
+        xk, rk = x[:, k], view.resid_um[:, k]
+        _floor_band(ax, xk, view.floor_um[:, k])
+        ax.axhline(0, color="0.5", lw=0.6)
+        ax.plot(xk, rk, "o", ms=3, color=LEG_COLOURS[k], alpha=0.55, mec="none")
+        xs, ms = _running(xk, rk)
+        ax.plot(xs, ms, "-", color="k", lw=1.6)
+        ax.set_title(f"leg {k + 1}", fontsize=10)
+        ax.set_xlabel(xlabel)
+        ax.grid(True, alpha=0.25)
+        if k % 3 == 0:
+            ax.set_ylabel(view.resid_label)
+    _title(fig, view, what + (f" ({note})" if note else ""))
+    return _finish(fig, outdir, name, _legend_handles(view))
+
+
+# --- the plots ---------------------------------------------------------------------------------
+
+
+def _plot_reading(view: _View, outdir: Path, name: str) -> Path:
+    return _leg_scatter(view, view.meas.readings, "encoder reading (mm)", "residual against leg reading", outdir, name)
+
+
+def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
+    """Residual by the direction each leg last moved: backlash is a step between −1 and +1."""
+    state = motion_state(view.meas.readings)
+    fig, axes = _leg_grid()
+    rng = np.random.default_rng(0)  # fixed jitter: the same data give the same picture
+    for k, ax in enumerate(axes):
+        ax.axhline(0, color="0.5", lw=0.6)
+        groups, positions = [], []
+        for s in (-1, 0, 1):
+            sel = state[:, k] == s
+            if not sel.any():
+                continue
+            r = view.resid_um[sel, k]
+            fl = float(np.sqrt(np.mean(view.floor_um[sel, k] ** 2)))
+            ax.fill_between([s - 0.4, s + 0.4], -2 * fl, 2 * fl, color=FLOOR_COLOUR, lw=0, zorder=0)
+            ax.plot(s + rng.uniform(-0.18, 0.18, sel.sum()), r, "o", ms=3, color=LEG_COLOURS[k], alpha=0.5, mec="none")
+            groups.append(r)
+            positions.append(s)
+        if groups:
+            ax.boxplot(groups, positions=positions, widths=0.5, showfliers=False, manage_ticks=False,
+                       medianprops={"color": "k", "lw": 1.6}, boxprops={"lw": 0.9}, whiskerprops={"lw": 0.9})
+        ax.set_xticks([-1, 0, 1], [MOTION_LABELS[s] for s in (-1, 0, 1)], fontsize=8.5)
+        ax.set_xlim(-1.6, 1.6)
+        title = f"leg {k + 1}"
+        ext, ret = view.resid_um[state[:, k] > 0, k], view.resid_um[state[:, k] < 0, k]
+        if len(ext) and len(ret):
+            # The step between medians reads directly as the backlash (the model's β).
+            title += f": median(+1) − median(−1) = {np.median(ext) - np.median(ret):+.1f} µm"
+        ax.set_title(title, fontsize=9.5)
+        ax.grid(True, axis="y", alpha=0.25)
+        if k % 3 == 0:
+            ax.set_ylabel(view.resid_label)
+        if k >= 3:
+            ax.set_xlabel("direction of the leg's last motion")
+    _title(fig, view, "residual by direction of last motion (backlash shows as a step)")
+    return _finish(fig, outdir, name, _legend_handles(view, "box: quartiles and median")[:2] + [
+        Line2D([], [], color="k", lw=1.6, label="box: quartiles, median")])
+
+
+def _mass(design) -> tuple[float, str]:
+    """Platform mass (kg) for the leg forces and the label saying where it came from."""
+    if design.platform_mass_kg:
+        return float(design.platform_mass_kg), f"platform mass {design.platform_mass_kg:g} kg from robot.json"
+    return 1.0, "platform mass unknown: 1 kg ASSUMED, forces are relative"
+
+
+def _forces(diag: Diagnosis) -> tuple[np.ndarray, str]:
+    """(M, 6) N axial leg forces (compression positive) with the label of the mass used — the
+    same forces the compliance effect uses, centre of mass included when robot.json has one."""
+    design = diag.problem.design
+    mass, label = _mass(design)
+    com = getattr(design, "platform_com_mm", None)
+    return leg_forces(diag.problem.data, mass, None if com is None else np.asarray(com, float)), label
+
+
+def _plot_force(view: _View, outdir: Path, name: str) -> Path:
+    f, label = _forces(view.diag)
+    return _leg_scatter(view, f, "axial leg force, compression + (N)", "residual against leg force", outdir, name,
+                        note=label)
+
+
+def _plot_temperature(view: _View, outdir: Path, name: str) -> Path:
+    temp = np.repeat(view.meas.temperature[:, None], 6, axis=1)
+    return _leg_scatter(view, temp, "structure temperature (°C)", "residual against temperature", outdir, name)
+
+
+def _time_axis(t: np.ndarray) -> tuple[np.ndarray, str]:
+    if np.ptp(t) > 600:
+        return t / 60.0, "time since session start (min)"
+    return t, "time since session start (s)"
+
+
+def _plot_time(view: _View, outdir: Path, name: str) -> Path:
+    """All legs against time, running mean per leg; the five time blocks of the ``where``
+    analysis are marked so a drift can be matched with its summary line."""
+    meas = view.meas
+    t, xlabel = _time_axis(np.asarray(meas.t, float))
+    fig = Figure(figsize=(11, 5.2))
+    ax = fig.subplots()
+    floor = np.sqrt(np.mean(view.floor_um**2, axis=1))
+    _floor_band(ax, t, floor)
+    ax.axhline(0, color="0.5", lw=0.6)
+    for k in range(6):
+        ax.plot(t, view.resid_um[:, k], "o", ms=2.5, color=LEG_COLOURS[k], alpha=0.45, mec="none")
+        xs, ms = _running(t, view.resid_um[:, k], np.mean)
+        ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.8)
+    blocks = np.array_split(np.arange(len(t)), 5)
+    for i, b in enumerate(blocks):
+        if len(b) == 0:
+            continue
+        if i:
+            ax.axvline(t[b[0]], color="0.55", lw=0.8, ls=":")
+        ax.annotate(f"block {i + 1}/5", (t[b[len(b) // 2]], 1.0), xycoords=("data", "axes fraction"),
+                    ha="center", va="top", fontsize=8, color="0.4")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(view.resid_label)
+    ax.grid(True, alpha=0.25)
+    _title(fig, view, "residual against time (recording order)")
+    legend = [Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.8, label=f"leg {k + 1}") for k in range(6)]
+    legend += [Patch(color=FLOOR_COLOUR, label="±2σ floor"), Line2D([], [], color="0.4", lw=1.8, label="running mean")]
+    return _finish(fig, outdir, name, legend)
+
+
+def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
+    meas = view.meas
+    tilt = np.degrees(meas.rotations.magnitude())
+    cols = [
+        (meas.position[:, 0], "platform x (mm)"),
+        (meas.position[:, 1], "platform y (mm)"),
+        (meas.position[:, 2], "platform z (mm)"),
+        (tilt, "tilt |rotation vector| (deg)"),
+    ]
+    fig = Figure(figsize=(11, 4.6))
+    axes = fig.subplots(1, 4, sharey=True)
+    floor = np.sqrt(np.mean(view.floor_um**2, axis=1))
+    for i, (ax, (x, xlabel)) in enumerate(zip(axes, cols, strict=True)):
+        _floor_band(ax, x, floor)
+        ax.axhline(0, color="0.5", lw=0.6)
+        for k in range(6):
+            ax.plot(x, view.resid_um[:, k], "o", ms=2.2, color=LEG_COLOURS[k], alpha=0.4, mec="none")
+            xs, ms = _running(x, view.resid_um[:, k])
+            ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.3)
+        ax.set_xlabel(xlabel)
+        ax.grid(True, alpha=0.25)
+        if i == 0:
+            ax.set_ylabel(view.resid_label)
+    _title(fig, view, "residual against platform pose")
+    legend = [Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.3, label=f"leg {k + 1}") for k in range(6)]
+    legend += [Patch(color=FLOOR_COLOUR, label="±2σ floor"), Line2D([], [], color="0.4", lw=1.3, label="running median")]
+    return _finish(fig, outdir, name, legend)
+
+
+def leg_direction_angles(diag: Diagnosis) -> np.ndarray:
+    """(M, 6) deg: angle of each leg's unit vector from that leg's mean direction over the
+    session, at the fitted geometry."""
+    ref = diag.fit.refinement
+    meas = diag.problem.meas
+    v = meas.position[:, None, :] + np.einsum("mij,kj->mki", diag.problem.R, ref.b) - ref.a[None]
+    u = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    mean = u.mean(axis=0)
+    mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.einsum("mki,ki->mk", u, mean), -1.0, 1.0)))
+
+
+def _plot_direction(view: _View, outdir: Path, name: str) -> Path:
+    ang = leg_direction_angles(view.diag)
+    return _leg_scatter(view, ang, "angle from the leg's mean direction (deg)", "residual against leg direction",
+                        outdir, name)
+
+
+def periodogram(reading: np.ndarray, resid: np.ndarray, periods: np.ndarray) -> np.ndarray:
+    """Lomb–Scargle amplitude (same unit as ``resid``) of a sinusoid in ``resid`` against
+    ``reading`` (mm), at each of ``periods`` (mm); a floating mean is fitted with it."""
+    return np.abs(lombscargle(reading, resid, 2 * np.pi / periods, normalize="amplitude", floating_mean=True))
+
+
+def _period_grid(span: float) -> np.ndarray:
+    """Periods (mm), uniform in frequency with 5 points per resolution element 1/span."""
+    lo, hi = PERIOD_RANGE_MM
+    n = int(np.clip(5 * span * (1 / lo - 1 / hi), 200, 20000))
+    return 1.0 / np.linspace(1 / hi, 1 / lo, n)
+
+
+def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
+    """Per leg, the amplitude of a periodic residual against the reading, with the level white
+    noise at the floor reaches with probability :data:`FALSE_ALARM` anywhere in the band."""
+    meas = view.meas
+    pitch = view.diag.problem.design.leadscrew_pitch_mm
+    fig, axes = _leg_grid()
+    top = 0.0
+    for k, ax in enumerate(axes):
+        x, r = meas.readings[:, k], view.resid_um[:, k]
+        span = float(np.ptp(x))
+        ax.set_title(f"leg {k + 1} (reading span {span:.1f} mm)", fontsize=10)
+        ax.set_xscale("log")
+        ax.set_xlim(*PERIOD_RANGE_MM)
+        # Plain numbers: "10⁰" tick labels make a reader convert before reading a period.
+        ax.set_xticks([0.5, 1, 2, 5, 10, 20], ["0.5", "1", "2", "5", "10", "20"])
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel("period in the reading (mm)")
+        if k % 3 == 0:
+            ax.set_ylabel("amplitude (µm)")
+        ax.grid(True, which="both", alpha=0.25)
+        if pitch:
+            ax.axvline(pitch, color="C3", lw=1.2, ls="--")
+        if span < PERIOD_RANGE_MM[0] or len(x) < 8:
+            # A leg that hardly moved carries no periodic information: say so, do not fail.
+            ax.text(0.5, 0.5, "reading range too small\nfor a periodogram", transform=ax.transAxes,
+                    ha="center", va="center", color="0.4")
+            continue
+        periods = _period_grid(span)
+        amp = periodogram(x, r, periods)
+        ax.plot(periods, amp, color=LEG_COLOURS[k], lw=1.0)
+        # White noise of σ gives a per-frequency amplitude² ~ (2σ²/N)·χ²₂; over ~span·(1/lo − 1/hi)
+        # independent frequencies the 99 % level is where exp(−x/2)·n_indep = FALSE_ALARM.
+        sigma = float(np.sqrt(np.mean(view.floor_um[:, k] ** 2)))
+        n_indep = max(1.0, span * (1 / PERIOD_RANGE_MM[0] - 1 / PERIOD_RANGE_MM[1]))
+        level = np.sqrt(2 * sigma**2 / len(x) * 2 * np.log(n_indep / FALSE_ALARM))
+        ax.axhline(level, color="0.35", lw=1.0, ls=":")
+        top = max(top, level, float(amp.max()))
+    # The panels share y: one scale for all legs, so the largest ripple sets it.
+    axes[0].set_ylim(0, top * 1.1 if top > 0 else 1.0)
+    pitch_note = f"lead-screw pitch {pitch:g} mm" if pitch else "lead-screw pitch unknown (not in robot.json)"
+    _title(fig, view, f"periodogram of the residual against the reading ({pitch_note})")
+    legend = [Line2D([], [], color="0.3", lw=1.0, label="Lomb–Scargle amplitude"),
+              Line2D([], [], color="0.35", lw=1.0, ls=":", label=f"noise level ({100 * (1 - FALSE_ALARM):.0f} %)")]
+    if pitch:
+        legend.append(Line2D([], [], color="C3", lw=1.2, ls="--", label=f"pitch {pitch:g} mm"))
+    return _finish(fig, outdir, name, legend)
+
+
+def _plot_normalised(view: _View, outdir: Path, name: str) -> Path:
+    """Histogram of r / floor against N(0, 1) and a normal Q–Q plot: at the floor the
+    histogram follows the curve and the Q–Q points the diagonal."""
+    z_in = (view.insample_um / view.floor_um).ravel()
+    z_cv = (view.resid_um / view.floor_um).ravel()
+    fig = Figure(figsize=(11, 4.6))
+    ax, qq = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.5, 1]})
+    lim = max(4.0, float(np.nanpercentile(np.abs(z_cv), 99.5)) * 1.05)
+    bins = np.linspace(-lim, lim, 61)
+    ax.hist(np.clip(z_in, -lim, lim), bins=bins, density=True, color="C0", alpha=0.55,
+            label=f"in-sample (SD {np.std(z_in):.2f})")
+    ax.hist(np.clip(z_cv, -lim, lim), bins=bins, density=True, histtype="step", color="C1", lw=1.4,
+            label=f"held-out (SD {np.std(z_cv):.2f})")
+    g = np.linspace(-lim, lim, 400)
+    ax.plot(g, norm.pdf(g), "k-", lw=1.6, label="N(0, 1): noise only")
+    ax.set_xlabel("normalised residual r / σ_floor (1)")
+    ax.set_ylabel("probability density (1/σ)")
+    ax.set_title("histogram of normalised residuals (outliers clipped to the edge bins)", fontsize=10)
+    ax.legend(fontsize=9)
+    ax.grid(True, alpha=0.25)
+    zs = np.sort(z_in)
+    q = norm.ppf((np.arange(1, len(zs) + 1) - 0.5) / len(zs))
+    qq.plot(q, zs, "o", ms=2.5, color="C0", alpha=0.5, mec="none")
+    qq.plot(q, q, "k-", lw=1.2)
+    qq.set_xlabel("N(0, 1) quantile (1)")
+    qq.set_ylabel("in-sample r / σ_floor, sorted (1)")
+    qq.set_title("normal Q–Q plot: on the line at the floor", fontsize=10)
+    qq.grid(True, alpha=0.25)
+    _title(fig, view, "residual relative to the noise floor")
+    return _finish(fig, outdir, name)
+
+
+def _plot_per_leg_rms(view: _View, outdir: Path, name: str) -> Path:
+    fit = view.diag.fit
+    legs = np.arange(1, 7)
+    floor = np.sqrt(np.mean(view.floor_um**2, axis=0))
+    held = fit.cv_rms_per_leg * UM if fit.cv_residuals is not None else np.full(6, np.nan)
+    fig = Figure(figsize=(9, 4.8))
+    ax = fig.subplots()
+    w = 0.27
+    ax.bar(legs - w, fit.rms_per_leg * UM, w, color="C0", label="in-sample RMS")
+    ax.bar(legs, held, w, color="C1", label="held-out RMS")
+    ax.bar(legs + w, floor, w, color=FLOOR_COLOUR, edgecolor="0.5", label="noise floor of the leg")
+    ax.axhline(view.diag.noise_floor_mm * UM, color="0.3", lw=1.0, ls="--", label="overall floor")
+    handles, labels = ax.get_legend_handles_labels()
+    # Bars first, in the order drawn, then the line: the legend reads like the bar groups.
+    order = [labels.index(lab) for lab in ("in-sample RMS", "held-out RMS", "noise floor of the leg", "overall floor")]
+    ax.set_xticks(legs, [f"leg {k}" for k in legs])
+    ax.set_ylabel("RMS (µm)")
+    ax.grid(True, axis="y", alpha=0.25)
+    _title(fig, view, "RMS residual per leg")
+    return _finish(fig, outdir, name, [handles[i] for i in order])
+
+
+_PLOTS: dict[str, Callable[[_View, Path, str], Path]] = {
+    "residuals_vs_reading.png": _plot_reading,
+    "residuals_vs_motion.png": _plot_motion,
+    "residuals_vs_force.png": _plot_force,
+    "residuals_vs_temperature.png": _plot_temperature,
+    "residuals_vs_time.png": _plot_time,
+    "residuals_vs_pose.png": _plot_pose,
+    "residuals_vs_direction.png": _plot_direction,
+    "periodogram.png": _plot_periodogram,
+    "predicted_vs_measured.png": _plot_normalised,
+    "per_leg_rms.png": _plot_per_leg_rms,
+}
+
+
+def write_plots(
+    diag: Diagnosis, outdir: Path, prefix: str = "", only: Iterable[str] | None = None
+) -> list[Path]:
+    """Write the residual plots of ``diag``'s current fit as PNGs into ``outdir`` (created if
+    needed), each named ``prefix`` + one of :data:`PLOT_NAMES`; return the paths written, in
+    that order. ``only``: a subset of :data:`PLOT_NAMES` to write (all by default).
+
+    ``residuals_vs_temperature.png`` is skipped when the measurements have no temperature; the
+    periodogram is drawn without the pitch marker when robot.json has no lead-screw pitch.
+    """
+    wanted = set(PLOT_NAMES if only is None else only)
+    unknown = wanted - set(PLOT_NAMES)
+    if unknown:
+        raise ValueError(f"unknown plot(s) {sorted(unknown)}; the plots are: {', '.join(PLOT_NAMES)}")
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    view = _view(diag)
+    paths = []
+    for name, plot in _PLOTS.items():
+        if name not in wanted:
+            continue
+        if name == "residuals_vs_temperature.png" and view.meas.temperature is None:
+            continue
+        paths.append(plot(view, outdir, prefix + name))
+    return paths
+
+
+# --- before / after ----------------------------------------------------------------------------
+
+
+def _added(before: Diagnosis, after: Diagnosis) -> list[str]:
+    return [e for e in after.effects if e not in before.effects]
+
+
+def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
+    """Residual of ``diag`` against the quantity ``effect`` depends on, all legs on one axis."""
+    view = _view(diag)
+    meas = view.meas
+    r = view.resid_um
+    rng = np.random.default_rng(0)
+    ax.axhline(0, color="0.5", lw=0.6)
+    if effect in ("backlash", "offset"):
+        # Categorical: per leg, one strip per motion state (backlash) or one strip (offset).
+        if effect == "backlash":
+            state = motion_state(meas.readings)
+            shifts = {-1: -0.27, 0: 0.0, 1: 0.27}
+            markers = {-1: "v", 0: "o", 1: "^"}
+        else:
+            state = np.zeros_like(r)
+            shifts, markers = {0: 0.0}, {0: "o"}
+        for k in range(6):
+            for s, dx in shifts.items():
+                sel = state[:, k] == s
+                if not sel.any():
+                    continue
+                x = k + 1 + dx + rng.uniform(-0.09, 0.09, sel.sum())
+                ax.plot(x, r[sel, k], markers[s], ms=3, color=LEG_COLOURS[k], alpha=0.5, mec="none")
+                ax.plot([k + 1 + dx - 0.11, k + 1 + dx + 0.11], [np.median(r[sel, k])] * 2, "k-", lw=1.8)
+        ax.set_xticks(range(1, 7), [f"leg {k}" for k in range(1, 7)])
+        if effect == "backlash":
+            ax.set_xlabel("leg; ▼ retracting, ● not yet moved, ▲ extending (bar: median)")
+        else:
+            ax.set_xlabel("leg (bar: median)")
+        return
+    if effect == "thermal" and meas.temperature is not None:
+        x = np.repeat(meas.temperature[:, None], 6, axis=1)
+        xlabel = "structure temperature (°C)"
+    elif effect == "compliance":
+        x, label = _forces(diag)
+        xlabel = f"axial leg force (N; {label})"
+    elif effect == "leadscrew" and diag.problem.design.leadscrew_pitch_mm:
+        # Folding the reading by the pitch lines up every turn, so the ripple is one curve.
+        pitch = float(diag.problem.design.leadscrew_pitch_mm)
+        x = np.mod(meas.readings, pitch)
+        xlabel = f"reading modulo the lead-screw pitch {pitch:g} mm (mm)"
+    else:
+        x = meas.readings
+        xlabel = "encoder reading (mm)"
+    for k in range(6):
+        ax.plot(x[:, k], r[:, k], "o", ms=2.5, color=LEG_COLOURS[k], alpha=0.45, mec="none")
+        xs, ms = _running(x[:, k], r[:, k])
+        ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.5)
+    ax.set_xlabel(xlabel)
+
+
+def before_after(before: Diagnosis, after: Diagnosis, outdir: Path, name: str = "before_after.png") -> Path:
+    """Side by side, before and after adding effect(s): per-leg held-out RMS against the noise
+    floor, and the residual against the quantity that betrays the added effect (the first one
+    added when several are). Returns the PNG path."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    added = _added(before, after)
+    effect = added[0] if added else "gain"  # no effect added: the reading is the generic axis
+    fig = Figure(figsize=(11, 8.4))
+    axes = fig.subplots(2, 2)
+    legs = np.arange(1, 7)
+    top = 0.0
+    for ax, d, tag in ((axes[0, 0], before, "before"), (axes[0, 1], after, "after")):
+        fit = d.fit
+        held = fit.cv_rms_per_leg * UM if fit.cv_residuals is not None else fit.rms_per_leg * UM
+        floor = np.sqrt(np.mean((d.floor_per_residual * UM) ** 2, axis=0))
+        ax.bar(legs, held, 0.6, color=LEG_COLOURS, alpha=0.85)
+        ax.plot(legs, floor, "_", color="k", ms=26, mew=2)
+        ax.axhline(d.noise_floor_mm * UM, color="0.5", ls="--", lw=1.0)
+        ax.set_xticks(legs, [f"leg {k}" for k in legs])
+        ax.set_ylabel("held-out RMS (µm)")
+        ax.set_title(f"{tag}: {fit.model_name}\nheld-out RMS {fit.cv_rms_mm * UM:.1f} µm "
+                     f"(floor {d.noise_floor_mm * UM:.1f} µm) — verdict {d.verdict}", fontsize=10)
+        ax.grid(True, axis="y", alpha=0.25)
+        top = max(top, float(np.nanmax(held)), float(floor.max()))
+    for ax in axes[0]:
+        ax.set_ylim(0, top * 1.15)  # one scale, so the drop is visible at a glance
+    for ax, d, tag in ((axes[1, 0], before, "before"), (axes[1, 1], after, "after")):
+        _betraying_panel(ax, d, effect)
+        ax.set_ylabel("held-out residual (µm)")
+        ax.set_title(f"{tag}: residual against what betrays {effect}", fontsize=10)
+        ax.grid(True, alpha=0.25)
+    lo = min(a.get_ylim()[0] for a in axes[1])
+    hi = max(a.get_ylim()[1] for a in axes[1])
+    for ax in axes[1]:
+        ax.set_ylim(lo, hi)
+    what = " + ".join(added) if added else "no effect"
+    fig.suptitle(f"{before.fit.model_name} → {after.fit.model_name}: adding {what}", fontsize=11)
+    legend = [
+        Line2D([], [], ls="", marker="_", ms=16, mew=2, color="k", label="noise floor of the leg"),
+        Line2D([], [], ls="--", color="0.5", label="overall noise floor"),
+        Line2D([], [], ls="", marker="o", ms=4, color="0.4", label="held-out residual"),
+        Line2D([], [], color="k", lw=1.6, label="median" if effect in ("backlash", "offset") else "running median (per leg)"),
+    ]
+    return _finish(fig, outdir, name, legend)

@@ -1,0 +1,49 @@
+"""Hidden effects for the simulator: the same catalogue units, with true parameter values.
+
+The simulator finds readings r with ``r + offset + Σ contribution(r) = true length``, so a
+session simulated with an effect is exactly what the model with that effect describes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hexcal.effects.base import EffectData, get_effect
+from hexcal.robot import Robot
+from hexcal.simulate import LengthEffect, PoseContext
+
+
+def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
+    """A simulator hook adding effect ``name`` with ``values`` (spec units) to the true robot."""
+    eff = get_effect(name)
+    values = np.asarray(values, float)
+    n = len(eff.params(truth))
+    if values.shape != (n,):
+        raise ValueError(f"effect {name!r} takes {n} values ({[s.name for s in eff.params(truth)]}), got {values.shape}")
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        data = EffectData(readings, ctx.position, ctx.rotation, ctx.t, ctx.temperature, truth, truth.a, truth.b)
+        return eff.contribution(data, values)
+
+    hook.__name__ = f"hidden_{name}"
+    return hook
+
+
+def realistic_values(name: str, rng: np.random.Generator, truth: Robot, scale: float = 1.0) -> np.ndarray:
+    """Random true values at a realistic size (``scale`` < 1 for sizes near detection)."""
+    sign = rng.choice([-1.0, 1.0], 6)
+    if name == "offset":
+        return scale * sign * rng.uniform(0.2, 1.0, 6)
+    if name == "gain":
+        return scale * sign * rng.uniform(300.0, 1000.0, 6)  # ppm
+    if name == "backlash":
+        return scale * rng.uniform(0.02, 0.06, 6)  # mm
+    if name == "thermal":
+        return scale * rng.uniform(15.0, 25.0, 1)  # ppm/K: steel to aluminium
+    if name == "compliance":
+        return scale * rng.uniform(1.0, 3.0, 1)  # µm/N
+    if name == "leadscrew":
+        amp = scale * rng.uniform(0.005, 0.015, 6)
+        phase = rng.uniform(0, 2 * np.pi, 6)
+        return np.column_stack([amp * np.cos(phase), amp * np.sin(phase)]).ravel()
+    raise ValueError(f"no realistic size for effect {name!r}")

@@ -1,0 +1,122 @@
+"""The diagnosis on sessions with hidden effects: the verdict, the fall of the error once the
+named effect is added, `none` on clean data, `unexplained` (and where) for a structured effect
+outside the catalogue. The full rates over ≥ 50 sessions per case are measured by
+benchmarks/diagnosis_rates.py; here a few seeded sessions per case."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import SHARED_EXAMPLE
+from hexcal.cli import main
+from hexcal.diagnosis import diagnose
+from hexcal.diagnosis.model import Problem, fit_model
+from hexcal.effects.foreign import local_dent
+from hexcal.effects.inject import effect_hook, realistic_values
+from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.noise import NoiseSigmas
+from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.simulate import PoseRanges
+
+INST = Instruments(
+    tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+    encoders=EncoderNoise(reading_sigma_mm=0.002),
+)
+
+
+def _session(design, seed, hooks_for=None):
+    design = design.model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(seed)
+    plan = SessionPlan(temperature_rise_k=5.0)
+    truth = perturbed_truth(design, rng, plan)
+    hooks = hooks_for(rng, truth) if hooks_for else []
+    meas, _ = simulate_session(design, seed, plan, effects=hooks, truth=truth)
+    return meas, design
+
+
+@pytest.mark.parametrize("name", ["gain", "backlash", "thermal", "compliance", "leadscrew"])
+def test_hidden_effect_is_named_and_adding_it_brings_the_error_to_the_floor(design, name):
+    meas, design = _session(design, 300, lambda rng, t: [effect_hook(name, realistic_values(name, rng, t), t)])
+    before = diagnose(meas, design, 42, instruments=INST)
+    assert before.verdict == name, [(c.effect, c.delta_bic, c.explained) for c in before.candidates]
+    after = diagnose(meas, design, 42, add=[name], instruments=INST, problem=before.problem)
+    assert after.verdict == "none"
+    assert after.fit.cv_rms_mm < before.fit.cv_rms_mm
+    assert after.fit.cv_rms_mm <= 1.15 * after.noise_floor_mm
+
+
+def test_clean_session_says_none(design):
+    meas, design = _session(design, 301)
+    d = diagnose(meas, design, 42, instruments=INST)
+    assert d.verdict == "none" and not d.excess_significant
+    assert d.where["summary"] == "residual at the noise floor everywhere"
+
+
+def test_structured_effect_outside_the_catalogue_is_unexplained_and_located(design):
+    home = np.array(design.home.position)
+    meas, design = _session(design, 302, lambda rng, t: [local_dent(5, 0, 0.05, home)])
+    d = diagnose(meas, design, 42, instruments=INST)
+    assert d.verdict == "unexplained"
+    assert d.where["worst_legs"][0] == "leg 5"
+    assert "leg 5" in d.where["summary"]
+
+
+def test_offset_error_found_under_model_36(design):
+    meas, design = _session(design, 303)
+    design = design.with_geometry(design.a, design.b, design.offsets)  # true offsets differ by ≤ 1 mm
+    d = diagnose(meas, design, 36, instruments=INST)
+    assert d.verdict == "offset"
+
+
+def test_absorbed_effect_is_refused_with_what_absorbs_it(design):
+    """Poses that barely change the legs' directions cannot separate an offset from the base
+    points: the candidate is refused, naming the base points and the motion to record."""
+    design = design.model_copy(update={"platform_mass_kg": 20.0})
+    plan = SessionPlan(n_type_i=0, n_type_ii=0, n_type_iii=0, n_free=120,
+                       ranges=PoseRanges(box_mm=(0.5, 0.5, 40.0), tilt_deg=0.05))
+    meas, _ = simulate_session(design, 304, plan)
+    problem = Problem.build(meas, design, NoiseSigmas.from_instruments(INST))
+    fit = fit_model(problem, (), cross_validate=False)
+    from hexcal.diagnosis.diagnose import score_candidate
+
+    c = score_candidate(problem, fit, "offset")
+    assert not c.identifiable
+    assert any(n.startswith("a") for n in c.absorbed_by)
+    assert "change each leg's direction" in c.reason
+
+
+def test_nonphysical_value_is_flagged(design):
+    """A 3 mm departure of an offset from its design value is outside the plausible ±2 mm: the
+    fit flags it and says something else is being absorbed."""
+    meas, design = _session(design, 305)
+    off = design.offsets.copy()
+    off[1] -= 3.0  # the design file is 3 mm off on leg 2
+    problem = Problem.build(meas, design.with_geometry(design.a, design.b, off), NoiseSigmas.from_instruments(INST))
+    fit = fit_model(problem, ("offset",), cross_validate=False)
+    assert [p.name for p in fit.nonphysical()] == ["offset2"]
+    assert any("non-physical" in n and "absorbing" in n for n in fit.notes)
+
+
+def test_missing_data_makes_an_effect_unavailable(design):
+    meas, design = _session(design, 306)
+    no_mass = design.model_copy(update={"platform_mass_kg": None})
+    d = diagnose(meas, no_mass, 42, instruments=INST)
+    c = d.candidate("compliance")
+    assert not c.available and "platform_mass_kg" in c.reason
+
+
+@pytest.mark.skipif(not (SHARED_EXAMPLE / "truth.json").exists(), reason="../shared is absent")
+@pytest.mark.parametrize("model, verdict", [(36, "offset"), (42, "none")])
+def test_shared_example(capsys, model, verdict):
+    rc = main(["diagnose", str(SHARED_EXAMPLE / "measurements.csv"), "--robot", str(SHARED_EXAMPLE / "robot.json"),
+               "--instruments", str(SHARED_EXAMPLE / "instruments.json"), "--model", str(model), "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("model", "effects", "rms_mm", "cv_rms_mm", "noise_floor_mm", "verdict", "candidates", "where"):
+        assert key in out
+    assert out["verdict"] == verdict
+    for c in out["candidates"]:
+        assert {"effect", "cv_rms_mm_after", "delta_bic", "identifiable"} <= set(c)
