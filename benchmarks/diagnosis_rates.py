@@ -42,12 +42,21 @@ def session(case: str, seed: int, scale: float = 1.0):
     model, hooks, dent_leg = 42, [], None
     if case == "offset":
         model = 36  # the design's offsets are then taken as known: their error is the effect
-        design = design.with_geometry(design.a, design.b, truth.offsets - scale * (truth.offsets - design.offsets))
+        design = design.with_geometry(
+            design.a, design.b, truth.offsets - scale * (truth.offsets - design.offsets)
+        )
     elif case in EFFECTS:
         hooks = [effect_hook(case, realistic_values(case, rng, truth, scale), truth)]
     elif case == "foreign":
         dent_leg = int(rng.integers(1, 7))
-        hooks = [local_dent(dent_leg, int(rng.integers(0, 3)), float(rng.uniform(0.03, 0.06)), np.array(design.home.position))]
+        hooks = [
+            local_dent(
+                dent_leg,
+                int(rng.integers(0, 3)),
+                float(rng.uniform(0.03, 0.06)),
+                np.array(design.home.position),
+            )
+        ]
     meas, _ = simulate_session(design, seed, plan, effects=hooks, truth=truth)
     expected = {"clean": "none", "foreign": "unexplained"}.get(case, case)
     return meas, design, model, expected, dent_leg
@@ -57,10 +66,20 @@ def run_one(args):
     case, seed, scale = args
     meas, design, model, expected, dent_leg = session(case, seed, scale)
     d = diagnose(meas, design, model, instruments=INST)
-    out = {"case": case, "seed": seed, "scale": scale, "verdict": d.verdict, "expected": expected,
-           "cv_rms_mm": d.fit.cv_rms_mm, "floor_mm": d.noise_floor_mm, "where": d.where["summary"]}
+    out = {
+        "case": case,
+        "seed": seed,
+        "scale": scale,
+        "verdict": d.verdict,
+        "expected": expected,
+        "cv_rms_mm": d.fit.cv_rms_mm,
+        "floor_mm": d.noise_floor_mm,
+        "where": d.where["summary"],
+    }
     if dent_leg is not None:
-        out["located"] = bool(d.where["worst_legs"]) and d.where["worst_legs"][0] == f"leg {dent_leg}"
+        out["located"] = (
+            bool(d.where["worst_legs"]) and d.where["worst_legs"][0] == f"leg {dent_leg}"
+        )
     if d.verdict == expected and case in EFFECTS and scale == 1.0:
         after = diagnose(meas, design, model, add=[d.verdict], instruments=INST, problem=d.problem)
         out["cv_after_mm"] = after.fit.cv_rms_mm
@@ -88,14 +107,22 @@ def main() -> None:
                 continue
             right = [r["verdict"] == r["expected"] for r in sel]
             key = case if scale == 1.0 else f"{case} (0.3× size)"
-            s = {"sessions": len(sel), "right": float(np.mean(right)),
-                 "verdicts": {v: sum(r["verdict"] == v for r in sel) for v in sorted({r["verdict"] for r in sel})}}
+            s = {
+                "sessions": len(sel),
+                "right": float(np.mean(right)),
+                "verdicts": {
+                    v: sum(r["verdict"] == v for r in sel)
+                    for v in sorted({r["verdict"] for r in sel})
+                },
+            }
             after = [r["cv_after_mm"] / r["floor_after_mm"] for r in sel if "cv_after_mm" in r]
             if after:
                 s["after_ratio_median"] = float(np.median(after))
                 s["after_ratio_max"] = float(np.max(after))
                 s["after_within_15pct"] = float(np.mean(np.array(after) <= 1.15))
-                s["none_after_adding"] = float(np.mean([r["verdict_after"] == "none" for r in sel if "verdict_after" in r]))
+                s["none_after_adding"] = float(
+                    np.mean([r["verdict_after"] == "none" for r in sel if "verdict_after" in r])
+                )
             if case == "foreign":
                 s["located_right_leg"] = float(np.mean([r["located"] for r in sel]))
             summary[key] = s

@@ -24,7 +24,9 @@ INST = Instruments(
 @pytest.fixture(scope="module")
 def session_7_7_40():
     """6 legs × (7 Type II + 7 Type III) constrained poses + 40 free poses."""
-    meas, _ = simulate_session(left_hand(), 1, SessionPlan(n_type_i=0, n_type_ii=7, n_type_iii=7, n_free=40))
+    meas, _ = simulate_session(
+        left_hand(), 1, SessionPlan(n_type_i=0, n_type_ii=7, n_type_iii=7, n_free=40)
+    )
     return meas
 
 

@@ -111,3 +111,52 @@ def test_shipped_example_is_the_simulators_output(tmp_path):
     assert main(["simulate", "--out", str(tmp_path), "--seed", "1"]) == 0
     for name in ("robot.json", "measurements.csv", "instruments.json", "truth.json"):
         assert (tmp_path / name).read_text() == (EXAMPLE / name).read_text(), name
+
+
+def test_calibrate_with_an_added_effect(tmp_path, capsys):
+    import numpy as np
+
+    from hexcal.effects.inject import effect_hook
+    from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise, save_instruments
+    from hexcal.measurements import write_measurements
+    from hexcal.robot import save_robot
+    from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+    from hexcal.study import left_hand
+
+    design = left_hand()
+    rng = np.random.default_rng(2)
+    truth = perturbed_truth(design, rng, SessionPlan())
+    gains = np.array([800.0, -600.0, 700.0, -900.0, 500.0, -400.0])
+    meas, _ = simulate_session(
+        design, 2, SessionPlan(), effects=[effect_hook("gain", gains, truth)], truth=truth
+    )
+    write_measurements(meas, tmp_path / "m.csv")
+    save_robot(design, tmp_path / "r.json")
+    save_instruments(
+        Instruments(
+            tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+            encoders=EncoderNoise(reading_sigma_mm=0.002),
+        ),
+        tmp_path / "i.json",
+    )
+    rc = main(
+        [
+            "calibrate",
+            str(tmp_path / "m.csv"),
+            "--robot",
+            str(tmp_path / "r.json"),
+            "--instruments",
+            str(tmp_path / "i.json"),
+            "--add",
+            "gain",
+            "--json",
+        ]
+    )
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["effects"] == ["gain"]
+    est = {p["name"]: p for p in out["parameters"]}
+    for k, g in enumerate(gains, start=1):
+        p = est[f"gain.g{k}"]
+        assert abs(p["value"] - g) < 4 * p["sigma"]
+    assert np.max(np.abs(np.array(out["base_points"]) - truth.a)) < 0.2

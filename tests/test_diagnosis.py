@@ -9,8 +9,8 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import SHARED_EXAMPLE
+
 from hexcal.cli import main
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.model import Problem, fit_model
@@ -39,7 +39,9 @@ def _session(design, seed, hooks_for=None):
 
 @pytest.mark.parametrize("name", ["gain", "backlash", "thermal", "compliance", "leadscrew"])
 def test_hidden_effect_is_named_and_adding_it_brings_the_error_to_the_floor(design, name):
-    meas, design = _session(design, 300, lambda rng, t: [effect_hook(name, realistic_values(name, rng, t), t)])
+    meas, design = _session(
+        design, 300, lambda rng, t: [effect_hook(name, realistic_values(name, rng, t), t)]
+    )
     before = diagnose(meas, design, 42, instruments=INST)
     assert before.verdict == name, [(c.effect, c.delta_bic, c.explained) for c in before.candidates]
     after = diagnose(meas, design, 42, add=[name], instruments=INST, problem=before.problem)
@@ -66,7 +68,9 @@ def test_structured_effect_outside_the_catalogue_is_unexplained_and_located(desi
 
 def test_offset_error_found_under_model_36(design):
     meas, design = _session(design, 303)
-    design = design.with_geometry(design.a, design.b, design.offsets)  # true offsets differ by ≤ 1 mm
+    design = design.with_geometry(
+        design.a, design.b, design.offsets
+    )  # true offsets differ by ≤ 1 mm
     d = diagnose(meas, design, 36, instruments=INST)
     assert d.verdict == "offset"
 
@@ -75,8 +79,13 @@ def test_absorbed_effect_is_refused_with_what_absorbs_it(design):
     """Poses that barely change the legs' directions cannot separate an offset from the base
     points: the candidate is refused, naming the base points and the motion to record."""
     design = design.model_copy(update={"platform_mass_kg": 20.0})
-    plan = SessionPlan(n_type_i=0, n_type_ii=0, n_type_iii=0, n_free=120,
-                       ranges=PoseRanges(box_mm=(0.5, 0.5, 40.0), tilt_deg=0.05))
+    plan = SessionPlan(
+        n_type_i=0,
+        n_type_ii=0,
+        n_type_iii=0,
+        n_free=120,
+        ranges=PoseRanges(box_mm=(0.5, 0.5, 40.0), tilt_deg=0.05),
+    )
     meas, _ = simulate_session(design, 304, plan)
     problem = Problem.build(meas, design, NoiseSigmas.from_instruments(INST))
     fit = fit_model(problem, (), cross_validate=False)
@@ -94,7 +103,9 @@ def test_nonphysical_value_is_flagged(design):
     meas, design = _session(design, 305)
     off = design.offsets.copy()
     off[1] -= 3.0  # the design file is 3 mm off on leg 2
-    problem = Problem.build(meas, design.with_geometry(design.a, design.b, off), NoiseSigmas.from_instruments(INST))
+    problem = Problem.build(
+        meas, design.with_geometry(design.a, design.b, off), NoiseSigmas.from_instruments(INST)
+    )
     fit = fit_model(problem, ("offset",), cross_validate=False)
     assert [p.name for p in fit.nonphysical()] == ["offset2"]
     assert any("non-physical" in n and "absorbing" in n for n in fit.notes)
@@ -111,11 +122,31 @@ def test_missing_data_makes_an_effect_unavailable(design):
 @pytest.mark.skipif(not (SHARED_EXAMPLE / "truth.json").exists(), reason="../shared is absent")
 @pytest.mark.parametrize("model, verdict", [(36, "offset"), (42, "none")])
 def test_shared_example(capsys, model, verdict):
-    rc = main(["diagnose", str(SHARED_EXAMPLE / "measurements.csv"), "--robot", str(SHARED_EXAMPLE / "robot.json"),
-               "--instruments", str(SHARED_EXAMPLE / "instruments.json"), "--model", str(model), "--json"])
+    rc = main(
+        [
+            "diagnose",
+            str(SHARED_EXAMPLE / "measurements.csv"),
+            "--robot",
+            str(SHARED_EXAMPLE / "robot.json"),
+            "--instruments",
+            str(SHARED_EXAMPLE / "instruments.json"),
+            "--model",
+            str(model),
+            "--json",
+        ]
+    )
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
-    for key in ("model", "effects", "rms_mm", "cv_rms_mm", "noise_floor_mm", "verdict", "candidates", "where"):
+    for key in (
+        "model",
+        "effects",
+        "rms_mm",
+        "cv_rms_mm",
+        "noise_floor_mm",
+        "verdict",
+        "candidates",
+        "where",
+    ):
         assert key in out
     assert out["verdict"] == verdict
     for c in out["candidates"]:

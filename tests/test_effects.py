@@ -21,7 +21,7 @@ SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
 
 def test_catalogue_names_are_the_cli_vocabulary():
     assert set(NAMES) <= set(CATALOGUE)
-    with pytest.raises(ValueError, match="unknown effect 'warp'.*catalogue has"):
+    with pytest.raises(ValueError, match=r"unknown effect 'warp'.*catalogue has"):
         get_effect("warp")
 
 
@@ -30,7 +30,9 @@ def test_contract(name, design):
     eff = get_effect(name)
     assert eff.physics.endswith(".") and eff.separating_motion
     specs = eff.params(design.model_copy(update={"platform_mass_kg": 10.0}))
-    assert specs and all(isinstance(s, ParamSpec) and s.plausible[0] < s.plausible[1] for s in specs)
+    assert specs and all(
+        isinstance(s, ParamSpec) and s.plausible[0] < s.plausible[1] for s in specs
+    )
     prefix = "offset" if name == "offset" else f"{name}."
     assert all(s.name.startswith(prefix) for s in specs)
 
@@ -85,7 +87,9 @@ def test_injected_effect_is_recovered_within_its_uncertainty(name, design):
     plan = SessionPlan(temperature_rise_k=5.0)
     truth = perturbed_truth(design, rng, plan)
     values = realistic_values(name, rng, truth)
-    meas, _ = simulate_session(design, 21, plan, effects=[effect_hook(name, values, truth)], truth=truth)
+    meas, _ = simulate_session(
+        design, 21, plan, effects=[effect_hook(name, values, truth)], truth=truth
+    )
     problem = Problem.build(meas, design, SIG)
     fit = fit_model(problem, ("offset", name), cross_validate=False)
     rows = [p for p in fit.params if p.name.startswith(name + ".")]
@@ -101,7 +105,9 @@ def test_noise_free_effect_fit_is_exact(design):
     plan = SessionPlan(noise=NoiseModel(), resolution=None, temperature_rise_k=5.0)
     truth = perturbed_truth(design, rng, plan)
     values = realistic_values("gain", rng, truth)
-    meas, _ = simulate_session(design, 5, plan, effects=[effect_hook("gain", values, truth)], truth=truth)
+    meas, _ = simulate_session(
+        design, 5, plan, effects=[effect_hook("gain", values, truth)], truth=truth
+    )
     fit = fit_model(Problem.build(meas, design, SIG), ("offset", "gain"), cross_validate=False)
     est = np.array([p.value for p in fit.params if p.name.startswith("gain.")])
     assert np.allclose(est, values, atol=1e-6)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from statcheck import delta_method_cov, trace_ratio_tolerance
-from test_solvers_paper import K, _pack, _unpack, rel_err
+from statcheck import spread_matches_theory, trace_ratio_tolerance
+from test_solvers_paper import K, rel_err
 
 from hexcal.simulate import NoiseModel, Simulator
 from hexcal.solvers import direct
@@ -45,11 +45,8 @@ def test_type_iii_sphere_fit_noise_free(clean_sim, truth, rng):
 
 @pytest.mark.parametrize("method", ["type_i", "type_ii", "type_iii"])
 def test_direct_noisy_spread_matches_first_order_theory(method, truth, rng):
-    sp, sa, sl = 0.01, 0.002, 0.002
-    sim = Simulator(truth, noise=NoiseModel(sp, sa, sl))
-    n = 8
-    P0, R0 = getattr(sim, method)(K, (n,), rng)
-    rho0 = sim.readings(P0, R0)[:, K]
+    sim = Simulator(truth, noise=NoiseModel(0.01, 0.002, 0.002))
+    P0, R0 = getattr(sim, method)(K, (8,), rng)
 
     def solve(P, R, rho):
         if method == "type_i":
@@ -59,15 +56,6 @@ def test_direct_noisy_spread_matches_first_order_theory(method, truth, rng):
             return direct.type_ii_direct(P, R)[0]
         return direct.type_iii_direct(P, R, np.broadcast_to(truth.b[K], (*P.shape[:-2], 3)))[0]
 
-    sigma = np.concatenate([np.full(3 * n, sp), np.full(3 * n, np.deg2rad(sa)), np.full(n, sl)])
-    cov = delta_method_cov(lambda z: solve(*_unpack(z, P0, R0)), _pack(P0, R0, rho0), sigma)
     trials = 4000
-    Pm, Rm, rhom = sim.noise.apply(
-        rng,
-        np.broadcast_to(P0, (trials, n, 3)),
-        np.broadcast_to(R0, (trials, n, 3, 3)),
-        np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)),
-    )
-    est = solve(Pm, Rm, rhom[..., K])
-    ratio = np.trace(np.cov(est.T)) / np.trace(cov)
+    ratio, _, _ = spread_matches_theory(sim, solve, P0, R0, K, trials, rng)
     assert abs(ratio - 1.0) < trace_ratio_tolerance(trials), ratio

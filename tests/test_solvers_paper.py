@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-from statcheck import delta_method_cov, trace_ratio_tolerance
+from statcheck import spread_matches_theory, trace_ratio_tolerance
 
+from hexcal.simulate import NoiseModel, Simulator
 from hexcal.solvers import paper
 from hexcal.solvers.linalg import lstsq
 
@@ -49,56 +49,26 @@ def test_type_iii_and_offset_noise_free(clean_sim, truth, rng):
     assert np.max(np.abs(off - truth.offsets[K])) < 1e-9 * truth.offsets[K]
 
 
-def _pack(P, R, rho):
-    return np.concatenate([P.ravel(), np.zeros(P.size), rho.ravel()])
-
-
-def _unpack(z, P0, R0):
-    n = len(P0)
-    P = z[: 3 * n].reshape(n, 3)
-    dtheta = z[3 * n : 6 * n].reshape(n, 3)
-    R = R0 @ Rotation.from_rotvec(dtheta).as_matrix()  # platform-frame perturbation
-    return P, R, z[6 * n :]
-
-
 @pytest.mark.parametrize("method", ["type_i", "type_ii", "type_iii"])
 def test_noisy_spread_matches_first_order_theory(method, truth, rng):
-    """Monte-Carlo covariance of each solver against its delta-method prediction."""
-    from hexcal.simulate import NoiseModel, Simulator
-
-    sp, sa, sl = 0.01, 0.002, 0.002
-    sim = Simulator(truth, noise=NoiseModel(sp, sa, sl))
-    n = 8
-    P0, R0 = getattr(sim, method)(K, (n,), rng)
-    rho0 = sim.readings(P0, R0)[:, K]
-    b_true = truth.b[K]
+    """Monte-Carlo covariance of each solver against its delta-method prediction, and no bias
+    beyond 4 standard errors of the Monte-Carlo mean."""
+    sim = Simulator(truth, noise=NoiseModel(0.01, 0.002, 0.002))
+    P0, R0 = getattr(sim, method)(K, (8,), rng)
 
     def solve(P, R, rho):
         if method == "type_i":
             return np.concatenate(paper.type_i_paper(P, R, rho + truth.offsets[K]), axis=-1)
         if method == "type_ii":
             return paper.type_ii_paper(P, R)
-        return paper.type_iii_paper(P, R, np.broadcast_to(b_true, (*P.shape[:-2], 3)))
-
-    sigma = np.concatenate([np.full(3 * n, sp), np.full(3 * n, np.deg2rad(sa)), np.full(n, sl)])
-    cov = delta_method_cov(lambda z: solve(*_unpack(z, P0, R0)), _pack(P0, R0, rho0), sigma)
+        return paper.type_iii_paper(P, R, np.broadcast_to(truth.b[K], (*P.shape[:-2], 3)))
 
     trials = 4000
-    Pm, Rm, rhom = sim.noise.apply(
-        rng,
-        np.broadcast_to(P0, (trials, n, 3)),
-        np.broadcast_to(R0, (trials, n, 3, 3)),
-        np.broadcast_to(sim.readings(P0, R0), (trials, n, 6)),
-    )
-    est = solve(Pm, Rm, rhom[..., K])
-    mc = np.cov(est.T)
-    ratio = np.trace(mc) / np.trace(cov)
+    ratio, mean, mc = spread_matches_theory(sim, solve, P0, R0, K, trials, rng)
     assert abs(ratio - 1.0) < trace_ratio_tolerance(trials), ratio
-    # Unbiased to first order: the mean error is within 4 standard errors.
-    true = (
-        np.concatenate([truth.b[K], truth.a[K]])
-        if method == "type_i"
-        else (b_true if method == "type_ii" else truth.a[K])
-    )
-    se = np.sqrt(np.diag(mc) / trials)
-    assert np.all(np.abs(est.mean(axis=0) - true) < 4 * se + 1e-12)
+    true = {
+        "type_i": np.concatenate([truth.b[K], truth.a[K]]),
+        "type_ii": truth.b[K],
+        "type_iii": truth.a[K],
+    }[method]
+    assert np.all(np.abs(mean - true) < 4 * np.sqrt(np.diag(mc) / trials) + 1e-12)

@@ -96,6 +96,8 @@ def _calibrate_with_effects(meas, design, model, instruments, effects) -> Calibr
     ref = fit.refinement
     lin = problem.linear42 if model == 42 else problem.linear36
     robot = design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
-    cal = Calibration(model, robot, lin, ref, fit.residuals, leg_residuals(lin.a, lin.b, lin.offsets, meas))
+    cal = Calibration(
+        model, robot, lin, ref, fit.residuals, leg_residuals(lin.a, lin.b, lin.offsets, meas)
+    )
     cal.effects = tuple(effects)
     return cal

@@ -31,6 +31,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         instruments=inst,
         form=args.form,
         do_refine=not args.no_refine,
+        effects=tuple(args.add or ()),
     )
     if inst is not None:
         noise_src = f"stated in {args.instruments}"
@@ -76,7 +77,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     # --auto: add the named effect and diagnose again, until nothing identifiable is missing.
     while args.auto and steps[-1].verdict not in ("none", "unexplained") and len(steps) < 8:
         added.append(steps[-1].verdict)
-        steps.append(diagnose(meas, design, args.model, add=added, instruments=inst, problem=steps[0].problem))
+        steps.append(
+            diagnose(
+                meas, design, args.model, add=added, instruments=inst, problem=steps[0].problem
+            )
+        )
     if args.plots:
         from hexcal.diagnosis.plots import before_after, write_plots
 
@@ -96,8 +101,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         out = steps[-1].to_dict()
         if len(steps) > 1:
             out["steps"] = [
-                {"model": d.fit.model_name, "effects": list(d.effects), "cv_rms_mm": d.fit.cv_rms_mm,
-                 "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm, "noise_floor_mm": d.noise_floor_mm, "verdict": d.verdict}
+                {
+                    "model": d.fit.model_name,
+                    "effects": list(d.effects),
+                    "cv_rms_mm": d.fit.cv_rms_mm,
+                    "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
+                    "noise_floor_mm": d.noise_floor_mm,
+                    "verdict": d.verdict,
+                }
                 for d in steps
             ]
         print(json.dumps(out, indent=2))
@@ -153,16 +164,24 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from hexcal.study import left_hand
 
     design = load_robot(args.robot) if args.robot else left_hand()
+    if args.mass_kg is not None:
+        design = design.model_copy(update={"platform_mass_kg": args.mass_kg})
     plan = SessionPlan(
         n_type_i=args.n_type_i,
         n_type_ii=args.n_type_ii,
         n_type_iii=args.n_type_iii,
         n_free=args.n_free,
         noise=NoiseModel(args.sigma_p_mm, args.sigma_a_deg, args.sigma_l_mm),
+        temperature_rise_k=args.temperature_rise_k,
     )
-    out = write_session_dir(args.out, design, args.seed, plan)
+    if args.effect == "compliance" and not design.platform_mass_kg:
+        raise ValueError(
+            "--effect compliance needs the platform mass: pass --mass-kg (or a robot.json with platform_mass_kg)"
+        )
+    out = write_session_dir(args.out, design, args.seed, plan, args.effect, args.effect_scale)
+    hidden = f", hidden effect: {args.effect}" if args.effect else ""
     print(
-        f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json)"
+        f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json{hidden})"
     )
     return 0
 
@@ -192,18 +211,30 @@ def build_parser() -> argparse.ArgumentParser:
         help="linear seed: the paper's forms or the direct ones",
     )
     c.add_argument("--no-refine", action="store_true", help="stop after the linear methods")
-    c.add_argument("--add", nargs="+", metavar="EFFECT", help="catalogue effects to fit with the geometry")
+    c.add_argument(
+        "--add", nargs="+", metavar="EFFECT", help="catalogue effects to fit with the geometry"
+    )
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.add_argument("--out", type=Path, help="write the calibrated robot.json here")
     c.set_defaults(func=_cmd_calibrate)
 
-    d = sub.add_parser("diagnose", help="compare the model with the measurements and find the missing effect")
+    d = sub.add_parser(
+        "diagnose", help="compare the model with the measurements and find the missing effect"
+    )
     d.add_argument("measurements", type=Path, help="measurements.csv (INTERCHANGE.md)")
     d.add_argument("--robot", type=Path, required=True)
     d.add_argument("--model", type=int, choices=(36, 42), default=42)
-    d.add_argument("--instruments", type=Path, help="instruments.json: the noise that sets the floor")
-    d.add_argument("--add", nargs="+", metavar="EFFECT", help="catalogue effects already in the model")
-    d.add_argument("--auto", action="store_true", help="add the named effect and go on until the verdict is none")
+    d.add_argument(
+        "--instruments", type=Path, help="instruments.json: the noise that sets the floor"
+    )
+    d.add_argument(
+        "--add", nargs="+", metavar="EFFECT", help="catalogue effects already in the model"
+    )
+    d.add_argument(
+        "--auto",
+        action="store_true",
+        help="add the named effect and go on until the verdict is none",
+    )
     d.add_argument("--json", action="store_true", help="print one JSON object")
     d.add_argument("--plots", help="directory for the residual plots (PNG)")
     d.add_argument("--report", help="write one self-contained HTML report here")
@@ -252,6 +283,26 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--sigma-p-mm", type=float, default=0.01)
     m.add_argument("--sigma-a-deg", type=float, default=0.002)
     m.add_argument("--sigma-l-mm", type=float, default=0.002)
+    m.add_argument(
+        "--effect",
+        choices=("offset", "gain", "backlash", "thermal", "compliance", "leadscrew"),
+        help="hide this catalogue effect at a realistic size",
+    )
+    m.add_argument(
+        "--effect-scale",
+        type=float,
+        default=1.0,
+        help="multiply the effect's size (0.3: near detection)",
+    )
+    m.add_argument(
+        "--mass-kg", type=float, help="platform mass written to robot.json (compliance needs it)"
+    )
+    m.add_argument(
+        "--temperature-rise-k",
+        type=float,
+        default=1.5,
+        help="structure temperature rise over the session, K",
+    )
     m.set_defaults(func=_cmd_simulate)
     return p
 

@@ -169,7 +169,9 @@ def refine(
             _, j = _model(xx, P, R, rho, fixed, fit_offsets, basis)
             return np.einsum("mij,mjp->mip", W, j).reshape(-1, len(xx))
 
-        sol = least_squares(fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac")
+        sol = least_squares(
+            fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac"
+        )
         x, nfev = sol.x, nfev + sol.nfev
     res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
     jw = jac(x)

@@ -61,7 +61,9 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
         lines.append(f"effects fitted with the geometry: {', '.join(cal.effects)}")
         for name, v, c, st in zip(ref.names, ref.x, ref.ci95, ref.status, strict=True):
             if "." in name:
-                lines.append(f"  {name:<16} {v:12.5g} ± {c:.3g}" + ("" if st == "ok" else f"  ({st})"))
+                lines.append(
+                    f"  {name:<16} {v:12.5g} ± {c:.3g}" + ("" if st == "ok" else f"  ({st})")
+                )
     if ref:
         lines.append(f"chi²/dof = {ref.chi2 / ref.dof:.3f} over {ref.dof} degrees of freedom")
         if (

@@ -130,12 +130,28 @@ def truth_json(
 
 
 def write_session_dir(
-    outdir: str | Path, design: Robot, seed: int, plan: SessionPlan = SessionPlan()
+    outdir: str | Path,
+    design: Robot,
+    seed: int,
+    plan: SessionPlan = SessionPlan(),
+    effect: str | None = None,
+    effect_scale: float = 1.0,
 ) -> Path:
-    """Write robot.json (design), measurements.csv, instruments.json and truth.json."""
+    """Write robot.json (design), measurements.csv, instruments.json and truth.json; with
+    ``effect``, that catalogue effect is hidden at a realistic size (its true values go to
+    truth.json)."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    meas, truth = simulate_session(design, seed, plan)
+    rng = np.random.default_rng(seed)
+    truth = perturbed_truth(design, rng, plan)
+    hooks, label, values = [], "none beyond Model 42", None
+    if effect:
+        from hexcal.effects.inject import effect_hook, realistic_values
+
+        values = realistic_values(effect, rng, truth, effect_scale)
+        hooks = [effect_hook(effect, values, truth)]
+        label = effect
+    meas, truth = simulate_session(design, seed, plan, effects=hooks, truth=truth)
     save_robot(design, outdir / "robot.json")
     write_measurements(meas, outdir / "measurements.csv")
     inst = Instruments(
@@ -146,5 +162,13 @@ def write_session_dir(
         encoders=EncoderNoise(reading_sigma_mm=plan.noise.sigma_reading_mm),
     )
     save_instruments(inst, outdir / "instruments.json")
-    write_text_atomic(outdir / "truth.json", truth_json(truth, seed, plan))
+    text = truth_json(truth, seed, plan, label)
+    if values is not None:
+        from hexcal.effects import get_effect
+
+        data = json.loads(text)
+        names = [sp.name for sp in get_effect(effect).params(design)]
+        data["effect_values"] = dict(zip(names, values.tolist(), strict=True))
+        text = json.dumps(data, indent=2) + "\n"
+    write_text_atomic(outdir / "truth.json", text)
     return outdir

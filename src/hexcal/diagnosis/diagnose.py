@@ -105,6 +105,7 @@ class Diagnosis:
             "verdict": self.verdict,
             "rms_per_leg_mm": f.rms_per_leg.tolist(),
             "cv_rms_per_leg_mm": f.cv_rms_per_leg.tolist(),
+            "rms_per_step": f.rms_per_step(self.problem.meas.step),
             "candidates": [
                 {
                     "effect": c.effect,
@@ -123,8 +124,15 @@ class Diagnosis:
             ],
             "where": self.where,
             "parameters": [
-                {"name": p.name, "value": p.value, "sigma": _nan_none(p.sigma), "ci95": _nan_none(p.ci95),
-                 "unit": p.unit, "status": p.status, "physical": p.physical}
+                {
+                    "name": p.name,
+                    "value": p.value,
+                    "sigma": _nan_none(p.sigma),
+                    "ci95": _nan_none(p.ci95),
+                    "unit": p.unit,
+                    "status": p.status,
+                    "physical": p.physical,
+                }
                 for p in f.params
             ],
             "notes": self.notes + f.notes,
@@ -146,7 +154,9 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
     eff = get_effect(name)
     why = problem.missing(name)
     if why:
-        return Candidate(name, 0.0, False, False, reason=why, separating_motion=eff.separating_motion)
+        return Candidate(
+            name, 0.0, False, False, reason=why, separating_motion=eff.separating_motion
+        )
     ref = fit.refinement
     W = ref.whiteners
     specs = eff.params(problem.design)
@@ -167,7 +177,13 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
     r = ref.whitened_residual
     qb = _orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(r), 0))
     score = float(np.sum((qb.T @ r) ** 2))
-    cand = Candidate(name, score, identifiable=not absorbed, available=True, separating_motion=eff.separating_motion)
+    cand = Candidate(
+        name,
+        score,
+        identifiable=not absorbed,
+        available=True,
+        separating_motion=eff.separating_motion,
+    )
     if absorbed:
         # Name the model parameters that mimic the worst-absorbed column.
         worst = int(np.argmin(sines))
@@ -208,7 +224,9 @@ def diagnose(
     """Fit Model ``model`` plus the effects in ``add`` and diagnose what is missing."""
     sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
     problem = problem or Problem.build(meas, design, sig)
-    effects = (("offset",) if model == 42 else ()) + tuple(e for e in add if not (e == "offset" and model == 42))
+    effects = (("offset",) if model == 42 else ()) + tuple(
+        e for e in add if not (e == "offset" and model == 42)
+    )
     fit = fit_model(problem, effects)
     notes: list[str] = []
 
@@ -231,7 +249,9 @@ def diagnose(
         floor_source = "stated instrument noise, propagated through the fitted model"
         s2 = 1.0
     else:
-        richest = tuple(effects) + tuple(c.effect for c in candidates if c.available and c.identifiable)
+        richest = tuple(effects) + tuple(
+            c.effect for c in candidates if c.available and c.identifiable
+        )
         try:
             rich = fit_model(problem, richest, cross_validate=False, seed_fit=fit)
         except (ValueError, np.linalg.LinAlgError):
@@ -244,7 +264,9 @@ def diagnose(
             "estimated (no instruments file): the residual level of a fit with every identifiable "
             f"catalogue effect ({', '.join(richest)}); an effect outside the catalogue would inflate it"
         )
-        notes.append("the noise floor is estimated, not stated: pass --instruments for a firmer verdict")
+        notes.append(
+            "the noise floor is estimated, not stated: pass --instruments for a firmer verdict"
+        )
     expected = fit.dof * s2  # χ² the current fit would have from noise alone
     chi2_per_dof = fit.chi2 / expected
     excess = chi2_per_dof > 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
@@ -256,7 +278,8 @@ def diagnose(
     # "Explains most of the excess" only means something when there is a significant excess to
     # explain; below it, the excess is mostly noise and strong evidence (ΔBIC) decides alone.
     winners = [
-        c for c in candidates
+        c
+        for c in candidates
         if c.refit is not None and c.delta_bic < BIC_STRONG and (not excess or c.explained >= MOST)
     ]
     if winners:
@@ -272,6 +295,19 @@ def diagnose(
     else:
         verdict = "none"
     where = concentrations(problem, fit, floor)
-    candidates.sort(key=lambda c: (np.isnan(c.delta_bic), c.delta_bic if np.isfinite(c.delta_bic) else -c.score))
-    return Diagnosis(fit, floor_mm, floor_source, float(chi2_per_dof), bool(excess), verdict, candidates, where,
-                     floor, problem, notes)
+    candidates.sort(
+        key=lambda c: (np.isnan(c.delta_bic), c.delta_bic if np.isfinite(c.delta_bic) else -c.score)
+    )
+    return Diagnosis(
+        fit,
+        floor_mm,
+        floor_source,
+        float(chi2_per_dof),
+        bool(excess),
+        verdict,
+        candidates,
+        where,
+        floor,
+        problem,
+        notes,
+    )

@@ -74,6 +74,18 @@ class ModelFit:
     def cv_rms_per_leg(self) -> np.ndarray:
         return np.sqrt(np.mean(self.cv_residuals**2, axis=0))
 
+    def rms_per_step(self, steps: np.ndarray) -> dict[str, dict[str, float]]:
+        """{step: {"rms_mm", "cv_rms_mm", "poses"}} in recording order; steps (M,) labels."""
+        out = {}
+        for step in dict.fromkeys(steps.tolist()):
+            m = steps == step
+            out[str(step)] = {
+                "rms_mm": float(np.sqrt(np.mean(self.residuals[m] ** 2))),
+                "cv_rms_mm": float(np.sqrt(np.mean(self.cv_residuals[m] ** 2))),
+                "poses": int(m.sum()),
+            }
+        return out
+
     @property
     def n_params(self) -> int:
         return len(self.refinement.x)
@@ -108,7 +120,9 @@ class Problem:
         args = (meas.position, R, meas.readings, meas.leg, meas.constraint)
         lin36 = calibrate_linear(*args, 36, design.offsets)
         lin42 = calibrate_linear(*args, 42, design.offsets)
-        data = EffectData(meas.readings, meas.position, R, meas.t, meas.temperature, design, lin42.a, lin42.b)
+        data = EffectData(
+            meas.readings, meas.position, R, meas.t, meas.temperature, design, lin42.a, lin42.b
+        )
         return cls(meas, design, sigmas, lin36, lin42, data)
 
     @property
@@ -168,8 +182,19 @@ def fit_model(
             off0 = r.offsets(problem.design.offsets)
         theta0 = np.array([r.value(s.name) if s.name in r.names else 0.0 for s in specs])
     names = [s.name for s in specs]
-    ref = refine(problem.meas.position, problem.R, problem.meas.readings, a0, b0, off0, fit_offsets,
-                 problem.sigmas, basis=basis, basis_names=names, theta0=theta0)
+    ref = refine(
+        problem.meas.position,
+        problem.R,
+        problem.meas.readings,
+        a0,
+        b0,
+        off0,
+        fit_offsets,
+        problem.sigmas,
+        basis=basis,
+        basis_names=names,
+        theta0=theta0,
+    )
     fit = ModelFit(effects, ref, ref.residuals, _param_rows(ref, specs, problem.design), names)
     if cross_validate:
         cross_validation(problem, fit, basis)
@@ -198,7 +223,17 @@ def _param_rows(ref: Refinement, specs: list[ParamSpec], design: Robot) -> list[
             unit, plausible = "mm", (d + off_lo, d + off_hi)
         else:
             unit, plausible = "mm", None
-        rows.append(ParamRow(name, float(ref.x[i]), float(ref.sigma[i]), float(ref.ci95[i]), unit, plausible, ref.status[i]))
+        rows.append(
+            ParamRow(
+                name,
+                float(ref.x[i]),
+                float(ref.sigma[i]),
+                float(ref.ci95[i]),
+                unit,
+                plausible,
+                ref.status[i],
+            )
+        )
     return rows
 
 
@@ -228,9 +263,20 @@ def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None
             a0, b0 = x0[:18].reshape(6, 3), x0[18:36].reshape(6, 3)
             off0 = x0[36:42] if fit_offsets else fixed
             q = basis.shape[-1]
-            r = refine(P[train], R[train], rho[train], a0, b0, off0, fit_offsets, problem.sigmas,
-                       basis=basis[train], basis_names=fit.basis_names, theta0=x0[len(x0) - q:] if q else None,
-                       passes=1)
+            r = refine(
+                P[train],
+                R[train],
+                rho[train],
+                a0,
+                b0,
+                off0,
+                fit_offsets,
+                problem.sigmas,
+                basis=basis[train],
+                basis_names=fit.basis_names,
+                theta0=x0[len(x0) - q :] if q else None,
+                passes=1,
+            )
             res, _ = _model(r.x, P[test], R[test], rho[test], fixed, fit_offsets, basis[test])
             held[test] = -res
         if blocked:

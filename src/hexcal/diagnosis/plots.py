@@ -113,20 +113,23 @@ def _window(n: int) -> int:
     return min(n, max(7, n // 5))
 
 
-def _running(x: np.ndarray, y: np.ndarray, stat: Callable = np.median) -> tuple[np.ndarray, np.ndarray]:
-    """Running ``stat`` of ``y`` over ``x``: (sorted x, value at each), each (n,). The window is
-    centred and shrinks at the ends, so the line spans the whole range of ``x``; empty when
-    there are fewer than 5 finite points."""
+def _running(
+    x: np.ndarray, y: np.ndarray, stat: Callable = np.nanmedian
+) -> tuple[np.ndarray, np.ndarray]:
+    """Running ``stat`` (a NaN-ignoring reducer taking ``axis``) of ``y`` over ``x``: (sorted x,
+    value at each), each (n,). The window is centred and shrinks at the ends, so the line spans
+    the whole range of ``x``; empty when there are fewer than 5 finite points."""
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
     n = len(x)
     if n < 5:
         return np.empty(0), np.empty(0)
     order = np.argsort(x, kind="stable")
-    xs, ys = x[order], y[order]
     h = _window(n) // 2
-    out = np.array([stat(ys[max(0, i - h) : i + h + 1]) for i in range(n)])
-    return xs, out
+    # NaN padding shrinks the window at the ends without a Python loop over the points.
+    padded = np.concatenate([np.full(h, np.nan), y[order], np.full(h, np.nan)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * h + 1)
+    return x[order], stat(windows, axis=1)
 
 
 def _floor_band(ax: Axes, x: np.ndarray, floor: np.ndarray) -> None:
@@ -157,7 +160,16 @@ def _title(fig: Figure, view: _View, what: str) -> None:
 
 def _legend_handles(view: _View, line: str = "running median") -> list:
     return [
-        Line2D([], [], ls="", marker="o", ms=4, color="0.3", alpha=0.6, label=view.resid_label.split(" (")[0]),
+        Line2D(
+            [],
+            [],
+            ls="",
+            marker="o",
+            ms=4,
+            color="0.3",
+            alpha=0.6,
+            label=view.resid_label.split(" (")[0],
+        ),
         Patch(color=FLOOR_COLOUR, label="±2σ noise floor"),
         Line2D([], [], color="k", lw=1.6, label=line),
     ]
@@ -195,7 +207,14 @@ def _leg_scatter(
 
 
 def _plot_reading(view: _View, outdir: Path, name: str) -> Path:
-    return _leg_scatter(view, view.meas.readings, "encoder reading (mm)", "residual against leg reading", outdir, name)
+    return _leg_scatter(
+        view,
+        view.meas.readings,
+        "encoder reading (mm)",
+        "residual against leg reading",
+        outdir,
+        name,
+    )
 
 
 def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
@@ -213,12 +232,28 @@ def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
             r = view.resid_um[sel, k]
             fl = float(np.sqrt(np.mean(view.floor_um[sel, k] ** 2)))
             ax.fill_between([s - 0.4, s + 0.4], -2 * fl, 2 * fl, color=FLOOR_COLOUR, lw=0, zorder=0)
-            ax.plot(s + rng.uniform(-0.18, 0.18, sel.sum()), r, "o", ms=3, color=LEG_COLOURS[k], alpha=0.5, mec="none")
+            ax.plot(
+                s + rng.uniform(-0.18, 0.18, sel.sum()),
+                r,
+                "o",
+                ms=3,
+                color=LEG_COLOURS[k],
+                alpha=0.5,
+                mec="none",
+            )
             groups.append(r)
             positions.append(s)
         if groups:
-            ax.boxplot(groups, positions=positions, widths=0.5, showfliers=False, manage_ticks=False,
-                       medianprops={"color": "k", "lw": 1.6}, boxprops={"lw": 0.9}, whiskerprops={"lw": 0.9})
+            ax.boxplot(
+                groups,
+                positions=positions,
+                widths=0.5,
+                showfliers=False,
+                manage_ticks=False,
+                medianprops={"color": "k", "lw": 1.6},
+                boxprops={"lw": 0.9},
+                whiskerprops={"lw": 0.9},
+            )
         ax.set_xticks([-1, 0, 1], [MOTION_LABELS[s] for s in (-1, 0, 1)], fontsize=8.5)
         ax.set_xlim(-1.6, 1.6)
         title = f"leg {k + 1}"
@@ -233,14 +268,20 @@ def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
         if k >= 3:
             ax.set_xlabel("direction of the leg's last motion")
     _title(fig, view, "residual by direction of last motion (backlash shows as a step)")
-    return _finish(fig, outdir, name, _legend_handles(view, "box: quartiles and median")[:2] + [
-        Line2D([], [], color="k", lw=1.6, label="box: quartiles, median")])
+    return _finish(
+        fig,
+        outdir,
+        name,
+        _legend_handles(view, "box: quartiles and median"),
+    )
 
 
 def _mass(design) -> tuple[float, str]:
     """Platform mass (kg) for the leg forces and the label saying where it came from."""
     if design.platform_mass_kg:
-        return float(design.platform_mass_kg), f"platform mass {design.platform_mass_kg:g} kg from robot.json"
+        return float(
+            design.platform_mass_kg
+        ), f"platform mass {design.platform_mass_kg:g} kg from robot.json"
     return 1.0, "platform mass unknown: 1 kg ASSUMED, forces are relative"
 
 
@@ -250,18 +291,29 @@ def _forces(diag: Diagnosis) -> tuple[np.ndarray, str]:
     design = diag.problem.design
     mass, label = _mass(design)
     com = getattr(design, "platform_com_mm", None)
-    return leg_forces(diag.problem.data, mass, None if com is None else np.asarray(com, float)), label
+    return leg_forces(
+        diag.problem.data, mass, None if com is None else np.asarray(com, float)
+    ), label
 
 
 def _plot_force(view: _View, outdir: Path, name: str) -> Path:
     f, label = _forces(view.diag)
-    return _leg_scatter(view, f, "axial leg force, compression + (N)", "residual against leg force", outdir, name,
-                        note=label)
+    return _leg_scatter(
+        view,
+        f,
+        "axial leg force, compression + (N)",
+        "residual against leg force",
+        outdir,
+        name,
+        note=label,
+    )
 
 
 def _plot_temperature(view: _View, outdir: Path, name: str) -> Path:
     temp = np.repeat(view.meas.temperature[:, None], 6, axis=1)
-    return _leg_scatter(view, temp, "structure temperature (°C)", "residual against temperature", outdir, name)
+    return _leg_scatter(
+        view, temp, "structure temperature (°C)", "residual against temperature", outdir, name
+    )
 
 
 def _time_axis(t: np.ndarray) -> tuple[np.ndarray, str]:
@@ -282,7 +334,7 @@ def _plot_time(view: _View, outdir: Path, name: str) -> Path:
     ax.axhline(0, color="0.5", lw=0.6)
     for k in range(6):
         ax.plot(t, view.resid_um[:, k], "o", ms=2.5, color=LEG_COLOURS[k], alpha=0.45, mec="none")
-        xs, ms = _running(t, view.resid_um[:, k], np.mean)
+        xs, ms = _running(t, view.resid_um[:, k], np.nanmean)
         ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.8)
     blocks = np.array_split(np.arange(len(t)), 5)
     for i, b in enumerate(blocks):
@@ -290,14 +342,27 @@ def _plot_time(view: _View, outdir: Path, name: str) -> Path:
             continue
         if i:
             ax.axvline(t[b[0]], color="0.55", lw=0.8, ls=":")
-        ax.annotate(f"block {i + 1}/5", (t[b[len(b) // 2]], 1.0), xycoords=("data", "axes fraction"),
-                    ha="center", va="top", fontsize=8, color="0.4")
+        ax.annotate(
+            f"block {i + 1}/5",
+            (t[b[len(b) // 2]], 1.0),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="top",
+            fontsize=8,
+            color="0.4",
+        )
     ax.set_xlabel(xlabel)
     ax.set_ylabel(view.resid_label)
     ax.grid(True, alpha=0.25)
     _title(fig, view, "residual against time (recording order)")
-    legend = [Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.8, label=f"leg {k + 1}") for k in range(6)]
-    legend += [Patch(color=FLOOR_COLOUR, label="±2σ floor"), Line2D([], [], color="0.4", lw=1.8, label="running mean")]
+    legend = [
+        Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.8, label=f"leg {k + 1}")
+        for k in range(6)
+    ]
+    legend += [
+        Patch(color=FLOOR_COLOUR, label="±2σ floor"),
+        Line2D([], [], color="0.4", lw=1.8, label="running mean"),
+    ]
     return _finish(fig, outdir, name, legend)
 
 
@@ -317,7 +382,9 @@ def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
         _floor_band(ax, x, floor)
         ax.axhline(0, color="0.5", lw=0.6)
         for k in range(6):
-            ax.plot(x, view.resid_um[:, k], "o", ms=2.2, color=LEG_COLOURS[k], alpha=0.4, mec="none")
+            ax.plot(
+                x, view.resid_um[:, k], "o", ms=2.2, color=LEG_COLOURS[k], alpha=0.4, mec="none"
+            )
             xs, ms = _running(x, view.resid_um[:, k])
             ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.3)
         ax.set_xlabel(xlabel)
@@ -325,8 +392,14 @@ def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
         if i == 0:
             ax.set_ylabel(view.resid_label)
     _title(fig, view, "residual against platform pose")
-    legend = [Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.3, label=f"leg {k + 1}") for k in range(6)]
-    legend += [Patch(color=FLOOR_COLOUR, label="±2σ floor"), Line2D([], [], color="0.4", lw=1.3, label="running median")]
+    legend = [
+        Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.3, label=f"leg {k + 1}")
+        for k in range(6)
+    ]
+    legend += [
+        Patch(color=FLOOR_COLOUR, label="±2σ floor"),
+        Line2D([], [], color="0.4", lw=1.3, label="running median"),
+    ]
     return _finish(fig, outdir, name, legend)
 
 
@@ -344,14 +417,22 @@ def leg_direction_angles(diag: Diagnosis) -> np.ndarray:
 
 def _plot_direction(view: _View, outdir: Path, name: str) -> Path:
     ang = leg_direction_angles(view.diag)
-    return _leg_scatter(view, ang, "angle from the leg's mean direction (deg)", "residual against leg direction",
-                        outdir, name)
+    return _leg_scatter(
+        view,
+        ang,
+        "angle from the leg's mean direction (deg)",
+        "residual against leg direction",
+        outdir,
+        name,
+    )
 
 
 def periodogram(reading: np.ndarray, resid: np.ndarray, periods: np.ndarray) -> np.ndarray:
     """Lomb–Scargle amplitude (same unit as ``resid``) of a sinusoid in ``resid`` against
     ``reading`` (mm), at each of ``periods`` (mm); a floating mean is fitted with it."""
-    return np.abs(lombscargle(reading, resid, 2 * np.pi / periods, normalize="amplitude", floating_mean=True))
+    return np.abs(
+        lombscargle(reading, resid, 2 * np.pi / periods, normalize="amplitude", floating_mean=True)
+    )
 
 
 def _period_grid(span: float) -> np.ndarray:
@@ -385,8 +466,15 @@ def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
             ax.axvline(pitch, color="C3", lw=1.2, ls="--")
         if span < PERIOD_RANGE_MM[0] or len(x) < 8:
             # A leg that hardly moved carries no periodic information: say so, do not fail.
-            ax.text(0.5, 0.5, "reading range too small\nfor a periodogram", transform=ax.transAxes,
-                    ha="center", va="center", color="0.4")
+            ax.text(
+                0.5,
+                0.5,
+                "reading range too small\nfor a periodogram",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                color="0.4",
+            )
             continue
         periods = _period_grid(span)
         amp = periodogram(x, r, periods)
@@ -400,10 +488,23 @@ def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
         top = max(top, level, float(amp.max()))
     # The panels share y: one scale for all legs, so the largest ripple sets it.
     axes[0].set_ylim(0, top * 1.1 if top > 0 else 1.0)
-    pitch_note = f"lead-screw pitch {pitch:g} mm" if pitch else "lead-screw pitch unknown (not in robot.json)"
+    pitch_note = (
+        f"lead-screw pitch {pitch:g} mm"
+        if pitch
+        else "lead-screw pitch unknown (not in robot.json)"
+    )
     _title(fig, view, f"periodogram of the residual against the reading ({pitch_note})")
-    legend = [Line2D([], [], color="0.3", lw=1.0, label="Lomb–Scargle amplitude"),
-              Line2D([], [], color="0.35", lw=1.0, ls=":", label=f"noise level ({100 * (1 - FALSE_ALARM):.0f} %)")]
+    legend = [
+        Line2D([], [], color="0.3", lw=1.0, label="Lomb–Scargle amplitude"),
+        Line2D(
+            [],
+            [],
+            color="0.35",
+            lw=1.0,
+            ls=":",
+            label=f"noise level ({100 * (1 - FALSE_ALARM):.0f} %)",
+        ),
+    ]
     if pitch:
         legend.append(Line2D([], [], color="C3", lw=1.2, ls="--", label=f"pitch {pitch:g} mm"))
     return _finish(fig, outdir, name, legend)
@@ -418,15 +519,30 @@ def _plot_normalised(view: _View, outdir: Path, name: str) -> Path:
     ax, qq = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.5, 1]})
     lim = max(4.0, float(np.nanpercentile(np.abs(z_cv), 99.5)) * 1.05)
     bins = np.linspace(-lim, lim, 61)
-    ax.hist(np.clip(z_in, -lim, lim), bins=bins, density=True, color="C0", alpha=0.55,
-            label=f"in-sample (SD {np.std(z_in):.2f})")
-    ax.hist(np.clip(z_cv, -lim, lim), bins=bins, density=True, histtype="step", color="C1", lw=1.4,
-            label=f"held-out (SD {np.std(z_cv):.2f})")
+    ax.hist(
+        np.clip(z_in, -lim, lim),
+        bins=bins,
+        density=True,
+        color="C0",
+        alpha=0.55,
+        label=f"in-sample (SD {np.std(z_in):.2f})",
+    )
+    ax.hist(
+        np.clip(z_cv, -lim, lim),
+        bins=bins,
+        density=True,
+        histtype="step",
+        color="C1",
+        lw=1.4,
+        label=f"held-out (SD {np.std(z_cv):.2f})",
+    )
     g = np.linspace(-lim, lim, 400)
     ax.plot(g, norm.pdf(g), "k-", lw=1.6, label="N(0, 1): noise only")
     ax.set_xlabel("normalised residual r / σ_floor (1)")
     ax.set_ylabel("probability density (1/σ)")
-    ax.set_title("histogram of normalised residuals (outliers clipped to the edge bins)", fontsize=10)
+    ax.set_title(
+        "histogram of normalised residuals (outliers clipped to the edge bins)", fontsize=10
+    )
     ax.legend(fontsize=9)
     ax.grid(True, alpha=0.25)
     zs = np.sort(z_in)
@@ -455,8 +571,12 @@ def _plot_per_leg_rms(view: _View, outdir: Path, name: str) -> Path:
     ax.axhline(view.diag.noise_floor_mm * UM, color="0.3", lw=1.0, ls="--", label="overall floor")
     handles, labels = ax.get_legend_handles_labels()
     # Bars first, in the order drawn, then the line: the legend reads like the bar groups.
-    order = [labels.index(lab) for lab in ("in-sample RMS", "held-out RMS", "noise floor of the leg", "overall floor")]
+    order = [
+        labels.index(lab)
+        for lab in ("in-sample RMS", "held-out RMS", "noise floor of the leg", "overall floor")
+    ]
     ax.set_xticks(legs, [f"leg {k}" for k in legs])
+    ax.set_ylim(0, ax.get_ylim()[1] * 1.08)  # head room: the bars should not touch the frame
     ax.set_ylabel("RMS (µm)")
     ax.grid(True, axis="y", alpha=0.25)
     _title(fig, view, "RMS residual per leg")
@@ -490,7 +610,9 @@ def write_plots(
     wanted = set(PLOT_NAMES if only is None else only)
     unknown = wanted - set(PLOT_NAMES)
     if unknown:
-        raise ValueError(f"unknown plot(s) {sorted(unknown)}; the plots are: {', '.join(PLOT_NAMES)}")
+        raise ValueError(
+            f"unknown plot(s) {sorted(unknown)}; the plots are: {', '.join(PLOT_NAMES)}"
+        )
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     view = _view(diag)
@@ -534,7 +656,9 @@ def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
                     continue
                 x = k + 1 + dx + rng.uniform(-0.09, 0.09, sel.sum())
                 ax.plot(x, r[sel, k], markers[s], ms=3, color=LEG_COLOURS[k], alpha=0.5, mec="none")
-                ax.plot([k + 1 + dx - 0.11, k + 1 + dx + 0.11], [np.median(r[sel, k])] * 2, "k-", lw=1.8)
+                ax.plot(
+                    [k + 1 + dx - 0.11, k + 1 + dx + 0.11], [np.median(r[sel, k])] * 2, "k-", lw=1.8
+                )
         ax.set_xticks(range(1, 7), [f"leg {k}" for k in range(1, 7)])
         if effect == "backlash":
             ax.set_xlabel("leg; ▼ retracting, ● not yet moved, ▲ extending (bar: median)")
@@ -562,7 +686,9 @@ def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
     ax.set_xlabel(xlabel)
 
 
-def before_after(before: Diagnosis, after: Diagnosis, outdir: Path, name: str = "before_after.png") -> Path:
+def before_after(
+    before: Diagnosis, after: Diagnosis, outdir: Path, name: str = "before_after.png"
+) -> Path:
     """Side by side, before and after adding effect(s): per-leg held-out RMS against the noise
     floor, and the residual against the quantity that betrays the added effect (the first one
     added when several are). Returns the PNG path."""
@@ -583,8 +709,11 @@ def before_after(before: Diagnosis, after: Diagnosis, outdir: Path, name: str = 
         ax.axhline(d.noise_floor_mm * UM, color="0.5", ls="--", lw=1.0)
         ax.set_xticks(legs, [f"leg {k}" for k in legs])
         ax.set_ylabel("held-out RMS (µm)")
-        ax.set_title(f"{tag}: {fit.model_name}\nheld-out RMS {fit.cv_rms_mm * UM:.1f} µm "
-                     f"(floor {d.noise_floor_mm * UM:.1f} µm) — verdict {d.verdict}", fontsize=10)
+        ax.set_title(
+            f"{tag}: {fit.model_name}\nheld-out RMS {fit.cv_rms_mm * UM:.1f} µm "
+            f"(floor {d.noise_floor_mm * UM:.1f} µm) — verdict {d.verdict}",
+            fontsize=10,
+        )
         ax.grid(True, axis="y", alpha=0.25)
         top = max(top, float(np.nanmax(held)), float(floor.max()))
     for ax in axes[0]:
@@ -604,6 +733,12 @@ def before_after(before: Diagnosis, after: Diagnosis, outdir: Path, name: str = 
         Line2D([], [], ls="", marker="_", ms=16, mew=2, color="k", label="noise floor of the leg"),
         Line2D([], [], ls="--", color="0.5", label="overall noise floor"),
         Line2D([], [], ls="", marker="o", ms=4, color="0.4", label="held-out residual"),
-        Line2D([], [], color="k", lw=1.6, label="median" if effect in ("backlash", "offset") else "running median (per leg)"),
+        Line2D(
+            [],
+            [],
+            color="k",
+            lw=1.6,
+            label="median" if effect in ("backlash", "offset") else "running median (per leg)",
+        ),
     ]
     return _finish(fig, outdir, name, legend)

@@ -16,22 +16,37 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         f"noise floor {_um(d.noise_floor_mm)} µm — {d.floor_source}",
         f"residual RMS {_um(f.rms_mm)} µm in-sample, {_um(f.cv_rms_mm)} µm held-out (5-fold over poses), "
         f"{_um(f.cv_blocked_rms_mm)} µm held-out (folds blocked in time); χ²/dof {d.chi2_per_dof:.3f}"
-        + (" — above the noise floor" if d.excess_significant else " — consistent with the noise floor"),
+        + (
+            " — above the noise floor"
+            if d.excess_significant
+            else " — consistent with the noise floor"
+        ),
         "",
         "per leg, µm:     " + "".join(f"{f'leg {k + 1}':>9}" for k in range(6)),
         "  in-sample RMS  " + "".join(f"{1000 * v:9.2f}" for v in f.rms_per_leg),
         "  held-out RMS   " + "".join(f"{1000 * v:9.2f}" for v in f.cv_rms_per_leg),
         "",
+        "per procedure step, held-out RMS µm: "
+        + ", ".join(
+            f"{k} {1000 * v['cv_rms_mm']:.1f}"
+            for k, v in f.rms_per_step(d.problem.meas.step).items()
+        ),
+        "",
         f"where: {d.where['summary']}",
-        "worst poses: " + ", ".join(f"#{p['pose_id']} ({p['step']}, leg {p['worst_leg']}, {p['excess_ratio']:.1f}×)"
-                                    for p in d.where["worst_poses"][:3]),
+        "worst poses: "
+        + ", ".join(
+            f"#{p['pose_id']} ({p['step']}, leg {p['worst_leg']}, {p['excess_ratio']:.1f}×)"
+            for p in d.where["worst_poses"][:3]
+        ),
         "",
         "missing effects, ranked:",
         f"  {'effect':<12}{'score Δχ²':>11}{'ΔBIC':>10}{'explains':>10}{'held-out after':>16}  identifiable",
     ]
     for c in d.candidates:
         bic = f"{c.delta_bic:10.1f}" if c.refit else f"{'—':>10}"
-        expl = f"{100 * c.explained:9.0f}%" if c.refit and c.explained == c.explained else f"{'—':>10}"
+        expl = (
+            f"{100 * c.explained:9.0f}%" if c.refit and c.explained == c.explained else f"{'—':>10}"
+        )
         after = f"{_um(c.cv_rms_mm_after)} µm" if c.refit else "—"
         ident = "yes" if c.identifiable else ("n/a: " + c.reason if not c.available else "no")
         lines.append(f"  {c.effect:<12}{c.score:11.1f}{bic}{expl}{after:>16}  {ident}")
@@ -40,9 +55,13 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
     lines.append("")
     v = d.verdict
     if v == "none":
-        lines.append("verdict: none — the residual is at the noise floor; nothing in the catalogue is missing")
+        lines.append(
+            "verdict: none — the residual is at the noise floor; nothing in the catalogue is missing"
+        )
     elif v == "unexplained":
-        lines.append("verdict: unexplained — the residual is above the noise floor but no catalogue effect explains most of it")
+        lines.append(
+            "verdict: unexplained — the residual is above the noise floor but no catalogue effect explains most of it"
+        )
         lines.append(f"  look at: {d.where['summary']}")
     else:
         c = d.candidate(v)
@@ -67,7 +86,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
 
 def before_after_text(steps: list[Diagnosis]) -> str:
     """The fall of the error across added effects, side by side, µm."""
-    head = f"{'model':<34}{'held-out':>10}{'blocked':>10}{'floor':>8}   per-leg held-out" 
+    head = f"{'model':<34}{'held-out':>10}{'blocked':>10}{'floor':>8}   per-leg held-out"
     lines = ["the error as effects are added (µm):", head.rstrip()]
     for d in steps:
         f = d.fit

@@ -39,44 +39,94 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
     for i, block in enumerate(np.array_split(np.arange(m), 5)):
         mask = np.zeros((m, 6), bool)
         mask[block] = True
-        g = _group(z2, mask, f"time block {i + 1}/5 (poses {meas.pose_id[block[0]]}–{meas.pose_id[block[-1]]})")
+        g = _group(
+            z2,
+            mask,
+            f"time block {i + 1}/5 (poses {meas.pose_id[block[0]]}–{meas.pose_id[block[-1]]})",
+        )
         if g:
             time.append(g)
     region = []
     pos = meas.position - np.median(meas.position, axis=0)
     tilt = meas.rotations.magnitude()
     for label, sel in [
-        ("platform x > median", pos[:, 0] > 0), ("platform x < median", pos[:, 0] <= 0),
-        ("platform y > median", pos[:, 1] > 0), ("platform y < median", pos[:, 1] <= 0),
-        ("platform z > median", pos[:, 2] > 0), ("platform z < median", pos[:, 2] <= 0),
-        ("tilt > median", tilt > np.median(tilt)), ("tilt < median", tilt <= np.median(tilt)),
+        ("platform x > median", pos[:, 0] > 0),
+        ("platform x < median", pos[:, 0] <= 0),
+        ("platform y > median", pos[:, 1] > 0),
+        ("platform y < median", pos[:, 1] <= 0),
+        ("platform z > median", pos[:, 2] > 0),
+        ("platform z < median", pos[:, 2] <= 0),
+        ("tilt > median", tilt > np.median(tilt)),
+        ("tilt < median", tilt <= np.median(tilt)),
     ]:
         g = _group(z2, np.repeat(sel[:, None], 6, 1), label)
         if g:
             region.append(g)
-    # Within each leg, the workspace halves too: a local defect shows as leg × region.
+    # Within each leg, a local defect shows as a difference between the two halves of the
+    # workspace: the fit spreads a step over both halves, so each half alone only looks like the
+    # leg's overall excess, but their signed means differ. z = difference / its standard error
+    # (pose noise, so one term per pose).
     leg_region = []
     for k in range(6):
-        for label, sel in [("x >", pos[:, 0] > 0), ("x <", pos[:, 0] <= 0), ("y >", pos[:, 1] > 0), ("y <", pos[:, 1] <= 0),
-                           ("z >", pos[:, 2] > 0), ("z <", pos[:, 2] <= 0)]:
-            g = _group(z2[:, k], sel, f"leg {k + 1}, platform {label} median")
-            if g:
-                leg_region.append(g)
+        for axis, name in enumerate("xyz"):
+            hi = pos[:, axis] > 0
+            if hi.sum() < 6 or (~hi).sum() < 6:
+                continue
+            zk = r[:, k] / floor[:, k]
+            diff = zk[hi].mean() - zk[~hi].mean()
+            se = np.sqrt(zk[hi].var(ddof=1) / hi.sum() + zk[~hi].var(ddof=1) / (~hi).sum())
+            z = float(diff / se)
+            um = 1000 * float(r[hi, k].mean() - r[~hi, k].mean())
+            leg_region.append(
+                {
+                    "group": f"leg {k + 1}, between platform {name} above and below its median "
+                    f"(residual differs by {abs(um):.0f} µm)",
+                    "n": len(zk),
+                    "z": z,
+                    "difference_um": um,
+                    "excess_ratio": float(np.mean(zk**2)),
+                    "stands_out": bool(abs(z) > 6.0),
+                }
+            )
     pose_score = z2.mean(axis=1)
     worst = np.argsort(-pose_score)[:5]
     worst_poses = [
-        {"pose_id": int(meas.pose_id[i]), "step": str(meas.step[i]), "excess_ratio": float(pose_score[i]),
-         "worst_leg": int(np.argmax(z2[i])) + 1}
+        {
+            "pose_id": int(meas.pose_id[i]),
+            "step": str(meas.step[i]),
+            "excess_ratio": float(pose_score[i]),
+            "worst_leg": int(np.argmax(z2[i])) + 1,
+        }
         for i in worst
     ]
-    worst_legs = [g["group"] for g in sorted(legs, key=lambda g: -g["excess_ratio"]) if g["stands_out"]]
-    out = {"legs": legs, "steps": steps, "time": time, "region": region, "leg_region": leg_region,
-           "worst_poses": worst_poses, "worst_legs": worst_legs}
-    standouts = [g for key in ("legs", "steps", "time", "region", "leg_region") for g in out[key] if g["stands_out"]]
+    worst_legs = [
+        g["group"] for g in sorted(legs, key=lambda g: -g["excess_ratio"]) if g["stands_out"]
+    ]
+    out = {
+        "legs": legs,
+        "steps": steps,
+        "time": time,
+        "region": region,
+        "leg_region": leg_region,
+        "worst_poses": worst_poses,
+        "worst_legs": worst_legs,
+    }
+    standouts = [
+        g
+        for key in ("legs", "steps", "time", "region", "leg_region")
+        for g in out[key]
+        if g["stands_out"]
+    ]
     standouts.sort(key=lambda g: -g["excess_ratio"])
     out["summary"] = (
         "residual at the noise floor everywhere"
         if not standouts
-        else "concentrated in " + "; ".join(f"{g['group']} ({g['excess_ratio']:.1f}× noise)" for g in standouts[:4])
+        else "concentrated in "
+        + "; ".join(
+            f"{g['group']} (z = {abs(g['z']):.0f})"
+            if "z" in g
+            else f"{g['group']} ({g['excess_ratio']:.1f}× noise)"
+            for g in standouts[:4]
+        )
     )
     return out

@@ -28,7 +28,10 @@ def motion_state(readings: np.ndarray, deadband: float = DEADBAND_MM) -> np.ndar
 @register
 class Backlash(Effect):
     name = "backlash"
-    physics = "Play in the screw and nut lets the reading lead or lag the length by half the backlash, depending on the direction the leg last moved."
+    physics = (
+        "Play in the screw and nut lets the reading lead or lag the length by half the backlash, "
+        "depending on the direction the leg last moved."
+    )
     needs = ("motion history (poses in recording order)",)
     separating_motion = "each pose approached alternately from longer and from shorter leg lengths"
 

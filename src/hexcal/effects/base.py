@@ -47,7 +47,11 @@ class EffectData:
     @cached_property
     def leg_vectors(self) -> np.ndarray:
         """(M, 6, 3) mm, ``P + R b_k − a_k`` at the evaluation geometry."""
-        return self.position[:, None, :] + np.einsum("mij,kj->mki", self.rotation, self.b) - self.a[None]
+        return (
+            self.position[:, None, :]
+            + np.einsum("mij,kj->mki", self.rotation, self.b)
+            - self.a[None]
+        )
 
     @cached_property
     def lengths(self) -> np.ndarray:
@@ -56,8 +60,17 @@ class EffectData:
 
     def subset(self, idx: np.ndarray) -> EffectData:
         t = None if self.temperature is None else self.temperature[idx]
-        return EffectData(self.readings[idx], self.position[idx], self.rotation[idx], self.t[idx], t,
-                          self.robot, self.a, self.b, self.extras)
+        return EffectData(
+            self.readings[idx],
+            self.position[idx],
+            self.rotation[idx],
+            self.t[idx],
+            t,
+            self.robot,
+            self.a,
+            self.b,
+            self.extras,
+        )
 
 
 class Effect(ABC):
@@ -107,10 +120,14 @@ def get_effect(name: str) -> Effect:
     try:
         return CATALOGUE[name]
     except KeyError:
-        raise ValueError(f"unknown effect {name!r}; the catalogue has: {', '.join(sorted(CATALOGUE))}") from None
+        raise ValueError(
+            f"unknown effect {name!r}; the catalogue has: {', '.join(sorted(CATALOGUE))}"
+        ) from None
 
 
-def per_leg(prefix: str, symbol: str, unit: str, plausible: tuple[float, float], scale: float = 1.0) -> list[ParamSpec]:
+def per_leg(
+    prefix: str, symbol: str, unit: str, plausible: tuple[float, float], scale: float = 1.0
+) -> list[ParamSpec]:
     """Six parameters ``prefix.symbol1`` … ``prefix.symbol6``."""
     return [ParamSpec(f"{prefix}.{symbol}{k}", unit, plausible, scale) for k in range(1, 7)]
 

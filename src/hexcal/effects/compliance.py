@@ -32,7 +32,9 @@ class Compliance(Effect):
     name = "compliance"
     physics = "Each leg shortens under its axial load like a spring: ΔL = −c·f, the forces from the platform's weight by statics."
     needs = ("platform mass (robot.json platform_mass_kg)",)
-    separating_motion = "poses that shift the load between legs: the platform far off-centre and tilted"
+    separating_motion = (
+        "poses that shift the load between legs: the platform far off-centre and tilted"
+    )
 
     def params(self, robot) -> list[ParamSpec]:
         return [ParamSpec("compliance.c", "µm/N", (0.0, 5.0), 1e-3)]

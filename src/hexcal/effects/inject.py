@@ -19,17 +19,23 @@ def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
     values = np.asarray(values, float)
     n = len(eff.params(truth))
     if values.shape != (n,):
-        raise ValueError(f"effect {name!r} takes {n} values ({[s.name for s in eff.params(truth)]}), got {values.shape}")
+        raise ValueError(
+            f"effect {name!r} takes {n} values ({[s.name for s in eff.params(truth)]}), got {values.shape}"
+        )
 
     def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
-        data = EffectData(readings, ctx.position, ctx.rotation, ctx.t, ctx.temperature, truth, truth.a, truth.b)
+        data = EffectData(
+            readings, ctx.position, ctx.rotation, ctx.t, ctx.temperature, truth, truth.a, truth.b
+        )
         return eff.contribution(data, values)
 
     hook.__name__ = f"hidden_{name}"
     return hook
 
 
-def realistic_values(name: str, rng: np.random.Generator, truth: Robot, scale: float = 1.0) -> np.ndarray:
+def realistic_values(
+    name: str, rng: np.random.Generator, truth: Robot, scale: float = 1.0
+) -> np.ndarray:
     """Random true values at a realistic size (``scale`` < 1 for sizes near detection)."""
     sign = rng.choice([-1.0, 1.0], 6)
     if name == "offset":

@@ -10,9 +10,14 @@ from hexcal.effects.base import Effect, EffectData, ParamSpec, register
 @register
 class Leadscrew(Effect):
     name = "leadscrew"
-    physics = "A lead screw's thread is not perfectly uniform: the length error repeats once per turn, s_k·sin(2π·reading/pitch) + c_k·cos(…)."
+    physics = (
+        "A lead screw's thread is not perfectly uniform: the length error repeats once per turn, "
+        "s_k·sin(2π·reading/pitch) + c_k·cos(…)."
+    )
     needs = ("leadscrew_pitch_mm in robot.json",)
-    separating_motion = "readings spread over several screw pitches with steps finer than half a pitch"
+    separating_motion = (
+        "readings spread over several screw pitches with steps finer than half a pitch"
+    )
 
     def params(self, robot) -> list[ParamSpec]:
         specs = []

@@ -13,7 +13,10 @@ T_REF = 20.0
 @register
 class Thermal(Effect):
     name = "thermal"
-    physics = "The legs expand with the structure's temperature: length·(1 + α·(T − 20 °C)), α about 12 ppm/K for steel, 23 for aluminium."
+    physics = (
+        "The legs expand with the structure's temperature: length·(1 + α·(T − 20 °C)), "
+        "α about 12 ppm/K for steel, 23 for aluminium."
+    )
     needs = ("temperature column",)
     separating_motion = "poses recorded over a temperature change of a few kelvin, with long and short legs at each temperature"
 

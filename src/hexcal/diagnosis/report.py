@@ -1,0 +1,629 @@
+"""One self-contained HTML page of a diagnosis sequence: Model 42, + an effect, … until the
+verdict is ``none`` (or the steps run out).
+
+Self-contained means one file with no external resource: inline CSS, no script, the PNG plots
+embedded as base64 ``data:`` URIs, so the page can be mailed, archived next to the data, or
+opened offline. Every section has a stable id (``verdict``, ``provenance``, ``step-1``,
+``step-1-legs``, ``change-1-2`` …) and the layout has a fixed width with the same section order
+whatever the data, so two reports of the same data opened in two windows line up row for row.
+All text from the data passes through :func:`html.escape`.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import html
+import re
+import tempfile
+from collections.abc import Mapping, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+import hexcal
+from hexcal.diagnosis.diagnose import Diagnosis
+from hexcal.diagnosis.model import ParamRow
+from hexcal.diagnosis.plots import before_after, write_plots
+from hexcal.fileio import write_text_atomic
+
+UM = 1e3
+
+#: Plot order in the report: the overview first, then one figure per suspect quantity.
+REPORT_PLOTS = (
+    (
+        "per_leg_rms.png",
+        "RMS per leg",
+        "Bars above the grey floor bar: that leg carries more than noise.",
+    ),
+    (
+        "predicted_vs_measured.png",
+        "Residuals relative to the noise floor",
+        "At the floor the histogram follows the black N(0, 1) curve and the Q–Q points the diagonal.",
+    ),
+    (
+        "residuals_vs_reading.png",
+        "Against the leg reading",
+        "A slope is an encoder gain error; a ripple, the lead screw.",
+    ),
+    (
+        "residuals_vs_motion.png",
+        "By direction of last motion",
+        "A step between retracting and extending is backlash.",
+    ),
+    ("residuals_vs_force.png", "Against the axial leg force", "A slope is leg compliance."),
+    (
+        "residuals_vs_temperature.png",
+        "Against temperature",
+        "A trend, growing with leg length, is thermal expansion.",
+    ),
+    (
+        "residuals_vs_time.png",
+        "Against time",
+        "A drift the temperature does not follow points at the tracker or the mount.",
+    ),
+    (
+        "residuals_vs_pose.png",
+        "Against the platform pose",
+        "Structure confined to part of the workspace: a local defect.",
+    ),
+    (
+        "residuals_vs_direction.png",
+        "Against the leg direction",
+        "A trend with the leg's angle points at a joint.",
+    ),
+    (
+        "periodogram.png",
+        "Periodogram against the reading",
+        "A peak above the dotted noise level at the pitch is the lead screw.",
+    ),
+)
+
+#: The quantity on the before/after figure's second row, per effect added.
+BETRAYS = {
+    "gain": "reading",
+    "leadscrew": "reading modulo the pitch",
+    "backlash": "direction of last motion",
+    "thermal": "temperature",
+    "compliance": "axial force",
+    "offset": "leg",
+}
+
+CSS = """
+* { box-sizing: border-box; }
+body { margin: 0; padding: 16px; background: #f4f5f7; color: #1d2125;
+       font: 15px/1.45 system-ui, -apple-system, "Segoe UI", Roboto, "DejaVu Sans", sans-serif; }
+main { width: 1100px; max-width: 100%; margin: 0 auto; }
+section, header { background: #fff; border-radius: 8px; padding: 18px 22px; margin: 0 0 16px;
+                  box-shadow: 0 1px 2px rgba(0,0,0,.08); }
+h1, h2, h3 { margin: 0 0 10px; line-height: 1.2; }
+h2 { font-size: 22px; } h3 { font-size: 17px; margin-top: 18px; }
+.verdict { border-left: 14px solid; }
+.verdict .label { text-transform: uppercase; letter-spacing: .08em; font-size: 13px; color: #555; }
+.verdict .big { font-size: 56px; font-weight: 700; line-height: 1.05; margin: 4px 0 10px; }
+.verdict .why { font-size: 18px; margin: 0 0 12px; }
+.v-none { border-color: #2e7d32; } .v-none .big { color: #2e7d32; }
+.v-effect { border-color: #e69500; } .v-effect .big { color: #b86e00; }
+.v-unexplained { border-color: #c62828; } .v-unexplained .big { color: #c62828; }
+.path { display: flex; flex-wrap: wrap; gap: 6px; align-items: center; padding: 0; margin: 0;
+        list-style: none; font-size: 14px; }
+.chip { padding: 3px 10px; border-radius: 14px; color: #fff; white-space: nowrap; }
+.chip.v-none { background: #2e7d32; } .chip.v-effect { background: #e69500; }
+.chip.v-unexplained { background: #c62828; }
+.arrow { color: #888; }
+nav ol { margin: 0; padding-left: 20px; columns: 2; }
+table { width: 100%; border-collapse: collapse; table-layout: fixed; font-size: 14px; margin: 6px 0 4px; }
+th, td { padding: 4px 8px; border-bottom: 1px solid #e3e5e8; text-align: left; vertical-align: top;
+         overflow-wrap: anywhere; }
+th { background: #f0f2f5; font-weight: 600; }
+td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }
+tr.win td { background: #fff4dc; font-weight: 600; }
+tr.off td { color: #888; }
+tr.bad td { color: #b71c1c; }
+tr.note td { color: #b71c1c; font-size: 13px; border-bottom: 1px solid #e3e5e8; padding-top: 0; }
+.bar { position: relative; height: 14px; background: #eef0f3; border-radius: 3px; margin-top: 3px; }
+.bar span { position: absolute; left: 0; top: 0; bottom: 0; border-radius: 3px; }
+.bar i { position: absolute; top: -2px; bottom: -2px; width: 2px; background: #333; }
+.ok { color: #2e7d32; } .warn { color: #b86e00; } .err { color: #c62828; }
+.kv { display: grid; grid-template-columns: 220px 1fr; gap: 2px 12px; margin: 0; }
+.kv dt { color: #555; } .kv dd { margin: 0; overflow-wrap: anywhere; }
+code { font: 13px/1.3 ui-monospace, "DejaVu Sans Mono", monospace; }
+figure { margin: 14px 0 0; }
+figure img { display: block; width: 100%; height: auto; border: 1px solid #e3e5e8; }
+figcaption { font-size: 14px; color: #444; margin: 4px 0 0; }
+figure.skipped { padding: 10px 12px; background: #f4f5f7; color: #666; border-radius: 4px; }
+.change { background: #fbfcfe; }
+.change .line { font-size: 20px; font-weight: 600; margin: 0 0 4px; }
+ul.notes { margin: 4px 0; padding-left: 20px; font-size: 14px; }
+details summary { cursor: pointer; color: #345; margin-top: 8px; }
+.muted { color: #666; font-size: 14px; }
+"""
+
+
+# --- small formatting helpers ------------------------------------------------------------------
+
+
+def _e(text: object) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _finite(v: float | None) -> bool:
+    return v is not None and bool(np.isfinite(v))
+
+
+def _um(mm: float | None, digits: int = 1) -> str:
+    """mm → µm text; an em dash for a missing value."""
+    return f"{mm * UM:.{digits}f}" if _finite(mm) else "—"
+
+
+def _num(v: float | None, fmt: str = ".3g") -> str:
+    return format(v, fmt).replace("-", "−") if _finite(v) else "—"
+
+
+def _stat(v: float | None) -> str:
+    """A Δχ² or ΔBIC: whole numbers once large (never ``1.389e+04``), 3 digits when small."""
+    return _num(v, ".0f" if _finite(v) and abs(v) >= 100 else ".3g")
+
+
+def _value_ci(p: ParamRow) -> str:
+    """``value ± 95 % half-width`` with as many decimals as the interval justifies."""
+    if not np.isfinite(p.ci95) or p.ci95 <= 0:
+        return _num(p.value, ".6g") + " ± —"
+    dec = int(np.clip(1 - np.floor(np.log10(p.ci95)), 0, 8))
+    return f"{p.value:.{dec}f} ± {p.ci95:.{dec}f}".replace("-", "−")
+
+
+def _verdict_class(verdict: str) -> str:
+    return {"none": "v-none", "unexplained": "v-unexplained"}.get(verdict, "v-effect")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _data_uri(png: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
+
+
+def _added(before: Diagnosis, after: Diagnosis) -> list[str]:
+    return [e for e in after.effects if e not in before.effects]
+
+
+def _floor_per_leg_mm(d: Diagnosis) -> np.ndarray:
+    """(6,) mm: RMS of the noise floor of each leg's residuals."""
+    return np.sqrt(np.mean(d.floor_per_residual**2, axis=0))
+
+
+# --- the header --------------------------------------------------------------------------------
+
+
+def explanation(diags: Sequence[Diagnosis]) -> str:
+    """One sentence on the last step's verdict (plain text)."""
+    d = diags[-1]
+    fit = d.fit
+    floor = f"{_um(d.noise_floor_mm)} µm"
+    if d.verdict == "none":
+        text = (
+            f"{fit.model_name} describes these data to the noise floor: held-out RMS "
+            f"{_um(fit.cv_rms_mm)} µm against a floor of {floor} (χ²/dof {d.chi2_per_dof:.2f})"
+        )
+        if len(diags) > 1:
+            first = diags[0]
+            added = _added(first, d)
+            if added:
+                text += (
+                    f", once {' and '.join(added)} was added to {first.fit.model_name}, which left "
+                    f"{_um(first.fit.cv_rms_mm)} µm"
+                )
+        return text + "."
+    if d.verdict == "unexplained":
+        return (
+            f"{fit.model_name} leaves a residual above the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, "
+            f"floor {floor}, χ²/dof {d.chi2_per_dof:.2f}) that no catalogue effect explains; "
+            f"{d.where.get('summary', '')}."
+        )
+    c = d.candidate(d.verdict)
+    if c is None or c.refit is None:
+        return f"{fit.model_name} is missing {d.verdict}."
+    share = f" and explains {100 * c.explained:.0f} % of the excess" if _finite(c.explained) else ""
+    return (
+        f"{fit.model_name} is missing {d.verdict}: adding it lowers the held-out RMS from "
+        f"{_um(fit.cv_rms_mm)} to {_um(c.cv_rms_mm_after)} µm (floor {floor}) with ΔBIC "
+        f"{_stat(c.delta_bic)}{share}."
+    )
+
+
+def _header(diags: Sequence[Diagnosis]) -> str:
+    d = diags[-1]
+    chips = []
+    for i, s in enumerate(diags, 1):
+        if i > 1:
+            chips.append('<li class="arrow">→</li>')
+        chips.append(
+            f'<li class="chip {_verdict_class(s.verdict)}"><a href="#step-{i}" style="color:inherit">'
+            f"{_e(s.fit.model_name)}</a>: {_e(s.verdict)} · {_um(s.fit.cv_rms_mm)} µm</li>"
+        )
+    label = {
+        "none": "verdict — nothing missing",
+        "unexplained": "verdict — unexplained residual",
+    }.get(d.verdict, "verdict — effect missing from the model")
+    return (
+        f'<header id="verdict" class="verdict {_verdict_class(d.verdict)}">'
+        f'<div class="label">{_e(label)} · {_e(d.fit.model_name)}</div>'
+        f'<div class="big">{_e(d.verdict)}</div>'
+        f'<p class="why">{_e(explanation(diags))}</p>'
+        f'<ol class="path" id="path">{"".join(chips)}</ol></header>'
+    )
+
+
+def _nav(diags: Sequence[Diagnosis]) -> str:
+    items = ['<li><a href="#provenance">Provenance</a></li>']
+    for i, d in enumerate(diags, 1):
+        items.append(
+            f'<li><a href="#step-{i}">Step {i}: {_e(d.fit.model_name)} — {_e(d.verdict)}</a></li>'
+        )
+        if i < len(diags):
+            items.append(f'<li><a href="#change-{i}-{i + 1}">Change {i} → {i + 1}</a></li>')
+    return f'<nav id="contents" class="muted"><ol>{"".join(items)}</ol></nav>'
+
+
+def _provenance(diags: Sequence[Diagnosis], inputs: Mapping[str, Path]) -> str:
+    rows = [
+        ("hexcal version", _e(hexcal.__version__)),
+        ("report written (UTC)", _e(datetime.now(timezone.utc).isoformat(timespec="seconds"))),
+    ]
+    for label, p in inputs.items():
+        p = Path(p)
+        try:
+            digest = f"sha256 <code>{_sha256(p)}</code>"
+        except OSError as exc:
+            digest = f'<span class="err">not readable: {_e(exc.strerror or exc)}</span>'
+        rows.append((f"input: {_e(label)}", f"<code>{_e(p)}</code><br>{digest}"))
+    rows.append(("models", " → ".join(_e(d.fit.model_name) for d in diags)))
+    sources = list(dict.fromkeys(d.floor_source for d in diags))
+    rows.append(("noise floor", "<br>".join(_e(s) for s in sources)))
+    m = len(diags[0].problem.meas)
+    rows.append(("poses", f"{m} ({6 * m} leg residuals)"))
+    body = "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in rows)
+    return f'<section id="provenance"><h2>Provenance</h2><dl class="kv">{body}</dl></section>'
+
+
+# --- one step ----------------------------------------------------------------------------------
+
+
+def _fit_table(d: Diagnosis, sid: str) -> str:
+    f = d.fit
+    ratio = f.cv_rms_mm / d.noise_floor_mm if d.noise_floor_mm > 0 else float("nan")
+    cls = "ok" if not d.excess_significant else "err"
+    cells = [
+        ("RMS (in-sample)", f"{_um(f.rms_mm)} µm"),
+        ("held-out RMS (random 5-fold)", f"{_um(f.cv_rms_mm)} µm"),
+        ("held-out RMS (blocked in time)", f"{_um(f.cv_blocked_rms_mm)} µm"),
+        ("noise floor", f"{_um(d.noise_floor_mm)} µm"),
+        ("held-out / floor", f'<span class="{cls}">{_num(ratio, ".2f")}</span>'),
+        (
+            "χ²/dof (1 at the floor)",
+            f'<span class="{cls}">{_num(d.chi2_per_dof, ".2f")}</span>'
+            + (" — excess significant" if d.excess_significant else " — within noise"),
+        ),
+    ]
+    head = "".join(f"<th>{_e(k)}</th>" for k, _ in cells)
+    row = "".join(f'<td class="num">{v}</td>' for _, v in cells)
+    return (
+        f'<div id="{sid}-fit"><h3>Fit against the noise floor</h3>'
+        f"<table><tr>{head}</tr><tr>{row}</tr></table>"
+        f'<p class="muted">Noise floor: {_e(d.floor_source)}.</p></div>'
+    )
+
+
+def _leg_table(d: Diagnosis, sid: str) -> str:
+    f = d.fit
+    floor = _floor_per_leg_mm(d)
+    held = f.cv_rms_per_leg if f.cv_residuals is not None else np.full(6, np.nan)
+    blocked = (
+        np.sqrt(np.mean(f.cv_blocked_residuals**2, axis=0))
+        if f.cv_blocked_residuals is not None
+        else np.full(6, np.nan)
+    )
+    excess = {g["group"]: g for g in d.where.get("legs", [])}
+    scale = (
+        max(float(np.nanmax(held)) if np.isfinite(held).any() else 0.0, float(floor.max())) * 1.1
+    )
+    rows = []
+    for k in range(6):
+        g = excess.get(f"leg {k + 1}")
+        ratio = f"{g['excess_ratio']:.1f}×" if g else "—"
+        mark = ' <span class="err">stands out</span>' if g and g["stands_out"] else ""
+        w = 100 * held[k] / scale if np.isfinite(held[k]) and scale > 0 else 0.0
+        fl = 100 * floor[k] / scale if scale > 0 else 0.0
+        colour = (
+            "#c62828"
+            if held[k] > 1.5 * floor[k]
+            else ("#e69500" if held[k] > 1.15 * floor[k] else "#2e7d32")
+        )
+        bar = (
+            f'<div class="bar" title="held-out RMS; black tick: noise floor"><span style="width:{w:.1f}%;'
+            f'background:{colour}"></span><i style="left:{fl:.1f}%"></i></div>'
+        )
+        rows.append(
+            f'<tr><td>leg {k + 1}</td><td class="num">{_um(f.rms_per_leg[k])}</td>'
+            f'<td class="num">{_um(held[k])}</td><td class="num">{_um(blocked[k])}</td>'
+            f'<td class="num">{_um(floor[k])}</td><td class="num">{ratio}{mark}</td><td>{bar}</td></tr>'
+        )
+    return (
+        f'<div id="{sid}-legs"><h3>Per leg</h3><table>'
+        '<colgroup><col style="width:9%"><col style="width:12%"><col style="width:12%">'
+        '<col style="width:14%"><col style="width:11%"><col style="width:16%"><col></colgroup>'
+        '<tr><th>leg</th><th class="num">RMS µm</th><th class="num">held-out µm</th>'
+        '<th class="num">blocked held-out µm</th><th class="num">floor µm</th>'
+        '<th class="num">mean (r/floor)²</th><th>held-out RMS (bar) vs floor (tick)</th></tr>'
+        + "".join(rows)
+        + "</table></div>"
+    )
+
+
+def _candidate_table(d: Diagnosis, sid: str) -> str:
+    rows = []
+    for c in d.candidates:
+        cls = (
+            "win"
+            if c.effect == d.verdict
+            else ("off" if not (c.available and c.identifiable) else "")
+        )
+        why = c.reason
+        if c.available and not c.identifiable and c.separating_motion and "record" not in why:
+            why += f"; record {c.separating_motion}"
+        if c.refit is not None and c.refit.nonphysical():
+            why = (
+                (why + "; " if why else "")
+                + "non-physical: "
+                + ", ".join(p.name for p in c.refit.nonphysical())
+            )
+        ident = "yes" if c.identifiable else ("no (data lack it)" if not c.available else "no")
+        rows.append(
+            f'<tr class="{cls}"><td>{_e(c.effect)}</td><td class="num">{_stat(c.score)}</td>'
+            f'<td class="num">{_stat(c.delta_bic)}</td>'
+            f'<td class="num">{_num(100 * c.explained, ".0f") + " %" if _finite(c.explained) else "—"}</td>'
+            f'<td class="num">{_um(c.cv_rms_mm_after)}</td><td>{_e(ident)}</td><td>{_e(why)}</td></tr>'
+        )
+    if not rows:
+        rows.append(
+            '<tr><td colspan="7" class="muted">every catalogue effect is already in the model</td></tr>'
+        )
+    return (
+        f'<div id="{sid}-candidates"><h3>What could be missing: the catalogue, ranked</h3><table>'
+        '<colgroup><col style="width:11%"><col style="width:10%"><col style="width:10%">'
+        '<col style="width:9%"><col style="width:11%"><col style="width:10%"><col></colgroup>'
+        '<tr><th>effect</th><th class="num">score Δχ²</th><th class="num">ΔBIC</th>'
+        '<th class="num">explained</th><th class="num">held-out after µm</th><th>identifiable</th>'
+        "<th>reason / note</th></tr>" + "".join(rows) + "</table>"
+        '<p class="muted">Score: the χ² the effect would remove to first order. ΔBIC &lt; −10 is very '
+        "strong evidence; the verdict also needs the refit to explain at least half of the excess "
+        "over the floor. Effects outside the top three are scored, not refitted.</p></div>"
+    )
+
+
+def _where(d: Diagnosis, sid: str) -> str:
+    w = d.where
+    groups = [
+        g
+        for key in ("legs", "steps", "time", "region", "leg_region")
+        for g in w.get(key, [])
+        if g["stands_out"]
+    ]
+    groups.sort(key=lambda g: -g["excess_ratio"])
+    standout = (
+        "".join(
+            f'<tr><td>{_e(g["group"])}</td><td class="num">{g["n"]}</td><td class="num">{g["excess_ratio"]:.1f}×</td></tr>'
+            for g in groups[:8]
+        )
+        or '<tr><td colspan="3" class="muted">no group stands out</td></tr>'
+    )
+    worst = "".join(
+        f'<tr><td class="num">{p["pose_id"]}</td><td>{_e(p["step"])}</td>'
+        f'<td class="num">{p["excess_ratio"]:.1f}×</td><td class="num">{p["worst_leg"]}</td></tr>'
+        for p in w.get("worst_poses", [])
+    )
+    return (
+        f'<div id="{sid}-where"><h3>Where the residual concentrates</h3>'
+        f"<p>{_e(w.get('summary', ''))}</p>"
+        '<table><colgroup><col style="width:50%"><col style="width:50%"></colgroup><tr><td style="padding:0 8px 0 0">'
+        '<table><colgroup><col><col style="width:16%"><col style="width:24%"></colgroup>'
+        '<tr><th>group standing out</th><th class="num">n</th><th class="num">mean (r/floor)²</th></tr>'
+        f'{standout}</table></td><td style="padding:0 0 0 8px">'
+        '<table><tr><th class="num">worst pose</th><th>step</th><th class="num">mean (r/floor)²</th>'
+        f'<th class="num">worst leg</th></tr>{worst}</table></td></tr></table></div>'
+    )
+
+
+def _param_notes(p: ParamRow, notes: Sequence[str]) -> list[str]:
+    """The fit's notes that name parameter ``p`` (a whole name: ``a1.x`` is not ``a1.xy``)."""
+    pat = re.compile(rf"(?<![\w.]){re.escape(p.name)}(?![\w])")
+    return [n for n in notes if pat.search(n)]
+
+
+def _is_geometry(name: str) -> bool:
+    return bool(re.fullmatch(r"[ab][1-6]\.[xyz]", name))
+
+
+def _param_rows(params: Sequence[ParamRow], notes: Sequence[str]) -> str:
+    out = []
+    for p in params:
+        bad = (not p.physical) or p.status != "ok"
+        rng = f"[{_num(p.plausible[0], 'g')}, {_num(p.plausible[1], 'g')}]" if p.plausible else "—"
+        flag = []
+        if not p.physical:
+            flag.append("non-physical")
+        if p.status != "ok":
+            flag.append(p.status)
+        out.append(
+            f'<tr class="{"bad" if bad else ""}"><td><code>{_e(p.name)}</code></td>'
+            f'<td class="num">{_e(_value_ci(p))}</td><td class="num">{_e(_num(p.sigma, ".2g"))}</td>'
+            f"<td>{_e(p.unit)}</td><td>{_e(rng)}</td><td>{_e(', '.join(flag) or 'ok')}</td></tr>"
+        )
+        if bad:
+            text = _param_notes(p, notes) or [
+                f"status {p.status}" if p.status != "ok" else "outside its plausible range"
+            ]
+            out.append(
+                f'<tr class="note"><td></td><td colspan="5">{"<br>".join(_e(t) for t in text)}</td></tr>'
+            )
+    return "".join(out)
+
+
+def _param_table(d: Diagnosis, sid: str) -> str:
+    f = d.fit
+    notes = list(dict.fromkeys(d.notes + f.notes))
+    head = (
+        '<table><colgroup><col style="width:18%"><col style="width:22%"><col style="width:12%">'
+        '<col style="width:10%"><col style="width:16%"><col></colgroup>'
+        '<tr><th>parameter</th><th class="num">value ± 95 %</th><th class="num">σ</th><th>unit</th>'
+        "<th>plausible range</th><th>status</th></tr>"
+    )
+    # Geometry (36 coordinates) is long and rarely the story: it folds away unless flagged.
+    main = [p for p in f.params if not _is_geometry(p.name) or not p.physical or p.status != "ok"]
+    geometry = [p for p in f.params if _is_geometry(p.name)]
+    corr = f.refinement.strong_correlations
+    corr_html = (
+        '<ul class="notes">'
+        + "".join(
+            f"<li><code>{_e(a)}</code> ↔ <code>{_e(b)}</code>: r = {_num(r, '+.3f')}</li>"
+            for a, b, r in corr
+        )
+        + "</ul>"
+        if corr
+        else '<p class="muted">none</p>'
+    )
+    note_html = (
+        '<ul class="notes">' + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>"
+        if notes
+        else ""
+    )
+    return (
+        f'<div id="{sid}-params"><h3>Parameters (offsets, effects, and any flagged geometry)</h3>'
+        + head
+        + _param_rows(main, notes)
+        + "</table>"
+        + f"<details><summary>all {len(geometry)} geometry coordinates (mm)</summary>"
+        + head
+        + _param_rows(geometry, notes)
+        + "</table></details>"
+        + f'<h3 id="{sid}-correlations">Strong correlations</h3>'
+        + corr_html
+        + (f'<h3 id="{sid}-notes">Notes</h3>' + note_html if note_html else "")
+        + "</div>"
+    )
+
+
+def _figure(fid: str, png: Path | None, title: str, caption: str, skipped: str = "") -> str:
+    if png is None:
+        return f'<figure id="{fid}" class="skipped"><b>{_e(title)}</b>: {_e(skipped)}</figure>'
+    return (
+        f'<figure id="{fid}"><img src="{_data_uri(png)}" alt="{_e(title)}">'
+        f"<figcaption><b>{_e(title)}.</b> {_e(caption)}</figcaption></figure>"
+    )
+
+
+def _plots(d: Diagnosis, sid: str, tmp: Path) -> str:
+    made = {p.name: p for p in write_plots(d, tmp / sid)}
+    figs = []
+    for name, title, caption in REPORT_PLOTS:
+        stem = name.removesuffix(".png")
+        skipped = (
+            "the measurements have no temperature column" if "temperature" in name else "not drawn"
+        )
+        figs.append(_figure(f"{sid}-plot-{stem}", made.get(name), title, caption, skipped))
+    return f'<div id="{sid}-plots"><h3>Residual plots</h3>{"".join(figs)}</div>'
+
+
+def _step(d: Diagnosis, i: int, tmp: Path | None) -> str:
+    sid = f"step-{i}"
+    plots = _plots(d, sid, tmp) if tmp is not None else f'<div id="{sid}-plots"></div>'
+    colour = {"v-none": "ok", "v-effect": "warn", "v-unexplained": "err"}[_verdict_class(d.verdict)]
+    return (
+        f'<section id="{sid}"><h2>Step {i} · {_e(d.fit.model_name)} — verdict '
+        f'<span class="{colour}">{_e(d.verdict)}</span></h2>'
+        + _fit_table(d, sid)
+        + _leg_table(d, sid)
+        + _candidate_table(d, sid)
+        + _where(d, sid)
+        + _param_table(d, sid)
+        + plots
+        + "</section>"
+    )
+
+
+def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
+    cid = f"change-{i}-{i + 1}"
+    added = _added(a, b)
+    what = " + ".join(added) if added else "no effect"
+    line = (
+        f"held-out RMS {_um(a.fit.cv_rms_mm)} → {_um(b.fit.cv_rms_mm)} µm "
+        f"(floor {_um(b.noise_floor_mm)} µm)"
+    )
+    betrays = BETRAYS.get(added[0], "reading") if added else "reading"
+    fig = ""
+    if tmp is not None:
+        png = before_after(a, b, tmp / cid)
+        fig = _figure(
+            f"{cid}-figure",
+            png,
+            f"Before and after adding {what}",
+            f"Top: held-out RMS per leg against the noise floor. Bottom: the residual against the "
+            f"{betrays}, which betrays {added[0] if added else 'a missing effect'}; after the change it "
+            "should be flat.",
+        )
+    return (
+        f'<section id="{cid}" class="change"><h2>Change {i} → {i + 1}: {_e(a.fit.model_name)} → '
+        f'{_e(b.fit.model_name)}</h2><p class="line">{_e(line)}</p>{fig}</section>'
+    )
+
+
+def render_report(
+    diags: Sequence[Diagnosis], inputs: Mapping[str, Path], plots: bool = True
+) -> str:
+    """The report's HTML text (see :func:`write_report`)."""
+    if not diags:
+        raise ValueError("write_report needs at least one Diagnosis")
+    d = diags[-1]
+    parts = [
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>hexcal diagnosis — {_e(d.fit.model_name)}: {_e(d.verdict)}</title>",
+        f"<style>{CSS}</style></head><body><main>",
+        _header(diags),
+        _nav(diags),
+        _provenance(diags, inputs),
+    ]
+    with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
+        tmp = Path(t) if plots else None
+        for i, step in enumerate(diags, 1):
+            if i > 1:
+                parts.append(_change(diags[i - 2], step, i - 1, tmp))
+            parts.append(_step(step, i, tmp))
+    parts.append(
+        f'<footer id="footer" class="muted">hexcal {_e(hexcal.__version__)} · residual = reading − '
+        "predicted reading; held-out = predicted by a fit that did not see the pose.</footer>"
+        "</main></body></html>\n"
+    )
+    return "\n".join(parts)
+
+
+def write_report(
+    diags: Sequence[Diagnosis], path: Path, inputs: Mapping[str, Path], plots: bool = True
+) -> Path:
+    """Write ONE self-contained HTML report of a diagnosis sequence to ``path`` (atomically).
+
+    ``diags``: the steps in order (e.g. Model 42, then + backlash, … until the verdict is
+    ``none``); between consecutive steps a before/after figure is drawn. ``inputs``: label →
+    input file, listed with its SHA-256. ``plots=False`` leaves the figures out (a quick,
+    tables-only page). Returns ``path``.
+    """
+    path = Path(path)
+    write_text_atomic(path, render_report(diags, inputs, plots))
+    return path

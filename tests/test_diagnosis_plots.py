@@ -1,0 +1,127 @@
+"""Residual plots of a diagnosis: every PNG is written, valid and non-trivial; the optional
+ones degrade gracefully (no lead-screw pitch, no temperature); no figure is leaked."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+from hexcal.diagnosis import diagnose
+from hexcal.diagnosis.plots import (
+    PLOT_NAMES,
+    before_after,
+    leg_direction_angles,
+    periodogram,
+    write_plots,
+)
+from hexcal.effects.inject import effect_hook, realistic_values
+from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.study import left_hand
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _is_png(path, min_bytes: int = 10_000) -> bool:
+    data = path.read_bytes()
+    return data.startswith(PNG_MAGIC) and len(data) > min_bytes
+
+
+@pytest.fixture(scope="module")
+def session():
+    """A backlash session, diagnosed with Model 42 (verdict backlash) and + backlash (none)."""
+    inst = Instruments(
+        tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+        encoders=EncoderNoise(reading_sigma_mm=0.002),
+    )
+    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(3)
+    plan = SessionPlan(temperature_rise_k=5.0)
+    truth = perturbed_truth(design, rng, plan)
+    hook = effect_hook("backlash", realistic_values("backlash", rng, truth), truth)
+    meas, _ = simulate_session(design, 3, plan, effects=[hook], truth=truth)
+    before = diagnose(meas, design, 42, instruments=inst)
+    after = diagnose(meas, design, 42, add=["backlash"], problem=before.problem, instruments=inst)
+    return before, after
+
+
+@pytest.fixture(scope="module")
+def written(session, tmp_path_factory):
+    """All plots of the Model 42 fit and the before/after figure, written once."""
+    before, after = session
+    out = tmp_path_factory.mktemp("plots")
+    paths = write_plots(before, out, prefix="m42_")
+    ba = before_after(before, after, out)
+    return out, paths, ba
+
+
+def test_session_is_the_backlash_case(session):
+    before, after = session
+    assert before.verdict == "backlash"
+    assert after.verdict == "none"
+
+
+def test_every_plot_is_written_as_a_valid_png(written):
+    out, paths, _ = written
+    # The session has a temperature column, so nothing is skipped.
+    assert [p.name for p in paths] == ["m42_" + n for n in PLOT_NAMES]
+    for p in paths:
+        assert p.parent == out and p.exists()
+        assert _is_png(p), p.name
+
+
+def test_before_after_is_a_valid_png(written):
+    _, _, ba = written
+    assert ba.name == "before_after.png"
+    assert _is_png(ba, 30_000)
+
+
+def test_no_figure_is_leaked_to_pyplot(written):
+    # write_plots draws on Figure objects without pyplot, so pyplot's registry stays empty.
+    assert plt.get_fignums() == []
+
+
+def test_periodogram_without_a_pitch_is_drawn_without_the_marker(session, tmp_path):
+    before, _ = session
+    design = before.problem.design.model_copy(update={"leadscrew_pitch_mm": None})
+    no_pitch = dataclasses.replace(
+        before, problem=dataclasses.replace(before.problem, design=design)
+    )
+    paths = write_plots(no_pitch, tmp_path, only=["periodogram.png"])
+    assert [p.name for p in paths] == ["periodogram.png"]
+    assert _is_png(paths[0])
+
+
+def test_temperature_plot_is_skipped_without_temperature(session, tmp_path):
+    before, _ = session
+    meas = before.problem.meas
+    no_temp = dataclasses.replace(
+        meas, temperature=None, columns=tuple(c for c in meas.columns if c != "temperature")
+    )
+    diag = dataclasses.replace(before, problem=dataclasses.replace(before.problem, meas=no_temp))
+    assert write_plots(diag, tmp_path, only=["residuals_vs_temperature.png"]) == []
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unknown_plot_name_is_refused(session, tmp_path):
+    with pytest.raises(ValueError, match="unknown plot"):
+        write_plots(session[0], tmp_path, only=["nonsense.png"])
+
+
+def test_periodogram_finds_a_sinusoid_at_its_period_and_amplitude():
+    rng = np.random.default_rng(0)
+    x = np.sort(rng.uniform(0, 100, 300))
+    y = 3.0 * np.sin(2 * np.pi * x / 5.0 + 0.4) + 1.0 + rng.normal(0, 0.1, x.size)
+    periods = np.array([4.0, 5.0, 6.5])
+    amp = periodogram(x, y, periods)
+    assert amp[1] == pytest.approx(3.0, rel=0.03)
+    assert amp[0] < 0.5 and amp[2] < 0.5
+
+
+def test_leg_direction_angles_are_small_and_non_negative(session):
+    ang = leg_direction_angles(session[0])
+    assert ang.shape == (len(session[0].problem.meas), 6)
+    assert (ang >= 0).all() and (ang < 45).all()

@@ -1,0 +1,186 @@
+"""The HTML report: one self-contained file with the verdict, provenance, every step's tables and
+plots, and the before/after comparison between steps."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import re
+from html.parser import HTMLParser
+
+import numpy as np
+import pytest
+
+import hexcal
+import hexcal.diagnosis.plots as plots_mod
+import hexcal.diagnosis.report as report_mod
+from hexcal.diagnosis import diagnose
+from hexcal.diagnosis.model import ParamRow
+from hexcal.diagnosis.plots import PLOT_NAMES
+from hexcal.diagnosis.report import REPORT_PLOTS, _param_rows, write_report
+from hexcal.effects.inject import effect_hook, realistic_values
+from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.measurements import write_measurements
+from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.study import left_hand
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """A backlash session on disk, diagnosed with Model 42 and Model 42 + backlash."""
+    inst = Instruments(
+        tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+        encoders=EncoderNoise(reading_sigma_mm=0.002),
+    )
+    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(3)
+    plan = SessionPlan(temperature_rise_k=5.0)
+    truth = perturbed_truth(design, rng, plan)
+    hook = effect_hook("backlash", realistic_values("backlash", rng, truth), truth)
+    meas, _ = simulate_session(design, 3, plan, effects=[hook], truth=truth)
+    csv = tmp_path_factory.mktemp("data") / "measurements.csv"
+    write_measurements(meas, csv)
+    before = diagnose(meas, design, 42, instruments=inst)
+    after = diagnose(meas, design, 42, add=["backlash"], problem=before.problem, instruments=inst)
+    return before, after, csv
+
+
+#: Plots drawn per step in the report test: drawing is most of a report's time, and every plot
+#: is drawn and checked by test_diagnosis_plots; here only embedding and layout are at stake.
+DRAWN = ("per_leg_rms.png", "residuals_vs_time.png")
+
+
+@pytest.fixture(scope="module")
+def report(session, tmp_path_factory):
+    """The two-step report written once, drawing only :data:`DRAWN` of each step's plots."""
+    before, after, csv = session
+    out = tmp_path_factory.mktemp("report")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(
+            report_mod,
+            "write_plots",
+            lambda d, outdir: plots_mod.write_plots(d, outdir, only=DRAWN),
+        )
+        path = write_report([before, after], out / "report.html", {"measurements": csv})
+    return out, path, path.read_text(encoding="utf-8")
+
+
+def test_report_is_one_file(report):
+    out, path, _ = report
+    assert path.exists()
+    assert [p.name for p in out.iterdir()] == ["report.html"]  # no side files, no leftover temp
+
+
+def test_report_has_no_external_resources(report):
+    _, _, text = report
+    assert 'src="http' not in text
+    assert 'href="http' not in text
+    assert "<link" not in text and "<script" not in text and "@import" not in text
+    # Every link is an anchor within the page.
+    for href in re.findall(r'href="([^"]*)"', text):
+        assert href.startswith("#"), href
+    ids = set(re.findall(r'id="([^"]+)"', text))
+    for href in re.findall(r'href="#([^"]*)"', text):
+        assert href in ids, href
+
+
+def test_report_shows_verdict_provenance_and_images(report, session):
+    _, _, text = report
+    before, after, csv = session
+    assert '<div class="big">none</div>' in text  # the last step's verdict, in big type
+    assert 'class="verdict v-none"' in text
+    assert "backlash" in text
+    assert hashlib.sha256(csv.read_bytes()).hexdigest() in text
+    assert hexcal.__version__ in text
+    assert before.fit.model_name in text and after.fit.model_name in text
+    # The drawn plots of both steps plus the before/after figure; the others hold their place.
+    assert text.count("data:image/png;base64,") == 2 * len(DRAWN) + 1
+    assert text.count('class="skipped"') == 2 * (len(PLOT_NAMES) - len(DRAWN))
+    for png in re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", text):
+        assert base64.b64decode(png).startswith(b"\x89PNG")
+
+
+def test_report_has_the_before_after_section(report, session):
+    _, _, text = report
+    before, after, _ = session
+    assert 'id="change-1-2"' in text
+    assert 'id="change-1-2-figure"' in text
+    line = f"held-out RMS {before.fit.cv_rms_mm * 1e3:.1f} → {after.fit.cv_rms_mm * 1e3:.1f} µm"
+    assert line in text
+
+
+def test_sections_have_stable_ids_in_a_fixed_order(report):
+    _, _, text = report
+    ids = re.findall(r'<(?:section|header|div|figure|nav)[^>]* id="([^"]+)"', text)
+    expected_step = ["fit", "legs", "candidates", "where", "params"]
+    for i in (1, 2):
+        got = [x.removeprefix(f"step-{i}-") for x in ids if x.startswith(f"step-{i}-")]
+        assert got[:5] == expected_step
+        plots = [x for x in got if x.startswith("plot-")]
+        assert plots == ["plot-" + n.removesuffix(".png") for n, _, _ in REPORT_PLOTS]
+    top = [x for x in ids if not x.startswith("step-") and not x.startswith("change-")]
+    assert top[:3] == ["verdict", "contents", "provenance"]
+    assert ids.index("step-1") < ids.index("change-1-2") < ids.index("step-2")
+
+
+def test_report_html_is_well_formed(report):
+    _, _, text = report
+
+    void = {"meta", "img", "br", "col", "hr", "input", "link"}
+
+    class Check(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.stack: list[str] = []
+
+        def handle_starttag(self, tag, attrs):
+            if tag not in void:
+                self.stack.append(tag)
+
+        def handle_endtag(self, tag):
+            assert self.stack and self.stack[-1] == tag, (tag, self.stack[-5:])
+            self.stack.pop()
+
+    c = Check()
+    c.feed(text)
+    assert c.stack == []
+
+
+def test_single_step_report_has_no_before_after(session, tmp_path):
+    before, _, csv = session
+    path = write_report([before], tmp_path / "r.html", {"measurements": csv}, plots=False)
+    text = path.read_text(encoding="utf-8")
+    assert "change-1-2" not in text
+    assert 'class="verdict v-effect"' in text and '<div class="big">backlash</div>' in text
+    assert "data:image/png" not in text
+
+
+def test_text_is_escaped_and_missing_inputs_reported(session, tmp_path):
+    before, _, _ = session
+    path = write_report(
+        [before], tmp_path / "r.html", {"<robot & co>": tmp_path / "absent.json"}, plots=False
+    )
+    text = path.read_text(encoding="utf-8")
+    assert "&lt;robot &amp; co&gt;" in text and "<robot & co>" not in text
+    assert "not readable" in text
+
+
+def test_flagged_parameters_are_red_with_their_note():
+    rows = [
+        ParamRow("gain.g1", 9000.0, 10.0, 20.0, "ppm", (-2000.0, 2000.0), "ok"),
+        ParamRow("a1.x", 1.0, 0.1, 0.2, "mm", None, "not separable"),
+        ParamRow("a1.y", 1.0, 0.1, 0.2, "mm", None, "ok"),
+    ]
+    notes = [
+        "gain.g1 = 9000 ppm is outside its plausible range",
+        "a1.x is not separable from a1.xy",
+    ]
+    text = _param_rows(rows, notes)
+    assert text.count('class="bad"') == 2 and text.count('class="note"') == 2
+    assert "outside its plausible range" in text and "is not separable" in text
+    assert "9000 ± 20" in text
+
+
+def test_no_diagnosis_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="at least one"):
+        write_report([], tmp_path / "r.html", {})
