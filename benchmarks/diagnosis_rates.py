@@ -11,6 +11,13 @@ sessions, and, after adding the named effect, the held-out RMS against the noise
 
 from __future__ import annotations
 
+import os
+
+# One BLAS thread per worker: the workers already fill the cores, and BLAS threads on top of
+# them oversubscribe the machine (diagnose went from 0.8 s to 7 s when they did).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import argparse
 import json
 import time

@@ -171,7 +171,7 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
     # Standard errors of the effect's parameters once the model's own are projected out.
     with np.errstate(divide="ignore", invalid="ignore"):
         se = np.sqrt(np.diag(np.linalg.pinv(b_perp.T @ b_perp)))
-    half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs]) * s2_scale(fit)
+    half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
     unresolved = (sines < MIN_SINE) | ~(se < RESOLVE * half)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
     r = ref.whitened_residual
@@ -198,11 +198,6 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
             f"record {eff.separating_motion}"
         )
     return cand
-
-
-def s2_scale(fit: ModelFit) -> float:
-    """1; the whitened residuals are in units of the stated noise (or the typical one)."""
-    return 1.0
 
 
 def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
