@@ -60,6 +60,8 @@ class Candidate:
     refit: ModelFit | None = None
     delta_bic: float = float("nan")
     explained: float = float("nan")  #: share of the excess χ² explained by the refit
+    closes: bool = False  #: the refit (alone or with ``with_effect``) is back at the noise floor
+    with_effect: str = ""  #: the second effect the remaining excess needs, if any
 
     @property
     def cv_rms_mm_after(self) -> float:
@@ -114,6 +116,7 @@ class Diagnosis:
                     "delta_bic": _nan_none(c.delta_bic),
                     "explained_fraction": _nan_none(c.explained),
                     "identifiable": c.identifiable,
+                    "closes_excess": c.closes,
                     "available": c.available,
                     "reason": c.reason,
                     "absorbed_by": c.absorbed_by,
@@ -200,6 +203,32 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
     return cand
 
 
+def _closes_excess(
+    problem: Problem,
+    c: Candidate,
+    candidates: list[Candidate],
+    expected_per_dof: float,
+    band: float,
+) -> tuple[bool, str]:
+    """Does adding ``c`` bring the residual back to the noise floor — alone, or with one more
+    catalogue effect (scored at ``c``'s refit)? An effect that leaves a significant excess only
+    nibbles at a structured residual, unless another catalogue effect accounts for the rest
+    (two hidden effects are then named one after the other)."""
+    ref = c.refit
+    if ref.chi2 / (ref.dof * expected_per_dof) <= band:
+        return True, ""
+    for other in candidates:
+        if other.effect == c.effect or not (other.available and other.identifiable):
+            continue
+        second = score_candidate(problem, ref, other.effect)
+        if not second.identifiable:
+            continue
+        n_extra = len(get_effect(other.effect).params(problem.design))
+        if (ref.chi2 - second.score) / ((ref.dof - n_extra) * expected_per_dof) <= band:
+            return True, other.effect
+    return False, ""
+
+
 def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
     n = base.refinement.whitened_residual.size
     dp = new.n_params - base.n_params
@@ -272,20 +301,39 @@ def diagnose(
     floor_mm = float(np.sqrt(np.mean(floor**2)))
     # "Explains most of the excess" only means something when there is a significant excess to
     # explain; below it, the excess is mostly noise and strong evidence (ΔBIC) decides alone.
+    band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
+    for c in candidates:
+        if c.refit is not None and excess:
+            c.closes, c.with_effect = _closes_excess(
+                problem, c, candidates, expected_per_dof=s2, band=band
+            )
     winners = [
         c
         for c in candidates
-        if c.refit is not None and c.delta_bic < BIC_STRONG and (not excess or c.explained >= MOST)
+        if c.refit is not None
+        and c.delta_bic < BIC_STRONG
+        and (not excess or (c.explained >= MOST and c.closes))
     ]
     if winners:
-        verdict = min(winners, key=lambda c: c.delta_bic).effect
+        best = min(winners, key=lambda c: c.delta_bic)
+        verdict = best.effect
+        if best.with_effect:
+            notes.append(
+                f"{best.effect} leaves an excess that {best.with_effect} would explain: "
+                f"add {best.effect}, then diagnose again"
+            )
     elif excess:
         verdict = "unexplained"
         helpful = [c for c in candidates if c.refit is not None and c.delta_bic < BIC_STRONG]
         if helpful:
             notes.append(
-                "some effects help but none explains most of the excess: "
-                + ", ".join(f"{c.effect} ({100 * c.explained:.0f} %)" for c in helpful)
+                "some effects help but none brings the residual to the noise floor, alone or with one more "
+                "catalogue effect: "
+                + ", ".join(
+                    f"{c.effect} (explains {100 * c.explained:.0f} % of the excess, leaves χ²/dof "
+                    f"{c.refit.chi2 / (c.refit.dof * s2):.2f})"
+                    for c in helpful
+                )
             )
     else:
         verdict = "none"
