@@ -95,12 +95,48 @@ def run_one(args):
     return out
 
 
+def markdown(summary: dict) -> str:
+    """The README's table from a summary."""
+    lines = [
+        "| hidden in the session | sessions | right verdict | verdicts "
+        "| held-out RMS / floor after adding it (median, max) | within 15 % of the floor |",
+        "|---|---|---|---|---|---|",
+    ]
+    for key, s in summary.items():
+        verdicts = ", ".join(
+            f"{v} {n}" for v, n in sorted(s["verdicts"].items(), key=lambda kv: -kv[1])
+        )
+        after = (
+            f"{s['after_ratio_median']:.3f}, {s['after_ratio_max']:.3f}"
+            if "after_ratio_median" in s
+            else "—"
+        )
+        within = f"{100 * s['after_within_15pct']:.0f} %" if "after_within_15pct" in s else "—"
+        label = {
+            "clean": "nothing (clean)",
+            "foreign": "a local dent in one leg (outside the catalogue)",
+        }.get(key, f"`{key}`" if "(" not in key else key)
+        extra = (
+            f"; right leg located in {100 * s['located_right_leg']:.0f} %"
+            if "located_right_leg" in s
+            else ""
+        )
+        lines.append(
+            f"| {label} | {s['sessions']} | {100 * s['right']:.0f} %{extra} | {verdicts} | {after} | {within} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sessions", type=int, default=50)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="docs/diagnosis_rates.json")
+    ap.add_argument("--markdown", metavar="JSON", help="only print the table of an earlier run")
     args = ap.parse_args()
+    if args.markdown:
+        print(markdown(json.loads(Path(args.markdown).read_text())["summary"]))
+        return
     jobs = [(c, s, 1.0) for c in (*EFFECTS, "clean", "foreign") for s in range(args.sessions)]
     jobs += [(c, s, 0.3) for c in EFFECTS for s in range(args.sessions)]
     t0 = time.perf_counter()

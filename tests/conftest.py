@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+
+# As the CLI does: one BLAS thread; these problems are too small to gain from more.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 from pathlib import Path
 
 import numpy as np

@@ -151,3 +151,32 @@ def test_shared_example(capsys, model, verdict):
     assert out["verdict"] == verdict
     for c in out["candidates"]:
         assert {"effect", "cv_rms_mm_after", "delta_bic", "identifiable"} <= set(c)
+
+
+def test_effect_that_only_nibbles_is_not_the_answer(design):
+    """A dent along z correlates with leg length, so a gain absorbs part of it; but adding gain
+    leaves a significant excess that no catalogue effect explains: `unexplained`, not `gain`."""
+    home = np.array(design.home.position)
+    meas, design = _session(design, 307, lambda rng, t: [local_dent(1, 2, 0.05, home)])
+    d = diagnose(meas, design, 42, instruments=INST)
+    assert d.verdict == "unexplained"
+    assert d.where["worst_legs"][0] == "leg 1"
+    g = d.candidate("gain")
+    assert g is not None and not g.closes
+
+
+def test_two_hidden_effects_are_named_one_after_the_other(design):
+    def hooks(rng, t):
+        return [effect_hook(e, realistic_values(e, rng, t), t) for e in ("gain", "backlash")]
+
+    meas, design = _session(design, 308, hooks)
+    first = diagnose(meas, design, 42, instruments=INST)
+    assert first.verdict in ("gain", "backlash")
+    second = diagnose(
+        meas, design, 42, add=[first.verdict], instruments=INST, problem=first.problem
+    )
+    assert {first.verdict, second.verdict} == {"gain", "backlash"}
+    third = diagnose(
+        meas, design, 42, add=["gain", "backlash"], instruments=INST, problem=first.problem
+    )
+    assert third.verdict == "none"
