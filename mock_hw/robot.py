@@ -18,6 +18,9 @@ from scipy.spatial.transform import Rotation
 from hexcal.robot import Robot
 from hexcal.simulate import LengthEffect, NoiseModel, PoseContext, Simulator
 
+#: A good optical tracker and encoder (1 sigma): 0.01 mm, 0.002 deg, 0.002 mm.
+DEFAULT_NOISE = NoiseModel(0.01, 0.002, 0.002)
+
 
 class MockRobot:
     """A simulated Gough platform with a true geometry, hidden effects and instrument noise.
@@ -29,7 +32,7 @@ class MockRobot:
     def __init__(
         self,
         truth: Robot,
-        noise: NoiseModel = NoiseModel(0.01, 0.002, 0.002),
+        noise: NoiseModel = DEFAULT_NOISE,
         effects: Sequence[LengthEffect] = (),
         seed: int = 0,
         clock: Callable[[], float] = time.monotonic,
