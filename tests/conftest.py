@@ -42,3 +42,33 @@ def clean_sim(truth):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def instruments():
+    """The instruments of the simulated sessions in the tests (1 sigma)."""
+    from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+
+    return Instruments(
+        tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+        encoders=EncoderNoise(reading_sigma_mm=0.002),
+    )
+
+
+@pytest.fixture(scope="session")
+def backlash_diagnoses():
+    """A session hiding backlash, diagnosed as Model 42 (verdict backlash) and Model 42 +
+    backlash (verdict none): (before, after, measurements, design). Built once per test run."""
+    from hexcal.diagnosis import diagnose
+    from hexcal.effects.inject import effect_hook, realistic_values
+    from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+
+    inst = instruments()
+    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(3)
+    plan = SessionPlan(temperature_rise_k=5.0)
+    truth = perturbed_truth(design, rng, plan)
+    hook = effect_hook("backlash", realistic_values("backlash", rng, truth), truth)
+    meas, _ = simulate_session(design, 3, plan, effects=[hook], truth=truth)
+    before = diagnose(meas, design, 42, instruments=inst)
+    after = diagnose(meas, design, 42, add=["backlash"], problem=before.problem, instruments=inst)
+    return before, after, meas, design

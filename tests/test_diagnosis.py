@@ -9,22 +9,18 @@ import json
 
 import numpy as np
 import pytest
-from conftest import SHARED_EXAMPLE
+from conftest import SHARED_EXAMPLE, instruments
 
 from hexcal.cli import main
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.model import Problem, fit_model
 from hexcal.effects.foreign import local_dent
 from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.noise import NoiseSigmas
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
 from hexcal.simulate import PoseRanges
 
-INST = Instruments(
-    tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
-    encoders=EncoderNoise(reading_sigma_mm=0.002),
-)
+INST = instruments()
 
 
 def _session(design, seed, hooks_for=None):

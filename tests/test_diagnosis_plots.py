@@ -9,7 +9,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.plots import (
     PLOT_NAMES,
     before_after,
@@ -17,10 +16,6 @@ from hexcal.diagnosis.plots import (
     periodogram,
     write_plots,
 )
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.study import left_hand
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -31,20 +26,9 @@ def _is_png(path, min_bytes: int = 10_000) -> bool:
 
 
 @pytest.fixture(scope="module")
-def session():
+def session(backlash_diagnoses):
     """A backlash session, diagnosed with Model 42 (verdict backlash) and + backlash (none)."""
-    inst = Instruments(
-        tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
-        encoders=EncoderNoise(reading_sigma_mm=0.002),
-    )
-    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
-    rng = np.random.default_rng(3)
-    plan = SessionPlan(temperature_rise_k=5.0)
-    truth = perturbed_truth(design, rng, plan)
-    hook = effect_hook("backlash", realistic_values("backlash", rng, truth), truth)
-    meas, _ = simulate_session(design, 3, plan, effects=[hook], truth=truth)
-    before = diagnose(meas, design, 42, instruments=inst)
-    after = diagnose(meas, design, 42, add=["backlash"], problem=before.problem, instruments=inst)
+    before, after, _, _ = backlash_diagnoses
     return before, after
 
 

@@ -8,40 +8,23 @@ import hashlib
 import re
 from html.parser import HTMLParser
 
-import numpy as np
 import pytest
 
 import hexcal
 import hexcal.diagnosis.plots as plots_mod
 import hexcal.diagnosis.report as report_mod
-from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.model import ParamRow
 from hexcal.diagnosis.plots import PLOT_NAMES
 from hexcal.diagnosis.report import REPORT_PLOTS, _param_rows, write_report
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.measurements import write_measurements
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.study import left_hand
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
+def session(backlash_diagnoses, tmp_path_factory):
     """A backlash session on disk, diagnosed with Model 42 and Model 42 + backlash."""
-    inst = Instruments(
-        tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
-        encoders=EncoderNoise(reading_sigma_mm=0.002),
-    )
-    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
-    rng = np.random.default_rng(3)
-    plan = SessionPlan(temperature_rise_k=5.0)
-    truth = perturbed_truth(design, rng, plan)
-    hook = effect_hook("backlash", realistic_values("backlash", rng, truth), truth)
-    meas, _ = simulate_session(design, 3, plan, effects=[hook], truth=truth)
+    before, after, meas, _ = backlash_diagnoses
     csv = tmp_path_factory.mktemp("data") / "measurements.csv"
     write_measurements(meas, csv)
-    before = diagnose(meas, design, 42, instruments=inst)
-    after = diagnose(meas, design, 42, add=["backlash"], problem=before.problem, instruments=inst)
     return before, after, csv
 
 
