@@ -1,0 +1,236 @@
+"""Acquisition: pair the tracker's poses with the six leg readings into recorded poses.
+
+Both streams are timestamped on arrival with one monotonic clock (``time.monotonic``). A pose is
+recorded from a *still window*: every tracker sample and every leg-reading set whose arrival
+time falls in ``[t_end − duration, t_end]``. It is refused — never silently kept — when the
+platform or a leg moved during the window (spreads above the thresholds), when a device
+reported a fault, or when a stream delivered too few samples. The raw samples behind each
+recorded pose are kept for the session file.
+
+The sources are small interfaces (:class:`PoseSource`, :class:`LegSource`); the serial tracker
+and CAN encoder drivers implement them, and so do test doubles.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+@dataclass(frozen=True)
+class TrackerSample:
+    """One tracker reading: arrival time t (monotonic s), position (3,) mm, unit quaternion
+    (4,) scalar first, RMS error mm; ``fault`` is None or a sentence (tool missing, CRC...)."""
+
+    t: float
+    position: np.ndarray | None
+    quaternion: np.ndarray | None
+    rms_mm: float = float("nan")
+    fault: str | None = None
+
+
+@dataclass(frozen=True)
+class LegSample:
+    """One set of six readings: arrival time t (monotonic s), readings (6,) mm (NaN when a leg
+    is missing), and the faults the bus reported for it."""
+
+    t: float
+    readings: np.ndarray
+    faults: tuple[str, ...] = ()
+
+    @property
+    def complete(self) -> bool:
+        return not self.faults and bool(np.all(np.isfinite(self.readings)))
+
+
+class PoseSource(Protocol):
+    def sample(self) -> TrackerSample:
+        """Block until the next tracker sample (stamped on arrival)."""
+
+
+class LegSource(Protocol):
+    def sample(self) -> LegSample:
+        """Block until the next set of six readings (stamped on arrival)."""
+
+
+@dataclass(frozen=True)
+class StillWindow:
+    """How long the platform must be still, and how still (spread = max − min over the window)."""
+
+    duration_s: float = 0.5
+    max_position_spread_mm: float = 0.05
+    max_angle_spread_deg: float = 0.01
+    max_reading_spread_mm: float = 0.01
+    min_tracker_samples: int = 5
+    min_leg_samples: int = 5
+
+
+@dataclass
+class RecordedPose:
+    """A pose: the window's mean tracker pose and mean readings, with the raw samples."""
+
+    t: float  #: monotonic time at the window's end, s
+    position: np.ndarray  #: (3,) mm
+    quaternion: np.ndarray  #: (4,) scalar first
+    readings: np.ndarray  #: (6,) mm
+    tracker_samples: list[TrackerSample] = field(repr=False)
+    leg_samples: list[LegSample] = field(repr=False)
+    position_spread_mm: float = 0.0
+    angle_spread_deg: float = 0.0
+    reading_spread_mm: float = 0.0
+    alignment_s: float = 0.0  #: difference between the two streams' mean sample times
+
+
+class PoseRefused(Exception):
+    """The pose was not recorded; the message says why and what to do."""
+
+
+def record_pose(
+    tracker: list[TrackerSample], legs: list[LegSample], window: StillWindow, t_end: float
+) -> RecordedPose:
+    """The recorded pose from the samples in ``[t_end − duration, t_end]``, or PoseRefused."""
+    t0 = t_end - window.duration_s
+    ts = [s for s in tracker if t0 <= s.t <= t_end]
+    ls = [s for s in legs if t0 <= s.t <= t_end]
+    faults = [s.fault for s in ts if s.fault] + [f for s in ls for f in s.faults]
+    if faults:
+        uniq = list(dict.fromkeys(faults))
+        raise PoseRefused(
+            "a device reported a fault during the pose: "
+            + "; ".join(uniq[:3])
+            + " — fix it and record again"
+        )
+    if len(ts) < window.min_tracker_samples:
+        raise PoseRefused(
+            f"the tracker gave {len(ts)} samples in {window.duration_s:g} s (need {window.min_tracker_samples}): "
+            "is it tracking the platform's tool?"
+        )
+    if len(ls) < window.min_leg_samples:
+        raise PoseRefused(
+            f"the leg encoders gave {len(ls)} reading sets in {window.duration_s:g} s (need {window.min_leg_samples}): "
+            "is the CAN bus running?"
+        )
+    incomplete = [s for s in ls if not s.complete]
+    if incomplete:
+        raise PoseRefused(
+            f"{len(incomplete)} reading sets were incomplete during the pose — check the encoders and record again"
+        )
+    P = np.array([s.position for s in ts])
+    rot = Rotation.from_quat(np.array([s.quaternion for s in ts]), scalar_first=True)
+    mean_rot = rot.mean()
+    angle = (
+        float(np.rad2deg((rot * mean_rot.inv()).magnitude().max())) * 2
+    )  # spread ≈ 2 × max deviation
+    pos_spread = float(np.ptp(P, axis=0).max())
+    rho = np.array([s.readings for s in ls])
+    rho_spread = float(np.ptp(rho, axis=0).max())
+    if pos_spread > window.max_position_spread_mm or angle > window.max_angle_spread_deg:
+        raise PoseRefused(
+            f"the platform moved during the pose ({pos_spread:.3f} mm, {angle:.4f} deg spread; allowed "
+            f"{window.max_position_spread_mm} mm, {window.max_angle_spread_deg} deg): hold it still and record again"
+        )
+    if rho_spread > window.max_reading_spread_mm:
+        leg = int(np.argmax(np.ptp(rho, axis=0))) + 1
+        raise PoseRefused(
+            f"leg {leg} moved during the pose ({rho_spread:.4f} mm spread, allowed {window.max_reading_spread_mm} mm): "
+            "wait for the legs to settle and record again"
+        )
+    return RecordedPose(
+        t=t_end,
+        position=P.mean(axis=0),
+        quaternion=mean_rot.as_quat(scalar_first=True),
+        readings=rho.mean(axis=0),
+        tracker_samples=ts,
+        leg_samples=ls,
+        position_spread_mm=pos_spread,
+        angle_spread_deg=angle,
+        reading_spread_mm=rho_spread,
+        alignment_s=float(np.mean([s.t for s in ts]) - np.mean([s.t for s in ls])),
+    )
+
+
+class Acquisition:
+    """Reads both sources in background threads into time-stamped buffers; :meth:`record`
+    waits out a still window and returns the recorded pose (or raises PoseRefused)."""
+
+    def __init__(
+        self,
+        tracker: PoseSource,
+        legs: LegSource,
+        window: StillWindow = StillWindow(),
+        clock: Callable[[], float] = time.monotonic,
+        buffer_s: float = 10.0,
+    ):
+        self.tracker, self.legs, self.window, self.clock = tracker, legs, window, clock
+        self._tbuf: deque[TrackerSample] = deque()
+        self._lbuf: deque[LegSample] = deque()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._errors: deque[str] = deque(maxlen=20)
+        self.buffer_s = buffer_s
+
+    def _pump(self, source, buf: deque, name: str) -> None:
+        while not self._stop.is_set():
+            try:
+                s = source.sample()
+            except Exception as exc:  # a device failing must not kill acquisition silently
+                self._errors.append(f"{name}: {exc}")
+                s = (
+                    TrackerSample(self.clock(), None, None, fault=f"{name}: {exc}")
+                    if name == "tracker"
+                    else LegSample(self.clock(), np.full(6, np.nan), (f"{name}: {exc}",))
+                )
+                self._stop.wait(0.05)
+            with self._lock:
+                buf.append(s)
+                while buf and buf[0].t < s.t - self.buffer_s:
+                    buf.popleft()
+
+    def start(self) -> Acquisition:
+        self._stop.clear()
+        for src, buf, name in (
+            (self.tracker, self._tbuf, "tracker"),
+            (self.legs, self._lbuf, "leg encoders"),
+        ):
+            th = threading.Thread(
+                target=self._pump, args=(src, buf, name), name=f"hexcal-{name}", daemon=True
+            )
+            th.start()
+            self._threads.append(th)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for th in self._threads:
+            th.join(timeout=2.0)
+        self._threads.clear()
+
+    def __enter__(self) -> Acquisition:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def latest(self) -> tuple[TrackerSample | None, LegSample | None]:
+        with self._lock:
+            return (self._tbuf[-1] if self._tbuf else None), (
+                self._lbuf[-1] if self._lbuf else None
+            )
+
+    def record(self) -> RecordedPose:
+        """Wait one still window from now and record the pose from it."""
+        t_start = self.clock()
+        t_end = t_start + self.window.duration_s
+        while self.clock() < t_end:
+            time.sleep(min(0.01, max(t_end - self.clock(), 0.0)))
+        with self._lock:
+            ts, ls = list(self._tbuf), list(self._lbuf)
+        return record_pose(ts, ls, self.window, t_end)

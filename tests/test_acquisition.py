@@ -1,0 +1,124 @@
+"""Acquisition: a still window becomes a recorded pose; motion, faults, missing data refuse it."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from hexcal.acquisition import (
+    Acquisition,
+    LegSample,
+    PoseRefused,
+    StillWindow,
+    TrackerSample,
+    record_pose,
+)
+from hexcal.mock_hw.robot import MockRobot
+from hexcal.study import left_hand
+
+WINDOW = StillWindow(duration_s=0.5)
+
+
+def _samples(n=20, move_mm=0.0, leg_move=0.0, t0=0.0, rng=None):
+    rng = rng or np.random.default_rng(0)
+    q = Rotation.from_rotvec([0.01, -0.02, 0.03]).as_quat(scalar_first=True)
+    ts = [
+        TrackerSample(
+            t0 + 0.5 * i / n,
+            np.array([1.0, 2.0, 200.0 + move_mm * i / n]) + rng.normal(0, 0.002, 3),
+            q,
+            0.01,
+        )
+        for i in range(n)
+    ]
+    ls = [
+        LegSample(
+            t0 + 0.5 * i / n + 0.001,
+            np.full(6, 60.0) + leg_move * i / n * (np.arange(6) == 2) + rng.normal(0, 0.001, 6),
+        )
+        for i in range(n)
+    ]
+    return ts, ls
+
+
+def test_still_window_is_averaged_and_raw_samples_kept():
+    ts, ls = _samples()
+    pose = record_pose(ts, ls, WINDOW, t_end=0.5)
+    assert np.allclose(pose.position, [1, 2, 200], atol=0.002)
+    assert np.allclose(pose.readings, 60.0, atol=0.001)
+    assert len(pose.tracker_samples) == 20 and len(pose.leg_samples) == 20
+    assert abs(pose.alignment_s) < 0.002
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"move_mm": 1.0}, "platform moved during the pose"),
+        ({"leg_move": 0.5}, "leg 3 moved during the pose"),
+    ],
+)
+def test_motion_refuses_the_pose(kwargs, match):
+    ts, ls = _samples(**kwargs)
+    with pytest.raises(PoseRefused, match=match):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+def test_fault_refuses_the_pose():
+    ts, ls = _samples()
+    ts[7] = TrackerSample(ts[7].t, None, None, fault="tool 01 MISSING (out of the tracker's view)")
+    with pytest.raises(PoseRefused, match="MISSING"):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+    ts, ls = _samples()
+    ls[3] = LegSample(ls[3].t, np.r_[np.full(5, 60.0), np.nan])
+    with pytest.raises(PoseRefused, match="incomplete"):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+def test_too_few_samples():
+    ts, ls = _samples(n=3)
+    with pytest.raises(PoseRefused, match=r"tracker gave 3 samples"):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+class _Tracker:
+    def __init__(self, robot, hz=200.0):
+        self.robot, self.dt = robot, 1.0 / hz
+
+    def sample(self):
+        time.sleep(self.dt)
+        s = self.robot.tracker_sample()
+        if s is None:
+            return TrackerSample(time.monotonic(), None, None, fault="tool MISSING")
+        return TrackerSample(time.monotonic(), s[0], s[1], s[2])
+
+
+class _Legs:
+    def __init__(self, robot, hz=200.0):
+        self.robot, self.dt = robot, 1.0 / hz
+
+    def sample(self):
+        time.sleep(self.dt)
+        return LegSample(time.monotonic(), self.robot.encoder_readings())
+
+
+def test_threaded_acquisition_against_the_mock_robot():
+    robot = MockRobot(left_hand(), seed=1)
+    window = StillWindow(
+        duration_s=0.2,
+        max_position_spread_mm=0.1,
+        max_angle_spread_deg=0.02,
+        max_reading_spread_mm=0.02,
+    )
+    with Acquisition(_Tracker(robot), _Legs(robot), window) as acq:
+        time.sleep(0.05)
+        pose = acq.record()
+        P, R = robot.true_pose()
+        assert np.allclose(pose.position, P, atol=0.02)
+        truth = robot.sim.readings(P[None], R[None])[0]
+        assert np.allclose(pose.readings, truth, atol=0.005)
+        robot.tool_visible = False
+        with pytest.raises(PoseRefused, match="MISSING"):
+            acq.record()
