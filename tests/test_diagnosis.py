@@ -176,3 +176,15 @@ def test_two_hidden_effects_are_named_one_after_the_other(design):
         meas, design, 42, add=["gain", "backlash"], instruments=INST, problem=first.problem
     )
     assert third.verdict == "none"
+
+
+def test_residual_table_has_every_pose_and_leg(backlash_diagnoses, tmp_path):
+    import csv
+
+    before, _, meas, _ = backlash_diagnoses
+    path = tmp_path / "res.csv"
+    path.write_text(before.residual_table())
+    rows = list(csv.DictReader(path.open()))
+    assert len(rows) == 6 * len(meas)
+    r = rows[7]
+    assert float(r["measured_mm"]) - float(r["predicted_mm"]) == pytest.approx(float(r["residual_um"]) / 1000, abs=1e-6)

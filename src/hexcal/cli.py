@@ -90,6 +90,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         paths = write_plots(steps[-1], out)
         for i in range(1, len(steps)):
             paths.append(before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png"))
+    if args.residuals:
+        from hexcal.fileio import write_text_atomic
+
+        write_text_atomic(args.residuals, steps[-1].residual_table())
     if args.report:
         from hexcal.diagnosis.report import write_report
 
@@ -238,6 +242,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true", help="print one JSON object")
     d.add_argument("--plots", help="directory for the residual plots (PNG)")
     d.add_argument("--report", help="write one self-contained HTML report here")
+    d.add_argument(
+        "--residuals", help="write predicted against measured for every pose and leg (CSV)"
+    )
     d.set_defaults(func=_cmd_diagnose)
 
     s = sub.add_parser(

@@ -91,6 +91,22 @@ class Diagnosis:
     def candidate(self, name: str) -> Candidate | None:
         return next((c for c in self.candidates if c.effect == name), None)
 
+    def residual_table(self) -> str:
+        """CSV text: for every pose and leg, the measured and predicted reading (mm), the
+        residual, the held-out residual (random folds) and the noise floor, µm."""
+        m = self.problem.meas
+        f = self.fit
+        rows = [
+            "pose_id,step,leg,measured_mm,predicted_mm,residual_um,heldout_residual_um,floor_um"
+        ]
+        for i in range(len(m)):
+            for k in range(6):
+                rows.append(
+                    f"{m.pose_id[i]},{m.step[i]},{k + 1},{m.readings[i, k]!r},{m.readings[i, k] - f.residuals[i, k]!r},"
+                    f"{1000 * f.residuals[i, k]:.4f},{1000 * f.cv_residuals[i, k]:.4f},{1000 * self.floor_per_residual[i, k]:.4f}"
+                )
+        return "\n".join(rows) + "\n"
+
     def to_dict(self) -> dict:
         """The JSON contract of ``hexcal diagnose --json``."""
         f = self.fit
