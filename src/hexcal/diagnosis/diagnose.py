@@ -102,7 +102,7 @@ class Diagnosis:
         for i in range(len(m)):
             for k in range(6):
                 rows.append(
-                    f"{m.pose_id[i]},{m.step[i]},{k + 1},{m.readings[i, k]!r},{m.readings[i, k] - f.residuals[i, k]!r},"
+                    f"{m.pose_id[i]},{m.step[i]},{k + 1},{float(m.readings[i, k])!r},{float(m.readings[i, k] - f.residuals[i, k])!r},"
                     f"{1000 * f.residuals[i, k]:.4f},{1000 * f.cv_residuals[i, k]:.4f},{1000 * self.floor_per_residual[i, k]:.4f}"
                 )
         return "\n".join(rows) + "\n"
