@@ -1,0 +1,220 @@
+"""Configuration of the CAN leg encoders: the bus and, per leg, the CANopen node and its scaling.
+
+Six CiA 406 encoder nodes, one per leg. Each sends its position (object 0x6004, INTEGER32,
+counts) in TPDO1 on every SYNC; the driver turns counts into a reading in mm:
+
+    reading_mm = sign × counts / counts_per_mm + zero_mm
+
+so ``zero_mm`` is the reading at zero counts and ``sign`` flips an encoder mounted the other way
+round. The python-can ``interface`` and ``channel`` come from here (``socketcan``/``can0``,
+``pcan``/``PCAN_USBBUS1``, ``kvaser``/``0``, ``virtual``/any name...), so the driver never
+changes between the rig and the tests.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+#: COB-ID bases of the CANopen services the driver uses (CiA 301 predefined connection set).
+NMT_COB_ID = 0x000
+SYNC_COB_ID = 0x080
+TPDO1_BASE = 0x180
+HEARTBEAT_BASE = 0x700
+
+_Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class CanConfigError(ValueError):
+    """A CAN configuration file could not be read; the message names the file and the field."""
+
+
+class LegEncoderConfig(BaseModel):
+    """One leg's encoder: its CANopen node and how its counts become mm.
+
+    ``leg`` 1..6; ``node_id`` 1..127 (TPDO1 COB-ID 0x180 + node, heartbeat 0x700 + node);
+    ``counts_per_mm`` > 0; ``sign`` +1 or −1; ``zero_mm`` the reading at zero counts (mm).
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    leg: int = Field(ge=1, le=6, strict=True)
+    node_id: int = Field(ge=1, le=127, strict=True)
+    counts_per_mm: float = Field(gt=0, allow_inf_nan=False)
+    sign: int = Field(default=1, strict=True)
+    zero_mm: _Finite = 0.0
+
+    @field_validator("sign")
+    @classmethod
+    def _sign_is_unit(cls, v: int) -> int:
+        # A scale of 2 or 0 here would be a counts_per_mm mistake in disguise: refuse it.
+        if v not in (1, -1):
+            raise ValueError(f"sign must be +1 or -1 (got {v}); put the scale in counts_per_mm")
+        return v
+
+    @property
+    def tpdo1_cob_id(self) -> int:
+        return TPDO1_BASE + self.node_id
+
+    @property
+    def heartbeat_cob_id(self) -> int:
+        return HEARTBEAT_BASE + self.node_id
+
+    @property
+    def name(self) -> str:
+        """How messages name this encoder: ``leg 3 encoder (node 0x23)``."""
+        return f"leg {self.leg} encoder (node 0x{self.node_id:02X})"
+
+    def counts_to_mm(self, counts: int) -> float:
+        """A position in counts (0x6004) as a reading in mm."""
+        return self.sign * counts / self.counts_per_mm + self.zero_mm
+
+    def mm_to_counts(self, reading_mm: float) -> int:
+        """The inverse of :meth:`counts_to_mm`, rounded to the nearest count (what a node sends)."""
+        return round((reading_mm - self.zero_mm) * self.counts_per_mm * self.sign)
+
+
+def default_legs(
+    first_node_id: int = 0x21, counts_per_mm: float = 1000.0
+) -> list[LegEncoderConfig]:
+    """Six legs on consecutive node ids (0x21..0x26 by default), same scale, sign +1, zero 0."""
+    return [
+        LegEncoderConfig(leg=k, node_id=first_node_id + k - 1, counts_per_mm=counts_per_mm)
+        for k in range(1, 7)
+    ]
+
+
+class CanBusConfig(BaseModel):
+    """The bus and its six leg encoders.
+
+    ``interface``/``channel``/``bitrate`` go to ``can.Bus``. ``sync_period_s`` > 0: the driver
+    produces SYNC at that period (s); 0: another master produces it and the driver follows.
+    ``heartbeat_timeout_s``: a node whose heartbeat is older than this is reported silent.
+    ``max_tpdo_delay_s``: a position arriving later than this after its SYNC flags the set
+    (timing jitter); None means half the SYNC period (5 ms when the driver does not produce
+    SYNC). ``legs``: exactly six, legs 1..6 once each, node ids unique; kept sorted by leg.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    interface: str = Field(default="virtual", min_length=1)
+    channel: str = Field(default="hexcal", min_length=1)
+    bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
+    sync_period_s: float = Field(default=0.01, ge=0, allow_inf_nan=False)
+    heartbeat_timeout_s: float = Field(default=0.5, gt=0, allow_inf_nan=False)
+    max_tpdo_delay_s: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    legs: list[LegEncoderConfig] = Field(default_factory=default_legs)
+
+    @field_validator("legs")
+    @classmethod
+    def _six_distinct_legs(cls, legs: list[LegEncoderConfig]) -> list[LegEncoderConfig]:
+        if len(legs) != 6:
+            raise ValueError(f"need exactly 6 legs (one encoder per leg), got {len(legs)}")
+        seen: dict[int, int] = {}
+        for cfg in legs:
+            if cfg.leg in seen:
+                raise ValueError(f"leg {cfg.leg} is listed twice; list legs 1..6 once each")
+            seen[cfg.leg] = cfg.node_id
+        owners: dict[int, int] = {}
+        for cfg in legs:
+            if cfg.node_id in owners:
+                raise ValueError(
+                    f"node id 0x{cfg.node_id:02X} is used by legs {owners[cfg.node_id]} and {cfg.leg}; "
+                    "every encoder needs its own node id"
+                )
+            owners[cfg.node_id] = cfg.leg
+        # Legs are 1..6 and distinct, so sorting puts leg k at index k − 1 everywhere.
+        return sorted(legs, key=lambda c: c.leg)
+
+    @model_validator(mode="after")
+    def _delay_below_period(self) -> CanBusConfig:
+        if (
+            self.max_tpdo_delay_s is not None
+            and self.sync_period_s > 0
+            and self.max_tpdo_delay_s >= self.sync_period_s
+        ):
+            raise ValueError(
+                f"max_tpdo_delay_s ({self.max_tpdo_delay_s:g} s) must be shorter than sync_period_s "
+                f"({self.sync_period_s:g} s): a position later than one SYNC period cannot be told "
+                "from the next SYNC's"
+            )
+        return self
+
+    @property
+    def bus_name(self) -> str:
+        """How messages name the bus: ``CAN socketcan channel 'can0'``."""
+        return f"CAN {self.interface} channel '{self.channel}'"
+
+    @property
+    def tpdo_deadline_s(self) -> float:
+        """The effective ``max_tpdo_delay_s``, s."""
+        if self.max_tpdo_delay_s is not None:
+            return self.max_tpdo_delay_s
+        return 0.5 * self.sync_period_s if self.sync_period_s > 0 else 0.005
+
+    def leg(self, k: int) -> LegEncoderConfig:
+        """Leg k's encoder (k in 1..6)."""
+        return self.legs[k - 1]
+
+    def bus_kwargs(self) -> dict[str, object]:
+        """Keyword arguments for ``can.Bus``."""
+        return {"interface": self.interface, "channel": self.channel, "bitrate": self.bitrate}
+
+
+def default_can_config(**overrides: object) -> CanBusConfig:
+    """The default configuration (virtual bus 'hexcal', nodes 0x21..0x26, 1000 counts/mm),
+    with any field overridden by keyword."""
+    return CanBusConfig.model_validate(overrides)
+
+
+def load_can_config(path: str | Path) -> CanBusConfig:
+    """Read a CAN configuration from JSON (``.json``) or TOML (anything else); errors name the
+    file and the field and say what to fix."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise CanConfigError(f"{path}: no such file") from None
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(raw)
+        else:
+            try:
+                import tomllib
+            except ModuleNotFoundError:  # Python 3.10
+                import tomli as tomllib
+            data = tomllib.loads(raw.decode("utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise CanConfigError(f"{path}: not valid {path.suffix or 'TOML'} ({exc})") from None
+    try:
+        return CanBusConfig.model_validate(data)
+    except ValidationError as exc:
+        raise CanConfigError(format_validation_error(exc, str(path))) from None
+
+
+def format_validation_error(exc: ValidationError, where: str = "CAN config") -> str:
+    """One line per problem: ``<where>: field legs.2.node_id: <what is wrong>``."""
+    lines = []
+    for err in exc.errors():
+        field = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = err["msg"].removeprefix("Value error, ")
+        lines.append(f"{where}: field {field}: {msg}")
+    return "\n".join(lines)
+
+
+__all__ = [
+    "HEARTBEAT_BASE",
+    "NMT_COB_ID",
+    "SYNC_COB_ID",
+    "TPDO1_BASE",
+    "CanBusConfig",
+    "CanConfigError",
+    "LegEncoderConfig",
+    "default_can_config",
+    "default_legs",
+    "format_validation_error",
+    "load_can_config",
+]

@@ -1,0 +1,998 @@
+"""The six CANopen (CiA 406) leg encoders, read through python-can and the ``canopen`` package.
+
+On the wire (CiA 301 predefined connection set):
+
+- NMT start ``0x000 [0x01, node]`` puts each node in OPERATIONAL;
+- the driver (or another master) sends SYNC ``0x080 [counter]``; every encoder latches its
+  position and answers with TPDO1 ``0x180 + node``, bytes 0..3 = object 0x6004 (INTEGER32 counts,
+  little endian);
+- every node sends a heartbeat ``0x700 + node [state]`` at its producer period (object 0x1017).
+
+The nodes must already be configured for this (TPDO1 transmission type 1 = every SYNC, 0x6004
+mapped first, a heartbeat producer time shorter than ``heartbeat_timeout_s``); the driver does
+not write their object dictionaries.
+
+A *reading set* is the six positions answering one SYNC. Every frame is stamped on arrival with
+``time.monotonic()``. A set closes at the next SYNC (if none follows: 1.5 SYNC periods after its
+own, or ``heartbeat_timeout_s`` when following another master's SYNC), not as soon as six
+positions are in: a node answering one SYNC late would otherwise fill the next set with stale
+positions unnoticed, whereas left open, its late answer and its next one collide and the set is
+flagged. Anything unusual during a set — a position missing, late or twice, a silent node, a
+node not OPERATIONAL, a CAN error frame, the bus not error-active, a SYNC that could not be
+sent — is written into that set's ``faults`` and the set is not ``complete``. No set is dropped:
+every SYNC gives exactly one set, in order, numbered by ``index``. The raw traffic can be
+written to a python-can log (``log_path``: .asc, .blf, .csv, .log, ...) and replayed later
+through :class:`LegEncoders` in ``listen_only`` mode.
+
+Known limit: frames are attributed to a SYNC in the order the receive thread handles them. If
+that thread stalls for more than a SYNC period (a busy computer), the positions it then handles
+land in the next set; they are flagged (missing, then twice), never silently kept.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import logging
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+from canopen.nmt import NMT_STATES
+
+from hexcal.acquisition import LegSample
+from hexcal.drivers.can_config import (
+    SYNC_COB_ID,
+    CanBusConfig,
+    LegEncoderConfig,
+)
+
+log = logging.getLogger(__name__)
+
+NMT_OPERATIONAL = 0x05
+NMT_PRE_OPERATIONAL = 0x7F
+NMT_BOOTUP = 0x00
+NMT_CMD_START = 0x01
+
+#: CiA 301: a SYNC counter runs 1..overflow; 240 is the largest overflow value allowed.
+SYNC_COUNTER_MAX = 240
+
+# SocketCAN error classes (linux/can/error.h): the error frame's arbitration id is a bit mask.
+# Other interfaces deliver error frames with id 0; they still count as error frames.
+CAN_ERR_TX_TIMEOUT = 0x001
+CAN_ERR_LOSTARB = 0x002
+CAN_ERR_CRTL = 0x004
+CAN_ERR_PROT = 0x008
+CAN_ERR_TRX = 0x010
+CAN_ERR_ACK = 0x020
+CAN_ERR_BUSOFF = 0x040
+CAN_ERR_BUSERROR = 0x080
+CAN_ERR_RESTARTED = 0x100
+# data[1] of a CAN_ERR_CRTL frame
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+
+_ERROR_CLASSES = (
+    (CAN_ERR_TX_TIMEOUT, "transmit timeout"),
+    (CAN_ERR_LOSTARB, "lost arbitration"),
+    (CAN_ERR_CRTL, "controller problem"),
+    (CAN_ERR_PROT, "protocol violation"),
+    (CAN_ERR_TRX, "transceiver problem"),
+    (CAN_ERR_ACK, "no acknowledge (is any other node powered?)"),
+    (CAN_ERR_BUSOFF, "bus-off"),
+    (CAN_ERR_BUSERROR, "bus error"),
+    (CAN_ERR_RESTARTED, "controller restarted"),
+)
+
+BUS_ACTIVE = "ACTIVE"
+BUS_PASSIVE = "ERROR-PASSIVE"
+BUS_OFF = "BUS-OFF"
+BUS_ERROR = "ERROR"
+
+
+# -- errors ----------------------------------------------------------------------------------------
+class EncoderError(Exception):
+    """The leg encoders cannot deliver readings; the message says what to check."""
+
+
+class EncoderSilent(EncoderError):
+    """One or more encoder nodes sent no heartbeat within the timeout.
+
+    ``legs`` (1..6) and ``node_ids`` name them, in the same order."""
+
+    def __init__(self, message: str, legs: tuple[int, ...] = (), node_ids: tuple[int, ...] = ()):
+        super().__init__(message)
+        self.legs = legs
+        self.node_ids = node_ids
+
+
+class BusError(EncoderError):
+    """The CAN bus itself is at fault (cannot open, bus-off, error-passive, send failed).
+
+    ``state`` is the bus state as :meth:`LegEncoders.status` reports it."""
+
+    def __init__(self, message: str, state: str = BUS_ERROR):
+        super().__init__(message)
+        self.state = state
+
+
+# -- decoding --------------------------------------------------------------------------------------
+class TpdoDecoder:
+    """TPDO1 → (leg, mm) for one configuration, precompiled so decoding a frame is one dict
+    lookup and one integer conversion.
+
+    ``table`` maps a TPDO1 COB-ID to (leg 1..6, sign, counts_per_mm, zero_mm).
+    """
+
+    __slots__ = ("_cpm", "_leg_of", "_sign", "_zero", "config", "table")
+
+    def __init__(self, config: CanBusConfig):
+        self.config = config
+        self.table: dict[int, tuple[int, int, float, float]] = {
+            c.tpdo1_cob_id: (c.leg, c.sign, c.counts_per_mm, c.zero_mm) for c in config.legs
+        }
+        # Lookup arrays over the whole 11-bit id space for the batch path (leg 0 = not a TPDO1).
+        self._leg_of = np.zeros(0x800, np.int64)
+        self._sign = np.zeros(0x800)
+        self._cpm = np.ones(0x800)
+        self._zero = np.zeros(0x800)
+        for c in config.legs:
+            i = c.tpdo1_cob_id
+            self._leg_of[i], self._sign[i], self._cpm[i], self._zero[i] = (
+                c.leg,
+                c.sign,
+                c.counts_per_mm,
+                c.zero_mm,
+            )
+
+    def decode(self, msg: can.Message) -> tuple[int, float] | None:
+        """(leg 1..6, reading mm) of a TPDO1 from a configured node; None for any other frame.
+
+        Raises :class:`EncoderError` for a TPDO1 too short to hold 0x6004."""
+        entry = self.table.get(msg.arbitration_id)
+        if entry is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+            return None
+        data = msg.data
+        if len(data) < 4:
+            raise EncoderError(
+                _short_tpdo_message(self.config.leg(entry[0]), len(data), self.config)
+            )
+        leg, sign, cpm, zero = entry
+        return leg, sign * int.from_bytes(data[:4], "little", signed=True) / cpm + zero
+
+    def decode_batch(
+        self, cob_ids: np.ndarray, payload: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorised decode of N standard data frames.
+
+        ``cob_ids`` (N,) int; ``payload`` (N, ≥4) uint8 (the frames' data bytes). Returns legs
+        (N,) int (0 where the frame is not a configured TPDO1) and readings (N,) mm (NaN there).
+        """
+        ids = np.asarray(cob_ids, np.int64)
+        legs = np.zeros(ids.shape, np.int64)
+        inside = (ids >= 0) & (ids < 0x800)
+        legs[inside] = self._leg_of[ids[inside]]
+        raw = np.ascontiguousarray(np.asarray(payload, np.uint8)[:, :4])
+        counts = raw.view("<i4")[:, 0].astype(float)
+        idx = np.where(legs > 0, ids, 0)
+        mm = self._sign[idx] * counts / self._cpm[idx] + self._zero[idx]
+        mm[legs == 0] = np.nan
+        return legs, mm
+
+
+def decode_tpdo(msg: can.Message, config: CanBusConfig | TpdoDecoder) -> tuple[int, float] | None:
+    """(leg 1..6, reading mm) of one TPDO1 frame, or None when the frame is not the TPDO1 of a
+    configured node. ``reading_mm = sign × counts / counts_per_mm + zero_mm``.
+
+    Pass a :class:`TpdoDecoder` (built once from the config) on a hot path; a
+    :class:`CanBusConfig` works too but compiles the lookup on every call.
+    """
+    dec = config if isinstance(config, TpdoDecoder) else TpdoDecoder(config)
+    return dec.decode(msg)
+
+
+def describe_error_frame(msg: can.Message) -> str:
+    """What an error frame says, in words (SocketCAN error classes; 'error frame' otherwise)."""
+    cls = msg.arbitration_id & 0x1FFFFFFF
+    words = [text for bit, text in _ERROR_CLASSES if cls & bit]
+    if cls & CAN_ERR_CRTL and len(msg.data) > 1:
+        ctrl = msg.data[1]
+        if ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+            words.append("controller error-passive")
+        if ctrl & CAN_ERR_CRTL_ACTIVE:
+            words.append("controller back to error-active")
+    return ", ".join(words) or "error frame"
+
+
+def _short_tpdo_message(leg: LegEncoderConfig, n: int, config: CanBusConfig) -> str:
+    return (
+        f"{leg.name} sent a {n}-byte TPDO1 on {config.bus_name}; expected at least 4 bytes "
+        "(0x6004 INTEGER32 mapped first) — check that node's TPDO1 mapping"
+    )
+
+
+# -- reading sets ----------------------------------------------------------------------------------
+@dataclass
+class ReadingSet:
+    """The six legs' positions answering one SYNC.
+
+    ``sync_counter``: the counter byte the SYNC carried (1..240), 0 if it carried none.
+    ``t_sync``: monotonic time (s) the SYNC was sent (driver-produced) or arrived.
+    ``readings_mm``: (6,) mm, leg k at index k − 1, NaN where no position arrived.
+    ``arrival``: (6,) monotonic s each position arrived, NaN where none did.
+    ``complete``: all six arrived in time and nothing went wrong; otherwise ``faults`` says what
+    (operator sentences naming leg, node, bus and what to do).
+    ``index``: 0, 1, 2... in SYNC order since :meth:`LegEncoders.start`; never skips.
+    """
+
+    sync_counter: int
+    t_sync: float
+    readings_mm: np.ndarray
+    arrival: np.ndarray
+    complete: bool
+    faults: list[str] = field(default_factory=list)
+    index: int = 0
+
+    def to_leg_sample(self) -> LegSample:
+        """This set as the acquisition's :class:`~hexcal.acquisition.LegSample`, stamped with the
+        SYNC time (the instant the six encoders latched their positions)."""
+        faults = tuple(self.faults)
+        if not self.complete and not faults:  # cannot happen by construction; never hide it
+            faults = ("leg encoder reading set incomplete",)
+        return LegSample(self.t_sync, self.readings_mm.copy(), faults)
+
+
+class _Pending:
+    """A set being assembled (plain lists: faster per frame than numpy element writes)."""
+
+    __slots__ = ("arrival", "counter", "faults", "index", "n", "readings", "t_sync")
+
+    def __init__(self, index: int, counter: int, t_sync: float, faults: dict[str, str]):
+        self.index = index
+        self.counter = counter
+        self.t_sync = t_sync
+        self.readings = [math.nan] * 6
+        self.arrival = [math.nan] * 6
+        self.n = 0
+        self.faults = faults  # key -> message; a key repeats (error frames) without piling up
+
+
+# -- python-can glue -------------------------------------------------------------------------------
+class _Listener(can.Listener):
+    def __init__(self, owner: LegEncoders):
+        self.owner = owner
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.owner._on_message(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self.owner._on_receive_error(exc)
+
+    def stop(self) -> None:
+        pass
+
+
+class _Recorder:
+    """A python-can log writer shared by the receive thread and the senders.
+
+    ``lock`` (reentrant) is held by the receive thread across writing *and* handling a frame,
+    and by the SYNC producer across opening a set, sending and writing the SYNC: so the log's
+    order is the order the driver saw, and a replay assigns every position to the same SYNC."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.writer = can.Logger(str(path))
+        self.lock = threading.RLock()
+        self.closed = False
+
+    def write(self, msg: can.Message) -> None:
+        """Write one frame; the caller holds ``lock``."""
+        if self.closed:
+            return
+        if not isinstance(msg.channel, (int, type(None))):
+            # Virtual channel names are not channel numbers; BLF stores a 16-bit number.
+            msg = copy.copy(msg)
+            msg.channel = None
+        self.writer.on_message_received(msg)
+
+    def stop(self) -> None:
+        with self.lock:
+            if not self.closed:
+                self.closed = True
+                self.writer.stop()
+
+
+class _Network(canopen.Network):
+    """canopen's Network with a shorter notifier cycle (stop() returns in ~50 ms, not 1 s) and
+    every frame it sends written to the recorder, under the recorder's lock so the log keeps
+    the true order (our SYNC before the answers to it)."""
+
+    NOTIFIER_CYCLE = 0.05
+    NOTIFIER_SHUTDOWN_TIMEOUT = 1.0
+
+    def __init__(self, bus: can.BusABC | None, recorder: _Recorder | None):
+        super().__init__(bus)
+        self.recorder = recorder
+
+    def send_message(self, can_id: int, data: Any, remote: bool = False) -> None:
+        if not self.bus:
+            raise RuntimeError("Not connected to CAN bus")
+        msg = can.Message(
+            arbitration_id=can_id,
+            data=bytes(data or b""),
+            is_extended_id=can_id > 0x7FF,
+            is_remote_frame=remote,
+            is_rx=False,
+            timestamp=time.time(),
+        )
+        rec = self.recorder
+        with rec.lock if rec else contextlib.nullcontext(), self.send_lock:
+            self.bus.send(msg)
+            if rec:
+                rec.write(msg)
+        self.check()
+
+
+# -- the driver ------------------------------------------------------------------------------------
+class LegEncoders:
+    """The six leg encoders on one CAN bus.
+
+    ``config``: bus and legs. ``bus``: an open python-can bus to use (the caller keeps owning
+    it); None opens ``config.interface``/``config.channel`` at :meth:`start` and closes it at
+    :meth:`stop`. ``listen_only``: send nothing (no NMT, no SYNC) and decode what is on the bus —
+    for sniffing a bus another master runs, or replaying a log. ``log_path``: write every frame
+    received and sent to this python-can log (.asc, .blf, ...). ``max_queue``: reading sets kept
+    for :meth:`read_set` (100 000 ≈ 17 min at 100 Hz); beyond it the oldest are discarded and the
+    next set says so.
+
+    Implements the acquisition's ``LegSource`` (:meth:`sample`). A context manager.
+    """
+
+    def __init__(
+        self,
+        config: CanBusConfig,
+        bus: can.BusABC | None = None,
+        *,
+        listen_only: bool = False,
+        log_path: str | Path | None = None,
+        max_queue: int = 100_000,
+    ):
+        self.config = config
+        self.listen_only = listen_only
+        self.log_path = None if log_path is None else Path(log_path)
+        self.max_queue = max_queue
+        self.decoder = TpdoDecoder(config)
+        self._bus_in = bus
+        self._producing = config.sync_period_s > 0 and not listen_only
+        self._deadline = config.tpdo_deadline_s
+        # A set nobody completes (SYNC stopped) is closed after this, s.
+        self._close_after = (
+            1.5 * config.sync_period_s if self._producing else config.heartbeat_timeout_s
+        )
+        self._leg_of_hb = {c.heartbeat_cob_id: c.leg - 1 for c in config.legs}
+        self._names = [c.name for c in config.legs]
+        self._bus_name = config.bus_name
+
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._stop_evt = threading.Event()
+        self._worker: threading.Thread | None = None
+        self._network: _Network | None = None
+        self._recorder: _Recorder | None = None
+        self._listener = _Listener(self)
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        # What outlives a stop/start: the sets not yet read and their numbering.
+        self._queue: deque[ReadingSet] = deque()
+        self._latest: ReadingSet | None = None
+        self._index = 0
+        self._incomplete = 0
+        self._discarded = 0
+        self._pending_faults: dict[str, str] = {}
+        self._running = False
+        self._stopped = False
+        self._reset_run()
+
+    def _reset_run(self) -> None:
+        """Per-run state: what the bus and the nodes are doing now."""
+        self._open: _Pending | None = None
+        self._sync_counter = 0
+        self._sync_sent = 0
+        self._foreign_syncs = 0
+        self._t_start = time.monotonic()
+        self._last_hb: list[float | None] = [None] * 6
+        self._hb_state: list[int | None] = [None] * 6
+        self._silent = [False] * 6
+        self._last_nmt = [-math.inf] * 6
+        self._frames = [0] * 6
+        self._missing = [0] * 6
+        self._bus_state = BUS_ACTIVE
+        self._bus_detail = ""
+        self._error_frames = 0
+        self._polls_state = False
+        self._next_state_poll = 0.0
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    def start(self, timeout: float | None = None) -> LegEncoders:
+        """Open the bus, NMT-start the six nodes and wait until each reports OPERATIONAL in its
+        heartbeat (at most ``timeout`` s, default 2 × heartbeat_timeout_s), then produce SYNC
+        (when ``sync_period_s`` > 0) and supervise heartbeats. In ``listen_only`` mode nothing is
+        sent and nothing is awaited.
+
+        Raises :class:`BusError` if the bus cannot be opened, :class:`EncoderSilent` naming the
+        nodes that never sent a heartbeat, :class:`EncoderError` for a node that did not start.
+        """
+        if self._running:
+            return self
+        self._reset_run()
+        self._stopped = False
+        self._stop_evt.clear()
+        cfg = self.config
+        self._recorder = _Recorder(self.log_path) if self.log_path else None
+        net = _Network(self._bus_in, self._recorder)
+        for leg in cfg.legs:
+            net.add_node(leg.node_id)  # canopen RemoteNode: NMT master side, SDO client if needed
+        net.listeners.append(self._listener)
+        try:
+            if self._bus_in is None:
+                net.connect(**cfg.bus_kwargs())
+            else:
+                net.connect()
+        except Exception as exc:  # python-can raises many types for a missing adapter
+            if self._recorder:
+                self._recorder.stop()
+            raise BusError(
+                f"could not open {self._bus_name} at {cfg.bitrate // 1000} kbit/s: {exc} — check the "
+                "interface name and channel in the configuration and that the adapter is plugged in "
+                "and up (socketcan: `ip link set can0 up type can bitrate 1000000`)",
+                BUS_ERROR,
+            ) from exc
+        self._network = net
+        self._polls_state = type(net.bus).state is not can.BusABC.state
+        self._t_start = time.monotonic()
+        self._running = True
+        try:
+            if not self.listen_only:
+                for k in range(6):
+                    self._nmt_start(k)
+                self._wait_operational(2 * cfg.heartbeat_timeout_s if timeout is None else timeout)
+        except BaseException:
+            self.stop()
+            raise
+        self._worker = threading.Thread(target=self._run, name="hexcal-can-encoders", daemon=True)
+        self._worker.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop SYNC and supervision, wait briefly for the last SYNC's positions, close the set
+        in progress (flagged if incomplete), stop receiving, close the log and the bus (if this
+        driver opened it). Sets not yet read stay readable with :meth:`read_set`."""
+        if self._network is None:
+            return
+        self._stop_evt.set()
+        if self._worker is not None:
+            self._worker.join(timeout=2.0)
+            self._worker = None
+        with self._cond:
+            end = time.monotonic() + self._deadline
+            while self._open is not None and self._open.n < 6 and time.monotonic() < end:
+                self._cond.wait(end - time.monotonic())
+        net = self._network
+        if net.notifier is not None:
+            net.notifier.stop(net.NOTIFIER_SHUTDOWN_TIMEOUT)
+        with self._cond:
+            if self._open is not None:
+                if self._open.n < 6:
+                    self._open.faults["stopped"] = (
+                        "acquisition stopped before all six positions of this SYNC arrived"
+                    )
+                self._close(time.monotonic())
+            self._running = False
+            self._stopped = True
+            self._cond.notify_all()
+        if self._recorder is not None:
+            self._recorder.stop()
+        if self._bus_in is None and net.bus is not None:
+            net.bus.shutdown()
+        self._network = None
+
+    def __enter__(self) -> LegEncoders:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    # -- reading ---------------------------------------------------------------------------------
+    def read_set(self, timeout: float = 1.0) -> ReadingSet:
+        """The next reading set in SYNC order (complete or flagged), waiting up to ``timeout`` s.
+
+        Raises :class:`BusError` when none came and the bus is at fault, :class:`EncoderError`
+        when none came otherwise (no SYNC on the bus, or the driver is stopped and drained)."""
+        end = time.monotonic() + timeout
+        with self._cond:
+            while not self._queue:
+                if self._stopped or not self._running:
+                    raise EncoderError(
+                        f"the leg encoder driver on {self._bus_name} is stopped and every reading "
+                        "set has been read — start it again"
+                    )
+                remaining = end - time.monotonic()
+                if remaining <= 0:
+                    if self._bus_state != BUS_ACTIVE:
+                        raise BusError(self._bus_message(), self._bus_state)
+                    raise EncoderError(
+                        f"no reading set from {self._bus_name} in {timeout:g} s: no SYNC seen — "
+                        + (
+                            "the SYNC producer stopped; restart acquisition"
+                            if self._producing
+                            else "is the master producing SYNC? (sync_period_s = 0 means another "
+                            "master must)"
+                        )
+                    )
+                self._cond.wait(remaining)
+            return self._queue.popleft()
+
+    def latest(self) -> ReadingSet | None:
+        """The most recently closed reading set (read or not), None before the first."""
+        with self._lock:
+            return self._latest
+
+    def sample(self) -> LegSample:
+        """The acquisition's ``LegSource``: the next set as a LegSample (stamped at its SYNC)."""
+        timeout = max(1.0, 3 * self.config.sync_period_s, self.config.heartbeat_timeout_s)
+        return self.read_set(timeout=timeout).to_leg_sample()
+
+    def status(self) -> dict[str, Any]:
+        """The bus and the six nodes now.
+
+        Keys: ``bus`` (name), ``interface``, ``channel``, ``running``, ``listen_only``,
+        ``bus_state`` ('ACTIVE', 'ERROR-PASSIVE', 'BUS-OFF', 'ERROR'), ``bus_detail``,
+        ``error_frames``, ``sync_sent``, ``foreign_syncs``, ``sets``, ``incomplete_sets``,
+        ``queued``, ``discarded``, and ``legs``: six dicts with ``leg``, ``node_id``, ``alive``,
+        ``heartbeat_age_s`` (s, None if never heard), ``nmt_state`` (name, None if never heard),
+        ``tpdo_frames``, ``missing`` (sets without this leg's position).
+        """
+        now = time.monotonic()
+        with self._lock:
+            legs = []
+            for k, c in enumerate(self.config.legs):
+                hb = self._last_hb[k]
+                st = self._hb_state[k]
+                legs.append(
+                    {
+                        "leg": c.leg,
+                        "node_id": c.node_id,
+                        "alive": hb is not None and now - hb <= self.config.heartbeat_timeout_s,
+                        "heartbeat_age_s": None if hb is None else now - hb,
+                        "nmt_state": None if st is None else NMT_STATES.get(st, f"0x{st:02X}"),
+                        "tpdo_frames": self._frames[k],
+                        "missing": self._missing[k],
+                    }
+                )
+            return {
+                "bus": self._bus_name,
+                "interface": self.config.interface,
+                "channel": self.config.channel,
+                "running": self._running,
+                "listen_only": self.listen_only,
+                "bus_state": self._bus_state,
+                "bus_detail": self._bus_detail,
+                "error_frames": self._error_frames,
+                "sync_sent": self._sync_sent,
+                "foreign_syncs": self._foreign_syncs,
+                "sets": self._index,
+                "incomplete_sets": self._incomplete,
+                "queued": len(self._queue),
+                "discarded": self._discarded,
+                "legs": legs,
+            }
+
+    def check(self) -> None:
+        """Raise :class:`BusError` if the bus is not error-active, :class:`EncoderSilent` if a
+        node's heartbeat is overdue; return quietly when all is well."""
+        now = time.monotonic()
+        with self._lock:
+            if self._bus_state != BUS_ACTIVE:
+                raise BusError(self._bus_message(), self._bus_state)
+            silent = [k for k in range(6) if self._age(k, now) > self.config.heartbeat_timeout_s]
+            if silent:
+                raise EncoderSilent(
+                    "; ".join(self._silent_message(k, now) for k in silent),
+                    tuple(k + 1 for k in silent),
+                    tuple(self.config.legs[k].node_id for k in silent),
+                )
+
+    # -- messages ---------------------------------------------------------------------------------
+    def _age(self, k: int, now: float) -> float:
+        hb = self._last_hb[k]
+        return now - (self._t_start if hb is None else hb)
+
+    def _silent_message(self, k: int, now: float) -> str:
+        return (
+            f"{self._names[k]} silent for {self._age(k, now):.1f} s on {self._bus_name}: no heartbeat "
+            f"(timeout {self.config.heartbeat_timeout_s:g} s) — check that encoder's power and cable; "
+            "its readings are not trusted until it is back"
+        )
+
+    def _bus_message(self) -> str:
+        cfg = self.config
+        kbit = f"{cfg.bitrate / 1000:g} kbit/s"
+        detail = f" ({self._bus_detail})" if self._bus_detail else ""
+        if self._bus_state == BUS_OFF:
+            return (
+                f"{self._bus_name} is BUS-OFF{detail}: the CAN controller stopped after too many "
+                "errors and nothing is sent or received — check the cable, the 120 Ω termination at "
+                f"both ends and that every node runs at {kbit}, then restart acquisition"
+            )
+        if self._bus_state == BUS_PASSIVE:
+            return (
+                f"{self._bus_name} is ERROR-PASSIVE{detail}: many transmission errors — check the "
+                f"cable, the 120 Ω termination at both ends and that every node runs at {kbit}"
+            )
+        return (
+            f"{self._bus_name} is in error{detail} — check that the adapter is plugged in and the "
+            "interface is up, then restart acquisition"
+        )
+
+    def _note(self, key: str, message: str) -> None:
+        """Attach a fault to the set in progress, or to the next set if none is open. Lock held."""
+        target = self._open.faults if self._open is not None else self._pending_faults
+        target[key] = message
+
+    # -- assembling sets (lock held) --------------------------------------------------------------
+    def _open_set(self, t: float, counter: int) -> None:
+        if self._open is not None:
+            self._close(t)
+        faults, self._pending_faults = self._pending_faults, {}
+        self._open = _Pending(self._index, counter, t, faults)
+        self._index += 1
+
+    def _close(self, now: float) -> None:
+        s = self._open
+        assert s is not None
+        self._open = None
+        cfg = self.config
+        for k in range(6):
+            if s.arrival[k] != s.arrival[k]:  # NaN: no position for this SYNC
+                self._missing[k] += 1
+                s.faults.setdefault(
+                    f"missing{k}",
+                    f"{self._names[k]} sent no position for SYNC {s.counter} on {self._bus_name}: "
+                    "frame lost or late — set flagged incomplete; if it repeats check that node's "
+                    "cable and the bus termination",
+                )
+            if self._age(k, now) > cfg.heartbeat_timeout_s:
+                s.faults[f"silent{k}"] = self._silent_message(k, now)
+            st = self._hb_state[k]
+            if st is not None and st != NMT_OPERATIONAL:
+                s.faults[f"nmt{k}"] = (
+                    f"{self._names[k]} reports NMT state {NMT_STATES.get(st, hex(st))} on "
+                    f"{self._bus_name}, not OPERATIONAL, so it sends no position — "
+                    + (
+                        "it may have rebooted (supply dip?); hexcal sent NMT start again, check its "
+                        "power if this repeats"
+                        if not self.listen_only
+                        else "the NMT master must start it"
+                    )
+                )
+        if self._bus_state != BUS_ACTIVE:
+            s.faults["bus"] = self._bus_message()
+        complete = s.n == 6 and not s.faults
+        rs = ReadingSet(
+            sync_counter=s.counter,
+            t_sync=s.t_sync,
+            readings_mm=np.array(s.readings),
+            arrival=np.array(s.arrival),
+            complete=complete,
+            faults=list(s.faults.values()),
+            index=s.index,
+        )
+        if not complete:
+            self._incomplete += 1
+        if len(self._queue) >= self.max_queue:
+            self._queue.popleft()
+            self._discarded += 1
+            self._pending_faults["discarded"] = (
+                f"{self._discarded} reading sets from {self._bus_name} were discarded unread (queue "
+                f"of {self.max_queue} full) — call read_set()/sample() continuously; the CAN log "
+                "keeps every frame"
+            )
+        self._queue.append(rs)
+        self._latest = rs
+        self._cond.notify_all()
+
+    # -- receive thread ---------------------------------------------------------------------------
+    def _on_message(self, msg: can.Message) -> None:
+        t = time.monotonic()  # stamped on arrival, before anything else
+        rec = self._recorder
+        if rec is not None:
+            with rec.lock:
+                rec.write(msg)
+                self._dispatch(msg, t)
+        else:
+            self._dispatch(msg, t)
+
+    def _dispatch(self, msg: can.Message, t: float) -> None:
+        if msg.is_error_frame:
+            self._on_error_frame(msg, t)
+            return
+        if msg.is_remote_frame or msg.is_extended_id:
+            return
+        cid = msg.arbitration_id
+        entry = self.decoder.table.get(cid)
+        if entry is not None:
+            self._on_tpdo(entry, msg.data, t)
+        elif cid == SYNC_COB_ID:
+            self._on_bus_sync(msg, t)
+        elif cid in self._leg_of_hb:
+            self._on_heartbeat(self._leg_of_hb[cid], msg.data, t)
+        if self._bus_state == BUS_OFF:
+            with self._lock:
+                # A frame came through: the controller is receiving again.
+                self._bus_state, self._bus_detail = BUS_ACTIVE, ""
+                self._note(
+                    "recovered",
+                    f"{self._bus_name} recovered from BUS-OFF (frames arrive again); sets taken "
+                    "while it was off are flagged",
+                )
+
+    def _on_tpdo(self, entry: tuple[int, int, float, float], data: bytearray, t: float) -> None:
+        leg, sign, cpm, zero = entry
+        k = leg - 1
+        with self._lock:
+            self._frames[k] += 1
+            if len(data) < 4:
+                self._note(
+                    f"short{k}", _short_tpdo_message(self.config.legs[k], len(data), self.config)
+                )
+                return
+            mm = sign * int.from_bytes(data[:4], "little", signed=True) / cpm + zero
+            s = self._open
+            if s is None:
+                self._note(
+                    f"orphan{k}",
+                    f"{self._names[k]} sent a position ({mm:.4f} mm) outside any SYNC window on "
+                    f"{self._bus_name} (very late, or TPDO1 not synchronous) — discarded; check its "
+                    "TPDO1 transmission type is 1 (every SYNC)",
+                )
+                return
+            if s.arrival[k] == s.arrival[k]:
+                s.faults[f"twice{k}"] = (
+                    f"{self._names[k]} sent two positions for SYNC {s.counter} on {self._bus_name} (a "
+                    "late frame from the previous SYNC?) — set flagged, the later one kept; check its "
+                    "TPDO1 transmission type is 1 (every SYNC)"
+                )
+            else:
+                s.n += 1
+            s.readings[k] = mm
+            s.arrival[k] = t
+            delay = t - s.t_sync
+            if delay > self._deadline:
+                s.faults[f"late{k}"] = (
+                    f"{self._names[k]} position arrived {delay * 1e3:.1f} ms after SYNC {s.counter} "
+                    f"(limit {self._deadline * 1e3:.1f} ms) on {self._bus_name}: timing jitter or bus "
+                    "overload — set flagged; if it repeats reduce the bus load or raise max_tpdo_delay_s"
+                )
+
+    def _on_bus_sync(self, msg: can.Message, t: float) -> None:
+        counter = msg.data[0] if len(msg.data) >= 1 else 0
+        with self._lock:
+            if self._producing:
+                if msg.is_rx:
+                    self._foreign_syncs += 1
+                    self._note(
+                        "foreign_sync",
+                        f"another SYNC producer is on {self._bus_name} (SYNC not sent by hexcal) — "
+                        "the encoders answer both; switch it off, or set sync_period_s = 0 to follow it",
+                    )
+                return
+            self._open_set(t, counter)
+
+    def _on_heartbeat(self, k: int, data: bytearray, t: float) -> None:
+        state = data[0] & 0x7F if len(data) >= 1 else None
+        restart = False
+        with self._lock:
+            self._last_hb[k] = t
+            self._hb_state[k] = state
+            if self._silent[k]:
+                self._silent[k] = False
+                log.info("%s heartbeat back on %s", self._names[k], self._bus_name)
+            if state == NMT_BOOTUP and self._running:
+                self._note(
+                    f"bootup{k}",
+                    f"{self._names[k]} rebooted (boot-up message on {self._bus_name}) — "
+                    + ("hexcal starts it again; " if not self.listen_only else "")
+                    + "check its supply if this repeats",
+                )
+            if (
+                self._running
+                and not self.listen_only
+                and state in (NMT_BOOTUP, NMT_PRE_OPERATIONAL)
+                and t - self._last_nmt[k] > self.config.heartbeat_timeout_s / 5
+            ):
+                restart = True
+            self._cond.notify_all()
+        if restart:  # outside the lock: sending may block
+            self._nmt_start(k)
+
+    def _on_error_frame(self, msg: can.Message, t: float) -> None:
+        cls = msg.arbitration_id & 0x1FFFFFFF
+        desc = describe_error_frame(msg)
+        with self._lock:
+            self._error_frames += 1
+            if cls & CAN_ERR_BUSOFF:
+                if self._bus_state != BUS_OFF:
+                    log.error("%s is BUS-OFF", self._bus_name)
+                self._bus_state, self._bus_detail = BUS_OFF, "error frame: bus-off"
+            elif cls & CAN_ERR_RESTARTED:
+                self._bus_state, self._bus_detail = BUS_ACTIVE, ""
+            elif cls & CAN_ERR_CRTL and len(msg.data) > 1:
+                ctrl = msg.data[1]
+                if ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+                    self._bus_state, self._bus_detail = BUS_PASSIVE, "error frame: " + desc
+                elif ctrl & CAN_ERR_CRTL_ACTIVE:
+                    self._bus_state, self._bus_detail = BUS_ACTIVE, ""
+            self._note(
+                "error_frame",
+                f"CAN error frame on {self._bus_name} ({desc}; {self._error_frames} so far): frames "
+                "are being corrupted — check the 120 Ω termination at both ends, the connectors and "
+                f"that every node runs at {self.config.bitrate / 1000:g} kbit/s",
+            )
+
+    def _on_receive_error(self, exc: Exception) -> None:
+        with self._lock:
+            self._bus_state, self._bus_detail = BUS_ERROR, f"receive failed: {exc}"
+            self._note("receive", self._bus_message())
+        # The notifier retries at once; do not spin on a dead adapter.
+        self._stop_evt.wait(0.05)
+
+    # -- sending ---------------------------------------------------------------------------------
+    def _nmt_start(self, k: int) -> None:
+        net = self._network
+        if net is None:
+            return
+        node_id = self.config.legs[k].node_id
+        self._last_nmt[k] = time.monotonic()
+        try:
+            # canopen's NMT master: 0x000 [0x01, node]. Per node, never broadcast: other nodes
+            # on a shared bus are not ours to start.
+            net[node_id].nmt.send_command(NMT_CMD_START)
+        except (can.CanError, OSError) as exc:
+            with self._lock:
+                self._bus_state, self._bus_detail = BUS_ERROR, f"NMT start failed: {exc}"
+                self._note("send", self._bus_message())
+
+    def _send_sync(self) -> None:
+        rec = self._recorder
+        with rec.lock if rec else contextlib.nullcontext():
+            self._send_sync_locked()
+
+    def _send_sync_locked(self) -> None:
+        net = self._network
+        assert net is not None
+        self._sync_counter = self._sync_counter % SYNC_COUNTER_MAX + 1
+        with self._lock:
+            # Open the set before sending: the answers may arrive before send() returns.
+            self._open_set(time.monotonic(), self._sync_counter)
+        try:
+            net.sync.transmit(self._sync_counter)
+        except (can.CanError, OSError) as exc:
+            with self._lock:
+                self._bus_state, self._bus_detail = BUS_ERROR, f"sending SYNC failed: {exc}"
+                self._note("send", self._bus_message())
+                if self._open is not None:
+                    self._close(time.monotonic())
+            return
+        self._sync_sent += 1
+        if self._bus_state == BUS_ERROR and self._bus_detail.startswith("sending SYNC"):
+            with self._lock:
+                self._bus_state, self._bus_detail = BUS_ACTIVE, ""
+
+    # -- SYNC producer and supervision thread ------------------------------------------------------
+    def _run(self) -> None:
+        period = self.config.sync_period_s if self._producing else 0.0
+        tick = min(period, 0.01) if period else 0.01
+        next_sync = next_tick = time.monotonic()
+        while not self._stop_evt.is_set():
+            now = time.monotonic()
+            if period and now >= next_sync:
+                self._send_sync()
+                next_sync += period
+                behind = time.monotonic() - next_sync
+                if behind > period:  # a stall (busy machine): skip, do not burst SYNCs
+                    missed = int(behind / period)
+                    next_sync += missed * period
+                    with self._lock:
+                        self._note(
+                            "sync_stall",
+                            f"the SYNC producer on {self._bus_name} stalled and skipped {missed} SYNCs "
+                            "(computer too busy?) — sets around it are flagged; close other programs",
+                        )
+            if now >= next_tick:
+                self._supervise(now)
+                next_tick = now + tick
+            wake = min(next_sync, next_tick) if period else next_tick
+            self._stop_evt.wait(max(0.0, wake - time.monotonic()))
+
+    def _supervise(self, now: float) -> None:
+        with self._lock:
+            if self._open is not None and now - self._open.t_sync > self._close_after:
+                self._close(now)
+            for k in range(6):
+                if not self._silent[k] and self._age(k, now) > self.config.heartbeat_timeout_s:
+                    self._silent[k] = True
+                    log.warning("%s", self._silent_message(k, now))
+        if self._polls_state and now >= self._next_state_poll and self._network is not None:
+            self._next_state_poll = now + 0.1
+            try:
+                st = self._network.bus.state
+            except Exception:  # an interface without state support: nothing to learn
+                self._polls_state = False
+                return
+            with self._lock:
+                if st == can.BusState.ERROR:
+                    self._bus_state, self._bus_detail = BUS_OFF, "reported by the interface"
+                elif st == can.BusState.PASSIVE:
+                    self._bus_state, self._bus_detail = BUS_PASSIVE, "reported by the interface"
+                elif self._bus_detail == "reported by the interface":
+                    self._bus_state, self._bus_detail = BUS_ACTIVE, ""
+
+    def _wait_operational(self, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                waiting = [k for k in range(6) if self._hb_state[k] != NMT_OPERATIONAL]
+                if not waiting:
+                    return
+                remaining = end - time.monotonic()
+                if remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+            now = time.monotonic()
+            silent = [k for k in waiting if self._last_hb[k] is None]
+            if silent:
+                raise EncoderSilent(
+                    "; ".join(
+                        f"{self._names[k]} silent for {self._age(k, now):.1f} s after NMT start"
+                        for k in silent
+                    )
+                    + f" on {self._bus_name}: no heartbeat — check that "
+                    + ("it is" if len(silent) == 1 else "they are")
+                    + " powered and wired to this bus, the node ids and that the heartbeat "
+                    "producer (object 0x1017) is on, then start again",
+                    tuple(k + 1 for k in silent),
+                    tuple(self.config.legs[k].node_id for k in silent),
+                )
+            k = waiting[0]
+            st = self._hb_state[k]
+            raise EncoderError(
+                f"{self._names[k]} stays in NMT state {NMT_STATES.get(st or 0, hex(st or 0))} after "
+                f"NMT start on {self._bus_name} — check the node for an error (EMCY) and power-cycle it"
+            )
+
+
+__all__ = [
+    "BusError",
+    "EncoderError",
+    "EncoderSilent",
+    "LegEncoders",
+    "ReadingSet",
+    "TpdoDecoder",
+    "decode_tpdo",
+    "describe_error_frame",
+]

@@ -1,0 +1,530 @@
+"""Contract tests: the CAN leg-encoder driver against six mock CANopen nodes.
+
+By default both sides run on python-can's virtual bus, a fresh channel per test. To run the same
+contract on a real CAN channel (e.g. SocketCAN ``vcan0``, or two adapters wired together), set
+
+    HEXCAL_CAN_INTERFACE=socketcan HEXCAL_CAN_CHANNEL=vcan0 [HEXCAL_CAN_MOCK_CHANNEL=vcan0]
+
+The mock nodes then answer on ``HEXCAL_CAN_MOCK_CHANNEL`` (default: the same channel). Tests that
+need the virtual bus (injected error frames and bus-off, replay onto a virtual channel) are
+skipped for the real channel.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from hexcal.acquisition import LegSample
+from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
+from hexcal.drivers.can_encoders import (
+    BusError,
+    EncoderError,
+    EncoderSilent,
+    LegEncoders,
+    ReadingSet,
+    TpdoDecoder,
+    decode_tpdo,
+    describe_error_frame,
+)
+from hexcal.mock_hw.can_encoders import MockEncoderNodes
+from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
+from hexcal.study import left_hand
+
+SYNC_S = 0.01
+HB_TIMEOUT_S = 0.2
+# Mixed scales, signs and zeros, so the counts → mm conversion is really exercised.
+CPM = [1000.0, 2000.0, 500.0, 1000.0, 4096.0, 1000.0]
+SIGN = [1, -1, 1, -1, 1, -1]
+ZERO = [0.0, 100.0, -25.5, 350.0, 0.125, -1000.0]
+ENCODER_SIGMA_MM = DEFAULT_NOISE.sigma_reading_mm
+
+ENV_INTERFACE = os.environ.get("HEXCAL_CAN_INTERFACE")
+ENV_CHANNEL = os.environ.get("HEXCAL_CAN_CHANNEL")
+
+
+def make_config(interface: str, channel: str, **kw) -> CanBusConfig:
+    legs = [
+        LegEncoderConfig(
+            leg=k + 1, node_id=0x21 + k, counts_per_mm=CPM[k], sign=SIGN[k], zero_mm=ZERO[k]
+        )
+        for k in range(6)
+    ]
+    base = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": HB_TIMEOUT_S}
+    return CanBusConfig(interface=interface, channel=channel, legs=legs, **{**base, **kw})
+
+
+def unique_channel() -> str:
+    # No trailing digits: python-can log writers read a trailing number as a channel number.
+    return f"hexcal-test-{uuid.uuid4().hex[:8]}-bus"
+
+
+@pytest.fixture(params=["virtual", "env"])
+def target(request) -> dict:
+    """Where the contract runs: a fresh virtual channel, or the channel from the environment."""
+    if request.param == "env":
+        if not (ENV_INTERFACE and ENV_CHANNEL):
+            pytest.skip("set HEXCAL_CAN_INTERFACE and HEXCAL_CAN_CHANNEL to run on a real channel")
+        return {
+            "interface": ENV_INTERFACE,
+            "channel": ENV_CHANNEL,
+            "mock_channel": os.environ.get("HEXCAL_CAN_MOCK_CHANNEL", ENV_CHANNEL),
+            "virtual": False,
+        }
+    ch = unique_channel()
+    return {"interface": "virtual", "channel": ch, "mock_channel": ch, "virtual": True}
+
+
+def need_virtual(target: dict) -> None:
+    if not target["virtual"]:
+        pytest.skip("needs python-can's virtual bus (fault emulation or replay)")
+
+
+@pytest.fixture
+def robot() -> MockRobot:
+    return MockRobot(left_hand(), noise=DEFAULT_NOISE, seed=4)
+
+
+@pytest.fixture
+def config(target) -> CanBusConfig:
+    return make_config(target["interface"], target["channel"])
+
+
+@pytest.fixture
+def mock(robot, config, target):
+    mock_cfg = config.model_copy(update={"channel": target["mock_channel"]})
+    nodes = MockEncoderNodes(robot, mock_cfg, seed=1)
+    nodes.start()
+    yield nodes
+    nodes.stop()
+
+
+@pytest.fixture
+def driver(mock, config):
+    drv = LegEncoders(config)
+    drv.start()
+    yield drv
+    drv.stop()
+
+
+def read_sets(drv: LegEncoders, n: int) -> list[ReadingSet]:
+    return [drv.read_set(timeout=1.0) for _ in range(n)]
+
+
+def assert_contiguous(sets: list[ReadingSet]) -> None:
+    """No set lost or reordered: indices step by one, SYNC counters by one modulo 240."""
+    idx = [s.index for s in sets]
+    assert idx == list(range(idx[0], idx[0] + len(idx)))
+    for a, b in itertools.pairwise(sets):
+        assert b.sync_counter == a.sync_counter % 240 + 1
+        assert b.t_sync > a.t_sync
+
+
+def assert_honest(s: ReadingSet) -> None:
+    """A set is complete exactly when all six positions are there and nothing was reported."""
+    assert s.complete == (bool(np.all(np.isfinite(s.readings_mm))) and not s.faults)
+    assert np.array_equal(np.isfinite(s.readings_mm), np.isfinite(s.arrival))
+
+
+#: Faults a busy computer can cause on its own (a thread stalled for a few ms): the driver must
+#: flag them, and the tests accept them on sets they did not inject a fault into.
+TIMING = (
+    "ms after SYNC",
+    "sent no position",
+    "sent two positions",
+    "outside any SYNC window",
+    "SYNC producer",
+)
+
+
+def only_timing(s: ReadingSet) -> bool:
+    return all(any(t in f for t in TIMING) for f in s.faults)
+
+
+def read_complete(drv: LegEncoders, n: int, limit: int = 100) -> list[ReadingSet]:
+    """Read until ``n`` complete sets; every other set read must be flagged for timing only."""
+    sets = []
+    while sum(s.complete for s in sets) < n:
+        assert len(sets) < limit, f"fewer than {n} complete sets in {limit}"
+        s = drv.read_set(timeout=1.0)
+        assert_honest(s)
+        assert s.complete or only_timing(s), s.faults
+        sets.append(s)
+    return sets
+
+
+def read_until(drv: LegEncoders, pred, limit: int = 200) -> tuple[list[ReadingSet], ReadingSet]:
+    """Read sets until one satisfies ``pred``; all sets read and that one."""
+    seen = []
+    for _ in range(limit):
+        s = drv.read_set(timeout=1.0)
+        seen.append(s)
+        if pred(s):
+            return seen, s
+    raise AssertionError(f"no such set in {limit}: last faults {seen[-1].faults}")
+
+
+# -- decoding, no bus ------------------------------------------------------------------------------
+def test_decode_tpdo_applies_scale_sign_zero():
+    cfg = make_config("virtual", "x")
+    dec = TpdoDecoder(cfg)
+    for k in range(6):
+        leg = cfg.leg(k + 1)
+        for counts in (0, 1, -1, 123_456, -2_000_000, 2**31 - 1, -(2**31)):
+            msg = can.Message(
+                arbitration_id=0x1A1 + k,
+                data=counts.to_bytes(4, "little", signed=True),
+                is_extended_id=False,
+            )
+            expected = SIGN[k] * counts / CPM[k] + ZERO[k]
+            assert decode_tpdo(msg, cfg) == (k + 1, expected)
+            assert dec.decode(msg) == (k + 1, expected)
+            assert leg.counts_to_mm(counts) == expected
+    # Extra mapped bytes after 0x6004 are ignored.
+    msg = can.Message(
+        arbitration_id=0x1A1, data=[0x10, 0x27, 0, 0, 9, 9, 9, 9], is_extended_id=False
+    )
+    assert decode_tpdo(msg, dec) == (1, 10.0)
+
+
+def test_decode_tpdo_ignores_other_frames_and_rejects_short_ones():
+    dec = TpdoDecoder(make_config("virtual", "x"))
+    four = bytes(4)
+    assert (
+        dec.decode(can.Message(arbitration_id=0x1A7, data=four, is_extended_id=False)) is None
+    )  # node 0x27
+    assert dec.decode(can.Message(arbitration_id=0x721, data=[5], is_extended_id=False)) is None
+    assert dec.decode(can.Message(arbitration_id=0x1A1, data=four, is_extended_id=True)) is None
+    assert dec.decode(can.Message(arbitration_id=0x1A1, is_error_frame=True)) is None
+    with pytest.raises(
+        EncoderError,
+        match=r"leg 1 encoder \(node 0x21\) sent a 2-byte TPDO1 .* check that node's TPDO1 mapping",
+    ):
+        dec.decode(can.Message(arbitration_id=0x1A1, data=[1, 2], is_extended_id=False))
+
+
+def test_decode_batch_matches_scalar():
+    dec = TpdoDecoder(make_config("virtual", "x"))
+    rng = np.random.default_rng(0)
+    ids = rng.choice([0x080, 0x1A1, 0x1A2, 0x1A3, 0x1A4, 0x1A5, 0x1A6, 0x721, 0x1A7], 500)
+    counts = rng.integers(-(2**31), 2**31, 500)
+    payload = np.zeros((500, 8), np.uint8)
+    payload[:, :4] = counts.astype("<i4").view(np.uint8).reshape(500, 4)
+    legs, mm = dec.decode_batch(ids, payload)
+    for i in range(500):
+        got = dec.decode(
+            can.Message(arbitration_id=int(ids[i]), data=payload[i].tobytes(), is_extended_id=False)
+        )
+        if got is None:
+            assert legs[i] == 0 and np.isnan(mm[i])
+        else:
+            assert legs[i] == got[0] and mm[i] == pytest.approx(got[1], rel=1e-15, abs=1e-12)
+
+
+def test_describe_error_frames():
+    def err(cid, data=bytes(8)):
+        return can.Message(arbitration_id=cid, is_error_frame=True, data=data)
+
+    assert describe_error_frame(err(0x040)) == "bus-off"
+    assert describe_error_frame(err(0x088)) == "protocol violation, bus error"
+    assert "error-passive" in describe_error_frame(err(0x004, bytes([0, 0x20, 0, 0, 0, 0, 0, 0])))
+    assert describe_error_frame(err(0)) == "error frame"
+
+
+# -- the contract: driver against the mock nodes --------------------------------------------------
+def test_nmt_start_and_heartbeats(driver, mock, config):
+    for leg in config.legs:
+        assert (0x01, leg.node_id) in mock.nmt_log  # started one by one, never by broadcast
+    assert (0x01, 0) not in mock.nmt_log
+    assert all(st == 0x05 for st in mock.states.values())
+    st = driver.status()
+    assert st["running"] and st["bus_state"] == "ACTIVE" and st["error_frames"] == 0
+    assert [leg["nmt_state"] for leg in st["legs"]] == ["OPERATIONAL"] * 6
+    assert all(leg["alive"] for leg in st["legs"])
+    assert [leg["node_id"] for leg in st["legs"]] == list(range(0x21, 0x27))
+    driver.check()  # all well: no exception
+
+
+def test_readings_equal_the_robot_within_noise_and_quantisation(driver, mock, robot, config):
+    quantum = 0.5 / np.array(CPM)
+    P, R = robot.true_pose()
+    for step in range(2):
+        if step:  # move the platform: the readings must follow
+            P = P + np.array([1.0, -0.5, 3.0])
+            robot.move_to(P, R)
+            t_move = time.monotonic()
+            read_until(driver, lambda s, t=t_move: s.t_sync > t)  # sets latched before the move go
+        truth = robot.sim.readings(P[None], R[None])[0]
+        sets = read_complete(driver, 20)
+        assert_contiguous(sets)
+        sets = [s for s in sets if s.complete]
+        history = mock.latched()
+        for s in sets:
+            sent = history[s.sync_counter]  # what the mock latched at that SYNC, mm
+            assert np.all(np.abs(s.readings_mm - sent) <= quantum + 1e-9)
+            assert np.all(np.abs(s.readings_mm - truth) <= 6 * ENCODER_SIGMA_MM + quantum)
+        # Noise is really there and really Gaussian-sized: not a constant, not wild.
+        spread = np.std([s.readings_mm for s in sets], axis=0)
+        assert np.all(spread > 0.2 * ENCODER_SIGMA_MM) and np.all(
+            spread < 3 * ENCODER_SIGMA_MM + quantum
+        )
+
+
+def test_sets_are_stamped_on_arrival(driver):
+    t0 = time.monotonic()
+    sets = read_complete(driver, 10)
+    t1 = time.monotonic()
+    for s in sets:
+        assert t0 - 2 * SYNC_S < s.t_sync < t1
+        got = np.isfinite(s.arrival)
+        assert np.all(s.arrival[got] >= s.t_sync) and np.all(s.arrival[got] <= t1)
+        assert s.readings_mm.shape == (6,) and s.arrival.shape == (6,)
+        if s.complete:
+            assert np.all(s.arrival - s.t_sync <= driver.config.tpdo_deadline_s)
+    assert_contiguous(sets)
+    assert driver.latest() is not None and driver.latest().index >= sets[-1].index
+
+
+def test_leg_source_for_acquisition(driver, mock):
+    read_complete(driver, 1)
+    s = driver.sample()
+    assert isinstance(s, LegSample) and s.readings.shape == (6,)
+    assert s.complete == (not s.faults)
+    mock.drop_next(6)
+    for _ in range(20):
+        s = driver.sample()
+        if np.isnan(s.readings[5]) and np.all(np.isfinite(s.readings[:5])):
+            break
+    assert not s.complete and np.isnan(s.readings[5])
+    assert any(f.startswith("leg 6 encoder (node 0x26) sent no position") for f in s.faults)
+
+
+# -- faults ----------------------------------------------------------------------------------------
+def test_dropped_frame_marks_that_set_incomplete(driver, mock, config):
+    read_complete(driver, 2)
+    mock.drop_next(2)
+    before, bad = read_until(driver, lambda s: any(f.startswith("leg 2 encoder") for f in s.faults))
+    after = read_complete(driver, 3)
+    assert np.isnan(bad.readings_mm[1]) and np.isnan(bad.arrival[1]) and not bad.complete
+    assert_honest(bad)
+    for k in (0, 2, 3, 4, 5):  # the other legs' positions are kept, unless they too went missing
+        assert np.isfinite(bad.readings_mm[k]) or any(
+            f.startswith(f"leg {k + 1} encoder") for f in bad.faults
+        )
+    assert (
+        f"leg 2 encoder (node 0x22) sent no position for SYNC {bad.sync_counter} on CAN "
+        f"{config.interface} channel '{config.channel}': frame lost or late — set flagged incomplete; "
+        "if it repeats check that node's cable and the bus termination"
+    ) in bad.faults
+    for s in before + after:
+        assert_honest(s)
+        assert s.complete or only_timing(s)
+    assert_contiguous(before + after)
+    assert driver.status()["legs"][1]["missing"] >= 1
+
+
+def test_silent_node_is_named_and_never_kept(driver, mock, config):
+    read_complete(driver, 2)
+    mock.silence(3)
+    seen, flagged = read_until(driver, lambda s: any("silent" in f for f in s.faults))
+    msg = next(f for f in flagged.faults if "silent" in f)
+    assert msg.startswith("leg 3 encoder (node 0x23) silent for 0.")
+    assert (
+        f"on CAN {config.interface} channel '{config.channel}': no heartbeat (timeout 0.2 s)" in msg
+    )
+    assert "check that encoder's power and cable" in msg
+    assert np.isnan(flagged.readings_mm[2]) and not flagged.complete
+    with pytest.raises(EncoderSilent, match=r"leg 3 encoder \(node 0x23\) silent for") as exc:
+        driver.check()
+    assert exc.value.legs == (3,) and exc.value.node_ids == (0x23,)
+    st = driver.status()["legs"][2]
+    assert not st["alive"] and st["heartbeat_age_s"] > HB_TIMEOUT_S
+    mock.silence(3, False)  # cable back: heartbeats and positions resume
+    more, _ = read_until(driver, lambda s: s.complete)
+    for s in seen + more:
+        assert_honest(s)
+        if np.isnan(s.readings_mm[2]):
+            assert not s.complete
+    assert_contiguous(seen + more)
+    driver.check()
+
+
+def test_jitter_flags_late_positions(driver, mock):
+    read_complete(driver, 2)
+    mock.jitter_s = 0.9 * SYNC_S  # deadline is half a SYNC period
+    sets = read_sets(driver, 40)
+    mock.jitter_s = 0.0
+    late = [s for s in sets if any("ms after SYNC" in f for f in s.faults)]
+    assert late, "no late position flagged"
+    msg = next(f for f in late[0].faults if "ms after SYNC" in f)
+    assert (
+        "(limit 5.0 ms)" in msg
+        and "timing jitter or bus overload" in msg
+        and "encoder (node 0x2" in msg
+    )
+    for s in sets:
+        assert_honest(s)
+        delays = s.arrival - s.t_sync
+        if np.any(delays > driver.config.tpdo_deadline_s):
+            assert not s.complete
+    assert_contiguous(sets)
+
+
+def test_error_frames_flag_the_set(driver, mock, config, target):
+    need_virtual(target)
+    read_sets(driver, 2)
+    mock.error_frames(3)
+    _, bad = read_until(driver, lambda s: any("error frame" in f for f in s.faults))
+    msg = next(f for f in bad.faults if "error frame" in f)
+    assert msg.startswith(
+        f"CAN error frame on CAN virtual channel '{config.channel}' (protocol violation, bus error;"
+    )
+    assert "check the 120 Ω termination" in msg and "1000 kbit/s" in msg
+    assert not bad.complete
+    deadline = time.monotonic() + 1.0
+    while driver.status()["error_frames"] < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert driver.status()["error_frames"] == 3 and driver.status()["bus_state"] == "ACTIVE"
+    read_until(driver, lambda s: s.complete)  # errors stop, sets are clean again
+
+
+def test_bus_off_is_reported_and_recovered(driver, mock, config, target):
+    need_virtual(target)
+    read_sets(driver, 2)
+    mock.bus_off()
+    seen, bad = read_until(driver, lambda s: any("BUS-OFF" in f for f in s.faults))
+    msg = next(f for f in bad.faults if "BUS-OFF" in f)
+    assert msg.startswith(f"CAN virtual channel '{config.channel}' is BUS-OFF")
+    assert (
+        "check the cable, the 120 Ω termination at both ends" in msg
+        and "restart acquisition" in msg
+    )
+    assert driver.status()["bus_state"] == "BUS-OFF"
+    with pytest.raises(BusError, match="is BUS-OFF") as exc:
+        driver.check()
+    assert exc.value.state == "BUS-OFF"
+    more = read_sets(driver, 5)
+    assert not any(s.complete for s in more)  # nothing taken during the fault is kept as good
+    assert all(np.all(np.isnan(s.readings_mm)) for s in more)
+    mock.recover()
+    again, _ = read_until(driver, lambda s: s.complete)
+    assert driver.status()["bus_state"] == "ACTIVE"
+    assert_contiguous(seen + more + again)
+
+
+def test_rebooted_node_is_restarted(driver, mock):
+    read_sets(driver, 2)
+    n_start = mock.nmt_log.count((0x01, 0x24))
+    mock.reboot(4)
+    seen, bad = read_until(driver, lambda s: any("rebooted" in f for f in s.faults))
+    assert any(
+        f.startswith("leg 4 encoder (node 0x24) rebooted (boot-up message on CAN")
+        for f in bad.faults
+    )
+    more, _ = read_until(driver, lambda s: s.complete)
+    assert mock.nmt_log.count((0x01, 0x24)) > n_start  # the driver sent NMT start again
+    assert_contiguous(seen + more)
+
+
+def test_another_sync_producer_is_flagged(driver, config, target):
+    need_virtual(target)
+    read_sets(driver, 2)
+    with can.Bus(interface="virtual", channel=config.channel) as other:
+        other.send(can.Message(arbitration_id=0x80, data=[], is_extended_id=False))
+    _, bad = read_until(driver, lambda s: any("another SYNC producer" in f for f in s.faults))
+    assert not bad.complete and driver.status()["foreign_syncs"] == 1
+
+
+def test_start_names_a_node_that_never_answers(robot, config, target):
+    mock_cfg = config.model_copy(update={"channel": target["mock_channel"]})
+    with MockEncoderNodes(robot, mock_cfg) as nodes:
+        nodes.silence(5)
+        drv = LegEncoders(config)
+        threads = threading.active_count()
+        with pytest.raises(
+            EncoderSilent, match=r"leg 5 encoder \(node 0x25\) silent for 0\.\d s after NMT start"
+        ) as exc:
+            drv.start(timeout=0.15)
+    assert exc.value.legs == (5,)
+    assert "check that it is powered and wired to this bus" in str(exc.value)
+    assert threading.active_count() <= threads  # nothing left running
+    assert not drv.status()["running"]
+
+
+def test_unknown_interface_is_a_bus_error():
+    cfg = make_config("no-such-interface", "x")
+    with pytest.raises(
+        BusError,
+        match=r"could not open CAN no-such-interface channel 'x' at 1000 kbit/s: .*check the interface name",
+    ):
+        LegEncoders(cfg).start()
+
+
+def test_no_sync_producer_times_out_clearly(mock, config):
+    follower = config.model_copy(update={"sync_period_s": 0.0})
+    with LegEncoders(follower) as drv:
+        with pytest.raises(
+            EncoderError,
+            match=r"no reading set from CAN .* in 0.1 s: no SYNC seen — is the master producing SYNC\?",
+        ):
+            drv.read_set(timeout=0.1)
+
+
+def test_stop_keeps_unread_sets(mock, config):
+    drv = LegEncoders(config).start()
+    time.sleep(10 * SYNC_S)
+    drv.stop()
+    left = []
+    with pytest.raises(EncoderError, match="is stopped and every reading set has been read"):
+        while True:
+            left.append(drv.read_set(timeout=0.1))
+    assert len(left) >= 5
+    assert_contiguous(left)
+    assert all(s.complete or s.faults for s in left)
+
+
+# -- record and replay -----------------------------------------------------------------------------
+@pytest.mark.parametrize("suffix", [".asc", ".blf"])
+def test_replayed_log_decodes_to_the_same_readings(tmp_path, robot, target, suffix):
+    """Record a run (with one dropped frame) to a python-can log, replay the log onto a fresh
+    virtual bus, decode it with a listen-only driver: the same sets, flags included."""
+    need_virtual(target)
+    cfg = make_config("virtual", unique_channel())
+    path = tmp_path / f"run{suffix}"
+    with MockEncoderNodes(robot, cfg) as nodes, LegEncoders(cfg, log_path=path) as drv:
+        live = read_complete(drv, 5)
+        nodes.drop_next(5)
+        live += read_sets(drv, 8)
+    dropped = [s for s in live if np.isnan(s.readings_mm[4])]
+    assert dropped
+
+    replay_cfg = cfg.model_copy(update={"channel": unique_channel()})
+    with (
+        LegEncoders(replay_cfg, listen_only=True) as listener,
+        can.Bus(interface="virtual", channel=replay_cfg.channel) as player,
+        can.LogReader(path) as reader,
+    ):
+        for msg in can.MessageSync(reader, timestamps=True):
+            player.send(msg)
+        replayed = {}
+        while True:
+            try:
+                s = listener.read_set(timeout=0.3)
+            except EncoderError:
+                break
+            replayed[s.sync_counter] = s
+    assert not any(m["nmt_state"] != "OPERATIONAL" for m in listener.status()["legs"])
+    for s in live:  # same SYNCs, same positions in them (NaN where none came), bit for bit
+        np.testing.assert_array_equal(replayed[s.sync_counter].readings_mm, s.readings_mm)
+    for s in dropped:
+        r = replayed[s.sync_counter]
+        assert not r.complete and any(
+            f.startswith("leg 5 encoder (node 0x25) sent no position") for f in r.faults
+        )
