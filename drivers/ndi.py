@@ -1,0 +1,1163 @@
+"""Driver for optical / electromagnetic pose trackers speaking the NDI Combined API (Polaris,
+Aurora and compatible), over any pyserial port: a device path, ``socket://host:port``, a pty or
+a mock URL such as ``ndimock://`` (ports are opened with :func:`serial.serial_for_url`).
+
+What goes over the wire (as documented by the open drivers: PlusToolkit ndicapi,
+scikit-surgerynditracker, sawNDITracker)
+------------------------------------------------------------------------------------------------
+Commands are ASCII. This driver sends the ``NAME:params`` form followed by the CRC of everything
+before it (4 uppercase hex digits) and a CR, e.g. ``TX:0001`` + CRC + CR, so that the tracker
+checks our commands too (it answers ``ERROR04`` to a corrupted one). The tracker also accepts the
+``NAME params`` form without a CRC (``TX 0001`` + CR).
+
+Every ASCII reply is ``<payload><CRC16><CR>``: the CRC-16/ARC (:mod:`hexcal.drivers.crc`) of the
+payload as 4 uppercase hex digits. A failed command answers ``ERRORxx`` (xx hex, see
+:data:`ERROR_TEXT`); some answer ``WARNINGxx`` and still succeed. Success is usually ``OKAY``.
+
+Connection sequence (:meth:`NDITracker.open`):
+
+1. Reset. A serial BREAK at 9600 baud makes the tracker reset to 9600 baud 8N1 and answer
+   ``RESETBE6F`` (``RESET`` + its CRC ``BE6F``). A pseudo-terminal, a ``socket://`` bridge and
+   some USB adapters cannot carry a BREAK; for those the ``RESET:0`` command does the same (tried
+   at 9600 baud, then at the working baud rate in case a previous session left the tracker
+   there, then at 9600 again). ``reset="auto"`` tries the BREAK first, then the command.
+2. ``COMM:<b>0000`` sets the baud rate (``b`` from :data:`BAUD_CODES`; 8N1, no handshake); the
+   tracker answers ``OKAY`` at the old rate, then both sides switch.
+3. ``INIT:`` initialises the system.
+
+Tools (:meth:`NDITracker.setup_tools`): ``PHSR:0x`` lists port handles: 2 hex digits (count),
+then per handle 2 hex digits (handle) + 3 hex digits (handle status). ``PHSR:01`` lists handles
+to free (``PHF:hh``), ``PHSR:02`` those to initialise (``PINIT:hh``), ``PHSR:03`` those to enable
+(``PENA:hh<mode>``, mode ``D`` dynamic, ``S`` static, ``B`` button box), ``PHSR:04`` the enabled
+ones. Wired (active / Aurora) tools are found this way; passive tools need their ROM file loaded
+first (``PVWR``), which this driver does not do.
+
+Tracking: ``TSTART:`` / ``TSTOP:``. ``TX:0001`` (transforms and status) replies::
+
+    nn                                   number of handle records, 2 hex digits
+    then per handle, each record ending in LF (0x0A):
+      hh                                 port handle, 2 hex digits
+      then one of
+        Q0 Qx Qy Qz   4 x 6 chars        unit quaternion, scalar first: sign + 5 digits, x 1e-4
+        Tx Ty Tz      3 x 7 chars        position, mm: sign + 6 digits, x 0.01
+        Err           6 chars            RMS fit error, mm: sign + 5 digits, x 1e-4
+        ssssssss      8 hex              port status (:data:`PORT_STATUS_BITS`)
+        ffffffff      8 hex              frame number
+      or MISSING ssssssss ffffffff       tool not seen: port status and frame number only
+      or DISABLED                        handle not enabled (no data)
+      or UNOCCUPIED                      nothing in that port (skipped, as ndicapi does)
+    ssss                                 system status, 4 hex (:data:`SYSTEM_STATUS_BITS`)
+    CRC16 CR
+
+A pose record is thus 2 + 51 + 16 = 69 characters and LF. Mind the text format's resolution:
+1e-4 per quaternion component (rotation rounding up to about 0.01 deg, 0.006 deg typical) and
+0.01 mm in position, coarser than a good optical tracker's orientation noise. ``BX:0001``
+returns the same content in binary with IEEE-754 float32 (little endian), which does not round::
+
+    C4 A5                                start sequence (0xA5C4 little endian)
+    LL LL                                body length, bytes (uint16 LE)
+    CC CC                                CRC16 of the 4 bytes above (uint16 LE)
+    body:
+      n                                  number of handles (uint8)
+      per handle: handle (uint8), handle status (uint8: 01 valid, 02 missing, 04 disabled),
+        if valid: Q0 Qx Qy Qz Tx Ty Tz Err as 8 float32 (position and RMS error in mm)
+        if valid or missing: port status (uint32 LE), frame number (uint32 LE)
+      system status (uint16 LE)
+    CC CC                                CRC16 of the body (uint16 LE)
+
+Nothing unchecked becomes a pose: a reply whose CRC does not match, that stops short, or whose
+content does not follow the format above raises (:class:`TrackerCRCError`,
+:class:`TrackerTimeout`, :class:`TrackerFormatError`). A tool the tracker does not see is not an
+error of the link: the frame reports it (``state == "missing"``) and :meth:`NDITracker.sample`
+turns it into a fault sample, as it does a tool outside the characterised measurement volume.
+
+Timing: every frame carries the host receive time (``time.monotonic()`` when its last byte
+arrived) and the command-to-reply latency. The tracker's own frame number is the reliable clock;
+when the latency varies by more than ``max_jitter_s`` the driver says so (a logged warning and
+:attr:`NDITracker.timing_warning`), because the host times are then uncertain by that much.
+
+The driver is not a protocol analyser: after a failed exchange it flushes the input, and after a
+timeout it also discards anything arriving in the next ``resync_s``, so that a late reply is not
+taken for the answer to the next command.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import struct
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Literal
+
+import numpy as np
+import serial
+
+from hexcal.acquisition import TrackerSample
+from hexcal.drivers.crc import crc16, crc16_hex
+
+try:  # a hung-up tty makes tcflush raise termios.error, which is not an OSError
+    import termios
+
+    _IO_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
+except ImportError:  # pragma: no cover - Windows
+    _IO_ERRORS = (OSError,)
+
+log = logging.getLogger(__name__)
+
+#: Baud rate -> the digit COMM takes (ndicapi's NDI_9600 ... NDI_1228739).
+BAUD_CODES: dict[int, str] = {
+    9600: "0",
+    14400: "1",
+    19200: "2",
+    38400: "3",
+    57600: "4",
+    115200: "5",
+    921600: "6",
+    1228739: "7",
+}
+
+#: Meaning of the tracker's ``ERRORxx`` codes (NDI Combined API; ndicapi's list).
+ERROR_TEXT: dict[int, str] = {
+    0x01: "invalid command",
+    0x02: "command too long",
+    0x03: "command too short",
+    0x04: "invalid CRC calculated for the command",
+    0x05: "time-out on command execution",
+    0x06: "unable to set up the new communication parameters",
+    0x07: "incorrect number of command parameters",
+    0x08: "invalid port handle selected",
+    0x09: "invalid mode selected",
+    0x0A: "invalid LED selected",
+    0x0B: "invalid LED state selected",
+    0x0C: "command is invalid while in the current operating mode",
+    0x0D: "no tool is assigned to the selected port handle",
+    0x0E: "selected port handle not initialised",
+    0x0F: "selected port handle not enabled",
+    0x10: "system not initialised",
+    0x11: "unable to stop tracking",
+    0x12: "unable to start tracking",
+    0x13: "unable to initialise the port handle",
+    0x14: "invalid camera / field generator characterisation parameters",
+    0x15: "unable to initialise the system",
+    0x16: "unable to start diagnostic mode",
+    0x17: "unable to stop diagnostic mode",
+    0x18: "unable to determine environmental infrared",
+    0x19: "unable to read the firmware version",
+    0x1A: "internal system error",
+    0x1B: "unable to initialise for environmental infrared diagnostics",
+    0x1C: "unable to set the marker firing signature",
+    0x1D: "unable to search for SROM IDs",
+    0x1E: "unable to read SROM data",
+    0x1F: "unable to write SROM data",
+    0x20: "unable to select SROM",
+    0x21: "unable to perform the tool current test",
+    0x22: "no camera parameters for this wavelength",
+    0x23: "command parameter out of range",
+    0x24: "no camera parameters for this volume",
+    0x25: "unable to determine the supported features",
+    0xF1: "too much environmental infrared",
+    0xF4: "unable to erase the flash memory",
+    0xF5: "unable to write the flash memory",
+    0xF6: "unable to read the flash memory",
+}
+
+#: What an operator can do about the common codes.
+ERROR_HINT: dict[int, str] = {
+    0x01: "the tracker does not know this command: check its model and firmware (VER)",
+    0x04: "the command was corrupted on the way: check the cable and that both sides use the same baud rate",
+    0x06: "the tracker refused the baud rate: choose another one (115200 is always supported)",
+    0x0C: "the tracker is not in the right mode for this command (e.g. TX before TSTART): "
+    "call start() after setup_tools(), or open() again to reset it",
+    0x0D: "plug the tool in (or load its tool definition) and run setup_tools() again",
+    0x0E: "run setup_tools() (PINIT) before enabling or tracking",
+    0x0F: "run setup_tools() (PENA) before tracking",
+    0x10: "open() the tracker (INIT) before this command",
+    0x12: "check that a tool is enabled (setup_tools()) and that the tracker is not in diagnostic mode",
+    0x13: "the tool definition is missing or the tool is faulty: check the tool and its cable",
+    0x1A: "power-cycle the tracker; if it persists, contact NDI support",
+    0xF1: "shield the camera from sunlight and other infrared sources",
+}
+
+#: Port status bits (TX: 8 hex digits; BX: uint32).
+PORT_OCCUPIED = 0x01
+PORT_SWITCH_1 = 0x02
+PORT_SWITCH_2 = 0x04
+PORT_SWITCH_3 = 0x08
+PORT_INITIALIZED = 0x10
+PORT_ENABLED = 0x20
+PORT_OUT_OF_VOLUME = 0x40
+PORT_PARTIALLY_IN_VOLUME = 0x80
+PORT_STATUS_BITS: dict[int, str] = {
+    PORT_OCCUPIED: "occupied",
+    PORT_SWITCH_1: "switch 1 on",
+    PORT_SWITCH_2: "switch 2 on",
+    PORT_SWITCH_3: "switch 3 on",
+    PORT_INITIALIZED: "initialised",
+    PORT_ENABLED: "enabled",
+    PORT_OUT_OF_VOLUME: "out of volume",
+    PORT_PARTIALLY_IN_VOLUME: "partially out of volume",
+}
+
+#: System status bits (TX: 4 hex digits; BX: uint16) that mean something went wrong.
+SYSTEM_STATUS_BITS: dict[int, str] = {
+    0x0001: "communication synchronisation error",
+    0x0002: "too much external infrared",
+    0x0004: "the tracker received a command with a bad CRC",
+    0x0008: "recoverable communication error",
+    0x0010: "hardware failure",
+    0x0020: "hardware configuration changed",
+    0x0040: "a port became occupied",
+    0x0080: "a port became unoccupied",
+}
+
+#: System status bits that make a frame's poses suspect (a sample from it carries a fault).
+#: The communication bits concern earlier exchanges, not this CRC-checked reply: poll() logs
+#: them; the port (un)occupied and configuration bits are news, not faults.
+SYSTEM_FAULT_BITS = 0x0002 | 0x0010
+SYSTEM_LINK_BITS = 0x0001 | 0x0004 | 0x0008
+
+#: BX handle status byte.
+BX_VALID, BX_MISSING, BX_DISABLED = 0x01, 0x02, 0x04
+
+#: A reported quaternion whose norm is further than this from 1 is not a rotation: the reply
+#: is refused. The text format's rounding (1e-4 per component) moves the norm by < 2e-4.
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+BX_START = b"\xc4\xa5"
+
+# The records of a TX:0001 reply, exactly as specified (fullmatch: nothing more, nothing less).
+_TX_POSE = re.compile(
+    rb"([0-9A-F]{2})([+-]\d{5})([+-]\d{5})([+-]\d{5})([+-]\d{5})"
+    rb"([+-]\d{6})([+-]\d{6})([+-]\d{6})([+-]\d{5})([0-9A-F]{8})([0-9A-F]{8})"
+)
+_TX_MISSING = re.compile(rb"([0-9A-F]{2})MISSING([0-9A-F]{8})([0-9A-F]{8})")
+_TX_DISABLED = re.compile(rb"([0-9A-F]{2})DISABLED(?:([0-9A-F]{8})([0-9A-F]{8}))?")
+_TX_UNOCCUPIED = re.compile(rb"[0-9A-F]{2}UNOCCUPIED")
+_HEX2 = re.compile(rb"[0-9A-F]{2}")
+_HEX4 = re.compile(rb"[0-9A-F]{4}")
+_PHSR = re.compile(rb"([0-9A-F]{2})((?:[0-9A-F]{5})*)")
+
+# pyserial reads block in slices this long (s), so a reply's deadline is kept to within it
+# without reconfiguring the port's timeout (which reprograms the UART on every change).
+_READ_SLICE_S = 0.02
+
+
+# ------------------------------------------------------------------------------------------------
+# Errors
+# ------------------------------------------------------------------------------------------------
+class TrackerError(Exception):
+    """Something went wrong talking to the tracker; the message names the port and says what to
+    do. ``port`` is the port URL."""
+
+    def __init__(self, message: str, port: str = ""):
+        super().__init__(message)
+        self.port = port
+
+
+class TrackerCRCError(TrackerError):
+    """A reply failed its CRC (garbled bytes, line noise, a wrong baud rate): it was discarded."""
+
+
+class TrackerFormatError(TrackerError):
+    """A reply passed its CRC but does not follow the documented format: it was discarded."""
+
+
+class TrackerTimeout(TrackerError):
+    """No complete reply in time. ``partial`` holds what did arrive (empty when nothing did)."""
+
+    def __init__(self, message: str, port: str = "", partial: bytes = b""):
+        super().__init__(message, port)
+        self.partial = partial
+
+
+class TrackerReplyError(TrackerError):
+    """The tracker answered ``ERRORxx``: ``code`` (int) to ``command`` (str)."""
+
+    def __init__(self, message: str, port: str = "", code: int = 0, command: str = ""):
+        super().__init__(message, port)
+        self.code = code
+        self.command = command
+
+
+class TrackerDisconnected(TrackerError):
+    """The port is gone (cable unplugged, adapter removed, tracker off) or cannot be opened."""
+
+
+def error_text(code: int) -> str:
+    """The NDI meaning of an ``ERRORxx`` code, with a hint for the common ones."""
+    text = ERROR_TEXT.get(code, "unknown error code (see the NDI API guide)")
+    hint = ERROR_HINT.get(code)
+    return f"{text}; {hint}" if hint else text
+
+
+def _preview(data: bytes, limit: int = 48) -> str:
+    shown = repr(bytes(data[:limit]))
+    return shown + (f"... ({len(data)} bytes)" if len(data) > limit else "")
+
+
+_NOISE_ADVICE = (
+    "the reading was discarded. An occasional one is line noise; if they are frequent, check the "
+    "cable (shielded, short, away from motor power) and try a lower baud rate"
+)
+
+
+def _crc_error(port: str, command: str, reply: bytes, why: str) -> TrackerCRCError:
+    return TrackerCRCError(
+        f"corrupt reply from the tracker on {port} to {command!r}: {why} in {_preview(reply)}; "
+        f"{_NOISE_ADVICE}",
+        port,
+    )
+
+
+def _format_error(port: str, command: str, reply: bytes, why: str) -> TrackerFormatError:
+    return TrackerFormatError(
+        f"unexpected reply from the tracker on {port} to {command!r}: {why} in {_preview(reply)}; "
+        "the reading was discarded. Check that the device is an NDI Combined API tracker and that "
+        "nothing else talks to it on this port",
+        port,
+    )
+
+
+def _reply_error(payload: bytes, port: str, command: str) -> TrackerReplyError:
+    code_text = payload[5:7]
+    code = int(code_text, 16) if _HEX2.fullmatch(code_text) else -1
+    return TrackerReplyError(
+        f"the tracker on {port} refused {command!r}: {payload[:7].decode('ascii', 'replace')} "
+        f"({error_text(code)})",
+        port,
+        code,
+        command,
+    )
+
+
+def checked_payload(reply: bytes, port: str = "", command: str = "") -> bytes:
+    """The payload of an ASCII reply (with or without its final CR) once its CRC is checked.
+
+    Raises :class:`TrackerCRCError` when the CRC does not match (or the reply is too short to
+    carry one) and :class:`TrackerReplyError` for an ``ERRORxx`` reply.
+    """
+    body = reply[:-1] if reply[-1:] == b"\r" else reply
+    if len(body) < 5:
+        raise _crc_error(port, command, reply, "too short to carry a CRC")
+    payload, crc_field = body[:-4], body[-4:]
+    expected = crc16_hex(payload)
+    if crc_field != expected:
+        raise _crc_error(
+            port,
+            command,
+            reply,
+            f"CRC mismatch (the reply says {crc_field.decode('ascii', 'replace')!r}, "
+            f"its content gives {expected.decode()!r})",
+        )
+    if payload[:5] == b"ERROR":
+        raise _reply_error(payload, port, command)
+    return payload
+
+
+def build_command(command: str) -> bytes:
+    """The bytes to send for ``command``: ``NAME:params`` gets its CRC appended, then CR."""
+    data = command.encode("ascii")
+    if b":" in data:
+        data += crc16_hex(data)
+    return data + b"\r"
+
+
+# ------------------------------------------------------------------------------------------------
+# Frames
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class ToolReport:
+    """One port handle in one tracker frame.
+
+    ``state`` is ``"ok"`` (pose present), ``"missing"`` (the tracker does not see the tool) or
+    ``"disabled"``. ``position`` (3,) mm and ``quaternion`` (4,) unit, scalar first, are None
+    unless ``ok``; ``rms_mm`` is the tracker's RMS marker fit error (mm, NaN unless ``ok``).
+    ``port_status`` is the bit field of :data:`PORT_STATUS_BITS`; ``frame_number`` the
+    tracker's frame counter (None when not reported).
+    """
+
+    handle: int
+    state: Literal["ok", "missing", "disabled"]
+    position: np.ndarray | None = None
+    quaternion: np.ndarray | None = None
+    rms_mm: float = math.nan
+    port_status: int = 0
+    frame_number: int | None = None
+
+    @property
+    def visible(self) -> bool:
+        return self.state == "ok"
+
+    @property
+    def out_of_volume(self) -> bool:
+        """The tool is outside the tracker's characterised measurement volume."""
+        return bool(self.port_status & PORT_OUT_OF_VOLUME)
+
+    @property
+    def partially_out_of_volume(self) -> bool:
+        """Some of the tool's markers are outside the characterised volume."""
+        return bool(self.port_status & PORT_PARTIALLY_IN_VOLUME)
+
+    def problem(self, port: str = "", accept_out_of_volume: bool = False) -> str | None:
+        """A sentence for the operator when this tool's reading must not be used, else None."""
+        where = f"the tracker on {port}" if port else "the tracker"
+        if self.state == "missing":
+            return (
+                f"tool {self.handle:02X} MISSING: {where} does not see it (port status "
+                f"{self.port_status:08X}). Clear the line of sight between the camera and the "
+                "tool's markers, or bring the tool back into the measurement volume"
+            )
+        if self.state == "disabled":
+            return f"tool {self.handle:02X} is DISABLED on {where}: run setup_tools() to enable it"
+        if not accept_out_of_volume and (self.out_of_volume or self.partially_out_of_volume):
+            part = "partly " if not self.out_of_volume else ""
+            return (
+                f"tool {self.handle:02X} is {part}outside the characterised measurement volume "
+                f"of {where} (port status {self.port_status:08X}): its pose is not within the "
+                "stated accuracy. Move the robot or the tracker so the tool stays inside the volume"
+            )
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class TrackerFrame:
+    """One reply to TX (or BX): every reported handle, the system status, and when it came.
+
+    ``received_at`` is the host's ``time.monotonic()`` (s) when the reply's last byte arrived;
+    ``latency_s`` the time from sending the command to that moment (NaN when parsed offline).
+    ``port`` names the port the frame came from (used in messages).
+    """
+
+    tools: tuple[ToolReport, ...]
+    system_status: int
+    received_at: float = math.nan
+    latency_s: float = math.nan
+    port: str = ""
+
+    @property
+    def frame_number(self) -> int | None:
+        """The tracker's frame counter (the largest reported by any handle), or None."""
+        numbers = [t.frame_number for t in self.tools if t.frame_number is not None]
+        return max(numbers) if numbers else None
+
+    def tool(self, handle: int | None = None) -> ToolReport:
+        """The report of ``handle`` (the first handle when None)."""
+        if not self.tools:
+            raise KeyError(f"the frame from {self.port or 'the tracker'} reports no tool")
+        if handle is None:
+            return self.tools[0]
+        for t in self.tools:
+            if t.handle == handle:
+                return t
+        have = ", ".join(f"{t.handle:02X}" for t in self.tools)
+        raise KeyError(
+            f"the frame from {self.port or 'the tracker'} has no handle {handle:02X} (has {have})"
+        )
+
+    def system_problems(self, mask: int = 0xFFFF) -> list[str]:
+        """The system status bits set (within ``mask``), as sentences."""
+        status = self.system_status & mask
+        out = []
+        for bit, text in SYSTEM_STATUS_BITS.items():
+            if status & bit:
+                out.append(
+                    f"system status {self.system_status:04X} of the tracker on {self.port}: {text}"
+                )
+        unknown = status & ~sum(SYSTEM_STATUS_BITS)
+        if unknown:
+            out.append(f"system status of the tracker on {self.port}: unknown bits {unknown:04X}")
+        return out
+
+    def to_sample(
+        self, handle: int | None = None, accept_out_of_volume: bool = False
+    ) -> TrackerSample:
+        """The :class:`~hexcal.acquisition.TrackerSample` of ``handle``: a pose, or a fault."""
+        try:
+            tool = self.tool(handle)
+        except KeyError as exc:
+            return TrackerSample(self.received_at, None, None, fault=str(exc.args[0]))
+        faults = [p for p in (tool.problem(self.port, accept_out_of_volume),) if p]
+        faults += self.system_problems(SYSTEM_FAULT_BITS)
+        if not tool.visible:
+            return TrackerSample(self.received_at, None, None, fault="; ".join(faults))
+        return TrackerSample(
+            self.received_at,
+            tool.position,
+            tool.quaternion,
+            tool.rms_mm,
+            fault="; ".join(faults) or None,
+        )
+
+
+def _unit_quaternion(q: tuple[float, float, float, float], port: str, command: str, reply: bytes):
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise _format_error(port, command, reply, f"quaternion norm {norm:.5f} is not 1")
+    return np.array((q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm))
+
+
+def parse_tx_reply(
+    reply: bytes,
+    received_at: float = math.nan,
+    *,
+    port: str = "",
+    command: str = "TX:0001",
+    latency_s: float = math.nan,
+) -> TrackerFrame:
+    """Parse a reply to ``TX:0001`` (format in the module docstring), CRC checked.
+
+    ``reply`` is the whole reply, CRC included, with or without its final CR. Raises
+    :class:`TrackerCRCError`, :class:`TrackerReplyError` (``ERRORxx``) or
+    :class:`TrackerFormatError`; never returns a frame built from a reply that failed a check.
+    """
+    payload = checked_payload(reply, port, command)
+    records = payload[2:].split(b"\n")
+    count = payload[:2]
+    if not _HEX2.fullmatch(count):
+        raise _format_error(port, command, reply, f"handle count {count!r} is not 2 hex digits")
+    if len(records) != int(count, 16) + 1:
+        raise _format_error(
+            port,
+            command,
+            reply,
+            f"{int(count, 16)} handles announced, {len(records) - 1} records sent",
+        )
+    tools = []
+    for rec in records[:-1]:
+        m = _TX_POSE.fullmatch(rec)
+        if m is not None:
+            h, q0, qx, qy, qz, x, y, z, err, status, frame = m.groups()
+            q = _unit_quaternion(
+                (int(q0) * 1e-4, int(qx) * 1e-4, int(qy) * 1e-4, int(qz) * 1e-4),
+                port,
+                command,
+                reply,
+            )
+            tools.append(
+                ToolReport(
+                    int(h, 16),
+                    "ok",
+                    np.array((int(x) * 0.01, int(y) * 0.01, int(z) * 0.01)),
+                    q,
+                    int(err) * 1e-4,
+                    int(status, 16),
+                    int(frame, 16),
+                )
+            )
+            continue
+        m = _TX_MISSING.fullmatch(rec)
+        if m is not None:
+            h, status, frame = m.groups()
+            tools.append(
+                ToolReport(
+                    int(h, 16), "missing", port_status=int(status, 16), frame_number=int(frame, 16)
+                )
+            )
+            continue
+        m = _TX_DISABLED.fullmatch(rec)
+        if m is not None:
+            h, status, frame = m.groups()
+            tools.append(
+                ToolReport(
+                    int(h, 16),
+                    "disabled",
+                    port_status=int(status, 16) if status else 0,
+                    frame_number=int(frame, 16) if frame else None,
+                )
+            )
+            continue
+        if _TX_UNOCCUPIED.fullmatch(rec):
+            continue
+        raise _format_error(
+            port, command, reply, f"handle record {bytes(rec)!r} is not a pose, MISSING or DISABLED"
+        )
+    status = records[-1]
+    if not _HEX4.fullmatch(status):
+        raise _format_error(
+            port, command, reply, f"system status {bytes(status)!r} is not 4 hex digits"
+        )
+    return TrackerFrame(tuple(tools), int(status, 16), received_at, latency_s, port)
+
+
+def parse_bx_reply(
+    reply: bytes,
+    received_at: float = math.nan,
+    *,
+    port: str = "",
+    command: str = "BX:0001",
+    latency_s: float = math.nan,
+) -> TrackerFrame:
+    """Parse a binary reply to ``BX:0001`` (format in the module docstring), both CRCs checked.
+
+    An ASCII reply (``ERRORxx``) raises :class:`TrackerReplyError`; otherwise as
+    :func:`parse_tx_reply`.
+    """
+    if reply[:2] != BX_START:
+        if reply[-1:] == b"\r":
+            checked_payload(reply, port, command)  # raises on ERRORxx or a bad CRC
+        raise _crc_error(port, command, reply, "no binary start sequence C4 A5")
+    if len(reply) < 8:
+        raise _crc_error(port, command, reply, "binary reply cut short")
+    length, header_crc = struct.unpack_from("<HH", reply, 2)
+    if crc16(reply[:4]) != header_crc:
+        raise _crc_error(port, command, reply, "header CRC mismatch")
+    if len(reply) != 6 + length + 2:
+        raise _crc_error(
+            port, command, reply, f"header announces {length} body bytes, {len(reply) - 8} arrived"
+        )
+    body = reply[6 : 6 + length]
+    if crc16(body) != struct.unpack_from("<H", reply, 6 + length)[0]:
+        raise _crc_error(port, command, reply, "body CRC mismatch")
+    tools = []
+    try:
+        pos = 1
+        for _ in range(body[0]):
+            handle, state = body[pos], body[pos + 1]
+            pos += 2
+            if state == BX_DISABLED:
+                tools.append(ToolReport(handle, "disabled"))
+                continue
+            if state == BX_VALID:
+                q0, qx, qy, qz, x, y, z, err = struct.unpack_from("<8f", body, pos)
+                pos += 32
+                status, frame = struct.unpack_from("<II", body, pos)
+                pos += 8
+                q = _unit_quaternion((q0, qx, qy, qz), port, command, reply)
+                tools.append(ToolReport(handle, "ok", np.array((x, y, z)), q, err, status, frame))
+            elif state == BX_MISSING:
+                status, frame = struct.unpack_from("<II", body, pos)
+                pos += 8
+                tools.append(ToolReport(handle, "missing", port_status=status, frame_number=frame))
+            else:
+                raise _format_error(
+                    port, command, reply, f"handle {handle:02X} has status byte {state:02X}"
+                )
+        (system_status,) = struct.unpack_from("<H", body, pos)
+        pos += 2
+    except (IndexError, struct.error):
+        raise _format_error(port, command, reply, "body shorter than its handle records") from None
+    if pos != len(body):
+        raise _format_error(
+            port, command, reply, f"{len(body) - pos} unexpected bytes after the system status"
+        )
+    return TrackerFrame(tuple(tools), system_status, received_at, latency_s, port)
+
+
+def parse_phsr_reply(
+    payload: bytes, port: str = "", command: str = "PHSR"
+) -> list[tuple[int, int]]:
+    """(handle, handle status) pairs of a checked PHSR payload."""
+    m = _PHSR.fullmatch(payload)
+    if m is None or len(m.group(2)) != 5 * int(m.group(1), 16):
+        raise _format_error(port, command, payload, "not a PHSR handle list")
+    entries = m.group(2)
+    return [
+        (int(entries[i : i + 2], 16), int(entries[i + 2 : i + 5], 16))
+        for i in range(0, len(entries), 5)
+    ]
+
+
+# ------------------------------------------------------------------------------------------------
+# The driver
+# ------------------------------------------------------------------------------------------------
+class NDITracker:
+    """An NDI Combined API tracker on a pyserial port (``url``: a device path, ``socket://``,
+    a pty, ``ndimock://``...).
+
+    ``baudrate`` is the working rate set by COMM after the reset at 9600; ``timeout`` (s) bounds
+    each ordinary reply. ``reset``: ``"break"`` (a serial BREAK: real RS-232 and USB ports),
+    ``"command"`` (``RESET:0``: ports that cannot carry a BREAK, such as ptys and TCP bridges),
+    ``"auto"`` (BREAK, then the command if no answer in ``reset_timeout_s``). ``settle_s`` is the
+    pause after COMM and INIT that ndicapi also makes; ``tool_mode`` the PENA tracking priority.
+    ``pose_handle`` selects the tool :meth:`sample` reports (default: the first enabled one).
+
+    Typical use::
+
+        with NDITracker("/dev/ttyUSB0") as trk:   # open(): reset, COMM, INIT
+            trk.setup_tools()
+            trk.start()
+            frame = trk.poll()                   # TX:0001 -> TrackerFrame
+
+    Not thread-safe beyond one lock around each exchange: use it from one thread at a time.
+    """
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = 115200,
+        timeout: float = 1.0,
+        *,
+        reset: Literal["auto", "break", "command"] = "auto",
+        reset_timeout_s: float = 3.0,
+        break_duration_s: float = 0.25,
+        settle_s: float = 0.1,
+        tool_mode: Literal["D", "S", "B"] = "D",
+        pose_handle: int | None = None,
+        accept_out_of_volume: bool = False,
+        max_jitter_s: float = 0.02,
+        resync_s: float = 0.05,
+    ):
+        if baudrate not in BAUD_CODES:
+            rates = ", ".join(str(b) for b in BAUD_CODES)
+            raise ValueError(
+                f"the NDI API has no baud rate {baudrate} (port {url}); use one of {rates}"
+            )
+        if reset not in ("auto", "break", "command"):
+            raise ValueError(f"reset must be 'auto', 'break' or 'command', not {reset!r}")
+        self.url = url
+        self.baudrate = baudrate
+        self.timeout = float(timeout)
+        self.reset = reset
+        self.reset_timeout_s = float(reset_timeout_s)
+        self.break_duration_s = float(break_duration_s)
+        self.settle_s = float(settle_s)
+        self.tool_mode = tool_mode
+        self.pose_handle = pose_handle
+        self.accept_out_of_volume = accept_out_of_volume
+        self.max_jitter_s = float(max_jitter_s)
+        self.resync_s = float(resync_s)
+        self.port: serial.SerialBase | None = None
+        self.handles: tuple[int, ...] = ()
+        self.tracking = False
+        self.version = ""
+        #: A sentence when the reply latency varies more than ``max_jitter_s``, else None.
+        self.timing_warning: str | None = None
+        self._lock = threading.RLock()
+        self._dead = False  # the port failed: only reconnect() helps
+        self._resync = False  # a reply timed out: it may still arrive late
+        self._latencies: deque[float] = deque(maxlen=50)
+        self._last_sample_frame: int | None = None
+
+    def __repr__(self) -> str:
+        state = "tracking" if self.tracking else ("open" if self.port is not None else "closed")
+        return f"NDITracker({self.url!r}, {self.baudrate} baud, {state})"
+
+    # -- connection -----------------------------------------------------------------------------
+    def open(self) -> NDITracker:
+        """Open the port, reset the tracker, set the baud rate (COMM) and initialise it (INIT)."""
+        with self._lock:
+            self._close_port()
+            try:
+                self.port = serial.serial_for_url(
+                    self.url, baudrate=9600, timeout=_READ_SLICE_S, write_timeout=self.timeout
+                )
+            except (ValueError, *_IO_ERRORS) as exc:
+                raise TrackerDisconnected(
+                    f"cannot open the tracker port {self.url}: {exc}. Check the port name, that the "
+                    "cable or USB adapter is plugged in, and that no other program holds the port",
+                    self.url,
+                ) from exc
+            self._dead = False
+            self._resync = False
+            self.tracking = False
+            self.handles = ()
+            try:
+                self._reset_tracker()
+                if self.baudrate != 9600:
+                    self.command(f"COMM:{BAUD_CODES[self.baudrate]}0000")
+                    time.sleep(self.settle_s)  # the tracker switches after its OKAY has gone out
+                    self._set_baud(self.baudrate)
+                self.command("INIT:", timeout=max(self.timeout, 5.0))
+                time.sleep(self.settle_s)
+                try:
+                    self.version = self.command("VER:4").decode("ascii", "replace").strip()
+                except TrackerReplyError:  # older firmware: the version is a courtesy
+                    self.version = ""
+            except BaseException:
+                self._close_port()  # half-open is no state to leave a port in
+                raise
+            log.info("tracker on %s ready at %d baud: %s", self.url, self.baudrate, self.version)
+            return self
+
+    def setup_tools(self) -> tuple[int, ...]:
+        """Free stale port handles, initialise and enable every tool found (PHSR, PHF, PINIT,
+        PENA); returns the enabled handles (also in :attr:`handles`)."""
+        with self._lock:
+            for handle in self._phsr(1):
+                self.command(f"PHF:{handle:02X}")
+            # Initialising a handle can reveal more (e.g. a splitter's second channel): repeat.
+            for _ in range(3):
+                pending = self._phsr(2)
+                if not pending:
+                    break
+                for handle in pending:
+                    self.command(f"PINIT:{handle:02X}", timeout=max(self.timeout, 5.0))
+            for handle in self._phsr(3):
+                self.command(f"PENA:{handle:02X}{self.tool_mode}")
+            self.handles = tuple(self._phsr(4))
+            if not self.handles:
+                raise TrackerError(
+                    f"the tracker on {self.url} reports no enabled tool: plug the tool in (wired and "
+                    "Aurora tools) or load its tool definition (passive tools, not supported by this "
+                    "driver), then call setup_tools() again",
+                    self.url,
+                )
+            return self.handles
+
+    def start(self) -> None:
+        """Enter tracking mode (TSTART)."""
+        with self._lock:
+            self.command("TSTART:", timeout=max(self.timeout, 5.0))
+            self.tracking = True
+            self._latencies.clear()
+
+    def stop(self) -> None:
+        """Leave tracking mode (TSTOP)."""
+        with self._lock:
+            self.command("TSTOP:", timeout=max(self.timeout, 5.0))
+            self.tracking = False
+
+    def connect(self) -> NDITracker:
+        """open(), setup_tools() and start() in one call."""
+        self.open()
+        self.setup_tools()
+        self.start()
+        return self
+
+    def reconnect(self, wait_s: float = 0.0) -> NDITracker:
+        """After :class:`TrackerDisconnected`: reopen the same port (retrying for up to
+        ``wait_s`` seconds while it is absent), reset, set up the tools and resume tracking if it
+        was tracking."""
+        was_tracking = self.tracking
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                self.open()
+                break
+            except TrackerDisconnected:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.1)
+        self.setup_tools()
+        if was_tracking:
+            self.start()
+        return self
+
+    def close(self) -> None:
+        """Stop tracking, put the tracker back to 9600 baud (so the next session can reset it by
+        command too) and close the port. Never raises for a port that is already gone."""
+        with self._lock:
+            if self.port is not None and not self._dead:
+                try:
+                    if self.tracking:
+                        self.stop()
+                    if self.baudrate != 9600:
+                        self.command("COMM:00000")
+                except TrackerError as exc:
+                    log.warning("closing the tracker on %s: %s", self.url, exc)
+            self.tracking = False
+            self._close_port()
+
+    def __enter__(self) -> NDITracker:
+        if self.port is None:
+            self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- tracking -------------------------------------------------------------------------------
+    def poll(self) -> TrackerFrame:
+        """One ``TX:0001`` frame: every handle's pose or MISSING status, the frame number, the
+        system status, and the host receive time."""
+        with self._lock:
+            raw, t_sent, t_recv = self._exchange("TX:0001", self.timeout, binary=False)
+            frame = parse_tx_reply(raw, t_recv, port=self.url, latency_s=t_recv - t_sent)
+            self._note_frame(frame)
+            return frame
+
+    def poll_binary(self) -> TrackerFrame:
+        """One ``BX:0001`` frame (float32 values: finer than TX's text resolution)."""
+        with self._lock:
+            raw, t_sent, t_recv = self._exchange("BX:0001", self.timeout, binary=True)
+            frame = parse_bx_reply(raw, t_recv, port=self.url, latency_s=t_recv - t_sent)
+            self._note_frame(frame)
+            return frame
+
+    def sample(self, binary: bool = False) -> TrackerSample:
+        """The next new frame (frame number changed) as a :class:`TrackerSample` of
+        :attr:`pose_handle`: the acquisition's :class:`~hexcal.acquisition.PoseSource`.
+
+        A tool missing or out of volume, a bad system status, or a frame counter that stopped
+        for ``timeout`` s gives a sample with ``fault`` set; a link failure raises
+        (:class:`TrackerError`)."""
+        deadline = time.monotonic() + self.timeout
+        while True:
+            frame = self.poll_binary() if binary else self.poll()
+            number = frame.frame_number
+            if number is None or number != self._last_sample_frame:
+                self._last_sample_frame = number
+                return frame.to_sample(self.pose_handle, self.accept_out_of_volume)
+            if time.monotonic() > deadline:
+                stale = (
+                    f"the tracker on {self.url} has repeated frame {number} for {self.timeout:g} s: "
+                    "it stopped measuring. Check the camera / field generator, or reopen it"
+                )
+                return TrackerSample(frame.received_at, None, None, fault=stale)
+            time.sleep(0.002)  # polled faster than the tracker's frame rate: same frame again
+
+    def latency_stats(self) -> dict[str, float]:
+        """Reply latency over the last polls: n, mean_s, min_s, max_s, spread_s."""
+        lat = list(self._latencies)
+        if not lat:
+            return {
+                "n": 0,
+                "mean_s": math.nan,
+                "min_s": math.nan,
+                "max_s": math.nan,
+                "spread_s": math.nan,
+            }
+        return {
+            "n": len(lat),
+            "mean_s": sum(lat) / len(lat),
+            "min_s": min(lat),
+            "max_s": max(lat),
+            "spread_s": max(lat) - min(lat),
+        }
+
+    # -- commands -------------------------------------------------------------------------------
+    def command(self, command: str, timeout: float | None = None) -> bytes:
+        """Send an ASCII command; return its checked payload (CRC removed). Raises
+        :class:`TrackerReplyError` for ``ERRORxx`` and the link errors."""
+        with self._lock:
+            raw, _, _ = self._exchange(command, self.timeout if timeout is None else timeout)
+            payload = checked_payload(raw, self.url, command)
+            if payload[:7] == b"WARNING":
+                log.warning(
+                    "tracker on %s answered %r with %s",
+                    self.url,
+                    command,
+                    payload.decode("ascii", "replace"),
+                )
+            return payload
+
+    def _phsr(self, option: int) -> list[int]:
+        command = f"PHSR:{option:02X}"
+        return [h for h, _ in parse_phsr_reply(self.command(command), self.url, command)]
+
+    def _note_frame(self, frame: TrackerFrame) -> None:
+        if frame.system_status & SYSTEM_LINK_BITS:
+            for problem in frame.system_problems(SYSTEM_LINK_BITS):
+                log.warning("%s (earlier commands may have been lost: check the cable)", problem)
+        self._latencies.append(frame.latency_s)
+        if len(self._latencies) < 10:
+            return
+        st = self.latency_stats()
+        if st["spread_s"] > self.max_jitter_s:
+            if self.timing_warning is None:
+                self.timing_warning = (
+                    f"the tracker on {self.url} answers with an irregular delay: "
+                    f"{st['min_s'] * 1e3:.1f} to {st['max_s'] * 1e3:.1f} ms over the last {st['n']} "
+                    f"polls (jitter {st['spread_s'] * 1e3:.1f} ms > {self.max_jitter_s * 1e3:.0f} ms), "
+                    "so host receive times are uncertain by that much. Use the tracker's frame "
+                    "numbers for timing, keep the robot still during each still window, and check the "
+                    "host load or the USB hub/adapter"
+                )
+                log.warning(self.timing_warning)
+        elif st["spread_s"] < 0.5 * self.max_jitter_s:
+            self.timing_warning = None
+
+    # -- the wire -------------------------------------------------------------------------------
+    def _require_port(self) -> serial.SerialBase:
+        if self.port is None:
+            raise TrackerDisconnected(
+                f"the tracker on {self.url} is not open: call open() first", self.url
+            )
+        if self._dead:
+            raise TrackerDisconnected(
+                f"the connection to the tracker on {self.url} was lost: plug it back in, then call reconnect()",
+                self.url,
+            )
+        return self.port
+
+    def _lost(self, exc: BaseException) -> TrackerDisconnected:
+        self._dead = True
+        self.tracking = False
+        return TrackerDisconnected(
+            f"lost the connection to the tracker on {self.url} ({exc}): the cable or USB adapter was "
+            "unplugged or the tracker was switched off. Plug it back in on the same port, then call "
+            "reconnect()",
+            self.url,
+        )
+
+    def _exchange(
+        self, command: str, timeout: float, binary: bool = False
+    ) -> tuple[bytes, float, float]:
+        """Send ``command``; return (raw reply, time sent, time received), unchecked."""
+        port = self._require_port()
+        data = build_command(command)
+        try:
+            if self._resync:
+                self._drain(port, self.resync_s)
+            # Anything unread is left over from a failed exchange (ndicapi does the same).
+            port.reset_input_buffer()
+            port.write(data)
+            t_sent = time.monotonic()
+            deadline = t_sent + timeout
+            raw = (
+                self._read_binary(port, command, deadline)
+                if binary
+                else self._read_line(port, command, deadline)
+            )
+            return raw, t_sent, time.monotonic()
+        except serial.SerialTimeoutException as exc:
+            raise TrackerTimeout(
+                f"could not send {command!r} to the tracker on {self.url} within {self.timeout:g} s "
+                f"({exc}): check the cable and handshake settings",
+                self.url,
+            ) from exc
+        except TrackerTimeout:
+            self._resync = True
+            raise
+        except _IO_ERRORS as exc:
+            raise self._lost(exc) from exc
+
+    def _drain(self, port: serial.SerialBase, duration: float) -> None:
+        """Read and discard for ``duration`` s (a late reply to a command that timed out)."""
+        end = time.monotonic() + duration
+        dropped = 0
+        while time.monotonic() < end:
+            dropped += len(port.read(max(1, port.in_waiting)))
+        if dropped:
+            log.info("tracker on %s: discarded %d late bytes", self.url, dropped)
+        self._resync = False
+
+    def _timeout(self, command: str, buf: bytes, waited: float) -> TrackerTimeout:
+        if not buf:
+            msg = (
+                f"no reply from the tracker on {self.url} to {command!r} within {waited:g} s: check "
+                "that it is switched on and connected, and that nothing else uses the port"
+            )
+        else:
+            msg = (
+                f"incomplete reply from the tracker on {self.url} to {command!r}: {len(buf)} bytes "
+                f"then nothing for {waited:g} s ({_preview(buf)}); the reply was cut off or bytes "
+                "were lost, so it was discarded. If it persists check the cable and the baud rate"
+            )
+        return TrackerTimeout(msg, self.url, bytes(buf))
+
+    def _read_line(
+        self, port: serial.SerialBase, command: str, deadline: float, buf: bytearray | None = None
+    ) -> bytes:
+        buf = bytearray() if buf is None else buf
+        start = time.monotonic()
+        while True:
+            chunk = port.read(max(1, port.in_waiting))
+            if chunk:
+                buf += chunk
+                end = buf.find(b"\r")
+                if end >= 0:
+                    # The tracker speaks only when asked: bytes after the CR are noise, dropped
+                    # by the next exchange's flush.
+                    return bytes(buf[: end + 1])
+            if time.monotonic() >= deadline:
+                raise self._timeout(command, buf, round(deadline - start, 3))
+
+    def _read_exact(
+        self,
+        port: serial.SerialBase,
+        n: int,
+        buf: bytearray,
+        command: str,
+        deadline: float,
+        start: float,
+    ) -> None:
+        while len(buf) < n:
+            chunk = port.read(min(n - len(buf), max(1, port.in_waiting)))
+            buf += chunk
+            if not chunk and time.monotonic() >= deadline:
+                raise self._timeout(command, buf, round(deadline - start, 3))
+
+    def _read_binary(self, port: serial.SerialBase, command: str, deadline: float) -> bytes:
+        buf = bytearray()
+        start = time.monotonic()
+        self._read_exact(port, 2, buf, command, deadline, start)
+        if bytes(buf[:2]) != BX_START:  # an ASCII reply (ERRORxx) or noise: read it to its CR
+            if b"\r" in buf:
+                return bytes(buf[: buf.find(b"\r") + 1])
+            return self._read_line(port, command, deadline, buf)
+        self._read_exact(port, 6, buf, command, deadline, start)
+        (length,) = struct.unpack_from("<H", buf, 2)
+        # A garbled length must not make us wait for 64 kB: the header CRC decides first.
+        if crc16(buf[:4]) != struct.unpack_from("<H", buf, 4)[0]:
+            return bytes(buf)  # parse_bx_reply reports the header CRC error
+        self._read_exact(port, 6 + length + 2, buf, command, deadline, start)
+        return bytes(buf)
+
+    def _set_baud(self, baud: int) -> None:
+        port = self._require_port()
+        try:
+            if port.baudrate != baud:
+                port.baudrate = baud
+        except (ValueError, *_IO_ERRORS) as exc:
+            raise self._lost(exc) from exc
+
+    def _reset_tracker(self) -> None:
+        """Reset the tracker to 9600 baud, by BREAK and/or the RESET command (see ``reset``)."""
+        tried = []
+        if self.reset in ("break", "auto"):
+            tried.append("a serial BREAK at 9600 baud")
+            if self._try_reset(None):
+                return
+        if self.reset in ("command", "auto"):
+            # At 9600 (fresh tracker), at the working rate (left there by a session that could
+            # not close), then at 9600 again: whether a tracker reset at another rate answers at
+            # that rate or at 9600 is not documented, so both are covered.
+            bauds = (9600,) if self.baudrate == 9600 else (9600, self.baudrate, 9600)
+            for baud in bauds:
+                tried.append(f"RESET:0 at {baud} baud")
+                if self._try_reset(baud):
+                    self._set_baud(9600)
+                    return
+        self._set_baud(9600)
+        raise TrackerTimeout(
+            f"the tracker on {self.url} did not answer RESETBE6F to {' nor '.join(tried)} "
+            f"(waited {self.reset_timeout_s:g} s each): check that it is switched on, that this is "
+            "its port and that the cable is a straight-through serial cable"
+            + (
+                "; a pty or network bridge cannot carry a BREAK, use reset='command' or 'auto'"
+                if self.reset == "break"
+                else ""
+            ),
+            self.url,
+        )
+
+    def _try_reset(self, baud: int | None) -> bool:
+        """One reset attempt: a BREAK (baud None) or RESET:0 sent at ``baud``."""
+        port = self._require_port()
+        command = "RESET:0" if baud is not None else "BREAK"
+        try:
+            self._set_baud(9600 if baud is None else baud)
+            port.reset_input_buffer()
+            if baud is None:
+                port.send_break(self.break_duration_s)
+            else:
+                port.write(build_command(command))
+            reply = self._read_line(port, command, time.monotonic() + self.reset_timeout_s)
+        except TrackerTimeout as exc:
+            log.info("tracker on %s: no answer to %s (%s)", self.url, command, exc)
+            return False
+        except _IO_ERRORS as exc:
+            raise self._lost(exc) from exc
+        if reply.endswith(b"RESETBE6F\r"):
+            return True
+        log.info("tracker on %s: unexpected answer to %s: %s", self.url, command, _preview(reply))
+        return False
+
+    def _close_port(self) -> None:
+        port, self.port = self.port, None
+        if port is not None:
+            try:
+                port.close()
+            except _IO_ERRORS as exc:  # closing a vanished port: nothing left to do
+                log.debug("closing %s: %s", self.url, exc)

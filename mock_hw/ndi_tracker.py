@@ -1,0 +1,653 @@
+"""A mock NDI Combined API tracker: the protocol state machine behind two real transports.
+
+The device answers the subset of the API that :mod:`hexcal.drivers.ndi` uses, byte for byte as
+documented there: BREAK or ``RESET`` -> ``RESETBE6F`` at 9600 baud; ``COMM``, ``INIT``,
+``VER``, ``PHSR``, ``PHF``, ``PINIT``, ``PENA``, ``TSTART``, ``TSTOP``, ``TX`` (text) and ``BX``
+(binary). Commands in the ``NAME:params`` form must carry a correct CRC (else ``ERROR04``); the
+``NAME params`` form carries none. Commands out of order get the error a tracker gives
+(``ERROR10`` before INIT, ``ERROR0C`` for TX outside tracking...).
+
+Its one tool (port handle 01) is the platform of a :class:`~hexcal.mock_hw.robot.MockRobot`:
+each new tracker frame (``frame_rate_hz``) takes one :meth:`MockRobot.tracker_sample`, and polls
+within the same frame get the same reading, as from a real tracker. The tool is MISSING when the
+robot's ``tool_visible`` is False; it is flagged out of volume (port status 0x40, or 0x80 within
+``volume_margin_mm`` of the boundary) when outside ``volume_mm``. With ``tool_plugged`` False
+(from the next reset on) the port is empty and setup finds no tool.
+
+Transports (one at a time per device):
+
+- the pyserial URL handler :mod:`hexcal.mock_hw.protocol_ndimock`: ``ndimock://<name>?<options>``
+  reaches the device registered under ``name`` (:func:`register_robot`,
+  :func:`register_device`); with no name, a default device around ``MockRobot(left_hand())``
+  (one per ``seed``). Importing this module registers the handler with pyserial;
+- a pseudo-terminal, :class:`hexcal.mock_hw.pty_tracker.PtyTracker`.
+
+URL options (all optional): ``seed`` (int, default device only), ``frame_rate`` (Hz), the fault
+rates ``drop``, ``garble``, ``crc``, ``truncate`` (probability per tracking reply) and
+``delay_ms``, ``jitter_ms``. They update the device's :class:`FaultSettings` when the URL opens.
+
+Faults (on TX/BX replies; :meth:`MockNDITracker.inject` queues one-shot faults for the next
+ones, the rates draw them at random): ``drop`` (no reply: the host times out), ``garble`` (a few
+payload bytes replaced: CRC error), ``crc`` (payload intact, CRC field wrong), ``truncate`` (only
+the first half of the reply, no CR). ``delay_s`` + uniform(0, ``jitter_s``) delays every reply.
+The link itself: a wrong host baud rate makes the device drop what it receives (framing errors),
+and :meth:`MockNDITracker.unplug` / :meth:`replug` pull and reinsert the URL transport's cable.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+import serial
+
+from hexcal.drivers.crc import crc16, crc16_hex
+from hexcal.mock_hw.robot import MockRobot
+
+URL_SCHEME = "ndimock"
+FAULT_KINDS = ("drop", "garble", "crc", "truncate")
+
+#: COMM's baud digit -> baud rate.
+COMM_BAUD = {
+    "0": 9600,
+    "1": 14400,
+    "2": 19200,
+    "3": 38400,
+    "4": 57600,
+    "5": 115200,
+    "6": 921600,
+    "7": 1228739,
+}
+
+OCCUPIED, INITIALIZED, ENABLED = 0x01, 0x10, 0x20
+OUT_OF_VOLUME, PARTIALLY_OUT = 0x40, 0x80
+
+#: The characterised volume, tracker frame, mm: (min corner, max corner).
+DEFAULT_VOLUME_MM = ((-1500.0, -1500.0, -1500.0), (1500.0, 1500.0, 3000.0))
+
+Sample = tuple[np.ndarray, np.ndarray, float]  # position (3,) mm, quaternion (4,), rms mm
+
+
+# ------------------------------------------------------------------------------------------------
+# Reply formats (written independently of the driver's parser, from the documented format)
+# ------------------------------------------------------------------------------------------------
+def with_crc(payload: bytes) -> bytes:
+    """An ASCII reply: payload, its CRC as 4 uppercase hex digits, CR."""
+    return payload + crc16_hex(payload) + b"\r"
+
+
+def _signed(value: float, resolution: float, digits: int) -> str:
+    """Sign + ``digits`` digits of ``value / resolution``; saturates as a fixed field must."""
+    n = round(value / resolution)
+    limit = 10**digits - 1
+    n = max(-limit, min(limit, n))
+    return ("+" if n >= 0 else "-") + str(abs(n)).zfill(digits)
+
+
+@dataclass(frozen=True)
+class ToolState:
+    """What the tracker reports for one port handle in one frame: ``sample`` (position (3,) mm,
+    quaternion (4,) scalar first, rms mm) or None when the tool is not seen."""
+
+    handle: int
+    sample: Sample | None
+    port_status: int
+    frame: int
+    disabled: bool = False
+
+
+def format_tx_reply(tools: Sequence[ToolState], system_status: int = 0) -> bytes:
+    """The full reply to ``TX:0001`` (CRC and CR included)."""
+    parts = [f"{len(tools):02X}"]
+    for t in tools:
+        if t.disabled:
+            parts.append(f"{t.handle:02X}DISABLED\n")
+        elif t.sample is None:
+            parts.append(f"{t.handle:02X}MISSING{t.port_status:08X}{t.frame:08X}\n")
+        else:
+            p, q, rms = t.sample
+            parts.append(
+                f"{t.handle:02X}"
+                + "".join(_signed(float(c), 1e-4, 5) for c in q)
+                + "".join(_signed(float(c), 0.01, 6) for c in p)
+                + _signed(rms, 1e-4, 5)
+                + f"{t.port_status:08X}{t.frame:08X}\n"
+            )
+    parts.append(f"{system_status:04X}")
+    return with_crc("".join(parts).encode("ascii"))
+
+
+def format_bx_reply(tools: Sequence[ToolState], system_status: int = 0) -> bytes:
+    """The full binary reply to ``BX:0001``: header, header CRC, body, body CRC."""
+    body = bytearray([len(tools)])
+    for t in tools:
+        if t.disabled:
+            body += bytes([t.handle, 0x04])
+        elif t.sample is None:
+            body += bytes([t.handle, 0x02]) + struct.pack("<II", t.port_status, t.frame)
+        else:
+            p, q, rms = t.sample
+            body += bytes([t.handle, 0x01])
+            body += struct.pack("<8f", *(float(c) for c in q), *(float(c) for c in p), rms)
+            body += struct.pack("<II", t.port_status, t.frame)
+    body += struct.pack("<H", system_status)
+    header = struct.pack("<HH", 0xA5C4, len(body))
+    return header + struct.pack("<H", crc16(header)) + bytes(body) + struct.pack("<H", crc16(body))
+
+
+# ------------------------------------------------------------------------------------------------
+# The device
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class FaultSettings:
+    """Random faults on tracking replies (probabilities per reply) and reply timing (s)."""
+
+    drop: float = 0.0
+    garble: float = 0.0
+    crc: float = 0.0
+    truncate: float = 0.0
+    delay_s: float = 0.0
+    jitter_s: float = 0.0
+
+
+_COMMAND = re.compile(rb"([A-Z0-9]+)([: ]?)(.*)", re.S)
+
+
+class MockNDITracker:
+    """The simulated tracker. ``robot`` (default: ``MockRobot(left_hand(), seed=seed)``) gives
+    the tool's pose; ``seed`` also drives the fault draws; ``clock`` (s) times the frames."""
+
+    def __init__(
+        self,
+        robot: MockRobot | None = None,
+        *,
+        seed: int = 0,
+        frame_rate_hz: float = 60.0,
+        volume_mm: tuple[Sequence[float], Sequence[float]] = DEFAULT_VOLUME_MM,
+        volume_margin_mm: float = 50.0,
+        faults: FaultSettings | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        name: str = "ndimock",
+    ):
+        if robot is None:
+            from hexcal.study import left_hand
+
+            robot = MockRobot(left_hand(), seed=seed)
+        self.robot = robot
+        self.name = name
+        self.frame_rate_hz = float(frame_rate_hz)
+        self.volume_mm = (np.asarray(volume_mm[0], float), np.asarray(volume_mm[1], float))
+        self.volume_margin_mm = float(volume_margin_mm)
+        self.faults = faults if faults is not None else FaultSettings()
+        self.clock = clock
+        self._rng = np.random.default_rng([seed, 0x4E4449])
+        self._cond = threading.Condition()  # guards everything below; signals new output
+        self._pending: deque[tuple[float, bytes]] = deque()  # (release time, bytes) in flight
+        self._ready = bytearray()  # arrived at the host, not read yet
+        self._inbuf = bytearray()
+        self._once: deque[str] = deque()
+        self._t0 = clock()
+        #: Every command line received (text), most recent last.
+        self.commands: deque[str] = deque(maxlen=500)
+        #: The sample sent for each handle in the last TX/BX reply (before wire rounding).
+        self.last_sent: dict[int, Sample | None] = {}
+        #: How many times input arrived at the wrong baud rate (dropped, as by a real UART).
+        self.framing_errors = 0
+        #: The wired tool is in its port (port handle 01). Takes effect at the next reset.
+        self.tool_plugged = True
+        #: The system status word sent with every TX/BX reply (e.g. 0x0010 hardware failure).
+        self.system_status = 0
+        self.plugged = True
+        self.generation = 0  # bumped at each unplug: ports opened before are dead
+        self._power_on()
+
+    # -- state ----------------------------------------------------------------------------------
+    def _power_on(self) -> None:
+        self.baud = 9600
+        self.initialized = False
+        self.tracking = False
+        self.ports: dict[int, int] = {0x01: OCCUPIED} if self.tool_plugged else {}
+        self._cached: tuple[int, Sample | None] | None = None
+
+    def frame_number(self) -> int:
+        """The tracker's frame counter: frames since power-up at ``frame_rate_hz``."""
+        return 1 + int((self.clock() - self._t0) * self.frame_rate_hz)
+
+    def inject(self, fault: str, count: int = 1) -> None:
+        """Apply ``fault`` (one of :data:`FAULT_KINDS`) to the next ``count`` tracking replies."""
+        if fault not in FAULT_KINDS:
+            raise ValueError(f"unknown fault {fault!r}; choose from {', '.join(FAULT_KINDS)}")
+        with self._cond:
+            self._once.extend([fault] * count)
+
+    def configure(self, **settings: float) -> None:
+        """Update :attr:`faults` (drop, garble, crc, truncate, delay_s, jitter_s)."""
+        known = {f.name for f in fields(FaultSettings)}
+        for key, value in settings.items():
+            if key not in known:
+                raise ValueError(
+                    f"unknown fault setting {key!r}; choose from {', '.join(sorted(known))}"
+                )
+            setattr(self.faults, key, float(value))
+
+    # -- the cable (URL transport) ----------------------------------------------------------------
+    def unplug(self) -> None:
+        """Pull the cable: ports opened through the URL handler fail from now on, and nothing in
+        flight arrives. The tracker itself keeps its state (baud rate, tracking), as a real one
+        does when only the cable goes."""
+        with self._cond:
+            self.plugged = False
+            self.generation += 1
+            self._discard_locked()
+            self._cond.notify_all()
+
+    def replug(self) -> None:
+        """Plug the cable back in: the URL can be opened again."""
+        with self._cond:
+            self.plugged = True
+            self._cond.notify_all()
+
+    # -- host side of the wire ----------------------------------------------------------------------
+    def on_break(self) -> None:
+        """A serial BREAK: reset to 9600 baud and answer RESETBE6F."""
+        with self._cond:
+            self._discard_locked()
+            self._inbuf.clear()
+            self.commands.append("<BREAK>")
+            self._power_on()
+            self._emit(with_crc(b"RESET"))
+
+    def feed(self, data: bytes, host_baud: int | None = None) -> None:
+        """Bytes from the host, sent at ``host_baud`` (None: unknown, assumed right)."""
+        with self._cond:
+            if host_baud is not None and host_baud != self.baud:
+                self.framing_errors += 1
+                self._inbuf.clear()
+                return
+            self._inbuf += data
+            while (end := self._inbuf.find(b"\r")) >= 0:
+                line = bytes(self._inbuf[:end])
+                del self._inbuf[: end + 1]
+                self._handle(line)
+            if len(self._inbuf) > 4096:  # no CR for that long: line noise, as a UART overruns
+                self._inbuf.clear()
+
+    def read(self, size: int, timeout: float | None, generation: int | None = None) -> bytes | None:
+        """Up to ``size`` bytes that have arrived, waiting up to ``timeout`` s (None: forever)
+        for the first; None when the cable was pulled (``generation`` no longer current)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._cond:
+            while True:
+                if generation is not None and (not self.plugged or generation != self.generation):
+                    return None
+                now = time.monotonic()
+                self._release_locked(now)
+                if self._ready:
+                    out = bytes(self._ready[:size])
+                    del self._ready[:size]
+                    return out
+                if deadline is not None and now >= deadline:
+                    return b""
+                wait = None if deadline is None else deadline - now
+                if self._pending:
+                    until_next = max(self._pending[0][0] - now, 0.0)
+                    wait = until_next if wait is None else min(wait, until_next)
+                self._cond.wait(wait)
+
+    def in_waiting(self) -> int:
+        """Bytes that have arrived at the host and are not read yet."""
+        with self._cond:
+            self._release_locked(time.monotonic())
+            return len(self._ready)
+
+    def pop_arrived(self) -> bytes:
+        """Everything that has arrived (for a transport that forwards bytes, like the pty)."""
+        with self._cond:
+            self._release_locked(time.monotonic())
+            out = bytes(self._ready)
+            self._ready.clear()
+            return out
+
+    def next_arrival_in(self) -> float | None:
+        """Seconds until the next byte in flight arrives (None: nothing in flight)."""
+        with self._cond:
+            if self._ready:
+                return 0.0
+            return max(self._pending[0][0] - time.monotonic(), 0.0) if self._pending else None
+
+    def discard_input(self) -> None:
+        """The host flushed its receive buffer: what has arrived is gone; what is still in flight
+        (a delayed reply) still comes, as on a real line."""
+        with self._cond:
+            self._release_locked(time.monotonic())
+            self._ready.clear()
+
+    def discard_all(self) -> None:
+        """The line went dead: nothing that has arrived or is in flight will be read."""
+        with self._cond:
+            self._discard_locked()
+
+    def _discard_locked(self) -> None:
+        self._pending.clear()
+        self._ready.clear()
+
+    def _release_locked(self, now: float) -> None:
+        while self._pending and self._pending[0][0] <= now:
+            self._ready += self._pending.popleft()[1]
+
+    # -- replies and faults ---------------------------------------------------------------------------
+    def _emit(self, data: bytes, tracking: bool = False) -> None:
+        fault = None
+        if tracking:
+            if self._once:
+                fault = self._once.popleft()
+            else:
+                for kind in FAULT_KINDS:
+                    rate = getattr(self.faults, kind)
+                    if rate > 0.0 and self._rng.random() < rate:
+                        fault = kind
+                        break
+        if fault == "drop":
+            return
+        if fault == "garble":
+            data = self._garble(data)
+        elif fault == "crc":
+            data = self._bad_crc(data)
+        elif fault == "truncate":
+            data = data[: len(data) // 2]
+        delay = self.faults.delay_s
+        if self.faults.jitter_s > 0.0:
+            delay += float(self._rng.uniform(0.0, self.faults.jitter_s))
+        release = time.monotonic() + delay
+        if self._pending:  # a serial line keeps the order of what it carries
+            release = max(release, self._pending[-1][0])
+        self._pending.append((release, data))
+        self._cond.notify_all()
+
+    def _garble(self, data: bytes) -> bytes:
+        out = bytearray(data)
+        binary = data[:2] == b"\xc4\xa5"
+        lo, hi = (6, len(data) - 2) if binary else (0, len(data) - 5)  # payload only
+        n = min(int(self._rng.integers(1, 4)), hi - lo)
+        for i in self._rng.choice(np.arange(lo, hi), size=n, replace=False):
+            old = out[i]
+            while True:
+                new = (
+                    int(self._rng.integers(0, 256))
+                    if binary
+                    else int(self._rng.integers(0x21, 0x7F))
+                )
+                if new != old:
+                    break
+            out[i] = new
+        return bytes(out)
+
+    @staticmethod
+    def _bad_crc(data: bytes) -> bytes:
+        if data[:2] == b"\xc4\xa5":
+            (crc,) = struct.unpack_from("<H", data, len(data) - 2)
+            return data[:-2] + struct.pack("<H", crc ^ 0x5A5A)
+        crc = int(data[-5:-1], 16)
+        return data[:-5] + b"%04X" % (crc ^ 0x5A5A) + b"\r"
+
+    def _reply(self, payload: bytes | str, tracking: bool = False) -> None:
+        if isinstance(payload, str):
+            payload = payload.encode("ascii")
+        self._emit(with_crc(payload), tracking)
+
+    def _error(self, code: int) -> None:
+        self._reply(f"ERROR{code:02X}")
+
+    # -- the command interpreter ----------------------------------------------------------------------
+    def _handle(self, line: bytes) -> None:
+        self.commands.append(line.decode("ascii", "replace"))
+        m = _COMMAND.fullmatch(line)
+        if m is None:
+            return self._error(0x01)
+        name, sep, rest = m.groups()
+        if sep == b":":
+            if len(rest) < 4 or crc16_hex(line[:-4]) != line[-4:]:
+                return self._error(0x04)
+            rest = rest[:-4]
+        handler = getattr(self, "_cmd_" + name.decode(), None)
+        if handler is None:
+            return self._error(0x01)
+        if not self.initialized and name not in (b"RESET", b"COMM", b"INIT", b"VER", b"BEEP"):
+            return self._error(0x10)
+        return handler(rest.decode("ascii", "replace").strip())
+
+    def _cmd_RESET(self, params: str) -> None:
+        self._power_on()
+        self._reply(b"RESET")
+
+    def _cmd_COMM(self, params: str) -> None:
+        if len(params) != 5 or params[0] not in COMM_BAUD or params[1:] != "0000":
+            return self._error(0x06)
+        self._reply(b"OKAY")  # at the old rate; the switch follows
+        self.baud = COMM_BAUD[params[0]]
+
+    def _cmd_INIT(self, params: str) -> None:
+        self.initialized = True
+        self._reply(b"OKAY")
+
+    def _cmd_VER(self, params: str) -> None:
+        self._reply(b"hexcal mock NDI tracker\nCombined API subset: TX, BX 0001")
+
+    def _cmd_BEEP(self, params: str) -> None:
+        self._reply(b"1")
+
+    def _handle_param(self, params: str) -> int | None:
+        try:
+            handle = int(params[:2], 16)
+        except ValueError:
+            return None
+        return handle if len(params) >= 2 and handle in self.ports else None
+
+    def _cmd_PHSR(self, params: str) -> None:
+        try:
+            option = int(params or "00", 16)
+        except ValueError:
+            return self._error(0x07)
+        if option > 4:
+            return self._error(0x23)
+        chosen = []
+        for handle, status in sorted(self.ports.items()):
+            init, enabled = bool(status & INITIALIZED), bool(status & ENABLED)
+            if (
+                option == 0
+                or (option == 2 and not init)
+                or (option == 3 and init and not enabled)
+                or (option == 4 and enabled)
+            ):
+                chosen.append(f"{handle:02X}{status:03X}")
+        self._reply(f"{len(chosen):02X}" + "".join(chosen))
+
+    def _cmd_PHF(self, params: str) -> None:
+        if self._handle_param(params) is None:
+            return self._error(0x08)
+        self._reply(b"OKAY")
+
+    def _cmd_PINIT(self, params: str) -> None:
+        handle = self._handle_param(params)
+        if handle is None:
+            return self._error(0x08)
+        self.ports[handle] |= INITIALIZED
+        self._reply(b"OKAY")
+
+    def _cmd_PENA(self, params: str) -> None:
+        handle = self._handle_param(params)
+        if handle is None:
+            return self._error(0x08)
+        if params[2:] not in ("S", "D", "B"):
+            return self._error(0x09)
+        if not self.ports[handle] & INITIALIZED:
+            return self._error(0x0E)
+        self.ports[handle] |= ENABLED
+        self._reply(b"OKAY")
+
+    def _cmd_TSTART(self, params: str) -> None:
+        if self.tracking:
+            return self._error(0x0C)
+        self.tracking = True
+        self._reply(b"OKAY")
+
+    def _cmd_TSTOP(self, params: str) -> None:
+        if not self.tracking:
+            return self._error(0x0C)
+        self.tracking = False
+        self._reply(b"OKAY")
+
+    def _tool_states(self) -> list[ToolState]:
+        frame = self.frame_number()
+        if self._cached is None or self._cached[0] != frame:  # one measurement per frame
+            self._cached = (frame, self.robot.tracker_sample())
+        sample = self._cached[1]
+        states = []
+        for handle, status in sorted(self.ports.items()):
+            if not status & ENABLED:
+                continue
+            if sample is not None:
+                status |= self._volume_bits(sample[0])
+            states.append(ToolState(handle, sample, status, frame))
+            self.last_sent[handle] = sample
+        return states
+
+    def _volume_bits(self, position: np.ndarray) -> int:
+        lo, hi = self.volume_mm
+        inside = float(np.min(np.minimum(position - lo, hi - position)))  # distance to a face
+        if inside < 0.0:
+            return OUT_OF_VOLUME
+        return PARTIALLY_OUT if inside < self.volume_margin_mm else 0
+
+    def _tracking_mode(self, params: str) -> bool:
+        if not self.tracking:
+            self._error(0x0C)
+            return False
+        try:
+            mode = int(params or "0001", 16)
+        except ValueError:
+            self._error(0x07)
+            return False
+        if not mode & 0x0001:  # only transforms and status are simulated
+            self._error(0x09)
+            return False
+        return True
+
+    def _cmd_TX(self, params: str) -> None:
+        if self._tracking_mode(params):
+            self._emit(format_tx_reply(self._tool_states(), self.system_status), tracking=True)
+
+    def _cmd_BX(self, params: str) -> None:
+        if self._tracking_mode(params):
+            self._emit(format_bx_reply(self._tool_states(), self.system_status), tracking=True)
+
+
+# ------------------------------------------------------------------------------------------------
+# Registry and URL
+# ------------------------------------------------------------------------------------------------
+_registry: dict[str, MockNDITracker] = {}
+_defaults: dict[int, MockNDITracker] = {}
+_registry_lock = threading.Lock()
+
+_URL_FAULTS = {
+    "drop": ("drop", 1.0),
+    "garble": ("garble", 1.0),
+    "crc": ("crc", 1.0),
+    "truncate": ("truncate", 1.0),
+    "delay_ms": ("delay_s", 1e-3),
+    "jitter_ms": ("jitter_s", 1e-3),
+}
+URL_OPTIONS = ("seed", "frame_rate", *_URL_FAULTS)
+
+
+def register_device(name: str, device: MockNDITracker) -> MockNDITracker:
+    """Make ``device`` reachable as ``ndimock://<name>``."""
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
+        raise ValueError(f"mock tracker name {name!r}: use letters, digits, '_', '.' or '-'")
+    with _registry_lock:
+        _registry[name] = device
+    device.name = name
+    return device
+
+
+def register_robot(name: str, robot: MockRobot, **kwargs) -> MockNDITracker:
+    """A new mock tracker watching ``robot``, reachable as ``ndimock://<name>``; ``kwargs`` go
+    to :class:`MockNDITracker`."""
+    return register_device(name, MockNDITracker(robot, name=name, **kwargs))
+
+
+def unregister(name: str) -> None:
+    with _registry_lock:
+        _registry.pop(name, None)
+
+
+def get_device(name: str) -> MockNDITracker:
+    with _registry_lock:
+        try:
+            return _registry[name]
+        except KeyError:
+            known = ", ".join(sorted(_registry)) or "none"
+            raise KeyError(
+                f"no mock tracker is registered as {name!r} (registered: {known}); call "
+                f"hexcal.mock_hw.ndi_tracker.register_robot({name!r}, robot) first"
+            ) from None
+
+
+def device_for_url(url: str) -> MockNDITracker:
+    """The device an ``ndimock://`` URL names, with the URL's options applied. Raises
+    ValueError (bad URL or option) or KeyError (no such name)."""
+    parts = urlsplit(url)
+    if parts.scheme.lower() != URL_SCHEME:
+        raise ValueError(f"{url!r} is not an {URL_SCHEME}:// URL")
+    name = (parts.netloc + parts.path).strip("/")
+    options = {}
+    for key, values in parse_qs(parts.query, keep_blank_values=True).items():
+        if key not in URL_OPTIONS:
+            raise ValueError(
+                f"unknown option {key!r} in {url!r}; options: {', '.join(URL_OPTIONS)}"
+            )
+        try:
+            options[key] = float(values[-1])
+        except ValueError:
+            raise ValueError(f"option {key}={values[-1]!r} in {url!r} is not a number") from None
+        if not math.isfinite(options[key]) or options[key] < 0:
+            raise ValueError(
+                f"option {key}={values[-1]!r} in {url!r} must be a non-negative number"
+            )
+    if name:
+        if "seed" in options:
+            raise ValueError(
+                f"'seed' applies to the default device only ({url!r}): seed the robot you register"
+            )
+        device = get_device(name)
+    else:
+        seed = int(options.get("seed", 0))
+        with _registry_lock:
+            if seed not in _defaults:
+                _defaults[seed] = MockNDITracker(seed=seed, name=f"default (seed {seed})")
+            device = _defaults[seed]
+    if "frame_rate" in options:
+        if options["frame_rate"] <= 0:
+            raise ValueError(f"frame_rate must be positive in {url!r}")
+        device.frame_rate_hz = options["frame_rate"]
+    device.configure(
+        **{_URL_FAULTS[k][0]: v * _URL_FAULTS[k][1] for k, v in options.items() if k in _URL_FAULTS}
+    )
+    return device
+
+
+def install_url_handler() -> None:
+    """Let :func:`serial.serial_for_url` find ``ndimock://`` (idempotent; done on import)."""
+    if "hexcal.mock_hw" not in serial.protocol_handler_packages:
+        serial.protocol_handler_packages.append("hexcal.mock_hw")
+
+
+install_url_handler()

@@ -1,0 +1,137 @@
+"""pyserial URL handler for ``ndimock://``: a serial port whose other end is a
+:class:`~hexcal.mock_hw.ndi_tracker.MockNDITracker`.
+
+pyserial imports this module for ``serial.serial_for_url("ndimock://...")`` once
+``hexcal.mock_hw`` is in ``serial.protocol_handler_packages``, which importing
+:mod:`hexcal.mock_hw.ndi_tracker` arranges. URL syntax and options: see that module.
+
+The port behaves as a serial port does: ``read`` honours ``timeout``; ``reset_input_buffer``
+discards what has arrived but not what is still in flight; ``send_break`` resets the tracker;
+the baud rate set on the port is the rate the device hears (a mismatch loses the bytes); pulling
+the device's cable (:meth:`MockNDITracker.unplug`) makes every operation raise
+:class:`serial.SerialException`, as a vanished USB adapter does, until the port is opened again.
+"""
+
+from __future__ import annotations
+
+import numbers
+import time
+
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+from hexcal.mock_hw.ndi_tracker import MockNDITracker, device_for_url
+
+
+class Serial(SerialBase):
+    """A pyserial port connected to a mock NDI tracker."""
+
+    BAUDRATES = (9600, 14400, 19200, 38400, 57600, 115200, 921600, 1228739)
+
+    def __init__(self, *args, **kwargs):
+        self._device: MockNDITracker | None = None
+        self._generation = -1
+        super().__init__(*args, **kwargs)
+
+    # -- open / close ---------------------------------------------------------------------------------
+    def open(self) -> None:
+        if self.is_open:
+            raise SerialException("Port is already open.")
+        if self._port is None:
+            raise SerialException("Port must be configured before it can be used.")
+        try:
+            device = device_for_url(self.portstr)
+        except (ValueError, KeyError) as exc:
+            raise SerialException(f"could not open port {self.portstr}: {exc.args[0]}") from None
+        if not device.plugged:
+            raise SerialException(
+                f"could not open port {self.portstr}: no such device (the cable is unplugged)"
+            )
+        self._device = device
+        self._generation = device.generation
+        self._reconfigure_port()
+        self.is_open = True
+        device.discard_input()
+
+    def close(self) -> None:
+        self.is_open = False
+        self._device = None
+        super().close()
+
+    def _reconfigure_port(self) -> None:
+        if not isinstance(self._baudrate, numbers.Integral) or not 0 < self._baudrate < 2**32:
+            raise ValueError(f"invalid baudrate: {self._baudrate!r}")
+
+    def _live(self) -> MockNDITracker:
+        if not self.is_open or self._device is None:
+            raise PortNotOpenError()
+        dev = self._device
+        if not dev.plugged or dev.generation != self._generation:
+            raise SerialException(f"device {self.portstr} disconnected (cable unplugged)")
+        return dev
+
+    # -- data -----------------------------------------------------------------------------------------
+    @property
+    def in_waiting(self) -> int:
+        return self._live().in_waiting()
+
+    def read(self, size: int = 1) -> bytes:
+        dev = self._live()
+        deadline = None if self._timeout is None else time.monotonic() + self._timeout
+        data = bytearray()
+        while len(data) < size:
+            remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+            chunk = dev.read(size - len(data), remaining, self._generation)
+            if chunk is None:
+                raise SerialException(f"device {self.portstr} disconnected (cable unplugged)")
+            data += chunk
+            if not chunk:  # timed out
+                break
+        return bytes(data)
+
+    def write(self, data: bytes) -> int:
+        dev = self._live()
+        data = bytes(data)
+        dev.feed(data, host_baud=self._baudrate)
+        return len(data)
+
+    def reset_input_buffer(self) -> None:
+        self._live().discard_input()
+
+    def reset_output_buffer(self) -> None:
+        self._live()  # writes are delivered at once: nothing waits to go out
+
+    @property
+    def out_waiting(self) -> int:
+        self._live()
+        return 0
+
+    # -- modem lines and break --------------------------------------------------------------------------
+    def _update_break_state(self) -> None:
+        if self._break_state:  # the tracker resets on the BREAK's start
+            self._live().on_break()
+
+    def _update_rts_state(self) -> None:
+        pass
+
+    def _update_dtr_state(self) -> None:
+        pass
+
+    @property
+    def cts(self) -> bool:
+        self._live()
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        self._live()
+        return True
+
+    @property
+    def ri(self) -> bool:
+        self._live()
+        return False
+
+    @property
+    def cd(self) -> bool:
+        self._live()
+        return True

@@ -1,0 +1,543 @@
+"""The NDI tracker driver: the reply parsers on hand-written replies, then contract tests that run
+the real driver against the mock tracker through BOTH transports (the ``ndimock://`` pyserial URL
+handler and a real pseudo-terminal), every injected fault with the message it gives, and a pose
+round trip against the simulated robot.
+
+Set ``HEXCAL_TRACKER_PORT`` (e.g. ``/dev/ttyUSB0``; ``HEXCAL_TRACKER_BAUD`` optionally) to also
+run the contract tests that need no fault injection against a real tracker with one wired tool.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import os
+import struct
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from hexcal.acquisition import TrackerSample
+from hexcal.drivers.crc import crc16, crc16_hex
+from hexcal.drivers.ndi import (
+    NDITracker,
+    ToolReport,
+    TrackerCRCError,
+    TrackerDisconnected,
+    TrackerError,
+    TrackerFormatError,
+    TrackerFrame,
+    TrackerReplyError,
+    TrackerTimeout,
+    build_command,
+    error_text,
+    parse_bx_reply,
+    parse_phsr_reply,
+    parse_tx_reply,
+)
+from hexcal.mock_hw.ndi_tracker import (
+    MockNDITracker,
+    ToolState,
+    format_bx_reply,
+    register_device,
+    unregister,
+)
+from hexcal.mock_hw.pty_tracker import PtyTracker
+from hexcal.mock_hw.robot import MockRobot
+from hexcal.simulate import NoiseModel
+from hexcal.study import left_hand
+
+REAL_PORT = os.environ.get("HEXCAL_TRACKER_PORT")
+PORT = "/dev/ttyTEST"
+
+
+def reply(payload: str | bytes) -> bytes:
+    data = payload.encode() if isinstance(payload, str) else payload
+    return data + crc16_hex(data) + b"\r"
+
+
+# A TX:0001 reply written by hand from the documented format: handle 01, q = (0.5, 0.5, -0.5,
+# 0.5), position (12.34, -5.67, 1234.56) mm, RMS 0.015 mm, port status 31, frame 0x2A.
+POSE_01 = "01+05000+05000-05000+05000+001234-000567+123456+0015000000031" + "0000002A"
+ONE_TOOL = reply("01" + POSE_01 + "\n0000")
+
+
+# -- parsers -------------------------------------------------------------------------------------
+def test_parse_tx_reply_hand_written():
+    frame = parse_tx_reply(ONE_TOOL, 12.5, port=PORT)
+    assert frame.system_status == 0 and frame.received_at == 12.5 and frame.frame_number == 42
+    (tool,) = frame.tools
+    assert tool.handle == 1 and tool.state == "ok" and tool.visible
+    np.testing.assert_allclose(tool.quaternion, [0.5, 0.5, -0.5, 0.5])
+    np.testing.assert_allclose(tool.position, [12.34, -5.67, 1234.56])
+    assert tool.rms_mm == pytest.approx(0.015) and tool.port_status == 0x31
+    assert not tool.out_of_volume and tool.problem(PORT) is None
+    assert parse_tx_reply(ONE_TOOL[:-1]).tools[0].frame_number == 42  # CR optional
+
+
+def test_parse_tx_reply_missing_disabled_unoccupied_and_several_handles():
+    text = (
+        "04"
+        + POSE_01
+        + "\n02MISSING000000310000002A\n03DISABLED\n0AUNOCCUPIED\n"
+        + "0041"  # port occupied event + comm sync error
+    )
+    frame = parse_tx_reply(reply(text), port=PORT)
+    assert [t.handle for t in frame.tools] == [1, 2, 3]
+    missing = frame.tool(2)
+    assert missing.state == "missing" and missing.position is None and math.isnan(missing.rms_mm)
+    assert missing.port_status == 0x31 and missing.frame_number == 42
+    assert "MISSING" in missing.problem(PORT) and PORT in missing.problem(PORT)
+    assert frame.tool(3).state == "disabled" and "setup_tools" in frame.tool(3).problem(PORT)
+    problems = frame.system_problems()
+    assert any("synchronisation" in p for p in problems) and all(PORT in p for p in problems)
+    with pytest.raises(KeyError, match="no handle 0A"):
+        frame.tool(0x0A)
+
+
+def test_out_of_volume_status_is_a_fault_of_the_sample():
+    text = "01" + POSE_01.replace("00000031", "00000071") + "\n0000"
+    frame = parse_tx_reply(reply(text), 3.0, port=PORT)
+    assert frame.tool().out_of_volume
+    sample = frame.to_sample()
+    assert (
+        sample.position is not None
+        and "outside the characterised measurement volume" in sample.fault
+    )
+    assert PORT in sample.fault
+    assert frame.to_sample(accept_out_of_volume=True).fault is None
+    partial = parse_tx_reply(reply(text.replace("00000071", "000000B1")), port=PORT)
+    assert partial.tool().partially_out_of_volume and "partly outside" in partial.to_sample().fault
+
+
+def test_missing_tool_sample_is_a_fault_without_pose():
+    frame = parse_tx_reply(reply("0101MISSING0000003100000007\n0000"), 4.0, port=PORT)
+    s = frame.to_sample()
+    assert isinstance(s, TrackerSample) and s.position is None and s.quaternion is None
+    assert s.t == 4.0 and "MISSING" in s.fault and "line of sight" in s.fault
+
+
+@pytest.mark.parametrize(
+    "corrupt, match",
+    [
+        (lambda r: r[:30] + b"7" + r[31:], "CRC mismatch"),  # one digit changed
+        (lambda r: r[:-5] + b"0000\r", "CRC mismatch"),  # CRC field wrong
+        (lambda r: r[:-5] + b"G#2B\r", "CRC mismatch"),  # CRC field garbled
+        (lambda r: r[: len(r) // 2], "CRC mismatch"),  # cut in half
+        (lambda r: b"B6\r", "too short"),
+    ],
+)
+def test_corrupt_replies_raise_never_parse(corrupt, match):
+    with pytest.raises(TrackerCRCError, match=match) as err:
+        parse_tx_reply(corrupt(ONE_TOOL), port=PORT, command="TX:0001")
+    assert PORT in str(err.value) and "discarded" in str(err.value) and err.value.port == PORT
+
+
+@pytest.mark.parametrize(
+    "payload, match",
+    [
+        ("02" + POSE_01 + "\n0000", "2 handles announced, 1 records"),
+        ("0Z" + POSE_01 + "\n0000", "handle count"),
+        ("01" + POSE_01.replace("+05000", "+0500 ", 1) + "\n0000", "is not a pose"),
+        ("01" + POSE_01.replace("+05000", "+09000", 1) + "\n0000", "quaternion norm"),
+        ("01" + POSE_01 + "\n00G0", "system status"),
+        ("01" + POSE_01 + "\n00000\n", "records sent"),
+    ],
+)
+def test_well_formed_crc_but_wrong_content_raises(payload, match):
+    with pytest.raises(TrackerFormatError, match=match) as err:
+        parse_tx_reply(reply(payload), port=PORT)
+    assert PORT in str(err.value)
+
+
+def test_error_replies_name_the_ndi_meaning():
+    with pytest.raises(TrackerReplyError) as err:
+        parse_tx_reply(reply("ERROR0C"), port=PORT, command="TX:0001")
+    e = err.value
+    assert e.code == 0x0C and e.command == "TX:0001" and PORT in str(e)
+    assert "invalid while in the current operating mode" in str(e) and "start()" in str(e)
+    assert "unknown error code" in error_text(0x77)
+    assert "line" in error_text(0x04) or "cable" in error_text(0x04)
+
+
+def test_parse_bx_reply_and_its_checks():
+    q = Rotation.from_euler("xyz", [10, -20, 30], degrees=True).as_quat(scalar_first=True)
+    tools = [
+        ToolState(1, (np.array([1.5, -2.25, 1500.125]), q, 0.0125), 0x31, 77),
+        ToolState(2, None, 0x31, 77),
+        ToolState(3, None, 0, 0, disabled=True),
+    ]
+    raw = format_bx_reply(tools, 0x0004)
+    frame = parse_bx_reply(raw, 1.0, port=PORT)
+    a, b, c = frame.tools
+    np.testing.assert_allclose(a.position, [1.5, -2.25, 1500.125])
+    np.testing.assert_allclose(a.quaternion, q, atol=1e-6)
+    assert a.rms_mm == pytest.approx(0.0125) and a.frame_number == 77
+    assert b.state == "missing" and c.state == "disabled" and frame.system_status == 4
+    body_hit = bytearray(raw)
+    body_hit[10] ^= 0x01
+    with pytest.raises(TrackerCRCError, match="body CRC"):
+        parse_bx_reply(bytes(body_hit), port=PORT)
+    header_hit = bytearray(raw)
+    header_hit[2] ^= 0x01
+    with pytest.raises(TrackerCRCError, match="header CRC"):
+        parse_bx_reply(bytes(header_hit), port=PORT)
+    with pytest.raises(TrackerCRCError, match="announces"):
+        parse_bx_reply(raw[:-3], port=PORT)
+    with pytest.raises(TrackerReplyError, match="ERROR0C"):
+        parse_bx_reply(reply("ERROR0C"), port=PORT)
+    body = bytes([1, 1, 9]) + struct.pack("<H", 0)  # status byte 09: not in the format
+    header = struct.pack("<HH", 0xA5C4, len(body))
+    odd = header + struct.pack("<H", crc16(header)) + body + struct.pack("<H", crc16(body))
+    with pytest.raises(TrackerFormatError, match="status byte 09"):
+        parse_bx_reply(odd, port=PORT)
+
+
+def test_phsr_and_command_building():
+    assert parse_phsr_reply(b"0201031A2001") == [(0x01, 0x031), (0xA2, 0x001)]
+    assert parse_phsr_reply(b"00") == []
+    with pytest.raises(TrackerFormatError):
+        parse_phsr_reply(b"020103", PORT)
+    assert build_command("INIT:") == b"INIT:E3A5\r"  # as ndicapi's probe sends it
+    assert build_command("RESET 0") == b"RESET 0\r"
+    assert build_command("TX:0001") == b"TX:0001" + crc16_hex(b"TX:0001") + b"\r"
+
+
+def test_bad_constructor_arguments():
+    with pytest.raises(ValueError, match="no baud rate 12345"):
+        NDITracker(PORT, baudrate=12345)
+    with pytest.raises(ValueError, match="reset"):
+        NDITracker(PORT, reset="kick")
+
+
+# -- the driver against the mock, over both transports -------------------------------------------------
+_names = itertools.count()
+
+
+@dataclass
+class Link:
+    """One way to reach a tracker: its URL, the mock behind it (None for a real port) and the
+    driver options this transport needs."""
+
+    kind: str
+    url: str
+    device: MockNDITracker | None = None
+    robot: MockRobot | None = None
+    pty: PtyTracker | None = None
+    options: dict = field(default_factory=dict)
+
+    def tracker(self, **kwargs) -> NDITracker:
+        return NDITracker(self.url, **{**self.options, **kwargs})
+
+    def unplug(self) -> None:
+        self.pty.unplug() if self.pty else self.device.unplug()
+
+    def replug(self) -> None:
+        self.pty.replug() if self.pty else self.device.replug()
+
+
+def _mock_link(kind: str) -> Iterator[Link]:
+    robot = MockRobot(left_hand(), noise=NoiseModel(0.01, 0.002, 0.0), seed=21)
+    device = MockNDITracker(robot, seed=21, frame_rate_hz=1000.0)
+    # Short waits keep the fault tests fast; the defaults are for real hardware.
+    fast = dict(timeout=0.25, settle_s=0.0, resync_s=0.02, reset_timeout_s=0.2)
+    if kind == "url":
+        name = f"contract{next(_names)}"
+        register_device(name, device)
+        try:
+            yield Link(
+                kind,
+                f"ndimock://{name}",
+                device,
+                robot,
+                None,
+                dict(fast, reset="break", break_duration_s=0.001),
+            )
+        finally:
+            unregister(name)
+    else:
+        with PtyTracker(device) as pty:  # a pty carries no BREAK: the RESET command does it
+            yield Link(kind, pty.device_path, device, robot, pty, dict(fast, reset="command"))
+
+
+@pytest.fixture(params=["url", "pty"])
+def mock_link(request) -> Iterator[Link]:
+    yield from _mock_link(request.param)
+
+
+@pytest.fixture(
+    params=[
+        "url",
+        "pty",
+        pytest.param(
+            "real",
+            marks=pytest.mark.skipif(
+                not REAL_PORT, reason="set HEXCAL_TRACKER_PORT to test a real tracker"
+            ),
+        ),
+    ]
+)
+def link(request) -> Iterator[Link]:
+    if request.param == "real":
+        yield Link(
+            "real",
+            REAL_PORT,
+            options=dict(baudrate=int(os.environ.get("HEXCAL_TRACKER_BAUD", "115200"))),
+        )
+    else:
+        yield from _mock_link(request.param)
+
+
+@pytest.fixture
+def tracking(mock_link) -> Iterator[tuple[Link, NDITracker]]:
+    trk = mock_link.tracker().connect()
+    try:
+        yield mock_link, trk
+    finally:
+        trk.close()
+
+
+def test_contract_connect_poll_close(link):
+    with link.tracker() as trk:
+        assert trk.port is not None and trk.version
+        handles = trk.setup_tools()
+        assert handles and trk.handles == handles
+        trk.start()
+        frames = [trk.poll() for _ in range(5)]
+        binary = trk.poll_binary()
+    assert trk.port is None and not trk.tracking
+    for f in frames + [binary]:
+        assert isinstance(f, TrackerFrame) and f.port == link.url
+        assert {t.handle for t in f.tools} >= set(handles)
+        assert f.latency_s >= 0 and f.frame_number is not None
+    t = [f.received_at for f in frames]
+    n = [f.frame_number for f in frames]
+    assert t == sorted(t) and n == sorted(n)
+    if link.device is not None:  # it left the tracker stopped and back at 9600 baud
+        assert list(link.device.commands)[-2:] == [
+            "TSTOP:" + crc16_hex(b"TSTOP:").decode(),
+            "COMM:00000" + crc16_hex(b"COMM:00000").decode(),
+        ]
+        assert link.device.baud == 9600 and not link.device.tracking
+
+
+def test_contract_sample_gives_new_frames(link):
+    with link.tracker() as trk:
+        trk.setup_tools()
+        trk.start()
+        samples = [trk.sample() for _ in range(3)]
+    assert all(isinstance(s, TrackerSample) for s in samples)
+    assert samples[0].t < samples[1].t < samples[2].t
+
+
+def test_pose_round_trip(tracking):
+    link, trk = tracking
+    robot, device = link.robot, link.device
+    P = np.array([12.0, -7.5, 215.0])
+    R = Rotation.from_euler("xyz", [2.0, -3.0, 15.0], degrees=True).as_matrix()
+    robot.move_to(P, R)
+    time.sleep(0.003)  # a frame later: no reading from before the move
+    sigma_p = robot.sim.noise.sigma_position_mm
+    sigma_a = robot.sim.noise.sigma_orientation_rad
+    q_true = Rotation.from_matrix(R)
+    for binary in (False, True):
+        for _ in range(10):
+            s = trk.sample(binary=binary)
+            p_sent, q_sent, rms = device.last_sent[1]
+            # exactly what the tracker sent, to the wire's resolution...
+            res_p, res_q = (1e-4, 1e-6) if binary else (0.005, 0.6e-4)
+            np.testing.assert_allclose(s.position, p_sent, atol=res_p)
+            np.testing.assert_allclose(s.quaternion, q_sent, atol=res_q)
+            assert s.rms_mm == pytest.approx(rms, abs=1e-4) and s.fault is None
+            # ...and the robot's true pose within the noise (+ the wire's rounding)
+            assert np.linalg.norm(s.position - P) < 6 * sigma_p * math.sqrt(3) + 0.009
+            angle = (Rotation.from_quat(s.quaternion, scalar_first=True) * q_true.inv()).magnitude()
+            assert angle < 6 * sigma_a * math.sqrt(3) + (0 if binary else 2.5e-4)
+
+
+def test_fault_garbled_bytes(tracking):
+    link, trk = tracking
+    for binary in (False, True):
+        link.device.inject("garble")
+        with pytest.raises(TrackerCRCError, match="corrupt reply") as err:
+            trk.poll_binary() if binary else trk.poll()
+        assert (
+            link.url in str(err.value)
+            and "discarded" in str(err.value)
+            and "cable" in str(err.value)
+        )
+        assert trk.poll().tool().visible  # the next reading is fine
+
+
+def test_fault_crc_error(tracking):
+    link, trk = tracking
+    link.device.inject("crc")
+    with pytest.raises(TrackerCRCError, match="CRC mismatch") as err:
+        trk.poll()
+    assert link.url in str(err.value)
+    assert trk.poll().tool().visible
+
+
+def test_fault_reply_cut_in_half(tracking):
+    link, trk = tracking
+    for binary in (False, True):
+        link.device.inject("truncate")
+        with pytest.raises(TrackerTimeout, match="incomplete reply") as err:
+            trk.poll_binary() if binary else trk.poll()
+        assert link.url in str(err.value) and err.value.partial and "discarded" in str(err.value)
+        assert trk.poll().tool().visible
+
+
+def test_fault_dropped_reply(tracking):
+    link, trk = tracking
+    link.device.inject("drop")
+    with pytest.raises(TrackerTimeout, match="no reply") as err:
+        trk.poll()
+    assert (
+        link.url in str(err.value) and "switched on" in str(err.value) and err.value.partial == b""
+    )
+    assert trk.poll().tool().visible
+
+
+def test_fault_late_reply_is_not_taken_for_the_next_one(tracking):
+    link, trk = tracking
+    link.device.configure(delay_s=0.3)  # longer than the driver's 0.25 s timeout
+    with pytest.raises(TrackerTimeout):
+        trk.poll()
+    link.device.configure(delay_s=0.0)
+    trk.resync_s = 0.1  # long enough for the late reply to arrive and be thrown away
+    before = len(link.device.commands)
+    frame = trk.poll()
+    assert frame.tool().visible and len(link.device.commands) == before + 1
+
+
+def test_fault_tool_missing(tracking):
+    link, trk = tracking
+    link.robot.tool_visible = False
+    frame = trk.poll()
+    assert frame.tool().state == "missing" and frame.tool().position is None
+    s = trk.sample()
+    assert s.position is None and "MISSING" in s.fault and link.url in s.fault
+    assert trk.poll_binary().tool().state == "missing"
+    link.robot.tool_visible = True
+    time.sleep(0.003)  # the frame measured while it was hidden stays MISSING, as on a real tracker
+    assert trk.sample().fault is None
+
+
+def test_fault_out_of_volume(tracking):
+    link, trk = tracking
+    link.robot.move_to([0.0, 0.0, 3200.0], np.eye(3))
+    time.sleep(0.003)
+    s = trk.sample()
+    assert trk.poll().tool().out_of_volume
+    assert "outside the characterised measurement volume" in s.fault and link.url in s.fault
+
+
+def test_fault_unplug_and_replug(tracking):
+    link, trk = tracking
+    assert trk.poll().tool().visible
+    link.unplug()
+    with pytest.raises(TrackerDisconnected, match="lost the connection") as err:
+        trk.poll()
+    assert link.url in str(err.value) and "reconnect()" in str(err.value) and not trk.tracking
+    with pytest.raises(TrackerDisconnected, match="reconnect"):  # stays failed, does not hang
+        trk.poll()
+    with pytest.raises(TrackerDisconnected, match="cannot open the tracker port") as err:
+        trk.reconnect()
+    assert link.url in str(err.value)
+    link.replug()
+    # The tracker kept tracking at 115200 baud: the driver must reset it whatever its state.
+    trk.tracking = True  # (reconnect resumes tracking when it was tracking before the loss)
+    trk.reconnect()
+    assert trk.tracking and trk.poll().tool().visible
+    trk.close()
+
+
+def test_fault_reply_jitter_is_reported(tracking, caplog):
+    link, trk = tracking
+    link.device.configure(jitter_s=0.04)
+    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+        frames = [trk.poll() for _ in range(12)]
+    assert all(f.tool().visible for f in frames)  # jitter is a timing problem, not a bad reading
+    stats = trk.latency_stats()
+    assert stats["spread_s"] > 0.02
+    assert trk.timing_warning is not None and link.url in trk.timing_warning
+    assert "jitter" in trk.timing_warning and "frame numbers" in trk.timing_warning
+    assert any(link.url in r.getMessage() for r in caplog.records)
+    numbers = [f.frame_number for f in frames]
+    assert numbers == sorted(numbers)
+
+
+def test_system_status_faults_and_link_warnings(tracking, caplog):
+    link, trk = tracking
+    link.device.system_status = 0x0010  # hardware failure: the pose is suspect
+    s = trk.sample()
+    assert s.position is not None and "hardware failure" in s.fault and link.url in s.fault
+    link.device.system_status = 0x0040 | 0x0004  # port occupied (news), bad command CRC (link)
+    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+        s = trk.sample(binary=True)
+    assert s.fault is None
+    assert any("bad CRC" in r.getMessage() and link.url in r.getMessage() for r in caplog.records)
+
+
+def test_frozen_frame_counter_is_a_fault():
+    for link in _mock_link("url"):
+        dev = link.device
+        dev.clock = lambda t=dev._t0 + 1.0: t  # the camera stops: the frame number stays
+        with link.tracker() as trk:
+            trk.setup_tools()
+            trk.start()
+            assert trk.sample().fault is None
+            s = trk.sample()
+        assert s.position is None and "repeated frame" in s.fault and link.url in s.fault
+
+
+def test_error_reply_from_the_tracker(mock_link):
+    with mock_link.tracker() as trk:
+        trk.setup_tools()
+        with pytest.raises(TrackerReplyError, match="ERROR0C") as err:
+            trk.poll()  # TX before TSTART
+        assert (
+            err.value.code == 0x0C
+            and mock_link.url in str(err.value)
+            and "start()" in str(err.value)
+        )
+
+
+def test_reset_modes_over_the_pty():
+    for link in _mock_link("pty"):
+        trk = link.tracker(reset="break")
+        with pytest.raises(TrackerTimeout, match="cannot carry a BREAK") as err:
+            trk.open()
+        assert link.url in str(err.value) and trk.port is None  # not left half-open
+        with link.tracker(reset="auto") as trk:  # BREAK unanswered, then RESET:0
+            assert trk.setup_tools() == (1,)
+
+
+def test_no_tool_found(mock_link):
+    mock_link.device.tool_plugged = False
+    with mock_link.tracker() as trk, pytest.raises(TrackerError, match="no enabled tool") as err:
+        trk.setup_tools()
+    assert mock_link.url in str(err.value)
+
+
+def test_port_that_does_not_exist():
+    trk = NDITracker("/nonexistent/ttyNDI", timeout=0.1)
+    with pytest.raises(
+        TrackerDisconnected, match="cannot open the tracker port /nonexistent/ttyNDI"
+    ):
+        trk.open()
+    with pytest.raises(TrackerDisconnected, match="not open"):
+        trk.poll()
+    trk.close()  # harmless
+
+
+def test_tool_report_is_frozen():
+    t = ToolReport(1, "ok")
+    with pytest.raises(AttributeError):
+        t.handle = 2

@@ -1,0 +1,375 @@
+"""The mock NDI tracker on its own: the protocol state machine byte for byte, its faults, the
+pyserial URL handler and the pty bridge. (The driver against it: test_drivers_ndi.py.)
+
+The replies are checked against the documented format with this file's own regular expressions,
+not with the driver's parser, so that the two cannot share a mistake.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import struct
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from hexcal.drivers.crc import crc16, crc16_hex
+from hexcal.mock_hw.ndi_tracker import (
+    FaultSettings,
+    MockNDITracker,
+    ToolState,
+    device_for_url,
+    format_bx_reply,
+    format_tx_reply,
+    get_device,
+    register_robot,
+    unregister,
+)
+from hexcal.mock_hw.pty_tracker import PtyTracker
+from hexcal.mock_hw.robot import MockRobot
+from hexcal.simulate import NoiseModel
+from hexcal.study import left_hand
+
+TX_POSE = re.compile(
+    rb"01(01)([+-]\d{5})([+-]\d{5})([+-]\d{5})([+-]\d{5})([+-]\d{6})([+-]\d{6})([+-]\d{6})"
+    rb"([+-]\d{5})([0-9A-F]{8})([0-9A-F]{8})\n([0-9A-F]{4})([0-9A-F]{4})\r"
+)
+_names = itertools.count()
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def cmd(text: str) -> bytes:
+    """A command as a host sends it: NAME:params + CRC + CR, or NAME params + CR."""
+    data = text.encode()
+    return data + (crc16_hex(data) if b":" in data else b"") + b"\r"
+
+
+def ask(dev: MockNDITracker, text: str, baud: int | None = None, timeout: float = 0.5) -> bytes:
+    dev.feed(cmd(text), host_baud=baud)
+    return dev.read(100_000, timeout)
+
+
+def ok_crc(reply: bytes) -> bool:
+    return reply.endswith(b"\r") and crc16_hex(reply[:-5]) == reply[-5:-1]
+
+
+@pytest.fixture
+def robot():
+    return MockRobot(left_hand(), noise=NoiseModel(0.01, 0.002, 0.0), seed=5)
+
+
+@pytest.fixture
+def dev(robot):
+    return MockNDITracker(robot, seed=5, frame_rate_hz=1000.0)
+
+
+def tracking(dev: MockNDITracker) -> MockNDITracker:
+    for text in ("INIT:", "PINIT:01", "PENA:01D", "TSTART:"):
+        assert ask(dev, text) == b"OKAY" + crc16_hex(b"OKAY") + b"\r", text
+    return dev
+
+
+# -- the protocol ----------------------------------------------------------------------------------
+def test_break_and_reset_command_answer_resetbe6f(dev):
+    dev.on_break()
+    assert dev.read(100, 0.1) == b"RESETBE6F\r"
+    assert ask(dev, "RESET 0") == b"RESETBE6F\r"  # the space form carries no CRC
+    assert ask(dev, "RESET:0") == b"RESETBE6F\r"
+    assert dev.baud == 9600 and not dev.initialized
+
+
+def test_command_crc_is_checked(dev):
+    assert ask(dev, "INIT:") == b"OKAY" + crc16_hex(b"OKAY") + b"\r"
+    dev.feed(b"INIT:0000\r")
+    reply = dev.read(100, 0.1)
+    assert reply.startswith(b"ERROR04") and ok_crc(reply)
+
+
+@pytest.mark.parametrize(
+    "setup, text, code",
+    [
+        ((), "TX:0001", b"ERROR10"),  # before INIT
+        (("INIT:",), "FOO:", b"ERROR01"),
+        (("INIT:",), "TX:0001", b"ERROR0C"),  # not tracking
+        (("INIT:",), "TSTOP:", b"ERROR0C"),
+        (("INIT:",), "PENA:01D", b"ERROR0E"),  # not initialised
+        (("INIT:", "PINIT:01"), "PENA:01X", b"ERROR09"),
+        (("INIT:",), "PINIT:07", b"ERROR08"),
+        ((), "COMM:90000", b"ERROR06"),
+        (("INIT:", "PINIT:01", "PENA:01D", "TSTART:"), "TSTART:", b"ERROR0C"),
+    ],
+)
+def test_errors_a_tracker_gives(dev, setup, text, code):
+    for s in setup:
+        ask(dev, s)
+    reply = ask(dev, text)
+    assert reply[:7] == code and ok_crc(reply)
+
+
+def test_phsr_lists_handles_by_state(dev):
+    ask(dev, "INIT:")
+    assert ask(dev, "PHSR:02")[:-5] == b"0101001"
+    assert ask(dev, "PHSR:04")[:-5] == b"00"
+    ask(dev, "PINIT:01")
+    assert ask(dev, "PHSR:03")[:-5] == b"0101011"
+    ask(dev, "PENA:01D")
+    assert ask(dev, "PHSR:04")[:-5] == b"0101031"
+    assert ask(dev, "PHSR:01")[:-5] == b"00"
+
+
+def test_comm_switches_baud_and_a_wrong_rate_loses_the_bytes(dev):
+    assert ask(dev, "COMM:50000", baud=9600)[:4] == b"OKAY"
+    assert dev.baud == 115200
+    assert ask(dev, "INIT:", baud=9600, timeout=0.05) == b""  # framing errors: nothing understood
+    assert dev.framing_errors == 1
+    assert ask(dev, "INIT:", baud=115200)[:4] == b"OKAY"
+
+
+def test_tx_reply_format_and_values(dev, robot):
+    tracking(dev)
+    reply = ask(dev, "TX:0001")
+    m = TX_POSE.fullmatch(reply)
+    assert m, reply
+    assert crc16_hex(reply[:-5]) == m.group(13)
+    p, q, rms = dev.last_sent[1]
+    g = m.groups()
+    np.testing.assert_allclose([int(v) * 1e-4 for v in g[1:5]], q, atol=0.5e-4 + 1e-12)
+    np.testing.assert_allclose([int(v) * 0.01 for v in g[5:8]], p, atol=0.005 + 1e-9)
+    assert int(g[8]) * 1e-4 == pytest.approx(rms, abs=0.5e-4)
+    assert int(g[9], 16) == 0x31 and int(g[11], 16) == 0
+
+
+def test_one_measurement_per_frame(robot):
+    clock = FakeClock()
+    dev = tracking(MockNDITracker(robot, frame_rate_hz=60.0, clock=clock))
+    a, b = ask(dev, "TX:0001"), ask(dev, "TX:0001")
+    assert a == b  # same frame: same reading, as from a real tracker
+    clock.t += 1.5 / 60  # into the next frame
+    c = ask(dev, "TX:0001")
+    assert (
+        c != a
+        and int(TX_POSE.fullmatch(c).group(11), 16) == int(TX_POSE.fullmatch(a).group(11), 16) + 1
+    )
+
+
+def test_missing_and_out_of_volume(dev, robot):
+    tracking(dev)
+    robot.tool_visible = False
+    reply = ask(dev, "TX:0001")
+    assert re.fullmatch(rb"0101MISSING00000031[0-9A-F]{8}\n0000[0-9A-F]{4}\r", reply)
+    robot.tool_visible = True
+    robot.move_to([0.0, 0.0, 3500.0], np.eye(3))
+    time.sleep(0.002)  # next frame
+    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x31 | 0x40
+    robot.move_to([0.0, 0.0, 2980.0], np.eye(3))
+    time.sleep(0.002)
+    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x31 | 0x80
+
+
+def test_bx_reply_format(dev):
+    tracking(dev)
+    reply = ask(dev, "BX:0001")
+    assert reply[:2] == b"\xc4\xa5"
+    length, hcrc = struct.unpack_from("<HH", reply, 2)
+    assert hcrc == crc16(reply[:4]) and len(reply) == 6 + length + 2
+    body = reply[6:-2]
+    assert struct.unpack("<H", reply[-2:])[0] == crc16(body)
+    assert body[:3] == b"\x01\x01\x01"
+    values = struct.unpack_from("<8f", body, 3)
+    p, q, rms = dev.last_sent[1]
+    np.testing.assert_allclose(values[:4], q, atol=1e-6)
+    np.testing.assert_allclose(values[4:7], p, rtol=1e-6)
+    assert values[7] == pytest.approx(rms, rel=1e-6)
+    status, _frame = struct.unpack_from("<II", body, 35)
+    assert status == 0x31 and struct.unpack_from("<H", body, 43)[0] == 0 and len(body) == 45
+
+
+def test_formatters_missing_disabled_and_saturation():
+    tools = [
+        ToolState(1, (np.array([1e6, -1.0, 0.0]), np.array([1.0, 0, 0, 0]), 0.2), 0x31, 7),
+        ToolState(2, None, 0x31, 7),
+        ToolState(3, None, 0, 0, disabled=True),
+    ]
+    payload = format_tx_reply(tools, 0x0010)[:-5]
+    assert payload.split(b"\n")[0][2:].startswith(
+        b"01+10000+00000+00000+00000+999999-000100+000000+02000"
+    )
+    assert payload.split(b"\n")[1:] == [b"02MISSING0000003100000007", b"03DISABLED", b"0010"]
+    bx = format_bx_reply(tools)
+    assert bx[6] == 3 and len(bx) == 6 + (1 + 42 + 10 + 2 + 2) + 2
+
+
+# -- faults --------------------------------------------------------------------------------------
+def test_injected_faults(dev):
+    tracking(dev)
+    good = ask(dev, "TX:0001")
+    dev.inject("drop")
+    assert ask(dev, "TX:0001", timeout=0.05) == b""
+    dev.inject("garble")
+    garbled = ask(dev, "TX:0001")
+    assert len(garbled) == len(good) and garbled.endswith(b"\r") and not ok_crc(garbled)
+    dev.inject("crc")
+    bad = ask(dev, "TX:0001")
+    assert not ok_crc(bad) and TX_POSE.fullmatch(bad)  # content intact, CRC field wrong
+    dev.inject("truncate")
+    cut = ask(dev, "TX:0001")
+    assert len(cut) == len(good) // 2 and b"\r" not in cut
+    assert ok_crc(ask(dev, "TX:0001"))  # one-shot faults are used up
+    with pytest.raises(ValueError, match="unknown fault"):
+        dev.inject("smoke")
+
+
+def test_faults_touch_only_tracking_replies(dev):
+    dev.configure(drop=1.0)
+    assert ok_crc(ask(dev, "INIT:"))
+    dev.configure(drop=0.0, garble=1.0)
+    for text in ("PINIT:01", "PENA:01D", "TSTART:"):
+        assert ok_crc(ask(dev, text))
+    reply = ask(dev, "BX:0001")
+    assert reply[:2] == b"\xc4\xa5" and crc16(reply[6:-2]) != struct.unpack("<H", reply[-2:])[0]
+    with pytest.raises(ValueError, match="unknown fault setting"):
+        dev.configure(smoke=1.0)
+
+
+def test_reply_delay_jitter_and_order(dev):
+    tracking(dev)
+    dev.faults = FaultSettings(delay_s=0.03, jitter_s=0.02)
+    t0 = time.monotonic()
+    dev.feed(cmd("TX:0001") + cmd("BX:0001"))
+    first = dev.read(100_000, 1.0)
+    assert 0.03 <= time.monotonic() - t0 < 0.5
+    assert TX_POSE.fullmatch(first)  # the TX reply comes before the BX one, whatever the jitter
+    assert dev.read(100_000, 1.0)[:2] == b"\xc4\xa5"
+
+
+def test_discard_input_keeps_what_is_in_flight(dev):
+    tracking(dev)
+    dev.configure(delay_s=0.05)
+    dev.feed(cmd("TX:0001"))
+    dev.discard_input()  # the host flushes before the late reply arrives
+    assert TX_POSE.fullmatch(dev.read(100_000, 0.5))
+
+
+# -- URL handler -------------------------------------------------------------------------------------
+def test_url_default_device_and_options():
+    port = serial.serial_for_url(
+        "ndimock://?seed=11&frame_rate=250&delay_ms=2&jitter_ms=1", timeout=0.1
+    )
+    try:
+        dev = device_for_url("ndimock://?seed=11")
+        assert dev.frame_rate_hz == 250.0 and dev.faults.delay_s == pytest.approx(0.002)
+        port.send_break(0.001)
+        assert port.read(10) == b"RESETBE6F\r"
+        port.write(cmd("INIT:"))
+        assert port.read(100)[:4] == b"OKAY"
+    finally:
+        port.close()
+        dev.configure(delay_s=0, jitter_s=0)
+
+
+@pytest.mark.parametrize(
+    "url, match",
+    [
+        ("ndimock://?bogus=1", "unknown option 'bogus'"),
+        ("ndimock://?drop=x", "not a number"),
+        ("ndimock://?drop=-1", "non-negative"),
+        ("ndimock://nobody", "register_robot"),
+    ],
+)
+def test_url_errors_are_explicit(url, match):
+    with pytest.raises(serial.SerialException, match=match):
+        serial.serial_for_url(url)
+
+
+def test_registered_robot_unplug_and_replug(robot):
+    name = f"bench{next(_names)}"
+    dev = register_robot(name, robot, frame_rate_hz=500.0)
+    try:
+        assert get_device(name) is dev
+        with pytest.raises(serial.SerialException, match="only"):
+            serial.serial_for_url(f"ndimock://{name}?seed=1")
+        port = serial.serial_for_url(f"ndimock://{name}", timeout=0.05)
+        port.write(cmd("RESET:0"))
+        assert port.read(20) == b"RESETBE6F\r"
+        dev.unplug()
+        with pytest.raises(serial.SerialException, match="disconnected"):
+            port.write(cmd("INIT:"))
+        with pytest.raises(serial.SerialException, match="unplugged"):
+            serial.serial_for_url(f"ndimock://{name}")
+        dev.replug()
+        with pytest.raises(serial.SerialException):  # the old port stays dead, as a vanished tty
+            port.read(1)
+        port.close()
+        port = serial.serial_for_url(f"ndimock://{name}", timeout=0.05)
+        port.write(cmd("RESET:0"))
+        assert port.read(20) == b"RESETBE6F\r"
+        port.close()
+    finally:
+        unregister(name)
+    with pytest.raises(KeyError, match=name):
+        get_device(name)
+
+
+def test_url_read_honours_timeout(dev):
+    name = f"quiet{next(_names)}"
+    from hexcal.mock_hw.ndi_tracker import register_device
+
+    register_device(name, dev)
+    try:
+        with serial.serial_for_url(f"ndimock://{name}", timeout=0.05) as port:
+            t0 = time.monotonic()
+            assert port.read(5) == b""
+            assert 0.04 <= time.monotonic() - t0 < 0.5
+            assert port.in_waiting == 0
+    finally:
+        unregister(name)
+
+
+# -- pty bridge --------------------------------------------------------------------------------------
+def test_pty_serves_resets_and_sees_the_host_baud(dev):
+    with PtyTracker(dev) as pty:
+        path = pty.device_path
+        assert os.path.islink(path) and os.readlink(path).startswith("/dev/pts/")
+        with serial.Serial(path, 9600, timeout=0.5) as port:
+            port.write(cmd("RESET:0"))
+            assert port.read_until(b"\r") == b"RESETBE6F\r"
+            port.write(cmd("COMM:50000"))
+            assert port.read_until(b"\r")[:4] == b"OKAY"
+            port.timeout = 0.05
+            port.write(cmd("INIT:"))  # still at 9600: the tracker hears noise
+            assert port.read(10) == b""
+            assert dev.framing_errors == 1
+            port.baudrate = 115200
+            port.timeout = 0.5
+            port.write(cmd("INIT:"))
+            assert port.read_until(b"\r")[:4] == b"OKAY"
+        thread = pty._thread
+    assert not thread.is_alive()
+    assert not os.path.exists(path)
+
+
+def test_pty_unplug_and_replug_keep_the_path(dev):
+    with PtyTracker(dev) as pty:
+        path = pty.device_path
+        port = serial.Serial(path, 9600, timeout=0.2)
+        pty.unplug()
+        assert not os.path.exists(path) and not pty.plugged
+        with pytest.raises(serial.SerialException):
+            port.write(b"RESET 0\r")
+        port.close()
+        pty.replug()
+        assert os.path.islink(path) and pty.plugged
+        with serial.Serial(path, 9600, timeout=0.5) as port:
+            port.write(b"RESET 0\r")
+            assert port.read_until(b"\r") == b"RESETBE6F\r"
