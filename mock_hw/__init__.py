@@ -1,5 +1,11 @@
 """Mock hardware (installed as ``hexcal.mock_hw``): simulated devices behind the real transports.
 
-The simulated robot they replay is :mod:`hexcal.simulate`; the device front-ends arrive with
-issue 4.
+One :class:`~hexcal.mock_hw.robot.MockRobot` (true geometry, hidden effects, noise) drives a mock
+NDI tracker — reachable as ``ndimock://`` through pyserial's URL handlers, or through a real
+pseudo-terminal — and six mock CANopen encoder nodes on python-can's virtual bus. Importing this
+package registers the ``ndimock://`` scheme with pyserial.
 """
+
+from hexcal.mock_hw.ndi_tracker import install_url_handler
+
+install_url_handler()

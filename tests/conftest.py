@@ -72,3 +72,27 @@ def backlash_diagnoses():
     before = diagnose(meas, design, 42, instruments=inst)
     after = diagnose(meas, design, 42, add=["backlash"], problem=before.problem, instruments=inst)
     return before, after, meas, design
+
+
+def pytest_addoption(parser):
+    """Point the device contract tests at real hardware (they run against the mocks anyway)."""
+    parser.addoption(
+        "--tracker-port", help="serial URL of a real NDI tracker (or HEXCAL_TRACKER_PORT)"
+    )
+    parser.addoption(
+        "--can-interface", help="python-can interface of a real bus (or HEXCAL_CAN_INTERFACE)"
+    )
+    parser.addoption(
+        "--can-channel", help="python-can channel of a real bus (or HEXCAL_CAN_CHANNEL)"
+    )
+
+
+def pytest_configure(config):
+    for opt, var in (
+        ("--tracker-port", "HEXCAL_TRACKER_PORT"),
+        ("--can-interface", "HEXCAL_CAN_INTERFACE"),
+        ("--can-channel", "HEXCAL_CAN_CHANNEL"),
+    ):
+        value = config.getoption(opt)
+        if value:
+            os.environ[var] = value

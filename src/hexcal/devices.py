@@ -49,6 +49,9 @@ class TrackerConfig(BaseModel):
     url: str = Field(..., description="a device path, socket://host:port or a mock URL")
     baudrate: int = Field(115200, gt=0)
     timeout_s: float = Field(1.0, gt=0)
+    #: "break" for a real serial port, "command" (RESET:0) where a BREAK cannot pass (a pty, a
+    #: socket), "auto" to try the BREAK first.
+    reset: Literal["auto", "break", "command"] = "auto"
 
 
 class StillConfig(BaseModel):
