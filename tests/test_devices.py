@@ -48,3 +48,19 @@ def test_errors_name_file_and_field(tmp_path, text, match):
 def test_missing_file(tmp_path):
     with pytest.raises(DevicesConfigError, match="no such file"):
         load_devices_config(tmp_path / "absent.toml")
+
+
+def test_devices_check_on_the_mock_rig(capsys):
+    from hexcal.cli import main
+
+    assert main(["devices", "check", "--mock"]) == 0
+    out = capsys.readouterr().out
+    assert "tool 01: tracked at" in out
+    assert out.count("OPERATIONAL") == 6 and "all devices answer" in out
+
+
+def test_devices_check_needs_a_config_or_mock(capsys):
+    from hexcal.cli import EXIT_INPUT, main
+
+    assert main(["devices", "check"]) == EXIT_INPUT
+    assert "--config FILE" in capsys.readouterr().err

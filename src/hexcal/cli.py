@@ -129,6 +129,26 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_devices(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from hexcal.devices import load_devices_config
+    from hexcal.devices_check import check_devices, mock_rig
+
+    if args.mock:
+        ctx = mock_rig()
+    else:
+        if not args.config:
+            raise ValueError(
+                "hexcal devices check needs --config FILE (the rig's device TOML) or --mock"
+            )
+        ctx = contextlib.nullcontext(load_devices_config(args.config))
+    with ctx as cfg:
+        ok, lines = check_devices(cfg)
+    print("\n".join(lines))
+    return 0 if ok else 1
+
+
 def _cmd_study(args: argparse.Namespace) -> int:
     from hexcal.simulate import PoseRanges
     from hexcal.study import StudyConfig, factor_table, plot, run_study, to_json, write_csv
@@ -246,6 +266,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--residuals", help="write predicted against measured for every pose and leg (CSV)"
     )
     d.set_defaults(func=_cmd_diagnose)
+
+    dv = sub.add_parser("devices", help="the rig's devices")
+    dv_sub = dv.add_subparsers(dest="devices_command", required=True)
+    chk = dv_sub.add_parser(
+        "check", help="connect to the tracker and the encoders and report what answers"
+    )
+    chk.add_argument("--config", type=Path, help="the rig's device configuration (TOML)")
+    chk.add_argument(
+        "--mock", action="store_true", help="check a simulated rig through the real drivers"
+    )
+    chk.set_defaults(func=_cmd_devices)
 
     s = sub.add_parser(
         "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"
