@@ -187,4 +187,6 @@ def test_residual_table_has_every_pose_and_leg(backlash_diagnoses, tmp_path):
     rows = list(csv.DictReader(path.open()))
     assert len(rows) == 6 * len(meas)
     r = rows[7]
-    assert float(r["measured_mm"]) - float(r["predicted_mm"]) == pytest.approx(float(r["residual_um"]) / 1000, abs=1e-6)
+    assert float(r["measured_mm"]) - float(r["predicted_mm"]) == pytest.approx(
+        float(r["residual_um"]) / 1000, abs=1e-6
+    )
