@@ -77,8 +77,8 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
         f"leg encoders on {cfg.can.interface} channel {cfg.can.channel!r}, {cfg.can.bitrate // 1000} kbit/s:"
     )
     try:
-        with LegEncoders(cfg.can) as enc:
-            enc.start(timeout=2.0)
+        enc = LegEncoders(cfg.can).start(timeout=2.0)
+        try:
             rs = enc.read_set(timeout=2.0)
             st = enc.status()
             for leg in st["legs"]:
@@ -93,6 +93,8 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
                 f"  bus {st['bus_state']}, {st['error_frames']} error frames; last set complete: {rs.complete}"
             )
             ok &= rs.complete
+        finally:
+            enc.stop()
     except EncoderError as exc:
         ok = False
         lines.append(f"  FAILED: {exc}")
