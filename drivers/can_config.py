@@ -19,6 +19,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from hexcal.validation import format_validation_error
+
 #: COB-ID bases of the CANopen services the driver uses (CiA 301 predefined connection set).
 NMT_COB_ID = 0x000
 SYNC_COB_ID = 0x080
@@ -193,16 +195,6 @@ def load_can_config(path: str | Path) -> CanBusConfig:
         return CanBusConfig.model_validate(data)
     except ValidationError as exc:
         raise CanConfigError(format_validation_error(exc, str(path))) from None
-
-
-def format_validation_error(exc: ValidationError, where: str = "CAN config") -> str:
-    """One line per problem: ``<where>: field legs.2.node_id: <what is wrong>``."""
-    lines = []
-    for err in exc.errors():
-        field = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = err["msg"].removeprefix("Value error, ")
-        lines.append(f"{where}: field {field}: {msg}")
-    return "\n".join(lines)
 
 
 __all__ = [

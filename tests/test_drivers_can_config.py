@@ -74,7 +74,7 @@ def test_legs_are_sorted_by_leg():
 def _message(**data) -> str:
     with pytest.raises(ValidationError) as exc:
         CanBusConfig.model_validate(data)
-    return format_validation_error(exc.value)
+    return format_validation_error(exc.value, "CAN config")
 
 
 @pytest.mark.parametrize(

@@ -36,7 +36,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from hexcal.acquisition import StillWindow
-from hexcal.drivers.can_config import CanBusConfig, default_can_config, format_validation_error
+from hexcal.drivers.can_config import CanBusConfig, default_can_config
+from hexcal.validation import format_validation_error
 
 
 class DevicesConfigError(ValueError):

@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from hexcal.fileio import write_text_atomic
+from hexcal.validation import format_validation_error
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
@@ -112,11 +113,7 @@ def load_robot(path: str | Path) -> Robot:
     try:
         return Robot.model_validate(data)
     except ValidationError as exc:
-        lines = []
-        for err in exc.errors():
-            field = ".".join(str(p) for p in err["loc"]) or "(top level)"
-            lines.append(f"{path}: field {field}: {err['msg']}")
-        raise RobotFileError("\n".join(lines)) from None
+        raise RobotFileError(format_validation_error(exc, str(path))) from None
 
 
 def save_robot(robot: Robot, path: str | Path) -> None:
