@@ -57,6 +57,7 @@ def test_devices_check_on_the_mock_rig(capsys):
     out = capsys.readouterr().out
     assert "tool 01: tracked at" in out
     assert out.count("OPERATIONAL") == 6 and "all devices answer" in out
+    assert "of 50 reading sets complete" in out
 
 
 def test_devices_check_needs_a_config_or_mock(capsys):
@@ -64,3 +65,30 @@ def test_devices_check_needs_a_config_or_mock(capsys):
 
     assert main(["devices", "check"]) == EXIT_INPUT
     assert "--config FILE" in capsys.readouterr().err
+
+
+def test_devices_check_fails_when_many_sets_are_flagged():
+    """TPDOs jittered past max_tpdo_delay_s flag most sets: the check names the fault and fails."""
+    from hexcal.devices import DevicesConfig, TrackerConfig
+    from hexcal.devices_check import check_devices
+    from hexcal.drivers.can_config import default_can_config
+    from hexcal.mock_hw.can_encoders import MockEncoderNodes
+    from hexcal.mock_hw.ndi_tracker import register_robot, unregister
+    from hexcal.mock_hw.robot import MockRobot
+    from hexcal.study import left_hand
+
+    robot = MockRobot(left_hand(), seed=0)
+    register_robot("jittery", robot)
+    can_cfg = default_can_config(channel="hexcal-jittery")
+    nodes = MockEncoderNodes(robot, can_cfg, jitter_s=0.009).start()
+    try:
+        cfg = DevicesConfig(
+            tracker=TrackerConfig(url="ndimock://jittery", reset="command"), can=can_cfg
+        )
+        ok, lines = check_devices(cfg)
+    finally:
+        nodes.stop()
+        unregister("jittery")
+    text = "\n".join(lines)
+    assert not ok
+    assert "arrived" in text and "after SYNC" in text and "sets are flagged" in text

@@ -39,6 +39,13 @@ def mock_rig(seed: int = 0) -> Iterator[DevicesConfig]:
         unregister(name)
 
 
+#: Reading sets read by the check (0.5 s at the default 100 Hz SYNC).
+N_CHECK_SETS = 50
+#: Share of flagged sets above which the check fails: acquisition refuses a still window that
+#: holds any flagged set, so a few per cent only costs retries, tens of per cent stall it.
+MAX_FLAGGED_SHARE = 0.10
+
+
 def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
     """(all good, report lines): connect to the tracker and the encoders and read from both."""
     from hexcal.drivers.can_encoders import EncoderError, LegEncoders
@@ -79,7 +86,10 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
     try:
         enc = LegEncoders(cfg.can).start(timeout=2.0)
         try:
-            rs = enc.read_set(timeout=2.0)
+            # Several sets, not one: a single late frame (a busy computer, a loaded bus) flags one
+            # set, and the operator should see the rate, not a coin toss.
+            sets = [enc.read_set(timeout=2.0) for _ in range(N_CHECK_SETS)]
+            rs = sets[-1]
             st = enc.status()
             for leg in st["legs"]:
                 k = leg["leg"] - 1
@@ -89,10 +99,21 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
                     f"reading {rs.readings_mm[k]:.4f} mm"
                 )
                 ok &= bool(leg["alive"])
+            flagged = [s for s in sets if not s.complete]
             lines.append(
-                f"  bus {st['bus_state']}, {st['error_frames']} error frames; last set complete: {rs.complete}"
+                f"  bus {st['bus_state']}, {st['error_frames']} error frames; "
+                f"{len(sets) - len(flagged)} of {len(sets)} reading sets complete"
             )
-            ok &= rs.complete
+            for s in flagged[:3]:
+                lines.append(f"  set {s.index}: {s.faults[0] if s.faults else 'incomplete'}")
+            if len(flagged) > 3:
+                lines.append(f"  ... and {len(flagged) - 3} more flagged sets")
+            if len(flagged) > MAX_FLAGGED_SHARE * len(sets):
+                ok = False
+                lines.append(
+                    f"  more than {MAX_FLAGGED_SHARE:.0%} of the sets are flagged: poses would be "
+                    "refused often — fix what the flags name before calibrating"
+                )
         finally:
             enc.stop()
     except EncoderError as exc:
