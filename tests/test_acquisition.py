@@ -66,20 +66,39 @@ def test_motion_refuses_the_pose(kwargs, match):
         record_pose(ts, ls, WINDOW, t_end=0.5)
 
 
-def test_fault_refuses_the_pose():
+def test_a_lasting_fault_refuses_the_pose():
     ts, ls = _samples()
-    ts[7] = TrackerSample(ts[7].t, None, None, fault="tool 01 MISSING (out of the tracker's view)")
-    with pytest.raises(PoseRefused, match="MISSING"):
+    for i in (3, 7, 11):  # 3 of 20 flagged: more than max_fault_share (10 %)
+        ts[i] = TrackerSample(
+            ts[i].t, None, None, fault="tool 01 MISSING (out of the tracker's view)"
+        )
+    with pytest.raises(PoseRefused, match=r"3 of 20 tracker samples flagged\): tool 01 MISSING"):
         record_pose(ts, ls, WINDOW, t_end=0.5)
     ts, ls = _samples()
-    ls[3] = LegSample(ls[3].t, np.r_[np.full(5, 60.0), np.nan])
-    with pytest.raises(PoseRefused, match="incomplete"):
+    for i in (3, 4, 5):
+        ls[i] = LegSample(ls[i].t, np.r_[np.full(5, 60.0), np.nan], ("leg 6 sent no position",))
+    with pytest.raises(PoseRefused, match=r"3 of 20 leg reading sets flagged\): leg 6 sent no"):
         record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+def test_a_glitch_is_left_out_and_noted():
+    """One flagged sample of 20 (a late CAN set, a frame with a CRC error) is left out of the
+    average, named in the notes, and kept with the raw samples."""
+    ts, ls = _samples()
+    ts[7] = TrackerSample(ts[7].t, None, None, fault="CRC error in the reply to BX")
+    ls[3] = LegSample(ls[3].t, np.r_[np.full(5, 60.0), 999.0], ("leg 6 arrived 7 ms after SYNC",))
+    pose = record_pose(ts, ls, WINDOW, t_end=0.5)
+    assert np.allclose(pose.readings, 60.0, atol=0.001)  # the flagged 999 is not averaged in
+    assert len(pose.tracker_samples) == 20 and len(pose.good_tracker_samples) == 19
+    assert len(pose.leg_samples) == 20 and len(pose.good_leg_samples) == 19
+    assert any("CRC error" in n for n in pose.notes) and any(
+        "7 ms after SYNC" in n for n in pose.notes
+    )
 
 
 def test_too_few_samples():
     ts, ls = _samples(n=3)
-    with pytest.raises(PoseRefused, match=r"tracker gave 3 samples"):
+    with pytest.raises(PoseRefused, match=r"tracker gave 3 good samples"):
         record_pose(ts, ls, WINDOW, t_end=0.5)
 
 

@@ -2,10 +2,13 @@
 
 Both streams are timestamped on arrival with one monotonic clock (``time.monotonic``). A pose is
 recorded from a *still window*: every tracker sample and every leg-reading set whose arrival
-time falls in ``[t_end − duration, t_end]``. It is refused — never silently kept — when the
-platform or a leg moved during the window (spreads above the thresholds), when a device
-reported a fault, or when a stream delivered too few samples. The raw samples behind each
-recorded pose are kept for the session file.
+time falls in ``[t_end − duration, t_end]``. Samples a device flagged (a tool MISSING for a
+frame, a CRC error, a CAN set with a late or lost position) are left out of the average and
+named in the pose's ``notes``; the pose is refused — never silently kept — when more than
+``max_fault_share`` of either stream was flagged (the fault lasted, it was not a glitch), when
+the platform or a leg moved during the window (spreads above the thresholds), or when a stream
+delivered too few good samples. The raw samples behind each recorded pose, flagged ones
+included, are kept for the session file.
 
 The sources are small interfaces (:class:`PoseSource`, :class:`LegSource`); the serial tracker
 and CAN encoder drivers implement them, and so do test doubles.
@@ -70,6 +73,8 @@ class StillWindow:
     max_reading_spread_mm: float = 0.01
     min_tracker_samples: int = 5
     min_leg_samples: int = 5
+    #: Largest share of a stream's samples in the window that may be flagged and left out.
+    max_fault_share: float = 0.1
 
 
 @dataclass
@@ -86,6 +91,17 @@ class RecordedPose:
     angle_spread_deg: float = 0.0
     reading_spread_mm: float = 0.0
     alignment_s: float = 0.0  #: difference between the two streams' mean sample times
+    notes: tuple[str, ...] = ()  #: flagged samples left out of the average, and why
+
+    @property
+    def good_tracker_samples(self) -> list[TrackerSample]:
+        """The tracker samples averaged into the pose (the flagged ones left out)."""
+        return [s for s in self.tracker_samples if not s.fault and s.position is not None]
+
+    @property
+    def good_leg_samples(self) -> list[LegSample]:
+        """The leg reading sets averaged into the pose (the flagged ones left out)."""
+        return [s for s in self.leg_samples if s.complete]
 
 
 class PoseRefused(Exception):
@@ -97,31 +113,39 @@ def record_pose(
 ) -> RecordedPose:
     """The recorded pose from the samples in ``[t_end − duration, t_end]``, or PoseRefused."""
     t0 = t_end - window.duration_s
-    ts = [s for s in tracker if t0 <= s.t <= t_end]
-    ls = [s for s in legs if t0 <= s.t <= t_end]
-    faults = [s.fault for s in ts if s.fault] + [f for s in ls for f in s.faults]
-    if faults:
-        uniq = list(dict.fromkeys(faults))
-        raise PoseRefused(
-            "a device reported a fault during the pose: "
-            + "; ".join(uniq[:3])
-            + " — fix it and record again"
-        )
+    ts_all = [s for s in tracker if t0 <= s.t <= t_end]
+    ls_all = [s for s in legs if t0 <= s.t <= t_end]
+    ts = [s for s in ts_all if not s.fault and s.position is not None]
+    ls = [s for s in ls_all if s.complete]
+    t_faults = [s.fault or "no pose" for s in ts_all if s.fault or s.position is None]
+    l_faults = [f for s in ls_all if not s.complete for f in (s.faults or ("set incomplete",))]
+    for name, bad, n_all, faults in (
+        ("tracker samples", len(ts_all) - len(ts), len(ts_all), t_faults),
+        ("leg reading sets", len(ls_all) - len(ls), len(ls_all), l_faults),
+    ):
+        if bad and bad > window.max_fault_share * n_all:
+            uniq = list(dict.fromkeys(faults))
+            raise PoseRefused(
+                f"a device reported a fault during the pose ({bad} of {n_all} {name} flagged): "
+                + "; ".join(uniq[:3])
+                + " — fix it and record again"
+            )
     if len(ts) < window.min_tracker_samples:
         raise PoseRefused(
-            f"the tracker gave {len(ts)} samples in {window.duration_s:g} s (need {window.min_tracker_samples}): "
+            f"the tracker gave {len(ts)} good samples in {window.duration_s:g} s (need {window.min_tracker_samples}): "
             "is it tracking the platform's tool?"
         )
     if len(ls) < window.min_leg_samples:
         raise PoseRefused(
-            f"the leg encoders gave {len(ls)} reading sets in {window.duration_s:g} s (need {window.min_leg_samples}): "
+            f"the leg encoders gave {len(ls)} good reading sets in {window.duration_s:g} s (need {window.min_leg_samples}): "
             "is the CAN bus running?"
         )
-    incomplete = [s for s in ls if not s.complete]
-    if incomplete:
-        raise PoseRefused(
-            f"{len(incomplete)} reading sets were incomplete during the pose — check the encoders and record again"
-        )
+    notes = tuple(
+        f"{len(ts_all) - len(ts) if kind == 'tracker' else len(ls_all) - len(ls)} flagged {kind} "
+        f"sample(s) left out: {'; '.join(list(dict.fromkeys(f))[:2])}"
+        for kind, f in (("tracker", t_faults), ("leg", l_faults))
+        if f
+    )
     P = np.array([s.position for s in ts])
     rot = Rotation.from_quat(np.array([s.quaternion for s in ts]), scalar_first=True)
     mean_rot = rot.mean()
@@ -147,12 +171,13 @@ def record_pose(
         position=P.mean(axis=0),
         quaternion=mean_rot.as_quat(scalar_first=True),
         readings=rho.mean(axis=0),
-        tracker_samples=ts,
-        leg_samples=ls,
+        tracker_samples=ts_all,
+        leg_samples=ls_all,
         position_spread_mm=pos_spread,
         angle_spread_deg=angle,
         reading_spread_mm=rho_spread,
         alignment_s=float(np.mean([s.t for s in ts]) - np.mean([s.t for s in ls])),
+        notes=notes,
     )
 
 

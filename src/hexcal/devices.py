@@ -61,6 +61,9 @@ class StillConfig(BaseModel):
     max_position_spread_mm: float = Field(0.05, gt=0)
     max_angle_spread_deg: float = Field(0.01, gt=0)
     max_reading_spread_mm: float = Field(0.01, gt=0)
+    min_tracker_samples: int = Field(5, ge=1)
+    min_leg_samples: int = Field(5, ge=1)
+    max_fault_share: float = Field(0.1, ge=0, le=1)
 
     def window(self) -> StillWindow:
         return StillWindow(**self.model_dump())

@@ -8,35 +8,21 @@ real drivers talk to them through their real transports.
 from __future__ import annotations
 
 import contextlib
-import uuid
 from collections.abc import Iterator
 
 import numpy as np
 
-from hexcal.devices import DevicesConfig, TrackerConfig
+from hexcal.devices import DevicesConfig
 
 
 @contextlib.contextmanager
 def mock_rig(seed: int = 0) -> Iterator[DevicesConfig]:
-    """A running simulated rig and the device configuration that reaches it."""
-    from hexcal.drivers.can_config import default_can_config
-    from hexcal.mock_hw.can_encoders import MockEncoderNodes
-    from hexcal.mock_hw.ndi_tracker import register_robot, unregister
-    from hexcal.mock_hw.robot import MockRobot
-    from hexcal.study import left_hand
+    """A running simulated rig (:func:`hexcal.mock_hw.rig.mock_rig`) and the device
+    configuration that reaches it."""
+    from hexcal.mock_hw.rig import mock_rig as start_rig
 
-    name = f"rig{uuid.uuid4().hex[:8]}"
-    robot = MockRobot(left_hand(), seed=seed)
-    register_robot(name, robot)
-    can_cfg = default_can_config(channel=f"hexcal-{name}")
-    nodes = MockEncoderNodes(robot, can_cfg).start()
-    try:
-        yield DevicesConfig(
-            tracker=TrackerConfig(url=f"ndimock://{name}", reset="command"), can=can_cfg
-        )
-    finally:
-        nodes.stop()
-        unregister(name)
+    with start_rig(seed=seed) as rig:
+        yield rig.config
 
 
 #: Reading sets read by the check (0.5 s at the default 100 Hz SYNC).

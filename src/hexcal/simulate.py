@@ -225,11 +225,16 @@ class Simulator:
         return self._fill(rng, shape, draw)
 
     def type_ii(
-        self, k: int, shape: tuple[int, ...], rng: np.random.Generator
+        self,
+        k: int,
+        shape: tuple[int, ...],
+        rng: np.random.Generator,
+        point: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Type II poses of leg k: direction and length clamped, B_k fixed in space. (P, R)."""
+        """Type II poses of leg k: direction and length clamped, B_k fixed in space (at
+        ``point`` (3,) mm; default: where it is at home). (P, R)."""
         u, l0 = self.home_leg(k)
-        c = self.robot.a[k] + l0 * u
+        c = self.robot.a[k] + l0 * u if point is None else np.asarray(point, float)
         b = self.robot.b[k]
 
         def draw(g, sh):
@@ -239,10 +244,18 @@ class Simulator:
         return self._fill(rng, shape, draw)
 
     def type_iii(
-        self, k: int, shape: tuple[int, ...], rng: np.random.Generator
+        self,
+        k: int,
+        shape: tuple[int, ...],
+        rng: np.random.Generator,
+        length: float | None = None,
+        axis: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Type III poses of leg k: length clamped, direction free within the cone. (P, R)."""
+        """Type III poses of leg k: length clamped (at ``length`` mm, default its home length),
+        direction free within the cone about ``axis`` (default the home direction). (P, R)."""
         u0, l0 = self.home_leg(k)
+        l0 = l0 if length is None else float(length)
+        u0 = u0 if axis is None else _unit(np.asarray(axis, float))
         a, b = self.robot.a[k], self.robot.b[k]
 
         def draw(g, sh):

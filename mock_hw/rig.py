@@ -1,0 +1,75 @@
+"""A whole simulated rig: one robot, its tracker, its six encoders and its motion controller.
+
+:func:`mock_rig` starts everything and yields a :class:`MockRig` whose ``config`` reaches the
+devices through the real transports (``ndimock://`` for the tracker, python-can's virtual bus
+for the encoders), so whatever opens a real rig from a :class:`~hexcal.devices.DevicesConfig`
+opens this one unchanged.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import uuid
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from hexcal.devices import DevicesConfig, TrackerConfig
+from hexcal.drivers.can_config import default_can_config
+from hexcal.mock_hw.can_encoders import MockEncoderNodes
+from hexcal.mock_hw.motion import MockMotionController
+from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregister
+from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
+from hexcal.robot import Robot
+from hexcal.simulate import LengthEffect, NoiseModel, PoseRanges
+
+
+@dataclass
+class MockRig:
+    """The running simulated rig: ``robot`` (the truth), ``tracker`` (mock NDI device),
+    ``nodes`` (mock encoders), ``motion`` (mock motion controller), ``config`` (how to reach
+    the devices)."""
+
+    robot: MockRobot
+    tracker: MockNDITracker
+    nodes: MockEncoderNodes
+    motion: MockMotionController
+    config: DevicesConfig
+    name: str
+
+
+@contextlib.contextmanager
+def mock_rig(
+    truth: Robot | None = None,
+    *,
+    seed: int = 0,
+    noise: NoiseModel = DEFAULT_NOISE,
+    effects: Sequence[LengthEffect] = (),
+    ranges: PoseRanges | None = None,
+    tracker_kwargs: dict[str, Any] | None = None,
+    encoder_kwargs: dict[str, Any] | None = None,
+) -> Iterator[MockRig]:
+    """Start a simulated rig (default truth: the left-hand design) and stop it on exit."""
+    if truth is None:
+        from hexcal.study import left_hand
+
+        truth = left_hand()
+    name = f"rig{uuid.uuid4().hex[:8]}"
+    robot = MockRobot(truth, noise=noise, effects=effects, seed=seed)
+    tracker = register_robot(name, robot, seed=seed, **(tracker_kwargs or {}))
+    can_cfg = default_can_config(channel=f"hexcal-{name}")
+    nodes = MockEncoderNodes(robot, can_cfg, seed=seed, **(encoder_kwargs or {})).start()
+    try:
+        yield MockRig(
+            robot,
+            tracker,
+            nodes,
+            MockMotionController(robot, ranges, seed=seed),
+            DevicesConfig(
+                tracker=TrackerConfig(url=f"ndimock://{name}", reset="command"), can=can_cfg
+            ),
+            name,
+        )
+    finally:
+        nodes.stop()
+        unregister(name)
