@@ -1,0 +1,375 @@
+"""The session file: everything a calibration session recorded and computed, in one JSON file.
+
+A :class:`Session` (pydantic v2) holds the robot description, the device configuration, the
+procedure, every recorded pose with its raw samples and timestamps, the poses that were refused
+or set aside (with the reason), operator notes, and each calibration and diagnosis result with
+the model it used. ``schema_version`` says which layout the file follows (``hexcal schema``
+prints the JSON Schema).
+
+Safety: :class:`SessionFile` saves the whole session atomically (temporary file, fsync, rename,
+fsync of the directory) after every change, so a kill at any instant leaves either the previous
+file or the new one. A file that is not valid JSON, not a session, or written by a newer hexcal
+(higher ``schema_version``) is refused with a message naming it, and is never overwritten:
+:class:`SessionFile` only writes to a path it created or loaded cleanly itself.
+
+Times: ``t`` of a pose is seconds since the session started (the interchange table's ``t``);
+raw sample times are the host's monotonic clock (s) of the recording run they came from, so
+only differences within one run are meaningful; ``recorded_at`` is wall-clock UTC.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from hexcal import __version__
+from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
+from hexcal.devices import DevicesConfig
+from hexcal.fileio import write_text_atomic
+from hexcal.measurements import REQUIRED_COLUMNS, Measurements
+from hexcal.robot import Robot
+from hexcal.validation import format_validation_error
+
+SCHEMA_VERSION = 1
+
+
+def _now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+def _nan_to_none(values: Sequence[float]) -> list[float | None]:
+    return [None if not math.isfinite(float(v)) else float(v) for v in values]
+
+
+def _none_to_nan(values: Sequence[float | None]) -> np.ndarray:
+    return np.array([math.nan if v is None else v for v in values], float)
+
+
+class SessionFileError(ValueError):
+    """A session file cannot be read or written; the message names it and says what to do."""
+
+
+class RawTrackerSample(BaseModel):
+    """One tracker sample: ``t`` host monotonic s; position (3,) mm and quaternion (4,) scalar
+    first, None when the device gave no pose; ``rms_mm``; ``fault`` sentence or None."""
+
+    model_config = ConfigDict(extra="forbid")
+    t: float
+    position: list[float] | None = Field(None, min_length=3, max_length=3)
+    quaternion: list[float] | None = Field(None, min_length=4, max_length=4)
+    rms_mm: float | None = None
+    fault: str | None = None
+
+    @classmethod
+    def of(cls, s: TrackerSample) -> RawTrackerSample:
+        rms = float(s.rms_mm) if math.isfinite(float(s.rms_mm)) else None
+        return cls(
+            t=s.t,
+            position=None if s.position is None else [float(v) for v in s.position],
+            quaternion=None if s.quaternion is None else [float(v) for v in s.quaternion],
+            rms_mm=rms,
+            fault=s.fault,
+        )
+
+
+class RawLegSample(BaseModel):
+    """One set of six readings: ``t`` host monotonic s (its SYNC); readings (6,) mm, None where
+    a leg gave none; the faults the bus reported for it."""
+
+    model_config = ConfigDict(extra="forbid")
+    t: float
+    readings: list[float | None] = Field(min_length=6, max_length=6)
+    faults: list[str] = Field(default_factory=list)
+
+    @classmethod
+    def of(cls, s: LegSample) -> RawLegSample:
+        return cls(t=s.t, readings=_nan_to_none(s.readings), faults=list(s.faults))
+
+
+class PoseRecord(BaseModel):
+    """One recorded pose: the row of the interchange table plus its raw samples.
+
+    ``quaternion`` is kept exactly as recorded or imported (not renormalised); ``extra`` holds
+    an imported table's extra columns as text, so export gives the table back unchanged."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose_id: int = Field(ge=1)
+    t: float
+    step: str
+    leg: int = Field(ge=0, le=6)
+    constraint: Literal["direction", "direction+length", "length", "free"]
+    position: list[float] = Field(min_length=3, max_length=3)
+    quaternion: list[float] = Field(min_length=4, max_length=4)
+    readings: list[float] = Field(min_length=6, max_length=6)
+    temperature: float | None = None
+    recorded_at: datetime | None = None
+    notes: list[str] = Field(default_factory=list)
+    extra: dict[str, str] = Field(default_factory=dict)
+    tracker_samples: list[RawTrackerSample] = Field(default_factory=list)
+    leg_samples: list[RawLegSample] = Field(default_factory=list)
+
+
+class SetAside(BaseModel):
+    """A pose refused at recording (``pose`` None) or recorded and then set aside because its
+    step failed a check; ``reason`` is the message the operator saw."""
+
+    model_config = ConfigDict(extra="forbid")
+    step: str
+    reason: str
+    at: datetime = Field(default_factory=_now)
+    pose: PoseRecord | None = None
+
+
+class OperatorNote(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    at: datetime = Field(default_factory=_now)
+    text: str
+
+
+class ResultRecord(BaseModel):
+    """A calibration or diagnosis computed in the session: the model, the effects fitted with
+    it, the calibrated robot (robot.json content) and a JSON summary (RMS, χ², verdict...)."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["calibration", "diagnosis"]
+    at: datetime = Field(default_factory=_now)
+    model: Literal[36, 42]
+    effects: list[str] = Field(default_factory=list)
+    pose_ids: list[int] = Field(default_factory=list, description="the poses it used")
+    robot: Robot | None = None
+    summary: dict[str, Any] = Field(default_factory=dict)
+
+
+class Session(BaseModel):
+    """A calibration session (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid")
+    schema_version: Literal[1] = SCHEMA_VERSION
+    hexcal_version: str = __version__
+    created: datetime = Field(default_factory=_now)
+    robot: Robot
+    devices: DevicesConfig | None = None
+    procedure: dict[str, Any] | None = Field(
+        None, description="the procedure as loaded from its TOML file"
+    )
+    columns: list[str] = Field(
+        default_factory=lambda: list(REQUIRED_COLUMNS),
+        description="the interchange table's header, in the order export writes it",
+    )
+    poses: list[PoseRecord] = Field(default_factory=list)
+    set_aside: list[SetAside] = Field(default_factory=list)
+    notes: list[OperatorNote] = Field(default_factory=list)
+    results: list[ResultRecord] = Field(default_factory=list)
+
+    # -- the interchange table ----------------------------------------------------------------
+    def measurements(self) -> Measurements:
+        """The recorded poses as the measurement table (every pose, in order)."""
+        if not self.poses:
+            raise SessionFileError("the session has no recorded pose yet")
+        p = self.poses
+        temps = [r.temperature for r in p]
+        has_t = "temperature" in self.columns
+        extra_names = [c for c in self.columns if c in p[0].extra]
+        return Measurements(
+            pose_id=[r.pose_id for r in p],
+            t=[r.t for r in p],
+            step=[r.step for r in p],
+            leg=[r.leg for r in p],
+            constraint=[r.constraint for r in p],
+            position=[r.position for r in p],
+            quaternion=[r.quaternion for r in p],
+            readings=[r.readings for r in p],
+            temperature=_none_to_nan(temps) if has_t else None,
+            extra={k: [r.extra.get(k, "") for r in p] for k in extra_names},
+            columns=tuple(self.columns),
+        )
+
+    @classmethod
+    def from_measurements(
+        cls, meas: Measurements, robot: Robot, devices: DevicesConfig | None = None
+    ) -> Session:
+        """A session holding an imported table (no raw samples): export gives it back."""
+        poses = [
+            PoseRecord(
+                pose_id=int(meas.pose_id[i]),
+                t=float(meas.t[i]),
+                step=str(meas.step[i]),
+                leg=int(meas.leg[i]),
+                constraint=str(meas.constraint[i]),
+                position=[float(v) for v in meas.position[i]],
+                quaternion=[float(v) for v in meas.quaternion[i]],
+                readings=[float(v) for v in meas.readings[i]],
+                temperature=None if meas.temperature is None else _finite(meas.temperature[i]),
+                extra={k: str(v[i]) for k, v in meas.extra.items()},
+            )
+            for i in range(len(meas))
+        ]
+        return cls(robot=robot, devices=devices, columns=list(meas.columns), poses=poses)
+
+    # -- recording ------------------------------------------------------------------------------
+    def next_pose_id(self) -> int:
+        used = [r.pose_id for r in self.poses] + [
+            s.pose.pose_id for s in self.set_aside if s.pose is not None
+        ]
+        return max(used, default=0) + 1
+
+    def pose_record(
+        self,
+        pose: RecordedPose,
+        step: str,
+        leg: int,
+        constraint: str,
+        t: float,
+        temperature: float | None = None,
+    ) -> PoseRecord:
+        """A :class:`PoseRecord` of a recorded pose, numbered after every pose so far."""
+        return PoseRecord(
+            pose_id=self.next_pose_id(),
+            t=t,
+            step=step,
+            leg=leg,
+            constraint=constraint,
+            position=[float(v) for v in pose.position],
+            quaternion=[float(v) for v in pose.quaternion],
+            readings=[float(v) for v in pose.readings],
+            temperature=temperature,
+            recorded_at=_now(),
+            notes=list(pose.notes),
+            tracker_samples=[RawTrackerSample.of(s) for s in pose.tracker_samples],
+            leg_samples=[RawLegSample.of(s) for s in pose.leg_samples],
+        )
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(float(v)) else None
+
+
+def session_json_schema() -> str:
+    """The JSON Schema of the session file (``hexcal schema``)."""
+    return json.dumps(Session.model_json_schema(), indent=2) + "\n"
+
+
+def load_session(path: str | Path) -> Session:
+    """Read a session file. Refuses — naming the file and saying what to do — a missing file,
+    one that is not JSON or not a session, and one written by a newer hexcal."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SessionFileError(f"{path}: no such session file") from None
+    except UnicodeDecodeError as exc:
+        raise SessionFileError(
+            f"{path}: not a session file (byte {exc.start} is not UTF-8 text); it is left as it is"
+        ) from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SessionFileError(
+            f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg}) — the "
+            "file is damaged; it is left untouched. Restore it from a backup, or start a new "
+            "session under another name"
+        ) from None
+    if not isinstance(data, dict) or "schema_version" not in data:
+        raise SessionFileError(
+            f"{path}: not a hexcal session file (no schema_version); it is left untouched"
+        )
+    version = data["schema_version"]
+    if isinstance(version, int) and version > SCHEMA_VERSION:
+        raise SessionFileError(
+            f"{path}: written by a newer hexcal (session schema {version}; this hexcal "
+            f"{__version__} reads schema {SCHEMA_VERSION}) — upgrade hexcal to open it; the file "
+            "is left untouched"
+        )
+    try:
+        return Session.model_validate(data)
+    except ValidationError as exc:
+        raise SessionFileError(
+            format_validation_error(exc, str(path))
+            + "\nthe file is left untouched; fix the field or start a new session"
+        ) from None
+
+
+def session_to_text(session: Session) -> str:
+    """The session file's text (indented JSON)."""
+    return session.model_dump_json(indent=1, exclude_none=False) + "\n"
+
+
+def looks_like_session(path: str | Path) -> bool:
+    """True when ``path`` is a JSON file whose first bytes open a session object."""
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        return False
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return b'"schema_version"' in head
+
+
+class SessionFile:
+    """A session bound to its file; every change is saved atomically at once.
+
+    Use :meth:`create` for a new file (refused if the path exists: an existing session is
+    resumed, never replaced) and :meth:`resume` for an existing one (refused if damaged)."""
+
+    def __init__(self, path: Path, session: Session):
+        self.path = path
+        self.session = session
+
+    @classmethod
+    def create(cls, path: str | Path, session: Session) -> SessionFile:
+        path = Path(path)
+        if path.exists():
+            raise SessionFileError(
+                f"{path}: already exists — resume it, or choose another name; it is not overwritten"
+            )
+        sf = cls(path, session)
+        sf.save()
+        return sf
+
+    @classmethod
+    def resume(cls, path: str | Path) -> SessionFile:
+        path = Path(path)
+        return cls(path, load_session(path))
+
+    def save(self) -> None:
+        try:
+            write_text_atomic(self.path, session_to_text(self.session))
+        except OSError as exc:
+            raise SessionFileError(
+                f"{self.path}: could not save the session ({exc.strerror or exc}); the last "
+                "saved state is still on disk — free space or fix permissions, then record again"
+            ) from None
+
+    def add_pose(self, record: PoseRecord) -> None:
+        self.session.poses.append(record)
+        self.save()
+
+    def set_aside(self, item: SetAside) -> None:
+        self.session.set_aside.append(item)
+        self.save()
+
+    def undo_last_pose(self, reason: str = "undone by the operator") -> PoseRecord | None:
+        """Move the last recorded pose to ``set_aside`` (it is kept, not deleted)."""
+        if not self.session.poses:
+            return None
+        record = self.session.poses.pop()
+        self.session.set_aside.append(SetAside(step=record.step, reason=reason, pose=record))
+        self.save()
+        return record
+
+    def add_note(self, text: str) -> None:
+        self.session.notes.append(OperatorNote(text=text))
+        self.save()
+
+    def add_result(self, result: ResultRecord) -> None:
+        self.session.results.append(result)
+        self.save()
