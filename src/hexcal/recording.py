@@ -48,11 +48,25 @@ MIN_SLIP_MM = 0.03
 @dataclass(frozen=True)
 class Step:
     """One step of a procedure: ``leg`` 1..6 clamped as ``constraint`` (0 and "free": none),
-    ``n_poses`` poses to record."""
+    ``n_poses`` poses to record (the recommended count), at least ``min_poses``.
+
+    ``instruction`` is the operator's text; ``tolerance_mm`` how far the length clamp may give
+    (None: the recorder's default); ``checks`` which clamp checks run (None: every check the
+    constraint allows — ``clamp-length`` for a length clamp, ``step-fit`` for a direction
+    clamp)."""
 
     leg: int
     constraint: str
     n_poses: int
+    instruction: str = ""
+    min_poses: int = 1
+    tolerance_mm: float | None = None
+    checks: tuple[str, ...] | None = None
+
+    def runs(self, check: str) -> bool:
+        """Whether ``check`` runs for this step."""
+        allowed = {"clamp-length": "length", "step-fit": "direction"}[check] in self.constraint
+        return allowed and (self.checks is None or check in self.checks)
 
     @property
     def name(self) -> str:
@@ -142,7 +156,9 @@ class StepRecorder:
 
     def __init__(self, step: Step, clamp_tolerance_mm: float = 0.02):
         self.step = step
-        self.clamp_tolerance_mm = clamp_tolerance_mm
+        self.clamp_tolerance_mm = (
+            step.tolerance_mm if step.tolerance_mm is not None else clamp_tolerance_mm
+        )
         self.poses: list[RecordedPose] = []
         self._clamped_reading: float | None = None
 
@@ -152,7 +168,7 @@ class StepRecorder:
 
     def accept(self, pose: RecordedPose) -> None:
         """Add a recorded pose, or raise :class:`ClampSlipped` if the length clamp moved."""
-        if "length" in self.step.constraint:
+        if self.step.runs("clamp-length"):
             k = self.step.leg - 1
             reading = float(pose.readings[k])
             if self._clamped_reading is None:
@@ -172,7 +188,7 @@ class StepRecorder:
         ``noise`` is per recorded pose (already averaged over its still window);
         ``platform_radius_mm`` (|b_k|) scales the orientation noise into mm."""
         c = self.step.constraint
-        if c not in ("direction", "direction+length") or len(self.poses) < 4:
+        if not self.step.runs("step-fit") or len(self.poses) < 4:
             return StepCheck(True, float("nan"), float("nan"), "")
         P = np.array([p.position for p in self.poses])
         R = Rotation.from_quat(

@@ -1,0 +1,134 @@
+"""Procedure files: the shipped ones load, expand leg by leg, and calibrate what they describe;
+a malformed file names the file, the step and the field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hexcal.calibrate import calibrate
+from hexcal.measurements import Measurements
+from hexcal.procedure import BUILTIN, ProcedureError, load_procedure, parse_procedure
+from hexcal.session_sim import SessionPlan, perturbed_truth
+from hexcal.simulate import NoiseModel, Simulator
+
+METHOD = {"direction": "type_i", "direction+length": "type_ii", "length": "type_iii"}
+
+
+@pytest.mark.parametrize("name", list(BUILTIN))
+def test_shipped_procedures_load(name):
+    proc = load_procedure(name)
+    steps = proc.expand()
+    assert steps and all(s.n_poses >= s.min_poses >= 1 for s in steps)
+    for s in steps:
+        assert "{leg}" not in s.instruction and s.instruction
+        if s.leg:
+            assert f"leg {s.leg}" in s.instruction
+
+
+def test_model42_expands_leg_by_leg():
+    steps = load_procedure("model42-direction-length").expand()
+    names = [s.name for s in steps]
+    assert names[:4] == [
+        "leg1-direction+length",
+        "leg1-length",
+        "leg2-direction+length",
+        "leg2-length",
+    ]
+    assert names[-1] == "free" and len(names) == 13
+    assert steps[0].runs("clamp-length") and steps[0].runs("step-fit")
+    assert steps[1].runs("clamp-length") and not steps[1].runs("step-fit")
+
+
+@pytest.mark.parametrize("name", ["model36-direction", "model42-direction-length"])
+def test_each_procedure_calibrates_its_model_on_simulated_data(design, name):
+    """Recorded as the procedure says (recommended counts), noise-free, the procedure's own
+    model comes back exactly: the procedure asks for enough of the right motions."""
+    proc = load_procedure(name)
+    truth = perturbed_truth(design, np.random.default_rng(4), SessionPlan())
+    sim = Simulator(truth, noise=NoiseModel(0.0, 0.0, 0.0))
+    rng = np.random.default_rng(4)
+    Ps, Rs, legs, cons = [], [], [], []
+    for s in proc.expand():
+        P, R = (
+            sim.free((s.n_poses,), rng)
+            if s.leg == 0
+            else getattr(sim, METHOD[s.constraint])(s.leg - 1, (s.n_poses,), rng)
+        )
+        Ps.append(P), Rs.append(R)
+        legs += [s.leg] * s.n_poses
+        cons += [s.constraint] * s.n_poses
+    P, R = np.concatenate(Ps), np.concatenate(Rs)
+    from scipy.spatial.transform import Rotation
+
+    meas = Measurements.from_arrays(
+        P,
+        Rotation.from_matrix(R),
+        sim.readings(P, R),
+        leg=np.array(legs),
+        constraint=np.array(cons, dtype=object),
+    )
+    known = design if proc.model == 42 else design.with_geometry(design.a, design.b, truth.offsets)
+    cal = calibrate(meas, known, proc.model)
+    assert np.allclose(cal.robot.a, truth.a, atol=1e-6)
+    assert np.allclose(cal.robot.b, truth.b, atol=1e-6)
+    assert np.allclose(cal.robot.offsets, truth.offsets, atol=1e-6)
+
+
+GOOD_STEP = """
+[[steps]]
+id = "length"
+legs = [1, 2]
+constraint = "length"
+instruction = "Clamp leg {leg}."
+min_poses = 4
+recommended_poses = 8
+"""
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        (
+            "name = 'x'\nmodel = 42\n" + GOOD_STEP.replace("min_poses = 4", "min_poses = 0"),
+            r"lab\.toml: step 1 \(id 'length'\), field min_poses: Input should be greater than or equal to 1",
+        ),
+        (
+            "name = 'x'\nmodel = 42\n" + GOOD_STEP.replace("[1, 2]", "[1, 7]"),
+            r"step 1 \(id 'length'\), field legs: .*legs \[7\] do not exist",
+        ),
+        (
+            "name = 'x'\nmodel = 42\n"
+            + GOOD_STEP.replace('"length"\nins', '"direction"\nins').replace(
+                "min_poses = 4", "min_poses = 4\nchecks = ['clamp-length']"
+            ),
+            r"step 1 \(id 'length'\): .*'clamp-length' needs a length clamp",
+        ),
+        (
+            "name = 'x'\nmodel = 40\n" + GOOD_STEP,
+            r"lab\.toml: field model: Input should be 36 or 42",
+        ),
+        (
+            "name = 'x'\nmodel = 42\n" + GOOD_STEP + GOOD_STEP,
+            r"step ids must be unique; repeated: length",
+        ),
+        (
+            "name = 'x'\nmodel = 42\n" + GOOD_STEP.replace("min_poses", "min_pose"),
+            r"step 1 \(id 'length'\), field min_pose: Extra inputs are not permitted",
+        ),
+        ("name = 'x'\nmodel = 42\n[[steps]\n", r"lab\.toml: not valid TOML"),
+        ("name = 'x'\nmodel = 42\nschema = 2\n" + GOOD_STEP, r"field schema: Input should be 1"),
+    ],
+)
+def test_malformed_files_name_file_step_and_field(tmp_path, text, match):
+    p = tmp_path / "lab.toml"
+    p.write_text(text)
+    with pytest.raises(ProcedureError, match=match):
+        load_procedure(p)
+
+
+def test_a_lab_procedure_needs_no_code():
+    proc = parse_procedure("name = 'ours'\nmodel = 42\n" + GOOD_STEP, "ours.toml")
+    assert [s.name for s in proc.expand()] == ["leg1-length", "leg2-length"]
+    with pytest.raises(ProcedureError, match="no such procedure file"):
+        load_procedure("/nonexistent/lab.toml")
