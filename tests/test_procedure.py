@@ -28,6 +28,8 @@ def test_shipped_procedures_load(name):
 
 def test_model42_expands_leg_by_leg():
     steps = load_procedure("model42-direction-length").expand()
+    assert steps[0].at_home and steps[0].name == "home" and steps[0].n_poses == 1
+    steps = steps[1:]
     names = [s.name for s in steps]
     assert names[:4] == [
         "leg1-direction+length",

@@ -1,4 +1,5 @@
-"""The ``hexcal`` command line: calibrate, study, simulate.
+"""The ``hexcal`` command line: calibrate, diagnose, devices, study, simulate, demo, session,
+schema.
 
 Errors go to stderr with a non-zero exit status; ``--json`` prints one JSON object on stdout.
 """
@@ -14,16 +15,38 @@ EXIT_INPUT = 2  # bad input: a file, a field or a pose set the user must fix
 EXIT_REFUSED = 3  # the data cannot calibrate the robot: more or other poses are needed
 
 
+def _inputs(args: argparse.Namespace):
+    """(design robot, measurement table) from a session file, or from a CSV and --robot."""
+    from hexcal.measurements import read_measurements
+    from hexcal.robot import load_robot
+    from hexcal.session import load_session, looks_like_session
+
+    if looks_like_session(args.measurements):
+        session = load_session(args.measurements)
+        design = load_robot(args.robot) if args.robot else session.robot
+        if not args.instruments and session.instruments is not None:
+            args.session_instruments = session.instruments
+        return design, session.measurements()
+    if not args.robot:
+        raise ValueError(
+            f"{args.measurements}: a measurement table needs the robot description: pass "
+            "--robot robot.json (a session file carries its own)"
+        )
+    return load_robot(args.robot), read_measurements(args.measurements)
+
+
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from hexcal.calibrate import calibrate
     from hexcal.instruments import load_instruments
-    from hexcal.measurements import read_measurements
     from hexcal.report_text import calibration_json, calibration_text
-    from hexcal.robot import load_robot, save_robot
+    from hexcal.robot import save_robot
 
-    design = load_robot(args.robot)
-    meas = read_measurements(args.measurements)
-    inst = load_instruments(args.instruments) if args.instruments else None
+    design, meas = _inputs(args)
+    inst = (
+        load_instruments(args.instruments)
+        if args.instruments
+        else getattr(args, "session_instruments", None)
+    )
     cal = calibrate(
         meas,
         design,
@@ -34,7 +57,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         effects=tuple(args.add or ()),
     )
     if inst is not None:
-        noise_src = f"stated in {args.instruments}"
+        noise_src = f"stated in {args.instruments or args.measurements}"
         noise_line = (
             f"{noise_src}: tracker {inst.tracker.position_sigma_mm} mm, {inst.tracker.orientation_sigma_deg} deg; "
             f"encoders {inst.encoders.reading_sigma_mm} mm (1 sigma)"
@@ -66,12 +89,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from hexcal.diagnosis import diagnose
     from hexcal.diagnosis.text import before_after_text, diagnosis_text
     from hexcal.instruments import load_instruments
-    from hexcal.measurements import read_measurements
-    from hexcal.robot import load_robot
 
-    design = load_robot(args.robot)
-    meas = read_measurements(args.measurements)
-    inst = load_instruments(args.instruments) if args.instruments else None
+    design, meas = _inputs(args)
+    inst = (
+        load_instruments(args.instruments)
+        if args.instruments
+        else getattr(args, "session_instruments", None)
+    )
     added = list(args.add or ())
     steps = [diagnose(meas, design, args.model, add=added, instruments=inst)]
     # --auto: add the named effect and diagnose again, until nothing identifiable is missing.
@@ -97,7 +121,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.report:
         from hexcal.diagnosis.report import write_report
 
-        inputs = {"measurements": Path(args.measurements), "robot": Path(args.robot)}
+        inputs = {"measurements": Path(args.measurements)}
+        if args.robot:
+            inputs["robot"] = Path(args.robot)
         if args.instruments:
             inputs["instruments"] = Path(args.instruments)
         write_report(steps, Path(args.report), inputs)
@@ -210,6 +236,64 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_schema(args: argparse.Namespace) -> int:
+    from hexcal.session import session_json_schema
+
+    print(session_json_schema(), end="")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    import json
+
+    from hexcal.demo import DemoSettings, run_demo
+
+    settings = DemoSettings(
+        seed=args.seed,
+        effect=args.effect,
+        procedure=args.procedure,
+        poses_per_step=args.poses_per_step,
+        free_poses=args.free_poses,
+        window_s=args.window_s,
+        session_path=args.session,
+    )
+    say = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
+    result = run_demo(settings, on_event=say)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    from hexcal.demo import demo_text
+
+    print(demo_text(result))
+    return 0
+
+
+def _cmd_session(args: argparse.Namespace) -> int:
+    from hexcal.measurements import read_measurements, write_measurements
+    from hexcal.robot import load_robot, save_robot
+    from hexcal.session import Session, SessionFile, load_session
+
+    if args.session_command == "export":
+        session = load_session(args.session)
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_measurements(session.measurements(), out / "measurements.csv")
+        save_robot(session.robot, out / "robot.json")
+        written = ["measurements.csv", "robot.json"]
+        cals = [r for r in session.results if r.kind == "calibration" and r.robot is not None]
+        if cals:
+            save_robot(cals[-1].robot, out / "calibrated.json")
+            written.append(
+                f"calibrated.json (Model {cals[-1].model}, {cals[-1].at:%Y-%m-%d %H:%M})"
+            )
+        print(f"exported {args.session} to {out}/: {', '.join(written)}")
+        return 0
+    meas = read_measurements(args.measurements)
+    sf = SessionFile.create(args.out, Session.from_measurements(meas, load_robot(args.robot)))
+    print(f"session {sf.path} created with {len(meas)} poses from {args.measurements}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from hexcal import __version__
 
@@ -220,9 +304,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("calibrate", help="calibrate Model 36 or 42 from a measurement table")
-    c.add_argument("measurements", type=Path, help="measurements.csv (INTERCHANGE.md)")
     c.add_argument(
-        "--robot", type=Path, required=True, help="robot.json: design values, known offsets"
+        "measurements", type=Path, help="measurements.csv (INTERCHANGE.md) or a session file"
+    )
+    c.add_argument(
+        "--robot",
+        type=Path,
+        help="robot.json: design values, known offsets (a session file carries its own)",
     )
     c.add_argument("--model", type=int, choices=(36, 42), default=42)
     c.add_argument(
@@ -245,8 +333,10 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser(
         "diagnose", help="compare the model with the measurements and find the missing effect"
     )
-    d.add_argument("measurements", type=Path, help="measurements.csv (INTERCHANGE.md)")
-    d.add_argument("--robot", type=Path, required=True)
+    d.add_argument(
+        "measurements", type=Path, help="measurements.csv (INTERCHANGE.md) or a session file"
+    )
+    d.add_argument("--robot", type=Path, help="robot.json (a session file carries its own)")
     d.add_argument("--model", type=int, choices=(36, 42), default=42)
     d.add_argument(
         "--instruments", type=Path, help="instruments.json: the noise that sets the floor"
@@ -342,6 +432,39 @@ def build_parser() -> argparse.ArgumentParser:
         help="structure temperature rise over the session, K",
     )
     m.set_defaults(func=_cmd_simulate)
+
+    sc = sub.add_parser("schema", help="print the JSON Schema of the session file")
+    sc.set_defaults(func=_cmd_schema)
+
+    dm = sub.add_parser(
+        "demo",
+        help="a whole calibration on mock hardware, headless, with a scripted operator",
+    )
+    dm.add_argument("--seed", type=int, default=1, help="the simulated robot and its effect")
+    dm.add_argument(
+        "--effect",
+        choices=("gain", "backlash", "leadscrew"),
+        help="the effect the robot hides (default: drawn by the seed)",
+    )
+    dm.add_argument("--procedure", default="model42-direction-length", help="name or TOML file")
+    dm.add_argument("--poses-per-step", type=int, help="instead of the procedure's counts")
+    dm.add_argument("--free-poses", type=int, help="instead of the procedure's count")
+    dm.add_argument("--window-s", type=float, default=0.25, help="still window per pose, s")
+    dm.add_argument("--session", type=Path, help="session file to write (must not exist)")
+    dm.add_argument("--json", action="store_true", help="print one JSON object")
+    dm.set_defaults(func=_cmd_demo)
+
+    se = sub.add_parser("session", help="export a session file, or make one from a CSV")
+    se_sub = se.add_subparsers(dest="session_command", required=True)
+    ex = se_sub.add_parser("export", help="measurements.csv, robot.json, calibrated.json")
+    ex.add_argument("session", type=Path)
+    ex.add_argument("--out", type=Path, required=True, help="directory to write")
+    ex.set_defaults(func=_cmd_session)
+    im = se_sub.add_parser("import", help="a session file from an interchange table")
+    im.add_argument("measurements", type=Path)
+    im.add_argument("--robot", type=Path, required=True)
+    im.add_argument("--out", type=Path, required=True, help="session file to create")
+    im.set_defaults(func=_cmd_session)
     return p
 
 
@@ -354,11 +477,12 @@ def main(argv: list[str] | None = None) -> int:
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     args = build_parser().parse_args(argv)
+    from hexcal.acquisition import PoseRefused
     from hexcal.solvers.whole_robot import CalibrationRefused
 
     try:
         return args.func(args)
-    except CalibrationRefused as exc:
+    except (CalibrationRefused, PoseRefused) as exc:
         print(f"hexcal: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     except (ValueError, OSError) as exc:

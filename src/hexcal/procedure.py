@@ -17,6 +17,7 @@ A procedure file (see ``procedures/*.toml``, shipped as ``hexcal.procedures``)::
     min_poses = 4                      # fewer and the step cannot be finished
     recommended_poses = 8              # what the operator is asked for
     checks = ["clamp-length", "step-fit"]
+    at_home = false                    # true: the step's poses are taken at the home pose
 
 Checks: ``clamp-length`` — the clamped leg's encoder must stay within ``tolerance_mm`` of its
 first reading in the step (a length clamp holds the length), checked at every pose;
@@ -65,6 +66,7 @@ class ProcedureStep(BaseModel):
     min_poses: int = Field(ge=1)
     recommended_poses: int = Field(ge=1)
     checks: list[Check] = Field(default_factory=list)
+    at_home: bool = False
 
     @field_validator("legs")
     @classmethod
@@ -82,6 +84,8 @@ class ProcedureStep(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> ProcedureStep:
+        if self.at_home and self.constraint != "free":
+            raise ValueError("at_home = true is for a free step (the home pose clamps nothing)")
         if self.constraint == "free" and self.legs is not None:
             raise ValueError("a free step clamps no leg: remove 'legs'")
         if self.constraint != "free" and self.legs is None:
@@ -146,6 +150,7 @@ def _step(s: ProcedureStep, leg: int) -> Step:
         min_poses=s.min_poses,
         tolerance_mm=s.tolerance_mm,
         checks=tuple(s.checks),
+        at_home=s.at_home,
     )
 
 

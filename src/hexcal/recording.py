@@ -62,6 +62,7 @@ class Step:
     min_poses: int = 1
     tolerance_mm: float | None = None
     checks: tuple[str, ...] | None = None
+    at_home: bool = False  #: its poses are taken at the robot's home pose
 
     def runs(self, check: str) -> bool:
         """Whether ``check`` runs for this step."""
@@ -70,7 +71,9 @@ class Step:
 
     @property
     def name(self) -> str:
-        return "free" if self.leg == 0 else f"leg{self.leg}-{self.constraint}"
+        if self.leg == 0:
+            return "home" if self.at_home else "free"
+        return f"leg{self.leg}-{self.constraint}"
 
 
 def standard_procedure(
@@ -277,16 +280,18 @@ class Mover(Protocol):
     def clamp(self, leg: int, constraint: str) -> object: ...
     def release(self) -> None: ...
     def next_pose(self) -> tuple[np.ndarray, np.ndarray]: ...
+    def home(self) -> None: ...
 
 
 @dataclass
 class RunSettings:
     """How the scripted run behaves: wait ``settle_s`` after each move; retry a refused pose
-    up to ``retries`` times (a new still window at the same pose); repeat a failed step up to
-    ``step_repeats`` times; ``clamp_tolerance_mm`` as in :class:`StepRecorder`."""
+    up to ``retries`` times (a new still window at the same pose; then the run stops with
+    :class:`~hexcal.acquisition.PoseRefused`, its poses kept); repeat a step whose clamp check
+    failed up to ``step_repeats`` times; ``clamp_tolerance_mm`` as in :class:`StepRecorder`."""
 
     settle_s: float = 0.05
-    retries: int = 3
+    retries: int = 10
     step_repeats: int = 2
     clamp_tolerance_mm: float = 0.02
 
@@ -299,15 +304,20 @@ def record_procedure(
     settings: RunSettings | None = None,
     on_event: Callable[[str], None] = lambda message: None,
     on_clamp: Callable[[Step, int], None] = lambda step, attempt: None,
+    on_record: Callable[[str, Step, RecordedPose | None, str], None] | None = None,
 ) -> SessionRecording:
     """Run a procedure end to end with a motion controller doing the operator's moves.
 
     For each step: clamp, move and record ``n_poses`` poses, release, check; a failed step is
     set aside (its poses into ``rejected``) and repeated. ``on_clamp(step, attempt)`` runs just
     after the clamp is set (tests inject a slip there). ``on_event`` receives one operator
-    sentence per thing that happened."""
+    sentence per thing that happened. ``on_record(kind, step, pose, reason)`` is told of every
+    pose as it happens, so a session file can be saved after each: kind ``"pose"`` (recorded,
+    pose given), ``"refused"`` (not recorded, pose None) and ``"set-aside"`` (a recorded pose
+    of a step that then failed; once per pose, in recording order)."""
     settings = settings or RunSettings()
     session = SessionRecording()
+    tell = on_record or (lambda kind, step, pose, reason: None)
     for step in steps:
         for attempt in range(settings.step_repeats + 1):
             rec = StepRecorder(step, settings.clamp_tolerance_mm)
@@ -315,7 +325,7 @@ def record_procedure(
                 mover.clamp(step.leg, step.constraint)
                 on_event(f"{step.name}: leg {step.leg} clamped ({step.constraint})")
             on_clamp(step, attempt)
-            failed = _record_step(acquisition, mover, rec, session, settings, on_event)
+            failed = _record_step(acquisition, mover, rec, session, settings, on_event, tell)
             if step.leg:
                 mover.release()
             if failed is None:
@@ -327,6 +337,8 @@ def record_procedure(
                 on_event(f"{step.name}: {len(rec.poses)} poses recorded")
                 break
             session.rejected += [RejectedPose(step, failed, p) for p in rec.poses]
+            for p in rec.poses:
+                tell("set-aside", step, p, failed)
             on_event(failed)
         else:
             raise PoseRefused(
@@ -336,25 +348,37 @@ def record_procedure(
     return session
 
 
-def _record_step(acq, mover, rec: StepRecorder, session, settings, on_event) -> str | None:
+def _record_step(acq, mover, rec: StepRecorder, session, settings, on_event, tell) -> str | None:
     """Record one step's poses; the reason the step must be repeated, or None."""
     while not rec.done:
-        mover.next_pose()
+        if rec.step.at_home:
+            mover.home()
+        else:
+            mover.next_pose()
         time.sleep(settings.settle_s)
         for _ in range(settings.retries + 1):
             try:
                 pose = acq.record()
             except PoseRefused as exc:  # timing glitch, motion: same pose, new window
                 session.rejected.append(RejectedPose(rec.step, str(exc)))
+                tell("refused", rec.step, None, str(exc))
                 on_event(f"{rec.step.name}: pose refused: {exc}")
                 continue
             try:
                 rec.accept(pose)
             except ClampSlipped as exc:
+                session.rejected.append(RejectedPose(rec.step, str(exc), pose))
+                tell("refused", rec.step, pose, str(exc))
                 return str(exc)
+            tell("pose", rec.step, pose, "")
             break
         else:
-            return f"{rec.step.name}: a pose was refused {settings.retries + 1} times in a row"
+            # A device problem, not a clamp problem: the step's good poses stay; stop here so the
+            # operator can fix the device and resume (the session file has everything so far).
+            raise PoseRefused(
+                f"{rec.step.name}: a pose was refused {settings.retries + 1} times in a row; last: "
+                f"{session.rejected[-1].reason} — fix the device, then resume the session"
+            )
     return None
 
 

@@ -33,6 +33,7 @@ from hexcal import __version__
 from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.devices import DevicesConfig
 from hexcal.fileio import write_text_atomic
+from hexcal.instruments import Instruments
 from hexcal.measurements import REQUIRED_COLUMNS, Measurements
 from hexcal.robot import Robot
 from hexcal.validation import format_validation_error
@@ -156,6 +157,9 @@ class Session(BaseModel):
     created: datetime = Field(default_factory=_now)
     robot: Robot
     devices: DevicesConfig | None = None
+    instruments: Instruments | None = Field(
+        None, description="the noise of the recorded poses (stated, or estimated from them)"
+    )
     procedure: dict[str, Any] | None = Field(
         None, description="the procedure as loaded from its TOML file"
     )
@@ -365,6 +369,39 @@ class SessionFile:
         self.session.set_aside.append(SetAside(step=record.step, reason=reason, pose=record))
         self.save()
         return record
+
+    def recording_sink(self, run_start: float):
+        """An ``on_record`` callback for :func:`hexcal.recording.record_procedure` that saves
+        the session after every pose. ``run_start`` is the run's monotonic start (s): pose
+        times continue the session's clock from its last pose (a resumed session's new run
+        starts 1 s after it)."""
+        last = max((r.t for r in self.session.poses), default=-1.0)
+        offset = last + 1.0 - run_start if self.session.poses else -run_start
+        ids: dict[int, int] = {}
+
+        def sink(kind: str, step, pose: RecordedPose | None, reason: str) -> None:
+            rec = None
+            if pose is not None:
+                rec = self.session.pose_record(
+                    pose, step.name, step.leg, step.constraint, t=round(pose.t + offset, 6)
+                )
+            if kind == "pose":
+                ids[id(pose)] = rec.pose_id
+                self.add_pose(rec)
+            elif kind == "refused":
+                self.set_aside(SetAside(step=step.name, reason=reason, pose=rec))
+            elif kind == "set-aside":
+                pid = ids.pop(id(pose))
+                kept = [r for r in self.session.poses if r.pose_id == pid]
+                self.session.poses = [r for r in self.session.poses if r.pose_id != pid]
+                self.session.set_aside += [
+                    SetAside(step=step.name, reason=reason, pose=r) for r in kept
+                ]
+                self.save()
+            else:
+                raise ValueError(f"unknown record kind {kind!r}")
+
+        return sink
 
     def add_note(self, text: str) -> None:
         self.session.notes.append(OperatorNote(text=text))
