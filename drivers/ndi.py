@@ -71,10 +71,33 @@ content does not follow the format above raises (:class:`TrackerCRCError`,
 error of the link: the frame reports it (``state == "missing"``) and :meth:`NDITracker.sample`
 turns it into a fault sample, as it does a tool outside the characterised measurement volume.
 
-Timing: every frame carries the host receive time (``time.monotonic()`` when its last byte
-arrived) and the command-to-reply latency. The tracker's own frame number is the reliable clock;
-when the latency varies by more than ``max_jitter_s`` the driver says so (a logged warning and
-:attr:`NDITracker.timing_warning`), because the host times are then uncertain by that much.
+Timing: every frame carries the host receive time (``received_at``: ``time.monotonic()`` when
+its last byte arrived) and the command-to-reply latency (``latency_s``), but neither says when
+the pose was *measured*: the reply comes a latency later (serial transfer, the tracker's
+processing, USB and host scheduling, all of it jittery), and the frame was measured up to one
+frame period before the command even arrived. The tracker's frame number is the reliable clock:
+frames come at a fixed rate, so frame n was measured at t(n) = t_ref + (n - n_ref) / f on the
+host clock. Every poll bounds that line: a frame number first seen in the reply to a command
+written at ``t_write(k)`` was measured after the previous poll reached the tracker (that poll
+returned an older frame) and before this one did. A command cannot reach the tracker sooner
+than its serial transfer time after it was written (``command_delay_s``), and the tracker acts
+on it soon after (within ``command_delay_spread_s`` of the write returning); what happens after
+it acted — the reply's latency and jitter — does not enter these bounds at all. The
+:class:`FrameClock` combines the bounds of the frames of a sliding window (offset: the tightest
+consistent interval; rate: ``frame_rate_hz`` within ``drift_ppm``, or fitted from the bounds so
+that a tracker clock drifting against the host's is followed) and stamps each frame
+``measured_at`` = t(n) - ``frame_latency_s``, which :meth:`TrackerFrame.to_sample` gives as
+``TrackerSample.t``; :meth:`NDITracker.clock_stats` reports its state, its current uncertainty
+(the interval's half-width) and the rate in use. On the mock tracker with a 5 to 8 ms reply
+latency the stamps are within about 0.3 ms of the true instants (``benchmarks/alignment.py``).
+Before enough frames (about half a second), or while the bounds contradict the rate, a frame is
+stamped at the midpoint of its own poll interval, from the previous poll's write to this reply,
+with that interval's larger half-width (a warning says so once). The clock restarts at each
+:meth:`~NDITracker.open` and when the frame counter goes back or leaps. What no host-side timing
+can see is how long before a frame becomes available the tracker exposed it: a constant of the
+tracker, ``frame_latency_s`` (0 by default, as on the mock), to be measured once. When the reply
+latency itself varies by more than ``max_jitter_s`` the driver says so (a logged warning and
+:attr:`NDITracker.timing_warning`): the frame clock is not affected, but receive times are.
 
 The driver is not a protocol analyser: after a failed exchange it flushes the input, and after a
 timeout it also discards anything arriving in the next ``resync_s``, so that a late reply is not
@@ -90,9 +113,9 @@ import struct
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import TracebackType
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 import serial
@@ -245,6 +268,18 @@ _PHSR = re.compile(rb"([0-9A-F]{2})((?:[0-9A-F]{5})*)")
 # pyserial reads block in slices this long (s), so a reply's deadline is kept to within it
 # without reconfiguring the port's timeout (which reprograms the UART on every change).
 _READ_SLICE_S = 0.02
+
+#: Bits on the serial line per byte (8N1: start, 8 data, stop).
+BITS_PER_BYTE = 10
+
+
+class _Exchange(NamedTuple):
+    """One command and its reply, unchecked, with the host times (monotonic s) around it."""
+
+    raw: bytes
+    t_write: float  #: just before the command was handed to the port
+    t_sent: float  #: when the port accepted it (write returned)
+    t_recv: float  #: when the reply's last byte arrived
 
 
 # ------------------------------------------------------------------------------------------------
@@ -430,7 +465,10 @@ class TrackerFrame:
 
     ``received_at`` is the host's ``time.monotonic()`` (s) when the reply's last byte arrived;
     ``latency_s`` the time from sending the command to that moment (NaN when parsed offline).
-    ``port`` names the port the frame came from (used in messages).
+    ``port`` names the port the frame came from (used in messages). ``measured_at`` is the host
+    time (``time.monotonic()`` s) at which the tracker measured this frame, as the driver's
+    :class:`FrameClock` estimates it from the frame number, and ``timing_uncertainty_s`` the
+    half-width (s) of the interval it is known to lie in (both NaN when parsed offline).
     """
 
     tools: tuple[ToolReport, ...]
@@ -438,6 +476,14 @@ class TrackerFrame:
     received_at: float = math.nan
     latency_s: float = math.nan
     port: str = ""
+    measured_at: float = math.nan
+    timing_uncertainty_s: float = math.nan
+
+    @property
+    def t(self) -> float:
+        """The frame's time stamp (monotonic s): ``measured_at`` when known, else
+        ``received_at``."""
+        return self.measured_at if math.isfinite(self.measured_at) else self.received_at
 
     @property
     def frame_number(self) -> int | None:
@@ -476,17 +522,18 @@ class TrackerFrame:
     def to_sample(
         self, handle: int | None = None, accept_out_of_volume: bool = False
     ) -> TrackerSample:
-        """The :class:`~hexcal.acquisition.TrackerSample` of ``handle``: a pose, or a fault."""
+        """The :class:`~hexcal.acquisition.TrackerSample` of ``handle``: a pose, or a fault,
+        stamped :attr:`t` (the frame's measurement instant when the driver estimated it)."""
         try:
             tool = self.tool(handle)
         except KeyError as exc:
-            return TrackerSample(self.received_at, None, None, fault=str(exc.args[0]))
+            return TrackerSample(self.t, None, None, fault=str(exc.args[0]))
         faults = [p for p in (tool.problem(self.port, accept_out_of_volume),) if p]
         faults += self.system_problems(SYSTEM_FAULT_BITS)
         if not tool.visible:
-            return TrackerSample(self.received_at, None, None, fault="; ".join(faults))
+            return TrackerSample(self.t, None, None, fault="; ".join(faults))
         return TrackerSample(
-            self.received_at,
+            self.t,
             tool.position,
             tool.quaternion,
             tool.rms_mm,
@@ -663,6 +710,398 @@ def parse_phsr_reply(
 
 
 # ------------------------------------------------------------------------------------------------
+# Frame clock
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class FrameTime:
+    """When a frame was measured: ``t`` (host monotonic s), ``uncertainty_s`` (half-width of the
+    interval it lies in, s) and ``locked`` (True: from the fitted frame clock; False: from the
+    poll that first returned the frame alone). NaN when nothing is known."""
+
+    t: float
+    uncertainty_s: float
+    locked: bool
+
+
+class FrameClock:
+    """The host time (``time.monotonic()``, s) at which each tracker frame was measured, from the
+    frame numbers polls return.
+
+    A tracker measures frame n at its own fixed rate and answers a poll with the newest frame it
+    has. The host cannot see when the tracker acted on a poll, only that it was within
+    ``[t_lo, t_hi]`` (:meth:`observe`; the driver derives them from the command's write time and
+    its transfer time, see :class:`NDITracker`). So frame n existed at ``t_hi`` (an *upper*
+    point: t(n) <= t_hi) and frame n + 1 did not yet exist at ``t_lo`` (a *lower* point:
+    t(n + 1) > t_lo). Frames come at a fixed period T, t(n) = t_ref + (n - n_ref) T, and the
+    points of many frames pin that line down far better than any one poll does. Over the last
+    ``window_s``:
+
+    - the periods consistent with every point form an interval (the lines that pass above
+      every lower point and below every upper point; only the two convex hulls matter). The
+      configured ``frame_rate_hz``, known to ``drift_ppm`` (the tracker's and the host's
+      crystals), narrows it while the two agree. With ``fit_rate``, the points alone decide
+      once they rule the configured rate out (a tracker clock drifting against the host's, or
+      a wrong setting); without it, that is a contradiction;
+    - the newest frame's time lies between the lowest and the highest value any consistent line
+      gives it: the tightest consistent interval. Its midpoint is the estimate; its half-width
+      plus ``tolerance_s`` the uncertainty. Other frames follow the line through it with the
+      best period (the one closest on average to the lower points, which are hard bounds —
+      Moon, Skelly and Towsley's linear-programming clock skew estimate, upside down), their
+      uncertainty growing with their distance by the spread of consistent periods.
+
+    An upper point that no line through the lower points can pass above contradicts them: the
+    tracker acted later than the bounds allow. A few (up to ``max_contradictions`` of the upper
+    points) are dropped; more, or fewer than ``min_frames`` frames, or a configured rate the
+    points rule out without ``fit_rate``, and the clock is not trusted: :meth:`time_of` falls
+    back to the frame's own interval — from the previous poll, which returned an older frame,
+    to the reply that first carried this one — and its larger half-width. The first
+    contradiction is logged, and so is a fitted rate further than ``rate_tolerance``
+    (relative) from ``frame_rate_hz``. A frame counter that goes back (the tracker was reset,
+    or the 32-bit counter wrapped) or leaps further than the elapsed time allows restarts the
+    clock.
+    """
+
+    def __init__(
+        self,
+        frame_rate_hz: float = 60.0,
+        *,
+        fit_rate: bool = True,
+        drift_ppm: float = 200.0,
+        window_s: float = 30.0,
+        max_frames: int = 4096,
+        min_frames: int = 30,
+        rebuild_every: int = 15,
+        rate_tolerance: float = 0.01,
+        max_contradictions: float = 0.02,
+        tolerance_s: float = 1e-4,
+        name: str = "the tracker",
+    ):
+        if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
+            raise ValueError(f"frame_rate_hz must be a positive number of Hz, not {frame_rate_hz}")
+        self.frame_rate_hz = float(frame_rate_hz)
+        self.fit_rate = fit_rate
+        self.drift_ppm = float(drift_ppm)
+        self.window_s = float(window_s)
+        self.max_frames = int(max_frames)
+        self.min_frames = int(min_frames)
+        self.rebuild_every = int(rebuild_every)
+        self.rate_tolerance = float(rate_tolerance)
+        self.max_contradictions = float(max_contradictions)
+        self.tolerance_s = float(tolerance_s)
+        self.name = name
+        #: How many times the clock restarted (frame counter went back or leapt).
+        self.resets = 0
+        #: Upper points dropped as contradicting the lower ones (the tracker acted late).
+        self.dropped = 0
+        self._warned_rate = False
+        self._warned_inconsistent = False
+        self.reset()
+        self.resets = 0
+
+    def reset(self, why: str = "") -> None:
+        """Forget everything (a new tracker session, or its frame counter restarted)."""
+        if why:
+            log.info("frame clock of %s restarted: %s", self.name, why)
+        self.resets += 1
+        self._lo: deque[tuple[int, float]] = deque()  # (frame k, t): t(k) > t
+        self._hi: deque[tuple[int, float]] = deque()  # (frame k, t): t(k) <= t
+        self._own: deque[tuple[int, float, float]] = deque(maxlen=256)  # (k, lo, hi) per frame
+        self._last: tuple[int, float] | None = None  # (frame, t_lo) of the last poll
+        # Hull vertices (absolute frame, t) as of the last refresh: the upper hull of the lower
+        # points and the lower hull of the upper points; rebuilt from every point now and then
+        # (points leave the window), extended with the new points in between.
+        self._lo_hull: list[tuple[int, float]] = []
+        self._hi_hull: list[tuple[int, float]] = []
+        self._new_frames = self.rebuild_every  # frames since the last rebuild
+        self._dirty = True
+        self._state = "warming up"
+        # The line: n_ref, t_ref (s), period (s), half-width (s), period spread (s).
+        self._line: tuple[int, float, float, float, float] | None = None
+        self._fitted = False
+
+    # -- input ------------------------------------------------------------------------------------
+    def observe(self, frame: int, t_lo: float, t_hi: float, t_recv: float) -> bool:
+        """One poll: the tracker acted on it at some host time in ``[t_lo, t_hi]`` (s) and
+        returned ``frame`` as its newest; the reply's last byte came at ``t_recv`` (s, >=
+        ``t_hi``). Returns True when ``frame`` is new (not returned by an earlier poll)."""
+        if self._last is not None:
+            last_frame, last_lo = self._last
+            # The most frames that can have come since the last poll acted: twice the rate.
+            most = 2.0 * self.frame_rate_hz * max(t_recv - last_lo, 0.0) + 10
+            if frame < last_frame:
+                self.reset(f"its frame counter went back from {last_frame} to {frame}")
+            elif frame - last_frame > most:
+                self.reset(f"its frame counter leapt from {last_frame} to {frame}")
+        new = self._last is None or frame > self._last[0]
+        if new:
+            # The poll before returned an older frame: this one was measured after that poll
+            # reached the tracker. With no poll before, the newest frame is < one period old.
+            lower = self._last[1] if self._last is not None else t_lo - 1.0 / self.frame_rate_hz
+            self._own.append((frame, lower, t_recv))
+            self._hi.append((frame, t_hi))
+            self._new_frames += 1
+        if self._lo and self._lo[-1][0] == frame + 1:
+            self._lo[-1] = (frame + 1, max(self._lo[-1][1], t_lo))  # the latest poll is tighter
+        else:
+            self._lo.append((frame + 1, t_lo))
+        self._last = (frame, t_lo)
+        for points in (self._lo, self._hi):
+            while points and (points[0][1] < t_lo - self.window_s or len(points) > self.max_frames):
+                points.popleft()
+        # A repeated frame only tightens the next frame's lower point: the fit can wait for
+        # that frame (polls come several times per frame; each refresh costs).
+        self._dirty = self._dirty or new
+        return new
+
+    # -- output -----------------------------------------------------------------------------------
+    def time_of(self, frame: int) -> FrameTime:
+        """When ``frame`` was measured (host monotonic s) and how well that is known."""
+        self._refresh()
+        if self._line is not None:
+            n_ref, t_ref, period, half, spread = self._line
+            return FrameTime(
+                t_ref + (frame - n_ref) * period, half + spread * abs(frame - n_ref), True
+            )
+        for k, lo, hi in reversed(self._own):
+            if k == frame:
+                return FrameTime(0.5 * (lo + hi), 0.5 * (hi - lo), False)
+        return FrameTime(math.nan, math.nan, False)
+
+    @property
+    def state(self) -> str:
+        """``"warming up"`` (too few frames), ``"locked"`` or ``"inconsistent"``."""
+        self._refresh()
+        return self._state
+
+    def stats(self) -> dict[str, float | int | str | bool]:
+        """The clock now: ``state``, ``frames`` (in the window), ``span_s`` (of the window),
+        ``uncertainty_s`` (s: half-width of the interval of the newest frame's time when
+        locked, else that of its own poll interval), ``frame_rate_hz`` (the rate in use),
+        ``rate_fitted`` (the points, not the configured rate, decide it), ``rate_offset_ppm``
+        (that rate against ``frame_rate_hz``, by the host clock), ``rate_uncertainty_ppm``
+        (how far the consistent rates reach from it), ``dropped`` (upper points dropped as
+        contradictions), ``resets``."""
+        self._refresh()
+        if self._line is not None:
+            unc, period = self._line[3], self._line[2]
+            spread_ppm = self._line[4] / period * 1e6
+        else:
+            unc = 0.5 * (self._own[-1][2] - self._own[-1][1]) if self._own else math.nan
+            period, spread_ppm = 1.0 / self.frame_rate_hz, math.nan
+        rate = 1.0 / period
+        return {
+            "state": self._state,
+            "frames": len(self._hi),
+            "span_s": self._lo[-1][1] - self._lo[0][1] if self._lo else 0.0,
+            "uncertainty_s": unc,
+            "frame_rate_hz": rate,
+            "rate_fitted": self._fitted,
+            "rate_offset_ppm": (rate / self.frame_rate_hz - 1.0) * 1e6,
+            "rate_uncertainty_ppm": spread_ppm,
+            "dropped": self.dropped,
+            "resets": self.resets,
+        }
+
+    # -- the fit ----------------------------------------------------------------------------------
+    def _refresh(self) -> None:
+        if not self._dirty:
+            return
+        self._dirty = False
+        self._line = None
+        self._fitted = False
+        if min(len(self._lo), len(self._hi)) < self.min_frames:
+            self._state = "warming up"
+            return
+        self._update_hulls()
+        # Relative to the newest frame: frame numbers reach 2**32 and host times 1e6 s, while
+        # the line must be right to 1e-5 s.
+        n_ref, t_ref = self._hi[-1]
+        lx, ly = _relative(self._lo_hull, n_ref, t_ref)
+        ux, uy = _relative(self._hi_hull, n_ref, t_ref)
+        tol = self.tolerance_s
+        consistent = _period_range(lx, ly, ux, uy, tol)
+        if consistent is None and self._drop_contradictions(n_ref, t_ref):
+            lx, ly = _relative(self._lo_hull, n_ref, t_ref)
+            ux, uy = _relative(self._hi_hull, n_ref, t_ref)
+            consistent = _period_range(lx, ly, ux, uy, tol)
+        nominal = 1.0 / self.frame_rate_hz
+        prior = (nominal * (1 - self.drift_ppm * 1e-6), nominal * (1 + self.drift_ppm * 1e-6))
+        if consistent is None:
+            self._inconsistent(f"no frame period fits every poll of the last {self.window_s:g} s")
+            return
+        both = (max(consistent[0], prior[0]), min(consistent[1], prior[1]))
+        if both[0] <= both[1]:
+            periods = both
+            self._fitted = both != prior
+        elif self.fit_rate:
+            periods = consistent
+            self._fitted = True
+        else:
+            self._inconsistent(
+                f"the polls need a frame rate of {1 / consistent[1]:.6g} to "
+                f"{1 / consistent[0]:.6g} Hz"
+            )
+            return
+        if not (math.isfinite(periods[0]) and math.isfinite(periods[1])):
+            self._state = "warming up"  # too short a span to bound the rate yet
+            return
+        low = _lowest_max(lx, ly, periods)  # the earliest time a consistent line gives frame 0
+        high = _highest_min(ux, uy, periods)  # the latest
+        best = min(max(_upper_hull_slope(lx, ly) or nominal, periods[0]), periods[1])
+        half = 0.5 * max(high - low, 0.0) + tol
+        spread = max(best - periods[0], periods[1] - best)
+        self._line = (int(n_ref), t_ref + 0.5 * (low + high), best, half, spread)
+        self._state = "locked"
+        if self._fitted:
+            self._check_rate(1.0 / best)
+
+    def _update_hulls(self) -> None:
+        if self._new_frames >= self.rebuild_every or not self._lo_hull or not self._hi_hull:
+            self._new_frames = 0
+            self._lo_hull = _hull(list(self._lo), upper=True)
+            self._hi_hull = _hull(list(self._hi), upper=False)
+            return
+        # Only the points since the last refresh can add vertices; the tightened last lower
+        # point replaces its older value.
+        for hull, points, upper in (
+            (self._lo_hull, self._lo, True),
+            (self._hi_hull, self._hi, False),
+        ):
+            last = hull[-1][0]
+            tail = []
+            for p in reversed(points):
+                if p[0] < last:
+                    break
+                tail.append(p)
+            merged = [v for v in hull if v[0] < tail[-1][0]] + tail[::-1] if tail else hull
+            hull[:] = _hull(merged, upper=upper)
+
+    def _drop_contradictions(self, n_ref: int, t_ref: float) -> bool:
+        """Drop the upper points that lie below the best line through the lower points, if they
+        are few; True when some were dropped."""
+        lx, ly = _relative(self._lo_hull, n_ref, t_ref)
+        period = _upper_hull_slope(lx, ly)
+        if period is None:
+            return False
+        line = float(np.max(ly - period * lx))
+        hi = np.asarray(self._hi, float)
+        below = hi[:, 1] - t_ref - period * (hi[:, 0] - n_ref) < line - self.tolerance_s
+        n = int(np.count_nonzero(below))
+        if n == 0 or n > max(1.0, self.max_contradictions * len(hi)):
+            return False
+        self.dropped += n
+        self._hi = deque(p for p, bad in zip(self._hi, below.tolist(), strict=True) if not bad)
+        self._new_frames = self.rebuild_every
+        self._update_hulls()
+        return True
+
+    def _inconsistent(self, why: str) -> None:
+        self._state = "inconsistent"
+        if self._warned_inconsistent:
+            return
+        self._warned_inconsistent = True
+        log.warning(
+            "the frame numbers from %s contradict its poll times (%s; configured frame_rate_hz "
+            "= %g Hz): samples are stamped at the midpoint of their own poll interval meanwhile "
+            "(uncertainty several ms). Check frame_rate_hz; if it is right, the tracker acts on "
+            "commands later than assumed (raise command_delay_spread_s) or sooner (lower "
+            "command_delay_s, e.g. for a network tracker)",
+            self.name,
+            why,
+            self.frame_rate_hz,
+        )
+
+    def _check_rate(self, rate: float) -> None:
+        if abs(rate / self.frame_rate_hz - 1.0) > self.rate_tolerance and not self._warned_rate:
+            self._warned_rate = True
+            log.warning(
+                "%s delivers frames at %.6g Hz by the host clock, not the configured "
+                "frame_rate_hz = %g Hz: the fitted rate is used, but check the setting against "
+                "the tracker model's frame rate",
+                self.name,
+                rate,
+                self.frame_rate_hz,
+            )
+
+
+def _relative(
+    points: list[tuple[int, float]], n_ref: int, t_ref: float
+) -> tuple[np.ndarray, np.ndarray]:
+    arr = np.asarray(points, float)
+    return arr[:, 0] - n_ref, arr[:, 1] - t_ref
+
+
+def _hull(points: list[tuple[int, float]], upper: bool) -> list[tuple[int, float]]:
+    """The upper (or lower) convex hull of ``points`` sorted by frame, one point per frame."""
+    sign = 1.0 if upper else -1.0
+    hull: list[tuple[int, float]] = []
+    x0, y0 = points[0]
+    for p in points:
+        px, py = p[0] - x0, sign * (p[1] - y0)
+        while len(hull) >= 2:
+            (ax, ay), (bx, by) = hull[-2], hull[-1]
+            ax, ay, bx, by = ax - x0, sign * (ay - y0), bx - x0, sign * (by - y0)
+            # Keep b only if a -> b -> p turns clockwise (b above the chord a-p).
+            if (bx - ax) * (py - ay) - (by - ay) * (px - ax) >= 0:
+                hull.pop()
+            else:
+                break
+        hull.append(p)
+    return hull
+
+
+def _period_range(
+    lx: np.ndarray, ly: np.ndarray, ux: np.ndarray, uy: np.ndarray, tol: float
+) -> tuple[float, float] | None:
+    """The periods T for which some line t = c + T x passes above every lower point (lx, ly)
+    and below every upper point (ux, uy), within ``tol``; None when there are none. Every pair
+    of a lower and an upper point bounds T on one side."""
+    dx = ux[None, :] - lx[:, None]
+    dy = uy[None, :] - ly[:, None] + tol
+    if np.any((dx == 0) & (dy < 0)):
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = dy / dx
+    lo = float(np.max(ratio[dx < 0], initial=-math.inf))
+    hi = float(np.min(ratio[dx > 0], initial=math.inf))
+    return (max(lo, 0.0), hi) if max(lo, 0.0) <= hi else None
+
+
+def _lowest_max(x: np.ndarray, y: np.ndarray, periods: tuple[float, float]) -> float:
+    """min over T in ``periods`` of max_i (y_i - T x_i): the earliest time at x = 0 of a line
+    above every point (x, y) with a period in the range. Convex in T: the minimum is at an end
+    or at a hull edge's slope."""
+    edges = np.diff(y) / np.diff(x) if len(x) > 1 else np.array([])
+    ts = np.concatenate(
+        [[periods[0], periods[1]], edges[(edges > periods[0]) & (edges < periods[1])]]
+    )
+    return float(np.min(np.max(y[None, :] - ts[:, None] * x[None, :], axis=1)))
+
+
+def _highest_min(x: np.ndarray, y: np.ndarray, periods: tuple[float, float]) -> float:
+    """max over T in ``periods`` of min_j (y_j - T x_j): the latest time at x = 0 of a line
+    below every point (x, y) with a period in the range."""
+    edges = np.diff(y) / np.diff(x) if len(x) > 1 else np.array([])
+    ts = np.concatenate(
+        [[periods[0], periods[1]], edges[(edges > periods[0]) & (edges < periods[1])]]
+    )
+    return float(np.max(np.min(y[None, :] - ts[:, None] * x[None, :], axis=1)))
+
+
+def _upper_hull_slope(x: np.ndarray, y: np.ndarray) -> float | None:
+    """The slope of the upper hull's edge (vertices (x, y), x increasing) over the mean of the
+    points it was built from: the line on or above every point closest to them on average
+    (Moon, Skelly and Towsley's linear-programming clock skew estimate, upside down). Given the
+    hull only, the mean of its vertices' span stands in. None with fewer than two vertices."""
+    if len(x) < 2:
+        return None
+    xm = 0.5 * (float(x[0]) + float(x[-1]))
+    k = int(np.searchsorted(x, xm))
+    k = min(max(k, 1), len(x) - 1)
+    return float((y[k] - y[k - 1]) / (x[k] - x[k - 1]))
+
+
+# ------------------------------------------------------------------------------------------------
 # The driver
 # ------------------------------------------------------------------------------------------------
 class NDITracker:
@@ -675,6 +1114,19 @@ class NDITracker:
     ``"auto"`` (BREAK, then the command if no answer in ``reset_timeout_s``). ``settle_s`` is the
     pause after COMM and INIT that ndicapi also makes; ``tool_mode`` the PENA tracking priority.
     ``pose_handle`` selects the tool :meth:`sample` reports (default: the first enabled one).
+
+    Timing (see :class:`FrameClock` and the module docstring): ``frame_rate_hz`` is the
+    tracker's nominal frame rate (Polaris 60 Hz), fitted from the polls when
+    ``fit_frame_rate``; ``command_delay_s`` the least time (s) from handing a command to the
+    port to the tracker acting on it — None: the command's transfer time at ``baudrate``
+    (10 bits per byte), which no serial link can beat; ``command_delay_spread_s`` how much
+    later (s) than that, after the write returned, the tracker may act (USB scheduling, the
+    tracker's own parsing; too small a value shows as contradicting frame times, which
+    :meth:`clock_stats` counts and a warning names). The tracker's answer *after* acting
+    (processing, reply transfer, host latency) does not matter. ``frame_latency_s`` is how long
+    (s) before a frame is available to a command the tracker exposed it: a constant of the
+    tracker no host-side timing can see (0 for the mock; measure it once, e.g. against a
+    motion of known timing), subtracted from every stamp.
 
     Typical use::
 
@@ -701,6 +1153,11 @@ class NDITracker:
         accept_out_of_volume: bool = False,
         max_jitter_s: float = 0.02,
         resync_s: float = 0.05,
+        frame_rate_hz: float = 60.0,
+        fit_frame_rate: bool = True,
+        command_delay_s: float | None = None,
+        command_delay_spread_s: float = 0.5e-3,
+        frame_latency_s: float = 0.0,
     ):
         if baudrate not in BAUD_CODES:
             rates = ", ".join(str(b) for b in BAUD_CODES)
@@ -709,6 +1166,10 @@ class NDITracker:
             )
         if reset not in ("auto", "break", "command"):
             raise ValueError(f"reset must be 'auto', 'break' or 'command', not {reset!r}")
+        if command_delay_s is not None and not command_delay_s >= 0:
+            raise ValueError(f"command_delay_s must be >= 0 s or None, not {command_delay_s}")
+        if not command_delay_spread_s >= 0:
+            raise ValueError(f"command_delay_spread_s must be >= 0 s, not {command_delay_spread_s}")
         self.url = url
         self.baudrate = baudrate
         self.timeout = float(timeout)
@@ -732,6 +1193,12 @@ class NDITracker:
         self._resync = False  # a reply timed out: it may still arrive late
         self._latencies: deque[float] = deque(maxlen=50)
         self._last_sample_frame: int | None = None
+        self.command_delay_s = None if command_delay_s is None else float(command_delay_s)
+        self.command_delay_spread_s = float(command_delay_spread_s)
+        self.frame_latency_s = float(frame_latency_s)
+        #: Maps frame numbers to host times (see :meth:`clock_stats`).
+        self.frame_clock = FrameClock(frame_rate_hz, fit_rate=fit_frame_rate, name=url)
+        self._clock_suspect = False  # an exchange failed: the next reply may be a stale one
 
     def __repr__(self) -> str:
         state = "tracking" if self.tracking else ("open" if self.port is not None else "closed")
@@ -756,6 +1223,10 @@ class NDITracker:
             self._resync = False
             self.tracking = False
             self.handles = ()
+            # A reset tracker may count frames afresh: nothing learned so far holds.
+            self.frame_clock.reset()
+            self._clock_suspect = False
+            self._last_sample_frame = None
             try:
                 self._reset_tracker()
                 if self.baudrate != 9600:
@@ -869,20 +1340,57 @@ class NDITracker:
     # -- tracking -------------------------------------------------------------------------------
     def poll(self) -> TrackerFrame:
         """One ``TX:0001`` frame: every handle's pose or MISSING status, the frame number, the
-        system status, and the host receive time."""
-        with self._lock:
-            raw, t_sent, t_recv = self._exchange("TX:0001", self.timeout, binary=False)
-            frame = parse_tx_reply(raw, t_recv, port=self.url, latency_s=t_recv - t_sent)
-            self._note_frame(frame)
-            return frame
+        system status, the host receive time and the frame's measurement time."""
+        return self._poll("TX:0001", binary=False)
 
     def poll_binary(self) -> TrackerFrame:
         """One ``BX:0001`` frame (float32 values: finer than TX's text resolution)."""
+        return self._poll("BX:0001", binary=True)
+
+    def _poll(self, command: str, binary: bool) -> TrackerFrame:
+        parse = parse_bx_reply if binary else parse_tx_reply
         with self._lock:
-            raw, t_sent, t_recv = self._exchange("BX:0001", self.timeout, binary=True)
-            frame = parse_bx_reply(raw, t_recv, port=self.url, latency_s=t_recv - t_sent)
+            try:
+                ex = self._exchange(command, self.timeout, binary=binary)
+                frame = parse(ex.raw, ex.t_recv, port=self.url, latency_s=ex.t_recv - ex.t_sent)
+            except TrackerError:
+                self._clock_suspect = True
+                raise
+            frame = self._stamp(frame, command, ex)
             self._note_frame(frame)
             return frame
+
+    def _stamp(self, frame: TrackerFrame, command: str, ex: _Exchange) -> TrackerFrame:
+        """``frame`` with its measurement time from the frame clock, which it also feeds."""
+        number = frame.frame_number
+        if number is None:
+            return frame
+        if self._clock_suspect:
+            # After a failed exchange this reply may answer an earlier command (a late one that
+            # escaped the resync): its frame number maps to a time all the same, but its bounds
+            # would be wrong, so it teaches the clock nothing.
+            self._clock_suspect = False
+        else:
+            delay = self._command_delay(command)
+            self.frame_clock.observe(
+                number,
+                ex.t_write + delay,
+                min(ex.t_sent + delay + self.command_delay_spread_s, ex.t_recv),
+                ex.t_recv,
+            )
+        when = self.frame_clock.time_of(number)
+        return replace(
+            frame,
+            measured_at=when.t - self.frame_latency_s,
+            timing_uncertainty_s=when.uncertainty_s,
+        )
+
+    def _command_delay(self, command: str) -> float:
+        """The least time (s) from writing ``command`` to the tracker acting on it."""
+        if self.command_delay_s is not None:
+            return self.command_delay_s
+        baud = self.port.baudrate if self.port is not None else self.baudrate
+        return len(build_command(command)) * BITS_PER_BYTE / baud
 
     def sample(self, binary: bool = False) -> TrackerSample:
         """The next new frame (frame number changed) as a :class:`TrackerSample` of
@@ -905,6 +1413,18 @@ class NDITracker:
                 )
                 return TrackerSample(frame.received_at, None, None, fault=stale)
             time.sleep(0.002)  # polled faster than the tracker's frame rate: same frame again
+
+    def clock_stats(self) -> dict[str, float | int | str | bool]:
+        """The frame clock now (:meth:`FrameClock.stats`): ``state`` ("warming up", "locked",
+        "inconsistent"), ``uncertainty_s`` (half-width of the interval a frame's measurement
+        time is known to lie in, s), ``frame_rate_hz`` (fitted when ``rate_fitted``),
+        ``rate_offset_ppm``, ``frames``, ``span_s``, ``contradictions``, ``resets``; plus the
+        ``command_delay_s`` (at the current baud rate) and ``command_delay_spread_s`` assumed."""
+        with self._lock:
+            stats = self.frame_clock.stats()
+            stats["command_delay_s"] = self._command_delay("TX:0001")
+            stats["command_delay_spread_s"] = self.command_delay_spread_s
+            return stats
 
     def latency_stats(self) -> dict[str, float]:
         """Reply latency over the last polls: n, mean_s, min_s, max_s, spread_s."""
@@ -930,7 +1450,7 @@ class NDITracker:
         """Send an ASCII command; return its checked payload (CRC removed). Raises
         :class:`TrackerReplyError` for ``ERRORxx`` and the link errors."""
         with self._lock:
-            raw, _, _ = self._exchange(command, self.timeout if timeout is None else timeout)
+            raw = self._exchange(command, self.timeout if timeout is None else timeout).raw
             payload = checked_payload(raw, self.url, command)
             if payload[:7] == b"WARNING":
                 log.warning(
@@ -959,9 +1479,9 @@ class NDITracker:
                     f"the tracker on {self.url} answers with an irregular delay: "
                     f"{st['min_s'] * 1e3:.1f} to {st['max_s'] * 1e3:.1f} ms over the last {st['n']} "
                     f"polls (jitter {st['spread_s'] * 1e3:.1f} ms > {self.max_jitter_s * 1e3:.0f} ms), "
-                    "so host receive times are uncertain by that much. Use the tracker's frame "
-                    "numbers for timing, keep the robot still during each still window, and check the "
-                    "host load or the USB hub/adapter"
+                    "so host receive times are uncertain by that much. Samples are stamped from the "
+                    "tracker's frame numbers (clock_stats()), which this does not upset, but check "
+                    "the host load or the USB hub/adapter"
                 )
                 log.warning(self.timing_warning)
         elif st["spread_s"] < 0.5 * self.max_jitter_s:
@@ -990,10 +1510,8 @@ class NDITracker:
             self.url,
         )
 
-    def _exchange(
-        self, command: str, timeout: float, binary: bool = False
-    ) -> tuple[bytes, float, float]:
-        """Send ``command``; return (raw reply, time sent, time received), unchecked."""
+    def _exchange(self, command: str, timeout: float, binary: bool = False) -> _Exchange:
+        """Send ``command``; return the raw reply, unchecked, and the host times around it."""
         port = self._require_port()
         data = build_command(command)
         try:
@@ -1001,6 +1519,7 @@ class NDITracker:
                 self._drain(port, self.resync_s)
             # Anything unread is left over from a failed exchange (ndicapi does the same).
             port.reset_input_buffer()
+            t_write = time.monotonic()  # the command cannot reach the tracker before this
             port.write(data)
             t_sent = time.monotonic()
             deadline = t_sent + timeout
@@ -1009,7 +1528,7 @@ class NDITracker:
                 if binary
                 else self._read_line(port, command, deadline)
             )
-            return raw, t_sent, time.monotonic()
+            return _Exchange(raw, t_write, t_sent, time.monotonic())
         except serial.SerialTimeoutException as exc:
             raise TrackerTimeout(
                 f"could not send {command!r} to the tracker on {self.url} within {self.timeout:g} s "

@@ -7,9 +7,18 @@ documented there: BREAK or ``RESET`` -> ``RESETBE6F`` at 9600 baud; ``COMM``, ``
 ``NAME params`` form carries none. Commands out of order get the error a tracker gives
 (``ERROR10`` before INIT, ``ERROR0C`` for TX outside tracking...).
 
-Its one tool (port handle 01) is the platform of a :class:`~hexcal.mock_hw.robot.MockRobot`:
-each new tracker frame (``frame_rate_hz``) takes one :meth:`MockRobot.tracker_sample`, and polls
-within the same frame get the same reading, as from a real tracker. The tool is MISSING when the
+Its one tool (port handle 01) is the platform of a :class:`~hexcal.mock_hw.robot.MockRobot`.
+
+Timing, as on a real tracker: frame n (the counter starts at 1 when the device is created) is
+measured at its frame boundary ``t0 + (n - 1) / frame_rate_hz`` on the device's ``clock``: the
+robot's pose *as of that instant* (:meth:`MockRobot.tracker_sample` with ``at``), whenever the
+first poll of the frame comes; later polls within the frame get the same reading. A command
+takes effect when its last byte has crossed the serial line (10 bits per byte at the tracker's
+current baud rate, counted from the host's write), so a TX/BX reply carries the newest frame at
+that instant; the host's write returns at once, as a real port's does (the work is done when the
+host next looks at the line, as of that instant). The reply itself is not slowed by its length:
+``delay_s`` and ``jitter_s`` model the return path. :attr:`MockNDITracker.frame_times` records the true measurement instant of every
+frame served, for tests and benchmarks of host-side time stamping. The tool is MISSING when the
 robot's ``tool_visible`` is False; it is flagged out of volume (port status 0x40, or 0x80 within
 ``volume_margin_mm`` of the boundary) when outside ``volume_mm``. With ``tool_plugged`` False
 (from the next reset on) the port is empty and setup finds no tool.
@@ -68,6 +77,9 @@ COMM_BAUD = {
 }
 
 OCCUPIED, INITIALIZED, ENABLED = 0x01, 0x10, 0x20
+
+#: Bits on the line per byte: start, 8 data, stop (8N1).
+BITS_PER_BYTE = 10
 OUT_OF_VOLUME, PARTIALLY_OUT = 0x40, 0x80
 
 #: The characterised volume, tracker frame, mm: (min corner, max corner).
@@ -165,6 +177,9 @@ class MockNDITracker:
     """The simulated tracker. ``robot`` (default: ``MockRobot(left_hand(), seed=seed)``) gives
     the tool's pose; ``seed`` also drives the fault draws; ``clock`` (s) times the frames."""
 
+    #: How many frames :attr:`frame_times` remembers (about 28 min at 60 Hz).
+    FRAME_LOG_LEN = 100_000
+
     def __init__(
         self,
         robot: MockRobot | None = None,
@@ -207,6 +222,13 @@ class MockNDITracker:
         self.system_status = 0
         self.plugged = True
         self.generation = 0  # bumped at each unplug: ports opened before are dead
+        #: (frame number, ``clock()`` time s at which it was measured) of every frame served in a
+        #: TX/BX reply, oldest first; the ground truth for the host's frame time stamps.
+        self.frame_times: deque[tuple[int, float]] = deque(maxlen=self.FRAME_LOG_LEN)
+        # Commands received and not acted on yet: (line, device clock s, time.monotonic() s
+        # at which each takes effect), and the times of the one being handled.
+        self._inbox: deque[tuple[bytes, float, float]] = deque()
+        self._t_cmd: tuple[float, float] | None = None
         self._power_on()
 
     # -- state ----------------------------------------------------------------------------------
@@ -217,9 +239,15 @@ class MockNDITracker:
         self.ports: dict[int, int] = {0x01: OCCUPIED} if self.tool_plugged else {}
         self._cached: tuple[int, Sample | None] | None = None
 
-    def frame_number(self) -> int:
-        """The tracker's frame counter: frames since power-up at ``frame_rate_hz``."""
-        return 1 + int((self.clock() - self._t0) * self.frame_rate_hz)
+    def frame_number(self, at: float | None = None) -> int:
+        """The tracker's frame counter at ``clock()`` time ``at`` (s; None: now): frames since the
+        device was created, at ``frame_rate_hz``."""
+        t = self.clock() if at is None else at
+        return 1 + math.floor((t - self._t0) * self.frame_rate_hz)
+
+    def frame_time(self, frame: int) -> float:
+        """The ``clock()`` time (s) at which frame ``frame`` is measured: its frame boundary."""
+        return self._t0 + (frame - 1) / self.frame_rate_hz
 
     def inject(self, fault: str, count: int = 1) -> None:
         """Apply ``fault`` (one of :data:`FAULT_KINDS`) to the next ``count`` tracking replies."""
@@ -244,6 +272,7 @@ class MockNDITracker:
         flight arrives. The tracker itself keeps its state (baud rate, tracking), as a real one
         does when only the cable goes."""
         with self._cond:
+            self._process_locked()  # what reached the tracker before the pull is acted on
             self.plugged = False
             self.generation += 1
             self._discard_locked()
@@ -259,6 +288,7 @@ class MockNDITracker:
     def on_break(self) -> None:
         """A serial BREAK: reset to 9600 baud and answer RESETBE6F."""
         with self._cond:
+            self._process_locked()
             self._discard_locked()
             self._inbuf.clear()
             self.commands.append("<BREAK>")
@@ -266,19 +296,43 @@ class MockNDITracker:
             self._emit(with_crc(b"RESET"))
 
     def feed(self, data: bytes, host_baud: int | None = None) -> None:
-        """Bytes from the host, sent at ``host_baud`` (None: unknown, assumed right)."""
+        """Bytes from the host, sent at ``host_baud`` (None: unknown, assumed right).
+
+        Each complete command is acted on *as of* the instant its last byte has crossed the
+        line; the work is done when the host next looks at the line (reads, polls, flushes), so
+        that the host's write returns at once, as a real port's does."""
         with self._cond:
+            self._process_locked()  # earlier commands first: COMM changes the rate heard
             if host_baud is not None and host_baud != self.baud:
                 self.framing_errors += 1
                 self._inbuf.clear()
                 return
+            t_clock, t_mono = self.clock(), time.monotonic()
+            earlier = len(self._inbuf)  # bytes of a command begun by an earlier write
             self._inbuf += data
+            done = 0
             while (end := self._inbuf.find(b"\r")) >= 0:
                 line = bytes(self._inbuf[:end])
                 del self._inbuf[: end + 1]
-                self._handle(line)
+                # The command takes effect when its CR has crossed the line: the bytes of this
+                # write up to it, at the current baud rate (a command sets the next one's rate).
+                done += end + 1
+                wire_s = max(done - earlier, 1) * BITS_PER_BYTE / self.baud
+                self._inbox.append((line, t_clock + wire_s, t_mono + wire_s))
             if len(self._inbuf) > 4096:  # no CR for that long: line noise, as a UART overruns
                 self._inbuf.clear()
+            if self._inbox:
+                self._cond.notify_all()
+
+    def _process_locked(self) -> None:
+        """Act on the commands received so far, each as of the instant it arrived."""
+        while self._inbox:
+            line, t_clock, t_mono = self._inbox.popleft()
+            self._t_cmd = (t_clock, t_mono)
+            try:
+                self._handle(line)
+            finally:
+                self._t_cmd = None
 
     def read(self, size: int, timeout: float | None, generation: int | None = None) -> bytes | None:
         """Up to ``size`` bytes that have arrived, waiting up to ``timeout`` s (None: forever)
@@ -319,6 +373,7 @@ class MockNDITracker:
     def next_arrival_in(self) -> float | None:
         """Seconds until the next byte in flight arrives (None: nothing in flight)."""
         with self._cond:
+            self._process_locked()
             if self._ready:
                 return 0.0
             return max(self._pending[0][0] - time.monotonic(), 0.0) if self._pending else None
@@ -333,6 +388,7 @@ class MockNDITracker:
     def discard_all(self) -> None:
         """The line went dead: nothing that has arrived or is in flight will be read."""
         with self._cond:
+            self._process_locked()
             self._discard_locked()
 
     def _discard_locked(self) -> None:
@@ -340,6 +396,7 @@ class MockNDITracker:
         self._ready.clear()
 
     def _release_locked(self, now: float) -> None:
+        self._process_locked()
         while self._pending and self._pending[0][0] <= now:
             self._ready += self._pending.popleft()[1]
 
@@ -366,7 +423,8 @@ class MockNDITracker:
         delay = self.faults.delay_s
         if self.faults.jitter_s > 0.0:
             delay += float(self._rng.uniform(0.0, self.faults.jitter_s))
-        release = time.monotonic() + delay
+        # Not before the command that asked for it has arrived (BREAK: at once).
+        release = (self._t_cmd[1] if self._t_cmd is not None else time.monotonic()) + delay
         if self._pending:  # a serial line keeps the order of what it carries
             release = max(release, self._pending[-1][0])
         self._pending.append((release, data))
@@ -506,9 +564,12 @@ class MockNDITracker:
         self._reply(b"OKAY")
 
     def _tool_states(self) -> list[ToolState]:
-        frame = self.frame_number()
+        now = self.clock()
+        frame = self.frame_number(self._t_cmd[0] if self._t_cmd is not None else now)
         if self._cached is None or self._cached[0] != frame:  # one measurement per frame
-            self._cached = (frame, self.robot.tracker_sample())
+            measured = self.frame_time(frame)
+            self.frame_times.append((frame, measured))
+            self._cached = (frame, self.robot.tracker_sample(at=self._robot_time(measured, now)))
         sample = self._cached[1]
         states = []
         for handle, status in sorted(self.ports.items()):
@@ -519,6 +580,13 @@ class MockNDITracker:
             states.append(ToolState(handle, sample, status, frame))
             self.last_sent[handle] = sample
         return states
+
+    def _robot_time(self, t: float, now: float) -> float:
+        """Device clock time ``t`` on the robot's clock (the two clocks may differ in tests: a
+        fake device clock, say; what is kept is how long ago ``t`` was)."""
+        if self.robot.clock is self.clock:
+            return t
+        return self.robot.clock() - (now - t)
 
     def _volume_bits(self, position: np.ndarray) -> int:
         lo, hi = self.volume_mm

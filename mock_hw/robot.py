@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -27,7 +28,15 @@ class MockRobot:
 
     ``truth`` is the true robot (its offsets are the true offsets). Poses are (P (3,) mm,
     R (3, 3)) in the tracker frame. ``temperature`` (degC) is a callable of the monotonic time.
+
+    Time: every move is stamped with ``clock()`` (s, monotonic by default), so an instrument can
+    ask for the pose that was in effect at a past instant (:meth:`tracker_sample` with ``at``):
+    a tracker measures its frame at a fixed instant and answers later. For tests and benchmarks,
+    :attr:`encoder_latches` records when each set of encoder readings was taken.
     """
+
+    #: How many (time, readings) entries :attr:`encoder_latches` keeps (200 s at 100 Hz SYNC).
+    ENCODER_LOG_LEN = 20_000
 
     def __init__(
         self,
@@ -49,6 +58,10 @@ class MockRobot:
         self._R = Rotation.from_quat(truth.home.quaternion, scalar_first=True).as_matrix()
         self._poses: list[tuple] = []  # (P, R, t, T) of every pose moved to, in order
         self.tool_visible = True
+        #: (``clock()`` s, readings (6,) mm) of every :meth:`encoder_readings` call, oldest first:
+        #: the instant each reading set was latched (the very array returned, so a device that
+        #: keeps it can be matched by identity). Bounded: :attr:`ENCODER_LOG_LEN` entries.
+        self.encoder_latches: deque[tuple[float, np.ndarray]] = deque(maxlen=self.ENCODER_LOG_LEN)
         self._readings = self._true_readings()
 
     # -- motion ---------------------------------------------------------------------------------
@@ -62,6 +75,23 @@ class MockRobot:
     def true_pose(self) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:
             return self._P.copy(), self._R.copy()
+
+    def pose_at(self, at: float) -> tuple[np.ndarray, np.ndarray]:
+        """The true pose (P (3,) mm, R (3, 3)) that was in effect at ``clock()`` time ``at`` (s):
+        the last pose moved to at or before ``at``; the current pose for a future ``at``, the
+        first pose for an ``at`` before the robot existed."""
+        with self._lock:
+            P, R = self._pose_at_locked(at)
+            return P.copy(), R.copy()
+
+    def _pose_at_locked(self, at: float) -> tuple[np.ndarray, np.ndarray]:
+        rel = at - self._t0
+        # Searched from the newest: instruments ask about the last few tens of ms.
+        for P, R, t, _ in reversed(self._poses):
+            if t <= rel:
+                return P, R
+        P, R, _, _ = self._poses[0]
+        return P, R
 
     def _true_readings(self) -> np.ndarray:
         """Noise-free readings (6,) mm at the current pose, effects included. Every pose the
@@ -79,21 +109,31 @@ class MockRobot:
         return self.sim.readings(P, R, ctx)[-1]
 
     # -- what the instruments see ----------------------------------------------------------------
-    def tracker_sample(self) -> tuple[np.ndarray, np.ndarray, float] | None:
+    def tracker_sample(
+        self, at: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, float] | None:
         """A tracker measurement: position (3,) mm, unit quaternion (4,) scalar first, RMS error
-        mm; None when the tool is out of view."""
+        mm; None when the tool is out of view.
+
+        ``at`` (s, on :attr:`clock`): measure the pose that was in effect at that instant (see
+        :meth:`pose_at`) rather than the current one — a tracker's frame is exposed at its frame
+        boundary, before the host's command reaches it. Visibility is the current one."""
         with self._lock:
             if not self.tool_visible:
                 return None
-            P, R, _ = self.sim.noise.apply(self._rng, self._P[None], self._R[None])
+            P0, R0 = (self._P, self._R) if at is None else self._pose_at_locked(at)
+            P, R, _ = self.sim.noise.apply(self._rng, P0[None], R0[None])
         q = Rotation.from_matrix(R[0]).as_quat(scalar_first=True)
         return P[0], q, float(self.sim.noise.sigma_position_mm)
 
     def encoder_readings(self) -> np.ndarray:
-        """The six encoder readings (6,) mm with encoder noise."""
+        """The six encoder readings (6,) mm with encoder noise, latched now (the call's time is
+        logged in :attr:`encoder_latches`)."""
         with self._lock:
+            t = self.clock()
             rho = self._readings.copy()
             sig = self.sim.noise
             if sig.reading_mm:
                 rho = rho + sig._draw(self._rng, sig.reading_mm, (6,))
+            self.encoder_latches.append((t, rho))
         return rho

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from hexcal.acquisition import TrackerSample
 from hexcal.drivers.crc import crc16, crc16_hex
 from hexcal.drivers.ndi import (
+    FrameClock,
     NDITracker,
     ToolReport,
     TrackerCRCError,
@@ -41,6 +42,7 @@ from hexcal.drivers.ndi import (
     parse_tx_reply,
 )
 from hexcal.mock_hw.ndi_tracker import (
+    FaultSettings,
     MockNDITracker,
     ToolState,
     format_bx_reply,
@@ -244,8 +246,11 @@ class Link:
 def _mock_link(kind: str) -> Iterator[Link]:
     robot = MockRobot(left_hand(), noise=NoiseModel(0.01, 0.002, 0.0), seed=21)
     device = MockNDITracker(robot, seed=21, frame_rate_hz=1000.0)
-    # Short waits keep the fault tests fast; the defaults are for real hardware.
-    fast = dict(timeout=0.25, settle_s=0.0, resync_s=0.02, reset_timeout_s=0.2)
+    # Short waits keep the fault tests fast; the defaults are for real hardware. The frame rate
+    # is the mock's.
+    fast = dict(
+        timeout=0.25, settle_s=0.0, resync_s=0.02, reset_timeout_s=0.2, frame_rate_hz=1000.0
+    )
     if kind == "url":
         name = f"contract{next(_names)}"
         register_device(name, device)
@@ -541,3 +546,172 @@ def test_tool_report_is_frozen():
     t = ToolReport(1, "ok")
     with pytest.raises(AttributeError):
         t.handle = 2
+
+
+# -- the frame clock -------------------------------------------------------------------------------
+@dataclass
+class SimTracker:
+    """A tracker on paper for the frame clock alone: frame n is measured at t0 + (n - 1) / rate
+    (host s). A poll written at ``t_write`` is acted on after its transfer ``d`` (plus a little
+    host write time), answered after a latency of ``delay`` + U(0, ``jitter``); the next poll
+    follows the reply within ``gap`` s."""
+
+    rate_hz: float
+    t0: float = 1000.0
+    d: float = 1.04e-3
+    delay: float = 5e-3
+    jitter: float = 3e-3
+    gap: tuple[float, float] = (5e-5, 2e-3)
+    frame_offset: int = 0  # the counter value at t0, minus 1
+
+    def true_time(self, n: int) -> float:
+        return self.t0 + (n - 1 - self.frame_offset) / self.rate_hz
+
+    def polls(self, rng: np.random.Generator, t_start: float, seconds: float):
+        """(frame, t_lo, t_hi, t_recv) of each poll, as NDITracker feeds its FrameClock."""
+        t = t_start
+        while t < t_start + seconds:
+            t_sent = t + rng.uniform(2e-5, 1e-4)
+            acted = rng.uniform(t, t_sent) + self.d
+            n = math.floor((acted - self.t0) * self.rate_hz) + 1 + self.frame_offset
+            t_recv = acted + self.delay + rng.uniform(0.0, self.jitter)
+            yield n, t + self.d, min(t_sent + self.d + 0.5e-3, t_recv), t_recv
+            t = t_recv + rng.uniform(*self.gap)
+
+
+def _run_clock(clock: FrameClock, sim: SimTracker, rng, t_start: float, seconds: float):
+    """Feed ``clock`` ``seconds`` of polls; per new frame: (host time, error s, uncertainty s,
+    locked)."""
+    out = []
+    for n, t_lo, t_hi, t_recv in sim.polls(rng, t_start, seconds):
+        if clock.observe(n, t_lo, t_hi, t_recv):
+            when = clock.time_of(n)
+            out.append((t_recv, when.t - sim.true_time(n), when.uncertainty_s, when.locked))
+    return np.array(out)
+
+
+def test_frame_clock_converges_and_follows_a_drifting_tracker_clock():
+    """A tracker whose clock runs 100 ppm fast against the host: the offset locks within a
+    second to far better than a millisecond, the fitted rate finds the drift, and every stamp
+    lies within its stated uncertainty. The reply latency (5 to 8 ms) does not bias it."""
+    rng = np.random.default_rng(7)
+    sim = SimTracker(rate_hz=60.0 * (1 + 100e-6))
+    clock = FrameClock(60.0)
+    res = _run_clock(clock, sim, rng, 999.9, 40.0)
+    t, err, unc, locked = res[:, 0] - 1000.0, res[:, 1], res[:, 2], res[:, 3].astype(bool)
+    assert not locked[0] and unc[0] > 2e-3  # one poll alone: a wide interval, said so
+    assert np.all(np.abs(err) <= unc + 1e-9)  # honest throughout, fallback included
+    after = t > 1.0
+    assert locked[after].all()
+    assert np.max(np.abs(err[after])) < 1e-3 and np.max(unc[after]) < 1e-3
+    stats = clock.stats()
+    assert stats["state"] == "locked" and stats["rate_fitted"]
+    assert stats["rate_offset_ppm"] == pytest.approx(100.0, abs=15.0)
+    assert abs(stats["rate_offset_ppm"] - 100.0) <= stats["rate_uncertainty_ppm"] < 50.0
+    fitted = t > 10.0
+    # What is left is the command delay spread the driver allows for (0.5 ms): half of it.
+    assert np.max(np.abs(err[fitted])) < 0.6e-3 and np.median(unc[fitted]) < 0.6e-3
+
+
+def test_frame_clock_warns_once_when_the_rate_is_wrong_and_falls_back(caplog):
+    """A 40 Hz tracker configured as 60 Hz with the fit off: the bounds contradict the rate,
+    one warning says so, and the stamps fall back to each frame's own poll interval (wide, but
+    still containing the truth)."""
+    rng = np.random.default_rng(3)
+    sim = SimTracker(rate_hz=40.0)
+    clock = FrameClock(60.0, fit_rate=False, name="ndimock://wrong-rate")
+    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+        res = _run_clock(clock, sim, rng, 999.9, 5.0)
+    warnings = [r.getMessage() for r in caplog.records if "contradict" in r.getMessage()]
+    assert len(warnings) == 1 and "ndimock://wrong-rate" in warnings[0]
+    assert "frame_rate_hz" in warnings[0]
+    assert not res[res[:, 0] > 1001.0, 3].any()
+    assert np.all(np.abs(res[:, 1]) <= res[:, 2] + 1e-9)
+    assert np.median(res[:, 2]) > 2e-3  # the larger uncertainty is reported, not hidden
+    assert clock.stats()["state"] != "locked"
+    # With the fit on, the same tracker is followed once its rate is fitted, and the mismatch
+    # with the configured rate is logged.
+    caplog.clear()
+    fitted = FrameClock(60.0, name="ndimock://wrong-rate")
+    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+        res = _run_clock(fitted, sim, np.random.default_rng(4), 999.9, 12.0)
+    assert fitted.stats()["frame_rate_hz"] == pytest.approx(40.0, rel=1e-4)
+    late = res[res[:, 0] > 1008.0]
+    assert late[:, 3].all() and np.max(np.abs(late[:, 1])) < 1e-3
+    assert np.all(np.abs(res[:, 1]) <= res[:, 2] + 1e-9)
+    assert any("not the configured frame_rate_hz" in r.getMessage() for r in caplog.records)
+
+
+def test_frame_clock_restarts_when_the_counter_goes_back():
+    """After a reconnect the tracker counts from 1 again: the clock starts afresh instead of
+    mapping the new numbers onto the old line, and locks onto the new one."""
+    rng = np.random.default_rng(11)
+    sim = SimTracker(rate_hz=60.0, frame_offset=5000)
+    clock = FrameClock(60.0)
+    _run_clock(clock, sim, rng, 999.9, 3.0)
+    assert clock.state == "locked" and clock.resets == 0
+    restarted = SimTracker(rate_hz=60.0, t0=1003.3)  # counter back to 1 at t0
+    res = _run_clock(clock, restarted, rng, 1003.31, 3.0)
+    assert clock.resets == 1
+    assert not res[0, 3]  # the first frames after the restart are not from the old line
+    assert np.all(np.abs(res[:, 1]) <= res[:, 2] + 1e-9)
+    assert res[-1, 3] and abs(res[-1, 1]) < 0.5e-3
+
+
+def test_stamps_match_the_mock_trackers_frame_instants():
+    """Against the mock through ``ndimock://``, with 5 ms reply delay and 3 ms jitter: once the
+    clock is warm, every new frame's stamp is within 1 ms of the instant the mock measured that
+    frame (its ``frame_times``), within the stated uncertainty, while the receive time is 5 to
+    10 ms late. TrackerSample.t is that stamp."""
+    robot = MockRobot(left_hand(), noise=NoiseModel(0.01, 0.002, 0.0), seed=31)
+    device = MockNDITracker(robot, seed=31, faults=FaultSettings(delay_s=0.005, jitter_s=0.003))
+    name = f"clock{next(_names)}"
+    register_device(name, device)
+    try:
+        with NDITracker(f"ndimock://{name}", reset="command", settle_s=0.0) as trk:
+            trk.setup_tools()
+            trk.start()
+            warm_until = time.monotonic() + 1.0
+            while time.monotonic() < warm_until:
+                trk.poll_binary()
+            assert trk.clock_stats()["state"] == "locked"
+            frames: dict[int, TrackerFrame] = {}
+            end = time.monotonic() + 1.5
+            while time.monotonic() < end:
+                f = trk.poll_binary()
+                frames.setdefault(f.frame_number, f)
+            # sample() stamps with the same clock
+            polled: list[TrackerFrame] = []
+            poll = trk.poll_binary
+            trk.poll_binary = lambda: polled.append(poll()) or polled[-1]
+            s = trk.sample(binary=True)
+            stats = trk.clock_stats()
+    finally:
+        unregister(name)
+    truth = dict(device.frame_times)
+    assert len(frames) > 60
+    err = np.array([f.measured_at - truth[n] for n, f in frames.items()])
+    unc = np.array([f.timing_uncertainty_s for f in frames.values()])
+    late = np.array([f.received_at - truth[n] for n, f in frames.items()])
+    assert np.max(np.abs(err)) < 1e-3, err
+    assert np.all(np.abs(err) <= unc + 1e-9)
+    assert np.min(late) > 5e-3  # what the old receive-time stamp was off by
+    for f in frames.values():
+        assert f.to_sample().t == f.measured_at
+    assert s.t == polled[-1].measured_at
+    assert abs(s.t - truth[polled[-1].frame_number]) < 1e-3
+    assert stats["state"] == "locked" and stats["uncertainty_s"] < 1e-3
+
+
+def test_reopening_restarts_the_frame_clock(mock_link):
+    """open() resets the tracker, which may count frames afresh: nothing learned before holds."""
+    with mock_link.tracker() as trk:
+        trk.setup_tools()
+        trk.start()
+        for _ in range(40):
+            trk.poll_binary()
+        assert trk.clock_stats()["frames"] > 0
+        trk.open()
+        stats = trk.clock_stats()
+        assert stats["frames"] == 0 and stats["state"] == "warming up"
+        assert stats["command_delay_s"] == pytest.approx(12 * 10 / trk.baudrate)

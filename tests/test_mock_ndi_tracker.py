@@ -155,12 +155,53 @@ def test_one_measurement_per_frame(robot):
     dev = tracking(MockNDITracker(robot, frame_rate_hz=60.0, clock=clock))
     a, b = ask(dev, "TX:0001"), ask(dev, "TX:0001")
     assert a == b  # same frame: same reading, as from a real tracker
-    clock.t += 1.5 / 60  # into the next frame
+    # Into the next frame: a TX command (12 bytes at 9600 baud) takes effect 12.5 ms after it
+    # is written, 0.75 of a frame, so 1.75 frames after frame 1 began.
+    clock.t += 1.0 / 60
     c = ask(dev, "TX:0001")
     assert (
         c != a
         and int(TX_POSE.fullmatch(c).group(11), 16) == int(TX_POSE.fullmatch(a).group(11), 16) + 1
     )
+
+
+def test_frame_is_measured_at_its_boundary_as_of_the_command():
+    """Frame n is the robot's pose at t0 + (n - 1) / rate, whenever polled; a command acts as of
+    its arrival (its bytes at the line's baud rate), even when the host reads the reply late;
+    ``frame_times`` records each frame's true instant."""
+    clock = FakeClock()
+    robot = MockRobot(left_hand(), noise=NoiseModel(0.0, 0.0, 0.0), clock=clock)
+    dev = tracking(MockNDITracker(robot, frame_rate_hz=60.0, clock=clock))  # 9600 baud
+    home, _ = robot.true_pose()
+    boundary = dev.frame_time(10)
+    assert boundary == pytest.approx(100.0 + 9 / 60)
+    clock.t = boundary + 0.001  # frame 10 was exposed 1 ms ago...
+    robot.move_to(home + [0.0, 0.0, 5.0], np.eye(3))  # ...then the platform jumped 5 mm
+    reply = ask(dev, "TX:0001")  # 12 bytes at 9600 baud: acts 12.5 ms later, still frame 10
+    m = TX_POSE.fullmatch(reply)
+    assert int(m.group(11), 16) == 10
+    assert int(m.group(8)) * 0.01 == pytest.approx(home[2], abs=0.006)  # the pose at exposure
+    assert (10, boundary) in dev.frame_times
+    dev.feed(cmd("TX:0001"))  # sent within frame 10 ...
+    clock.t += 5 / 60  # ... but read five frames later: still frame 10, as on a real line
+    assert int(TX_POSE.fullmatch(dev.read(100_000, 0.5)).group(11), 16) == 10
+    reply = ask(dev, "TX:0001")  # now: frame 15, exposed after the jump
+    m = TX_POSE.fullmatch(reply)
+    assert int(m.group(11), 16) == 15
+    assert int(m.group(8)) * 0.01 == pytest.approx(home[2] + 5.0, abs=0.006)
+    assert [n for n, _ in dev.frame_times] == [10, 15]
+    assert dict(dev.frame_times)[15] == pytest.approx(dev.frame_time(15))
+
+
+def test_a_command_is_answered_after_it_crossed_the_line(dev):
+    """Nothing comes back before the command itself has arrived: 12 bytes at 9600 baud take
+    12.5 ms (a lower bound on the wait, not a speed requirement)."""
+    tracking(dev)
+    t0 = time.monotonic()
+    dev.feed(cmd("TX:0001"))
+    assert dev.read(100_000, 0.0) == b""
+    assert TX_POSE.fullmatch(dev.read(100_000, 1.0))
+    assert time.monotonic() - t0 >= 12 * 10 / 9600
 
 
 def test_missing_and_out_of_volume(dev, robot):
