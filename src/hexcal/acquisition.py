@@ -1,6 +1,9 @@
 """Acquisition: pair the tracker's poses with the six leg readings into recorded poses.
 
-Both streams are timestamped on arrival with one monotonic clock (``time.monotonic``). A pose is
+Both streams are stamped on one monotonic clock (``time.monotonic``) with the instant the
+device measured: a leg-reading set with the SYNC that latched it, a tracker sample with its
+frame's measurement time estimated from the tracker's frame numbers (see
+:mod:`hexcal.drivers.ndi`, "Timing"). A pose is
 recorded from a *still window*: every tracker sample and every leg-reading set whose arrival
 time falls in ``[t_end − duration, t_end]``. Samples a device flagged (a tool MISSING for a
 frame, a CRC error, a CAN set with a late or lost position) are left out of the average and
