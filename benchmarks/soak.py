@@ -108,6 +108,9 @@ FAULT_PATTERNS: dict[str, re.Pattern[str]] = {
     "discarded": re.compile(r"were discarded unread"),
 }
 
+#: What the mock latched at a SYNC it has not handled yet (see :class:`LegProbe`).
+PENDING = "pending"
+
 #: How the driver names a leg in a fault text: "leg 3 encoder (node 0x23)".
 LEG_NAME = re.compile(r"leg (\d) encoder")
 
@@ -140,18 +143,18 @@ class SoakConfig:
 
 # -- small measurement helpers --------------------------------------------------------------------
 def system_cpu() -> dict[str, float] | None:
-    """Whole-machine CPU time so far, s (Linux ``/proc/stat``): busy (all but idle and iowait),
-    and steal (time the hypervisor gave the virtual CPUs to someone else)."""
+    """Whole-machine CPU time so far, s (Linux ``/proc/stat``): busy (user, nice, system, irq,
+    softirq) and steal (time the hypervisor gave the virtual CPUs to someone else)."""
     try:
         with open("/proc/stat") as fh:
             v = [int(x) for x in fh.readline().split()[1:]]
     except (OSError, ValueError):
         return None
     tick = os.sysconf("SC_CLK_TCK")
-    idle = v[3] + (v[4] if len(v) > 4 else 0)
-    steal = v[7] if len(v) > 7 else 0
     # user nice system idle iowait irq softirq steal (guest time is already in user)
-    return {"busy_s": (sum(v[:8]) - idle) / tick, "steal_s": steal / tick}
+    busy = v[0] + v[1] + v[2] + sum(v[5:7])
+    steal = v[7] if len(v) > 7 else 0
+    return {"busy_s": busy / tick, "steal_s": steal / tick}
 
 
 def loadavg() -> float | None:
@@ -284,6 +287,7 @@ class TrackerProbe:
         return frame
 
     def sample(self) -> TrackerSample:
+        """The next new tracker frame as a sample (``PoseSource``), counted."""
         s = self.tracker.sample(binary=True)
         self.samples += 1
         if s.fault:
@@ -293,6 +297,7 @@ class TrackerProbe:
         return s
 
     def summary(self, wall_s: float, frame_rate_hz: float) -> dict[str, Any]:
+        """What was counted, for the JSON summary."""
         lat = self.tracker.latency_stats()
         span = (
             self.last_frame - self.first_frame + 1
@@ -333,13 +338,14 @@ class LegProbe:
     whether each position is the one the mock node latched at *that* SYNC.
 
     ``latched(index)`` returns (SYNC counter, readings (6,) mm) the mock latched at the
-    ``index``-th SYNC, or None when no longer known.
+    ``index``-th SYNC, :data:`PENDING` when the mock has not handled that SYNC yet (so any
+    position in the set answers an earlier one), or None when it is no longer known.
     """
 
     def __init__(
         self,
         encoders: LegEncoders,
-        latched: Callable[[int], tuple[int, np.ndarray] | None] | None = None,
+        latched: Callable[[int], tuple[int, np.ndarray] | str | None] | None = None,
     ):
         self.encoders = encoders
         self.latched = latched
@@ -372,7 +378,8 @@ class LegProbe:
         self.max_delay_ms = 0.0
         # Positions checked against the mock's latched readings.
         self.positions_checked = 0
-        self.sets_unverifiable = 0  #: no latched entry, or its SYNC counter differs
+        self.sets_unverifiable = 0  #: latched entry forgotten, or its SYNC counter differs
+        self.wrong_before_latch = 0  #: positions in sets whose SYNC the mock had not handled yet
         self.wrong_in_complete = 0  #: positions not from their own SYNC, in sets marked complete
         self.wrong_in_flagged = 0  #: the same, in flagged sets
         self.stale_by_one = 0  #: wrong positions equal to the previous SYNC's latched reading
@@ -389,12 +396,16 @@ class LegProbe:
         if self.latched is None:
             return
         own = self.latched(rs.index)
-        if own is None or own[0] != rs.sync_counter:
-            self.sets_unverifiable += 1
-            return
         have = np.isfinite(rs.readings_mm)
         got = self._counts(np.where(have, rs.readings_mm, 0.0))
-        wrong = have & (got != self._counts(own[1]))
+        if isinstance(own, str):  # PENDING: every position here answers an earlier SYNC
+            wrong = have
+            self.wrong_before_latch += int(have.sum())
+        elif own is None or own[0] != rs.sync_counter:
+            self.sets_unverifiable += 1
+            return
+        else:
+            wrong = have & (got != self._counts(own[1]))
         self.positions_checked += int(have.sum())
         n_wrong = int(wrong.sum())
         if not n_wrong:
@@ -406,7 +417,7 @@ class LegProbe:
         else:
             self.wrong_in_flagged += n_wrong
         prev = self.latched(rs.index - 1) if rs.index > 0 else None
-        if prev is not None:
+        if prev is not None and not isinstance(prev, str):
             self.stale_by_one += int((wrong & (got == self._counts(prev[1]))).sum())
         if len(self.wrong_examples) < 10 and (rs.complete or len(self.wrong_examples) < 5):
             self.wrong_examples.append(
@@ -478,6 +489,7 @@ class LegProbe:
             self.other_flagged += 1
 
     def sample(self) -> LegSample:
+        """The next reading set as a sample (``LegSource``), checked."""
         rs = self.encoders.read_set(timeout=self.timeout)
         self.check(rs)
         return rs.to_leg_sample()
@@ -554,6 +566,7 @@ class Sampler(threading.Thread):
         self.stop_evt = threading.Event()
 
     def take(self) -> None:
+        """One sample now."""
         self.series.append(self.probe())
 
     def run(self) -> None:
@@ -703,7 +716,7 @@ def summarize_containers(
             if slope is not None:
                 info["kB_per_min_2nd_half"] = round(slope * info["bytes_per_entry"] / 1024, 1)
         before = info["middle"] or 0
-        growing = slope is not None and slope > 5 and end > before + max(10, 0.1 * before)
+        growing = slope is not None and slope > 5 and end > before + max(100, 0.1 * before)
         if w and w.time_bounded:
             info["verdict"] = f"time-bounded ({w.time_bounded})"
         elif cap and end >= cap:
@@ -797,9 +810,12 @@ def run_soak(cfg: SoakConfig, log: Callable[[str], None] | None = None) -> dict[
         trk.connect()
         enc.start(timeout=2.0)
 
-        def latched(index: int) -> tuple[int, np.ndarray] | None:
-            """What the mock latched at the index-th SYNC it saw (None: not, or no longer, kept)."""
+        def latched(index: int) -> tuple[int, np.ndarray] | str | None:
+            """What the mock latched at the index-th SYNC (PENDING: not handled yet; None: no
+            longer kept)."""
             with nodes._lock:  # syncs_seen and history change together under it
+                if index >= nodes.syncs_seen:
+                    return PENDING
                 i = index - (nodes.syncs_seen - len(nodes.history))
                 if not 0 <= i < len(nodes.history):
                     return None
@@ -1001,6 +1017,7 @@ def run_soak(cfg: SoakConfig, log: Callable[[str], None] | None = None) -> dict[
         "wrong_positions_equal_to_previous_sync": lprobe.stale_by_one,
         "complete_sets_with_a_wrong_position": lprobe.wrong_complete_sets,
         "of_which_right_after_a_set_with_a_missing_position": (lprobe.wrong_complete_after_missing),
+        "positions_in_sets_whose_sync_the_mock_had_not_handled": lprobe.wrong_before_latch,
         "sets_not_verifiable": lprobe.sets_unverifiable,
         "wrong_position_examples": lprobe.wrong_examples,
         "missing_positions_per_leg": lprobe.missing_positions,
@@ -1060,6 +1077,8 @@ def run_soak(cfg: SoakConfig, log: Callable[[str], None] | None = None) -> dict[
         "machine_load_during_run": None
         if sys_cpu0 is None or sys_cpu1 is None
         else {
+            "note": "other processes = machine busy time minus this process's CPU time "
+            "(approximate: /proc/stat counts in ticks, and a VM's accounting is coarse)",
             "other_processes_cpu_s": round(
                 sys_cpu1["busy_s"] - sys_cpu0["busy_s"] - (proc_cpu1 - proc_cpu0), 2
             ),
