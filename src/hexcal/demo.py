@@ -14,7 +14,7 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -93,21 +93,13 @@ def run_demo(
     hook = effect_hook(effect, values, truth)
 
     proc = load_procedure(st.procedure)
-    steps = [
-        Step(
-            s.leg,
-            s.constraint,
-            s.n_poses
-            if s.at_home
-            else (st.free_poses if s.leg == 0 else st.poses_per_step) or s.n_poses,
-            s.instruction,
-            s.min_poses,
-            s.tolerance_mm,
-            s.checks,
-            s.at_home,
-        )
-        for s in proc.expand()
-    ]
+
+    def count(s: Step) -> int:
+        if s.at_home:
+            return s.n_poses
+        return (st.free_poses if s.leg == 0 else st.poses_per_step) or s.n_poses
+
+    steps = [replace(s, n_poses=count(s)) for s in proc.expand()]
     window = StillWindow(
         duration_s=st.window_s,
         max_position_spread_mm=0.1,

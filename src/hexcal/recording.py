@@ -259,15 +259,12 @@ class SessionRecording:
 
         Per-sample levels from the windows divided by √(samples per window): the mean tracker
         frame count and leg set count of the accepted poses."""
-        lv = self.noise()
-        n_t = float(np.mean([len(a.pose.good_tracker_samples) for a in self.accepted]))
-        n_l = float(np.mean([len(a.pose.good_leg_samples) for a in self.accepted]))
+        lv = _per_pose_noise([a.pose for a in self.accepted])
         return Instruments(
             tracker=TrackerNoise(
-                position_sigma_mm=lv.position_mm / np.sqrt(n_t),
-                orientation_sigma_deg=lv.orientation_deg / np.sqrt(n_t),
+                position_sigma_mm=lv.position_mm, orientation_sigma_deg=lv.orientation_deg
             ),
-            encoders=EncoderNoise(reading_sigma_mm=lv.reading_mm / np.sqrt(n_l)),
+            encoders=EncoderNoise(reading_sigma_mm=lv.reading_mm),
             source="estimated from the still windows of the recorded poses",
         )
 
