@@ -12,21 +12,31 @@ The nodes must already be configured for this (TPDO1 transmission type 1 = every
 mapped first, a heartbeat producer time shorter than ``heartbeat_timeout_s``); the driver does
 not write their object dictionaries.
 
-A *reading set* is the six positions answering one SYNC. Every frame is stamped on arrival with
-``time.monotonic()``. A set closes at the next SYNC (if none follows: 1.5 SYNC periods after its
-own, or ``heartbeat_timeout_s`` when following another master's SYNC), not as soon as six
-positions are in: a node answering one SYNC late would otherwise fill the next set with stale
-positions unnoticed, whereas left open, its late answer and its next one collide and the set is
-flagged. Anything unusual during a set — a position missing, late or twice, a silent node, a
-node not OPERATIONAL, a CAN error frame, the bus not error-active, a SYNC that could not be
-sent — is written into that set's ``faults`` and the set is not ``complete``. No set is dropped:
-every SYNC gives exactly one set, in order, numbered by ``index``. The raw traffic can be
-written to a python-can log (``log_path``: .asc, .blf, .csv, .log, ...) and replayed later
-through :class:`LegEncoders` in ``listen_only`` mode.
+A *reading set* is the six positions answering one SYNC. Every frame carries the time the bus
+interface stamped it (``msg.timestamp``: the kernel's receive time on SocketCAN, the send time
+on python-can's virtual bus, hardware time on many adapters); frames without one are stamped on
+arrival. A position is attributed to the latest SYNC that went on the bus before it, by those
+bus times — not to whatever set is open when the receive thread gets round to it, so a busy
+computer that handles frames late cannot shift a position into the wrong set. The driver's own
+SYNCs are stamped with ``time.monotonic()`` and put on the bus clock by the offset between the
+two clocks (the smallest arrival − bus time seen over the last few seconds). Several sets may
+be open at once; a set closes once a frame stamped more than ``tpdo_deadline_s`` after its SYNC
+has been handled (frames on one bus arrive in order, so nothing in time for it can still come),
+or, when the bus goes quiet, ``close_after`` after its SYNC. A position for a set already closed
+is discarded (that set was flagged with the position missing); two positions from one node for
+one SYNC flag the set. Produced SYNCs are kept at least ``tpdo_deadline_s`` apart, so after a
+stall no catch-up SYNC can overtake the answers to the one before.
 
-Known limit: frames are attributed to a SYNC in the order the receive thread handles them. If
-that thread stalls for more than a SYNC period (a busy computer), the positions it then handles
-land in the next set; they are flagged (missing, then twice), never silently kept.
+Anything unusual during a set — a position missing, late or twice, a silent node, a node not
+OPERATIONAL, a CAN error frame, the bus not error-active, a SYNC that could not be sent — is
+written into that set's ``faults`` and the set is not ``complete``. No set is dropped: every
+SYNC gives exactly one set, in order, numbered by ``index``. The raw traffic can be written to
+a python-can log (``log_path``: .asc, .blf, .csv, .log, ...) and replayed later through
+:class:`LegEncoders` in ``listen_only`` mode.
+
+Known limit: a node that answers every SYNC more than a whole period late (a broken node) looks
+on the bus like one that answers on time, one SYNC behind; only its first, missing position is
+flagged. Real CiA 406 encoders latch in hardware at the SYNC and answer within microseconds.
 """
 
 from __future__ import annotations
@@ -226,9 +236,10 @@ class ReadingSet:
     """The six legs' positions answering one SYNC.
 
     ``sync_counter``: the counter byte the SYNC carried (1..240), 0 if it carried none.
-    ``t_sync``: monotonic time (s) the SYNC was sent (driver-produced) or arrived.
+    ``t_sync``: monotonic time (s) the SYNC was sent (driver-produced) or was on the bus.
     ``readings_mm``: (6,) mm, leg k at index k − 1, NaN where no position arrived.
-    ``arrival``: (6,) monotonic s each position arrived, NaN where none did.
+    ``arrival``: (6,) monotonic s each position was on the bus (``t_sync`` + its bus-time delay
+    after the SYNC), NaN where none came.
     ``complete``: all six arrived in time and nothing went wrong; otherwise ``faults`` says what
     (operator sentences naming leg, node, bus and what to do).
     ``index``: 0, 1, 2... in SYNC order since :meth:`LegEncoders.start`; never skips.
@@ -254,12 +265,15 @@ class ReadingSet:
 class _Pending:
     """A set being assembled (plain lists: faster per frame than numpy element writes)."""
 
-    __slots__ = ("arrival", "counter", "faults", "index", "n", "readings", "t_sync")
+    __slots__ = ("arrival", "counter", "faults", "index", "n", "readings", "t_bus", "t_sync")
 
-    def __init__(self, index: int, counter: int, t_sync: float, faults: dict[str, str]):
+    def __init__(
+        self, index: int, counter: int, t_sync: float, t_bus: float, faults: dict[str, str]
+    ):
         self.index = index
         self.counter = counter
-        self.t_sync = t_sync
+        self.t_sync = t_sync  # monotonic s
+        self.t_bus = t_bus  # the same instant on the bus interface's clock, s
         self.readings = [math.nan] * 6
         self.arrival = [math.nan] * 6
         self.n = 0
@@ -374,9 +388,10 @@ class LegEncoders:
         self._bus_in = bus
         self._producing = config.sync_period_s > 0 and not listen_only
         self._deadline = config.tpdo_deadline_s
-        # A set nobody completes (SYNC stopped) is closed after this, s.
+        # A set no later frame closes (the bus went quiet) is closed after this, s: long enough
+        # for a receive thread stalled by a busy computer to catch up on frames that were in time.
         self._close_after = (
-            1.5 * config.sync_period_s if self._producing else config.heartbeat_timeout_s
+            2 * config.sync_period_s + 0.1 if self._producing else config.heartbeat_timeout_s
         )
         self._leg_of_hb = {c.heartbeat_cob_id: c.leg - 1 for c in config.legs}
         self._names = [c.name for c in config.legs]
@@ -405,7 +420,14 @@ class LegEncoders:
 
     def _reset_run(self) -> None:
         """Per-run state: what the bus and the nodes are doing now."""
-        self._open: _Pending | None = None
+        self._open: deque[_Pending] = deque()  # sets still taking positions, oldest first
+        self._evidence = -math.inf  # latest bus time of a frame handled, s
+        self._last_closed_t_bus = -math.inf
+        self._late_discarded = 0
+        self._skipped_syncs = 0
+        # Bus clock → monotonic: the smallest (arrival − bus time) in this and the last window.
+        self._offset_min = [math.inf, math.inf]
+        self._offset_window_end = 0.0
         self._sync_counter = 0
         self._sync_sent = 0
         self._foreign_syncs = 0
@@ -485,15 +507,15 @@ class LegEncoders:
             self._worker = None
         with self._cond:
             end = time.monotonic() + self._deadline
-            while self._open is not None and self._open.n < 6 and time.monotonic() < end:
+            while self._open and self._open[-1].n < 6 and time.monotonic() < end:
                 self._cond.wait(end - time.monotonic())
         net = self._network
         if net.notifier is not None:
             net.notifier.stop(net.NOTIFIER_SHUTDOWN_TIMEOUT)
         with self._cond:
-            if self._open is not None:
-                if self._open.n < 6:
-                    self._open.faults["stopped"] = (
+            while self._open:
+                if self._open[0].n < 6:
+                    self._open[0].faults["stopped"] = (
                         "acquisition stopped before all six positions of this SYNC arrived"
                     )
                 self._close(time.monotonic())
@@ -563,7 +585,9 @@ class LegEncoders:
         Keys: ``bus`` (name), ``interface``, ``channel``, ``running``, ``listen_only``,
         ``bus_state`` ('ACTIVE', 'ERROR-PASSIVE', 'BUS-OFF', 'ERROR'), ``bus_detail``,
         ``error_frames``, ``sync_sent``, ``foreign_syncs``, ``sets``, ``incomplete_sets``,
-        ``queued``, ``discarded``, and ``legs``: six dicts with ``leg``, ``node_id``, ``alive``,
+        ``late_discarded`` (positions that came after their set had closed),
+        ``skipped_syncs`` (SYNCs the producer skipped after a stall of its thread), ``queued``,
+        ``discarded``, and ``legs``: six dicts with ``leg``, ``node_id``, ``alive``,
         ``heartbeat_age_s`` (s, None if never heard), ``nmt_state`` (name, None if never heard),
         ``tpdo_frames``, ``missing`` (sets without this leg's position).
         """
@@ -597,6 +621,8 @@ class LegEncoders:
                 "foreign_syncs": self._foreign_syncs,
                 "sets": self._index,
                 "incomplete_sets": self._incomplete,
+                "late_discarded": self._late_discarded,
+                "skipped_syncs": self._skipped_syncs,
                 "queued": len(self._queue),
                 "discarded": self._discarded,
                 "legs": legs,
@@ -650,22 +676,51 @@ class LegEncoders:
         )
 
     def _note(self, key: str, message: str) -> None:
-        """Attach a fault to the set in progress, or to the next set if none is open. Lock held."""
-        target = self._open.faults if self._open is not None else self._pending_faults
+        """Attach a fault to the newest open set, or to the next set if none is open. Lock held."""
+        target = self._open[-1].faults if self._open else self._pending_faults
         target[key] = message
 
+    # -- clocks ----------------------------------------------------------------------------------
+    def _bus_time(self, msg: can.Message, t: float) -> float:
+        """The frame's bus time (s on the interface's clock); learns the clock offset. ``t`` is
+        its monotonic arrival time."""
+        ts = msg.timestamp or (time.time() - time.monotonic() + t)
+        if t >= self._offset_window_end:  # a fresh window every 5 s follows clock drift
+            self._offset_min = [math.inf, self._offset_min[0]]
+            self._offset_window_end = t + 5.0
+        if t - ts < self._offset_min[0]:
+            self._offset_min[0] = t - ts
+        return ts
+
+    def _to_bus(self, t: float) -> float:
+        """Monotonic time ``t`` on the bus clock (the offset errs early: a frame is never
+        placed before the SYNC it answers)."""
+        offset = min(self._offset_min)
+        if offset == math.inf:
+            offset = time.monotonic() - time.time()
+        return t - offset
+
     # -- assembling sets (lock held) --------------------------------------------------------------
-    def _open_set(self, t: float, counter: int) -> None:
-        if self._open is not None:
-            self._close(t)
+    def _open_set(self, t: float, t_bus: float, counter: int) -> None:
         faults, self._pending_faults = self._pending_faults, {}
-        self._open = _Pending(self._index, counter, t, faults)
+        self._open.append(_Pending(self._index, counter, t, t_bus, faults))
         self._index += 1
 
+    def _close_until(self, evidence: float) -> None:
+        """Close the open sets whose answers are all due before bus time ``evidence``."""
+        self._evidence = max(self._evidence, evidence)
+        while self._open and self._open[0].t_bus + self._deadline < self._evidence:
+            self._close(time.monotonic())
+
+    def _close_all(self) -> None:
+        """Close every open set now (the SYNC just opened could not be sent)."""
+        while self._open:
+            self._close(time.monotonic())
+
     def _close(self, now: float) -> None:
-        s = self._open
-        assert s is not None
-        self._open = None
+        """Close the oldest open set and queue it."""
+        s = self._open.popleft()
+        self._last_closed_t_bus = s.t_bus
         cfg = self.config
         for k in range(6):
             if s.arrival[k] != s.arrival[k]:  # NaN: no position for this SYNC
@@ -728,6 +783,8 @@ class LegEncoders:
             self._dispatch(msg, t)
 
     def _dispatch(self, msg: can.Message, t: float) -> None:
+        with self._lock:
+            ts = self._bus_time(msg, t)
         if msg.is_error_frame:
             self._on_error_frame(msg, t)
             return
@@ -736,11 +793,13 @@ class LegEncoders:
         cid = msg.arbitration_id
         entry = self.decoder.table.get(cid)
         if entry is not None:
-            self._on_tpdo(entry, msg.data, t)
+            self._on_tpdo(entry, msg.data, ts)
         elif cid == SYNC_COB_ID:
-            self._on_bus_sync(msg, t)
+            self._on_bus_sync(msg, t, ts)
         elif cid in self._leg_of_hb:
             self._on_heartbeat(self._leg_of_hb[cid], msg.data, t)
+        with self._lock:
+            self._close_until(ts)
         if self._bus_state == BUS_OFF:
             with self._lock:
                 # A frame came through: the controller is receiving again.
@@ -751,7 +810,8 @@ class LegEncoders:
                     "while it was off are flagged",
                 )
 
-    def _on_tpdo(self, entry: tuple[int, int, float, float], data: bytearray, t: float) -> None:
+    def _on_tpdo(self, entry: tuple[int, int, float, float], data: bytearray, ts: float) -> None:
+        """A position stamped ``ts`` on the bus clock."""
         leg, sign, cpm, zero = entry
         k = leg - 1
         with self._lock:
@@ -762,8 +822,13 @@ class LegEncoders:
                 )
                 return
             mm = sign * int.from_bytes(data[:4], "little", signed=True) / cpm + zero
-            s = self._open
+            s = next((o for o in reversed(self._open) if o.t_bus <= ts), None)
             if s is None:
+                if ts >= self._last_closed_t_bus:
+                    # Its SYNC's set was closed already (flagged with this position missing).
+                    self._late_discarded += 1
+                    log.debug("%s: position after its set closed, discarded", self._names[k])
+                    return
                 self._note(
                     f"orphan{k}",
                     f"{self._names[k]} sent a position ({mm:.4f} mm) outside any SYNC window on "
@@ -779,17 +844,18 @@ class LegEncoders:
                 )
             else:
                 s.n += 1
+            delay = ts - s.t_bus
             s.readings[k] = mm
-            s.arrival[k] = t
-            delay = t - s.t_sync
+            s.arrival[k] = s.t_sync + delay
             if delay > self._deadline:
                 s.faults[f"late{k}"] = (
                     f"{self._names[k]} position arrived {delay * 1e3:.1f} ms after SYNC {s.counter} "
                     f"(limit {self._deadline * 1e3:.1f} ms) on {self._bus_name}: timing jitter or bus "
                     "overload — set flagged; if it repeats reduce the bus load or raise max_tpdo_delay_s"
                 )
+            self._cond.notify_all()
 
-    def _on_bus_sync(self, msg: can.Message, t: float) -> None:
+    def _on_bus_sync(self, msg: can.Message, t: float, ts: float) -> None:
         counter = msg.data[0] if len(msg.data) >= 1 else 0
         with self._lock:
             if self._producing:
@@ -801,7 +867,7 @@ class LegEncoders:
                         "the encoders answer both; switch it off, or set sync_period_s = 0 to follow it",
                     )
                 return
-            self._open_set(t, counter)
+            self._open_set(ts + min(self._offset_min), ts, counter)
 
     def _on_heartbeat(self, k: int, data: bytearray, t: float) -> None:
         state = data[0] & 0x7F if len(data) >= 1 else None
@@ -888,15 +954,15 @@ class LegEncoders:
         self._sync_counter = self._sync_counter % SYNC_COUNTER_MAX + 1
         with self._lock:
             # Open the set before sending: the answers may arrive before send() returns.
-            self._open_set(time.monotonic(), self._sync_counter)
+            t = time.monotonic()
+            self._open_set(t, self._to_bus(t), self._sync_counter)
         try:
             net.sync.transmit(self._sync_counter)
         except (can.CanError, OSError) as exc:
             with self._lock:
                 self._bus_state, self._bus_detail = BUS_ERROR, f"sending SYNC failed: {exc}"
                 self._note("send", self._bus_message())
-                if self._open is not None:
-                    self._close(time.monotonic())
+                self._close_all()
             return
         self._sync_sent += 1
         if self._bus_state == BUS_ERROR and self._bus_detail.startswith("sending SYNC"):
@@ -912,17 +978,22 @@ class LegEncoders:
             now = time.monotonic()
             if period and now >= next_sync:
                 self._send_sync()
-                next_sync += period
+                # A late SYNC must not be followed at once by a catch-up one: the answers to
+                # the first need their deadline before the next SYNC goes on the bus.
+                next_sync = max(next_sync + period, now + self._deadline)
                 behind = time.monotonic() - next_sync
                 if behind > period:  # a stall (busy machine): skip, do not burst SYNCs
                     missed = int(behind / period)
                     next_sync += missed * period
+                    # Positions are placed by bus time, so a gap between SYNCs harms no set:
+                    # counted and logged, not flagged.
                     with self._lock:
-                        self._note(
-                            "sync_stall",
-                            f"the SYNC producer on {self._bus_name} stalled and skipped {missed} SYNCs "
-                            "(computer too busy?) — sets around it are flagged; close other programs",
-                        )
+                        self._skipped_syncs += missed
+                    log.info(
+                        "the SYNC producer on %s stalled and skipped %d SYNCs (computer busy?)",
+                        self._bus_name,
+                        missed,
+                    )
             if now >= next_tick:
                 self._supervise(now)
                 next_tick = now + tick
@@ -931,7 +1002,7 @@ class LegEncoders:
 
     def _supervise(self, now: float) -> None:
         with self._lock:
-            if self._open is not None and now - self._open.t_sync > self._close_after:
+            while self._open and now - self._open[0].t_sync > self._close_after:
                 self._close(now)
             for k in range(6):
                 if not self._silent[k] and self._age(k, now) > self.config.heartbeat_timeout_s:

@@ -16,6 +16,15 @@ Faults, injectable while running: :meth:`silence` (a node's heartbeat and frames
 [0, jitter_s] s). The virtual bus has no physical layer, so bus-off is emulated the way a
 SocketCAN controller reports it: an error frame with the CAN_ERR_BUSOFF class, then silence.
 
+Timing as on a real bus: a CiA 406 encoder latches its position in hardware at the SYNC and
+answers within microseconds; a Python thread may handle the SYNC milliseconds later. So each node
+latches the robot's readings at the SYNC's bus time (:meth:`MockRobot.encoder_readings` with
+``at``), and, on a virtual bus this object opens, stamps its TPDO with the time it would have
+been on the wire: the SYNC's bus time + ``latency_s`` + its jitter delay, as a CAN controller's
+receive timestamp would read (python-can's ``preserve_timestamps``). Everything else it sends
+is stamped when sent. The driver's attribution of positions to SYNCs is therefore tested against
+the device's timing, not against the mock thread's scheduling.
+
 One thread does all the nodes' work; start/stop it with :meth:`start`/:meth:`stop` or ``with``.
 """
 
@@ -75,6 +84,7 @@ class MockEncoderNodes:
         *,
         heartbeat_period_s: float | None = None,
         jitter_s: float = 0.0,
+        latency_s: float = 100e-6,
         seed: int = 0,
     ):
         self.robot = robot
@@ -83,8 +93,10 @@ class MockEncoderNodes:
             config.heartbeat_timeout_s / 4 if heartbeat_period_s is None else heartbeat_period_s
         )
         self.jitter_s = jitter_s
+        self.latency_s = latency_s
         self._bus_in = bus
         self._bus: can.BusABC | None = None
+        self._wire_times = False
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self._send_lock = threading.RLock()
@@ -107,9 +119,14 @@ class MockEncoderNodes:
         """Open the bus (if not given), send the six boot-ups and start answering."""
         if self._thread is not None:
             return self
-        self._bus = (
-            self._bus_in if self._bus_in is not None else can.Bus(**self.config.bus_kwargs())
-        )
+        if self._bus_in is not None:
+            self._bus = self._bus_in
+        else:
+            kwargs = self.config.bus_kwargs()
+            if self.config.interface == "virtual":
+                kwargs["preserve_timestamps"] = True  # the wire times set in _on_sync
+            self._bus = can.Bus(**kwargs)
+        self._wire_times = bool(getattr(self._bus, "preserve_timestamps", False))
         self._stop.clear()
         for leg in range(1, 7):
             self.states[leg] = PRE_OPERATIONAL
@@ -203,6 +220,8 @@ class MockEncoderNodes:
         with self._send_lock:
             if self._bus_off and not msg.is_error_frame:
                 return  # decided before bus_off(), sent after: a bus-off controller sends nothing
+            if self._wire_times and not msg.timestamp:
+                msg.timestamp = time.time()
             try:
                 bus.send(msg)
             except can.CanError as exc:  # a mock must not die on a full queue: log and go on
@@ -272,8 +291,12 @@ class MockEncoderNodes:
 
     def _on_sync(self, msg: can.Message) -> None:
         counter = msg.data[0] if len(msg.data) >= 1 else 0
-        readings = self.robot.encoder_readings()  # latched at the SYNC, as a CiA 406 encoder does
         t = time.monotonic()
+        # The SYNC's bus time (wall clock on python-can's buses) on the monotonic clock.
+        t_bus = msg.timestamp or time.time()
+        t_sync = t_bus - (time.time() - t)
+        at = t_sync if self.robot.clock is time.monotonic and t_sync <= t else None
+        readings = self.robot.encoder_readings(at)  # latched at the SYNC, as a CiA 406 encoder does
         out: list[tuple[float, can.Message]] = []
         with self._lock:
             self.syncs_seen += 1
@@ -288,12 +311,16 @@ class MockEncoderNodes:
                     self._drop[leg] -= 1
                     continue
                 counts = min(max(cfg.mm_to_counts(float(readings[leg - 1])), _INT32[0]), _INT32[1])
+                delay = float(self._rng.uniform(0.0, self.jitter_s)) if self.jitter_s > 0 else 0.0
                 frame = can.Message(
                     arbitration_id=cfg.tpdo1_cob_id,
                     data=counts.to_bytes(4, "little", signed=True),
                     is_extended_id=False,
+                    # Never later than now (+ its delay): a wire time is never in the future.
+                    timestamp=min(t_bus + self.latency_s, time.time()) + delay
+                    if self._wire_times
+                    else 0.0,
                 )
-                delay = float(self._rng.uniform(0.0, self.jitter_s)) if self.jitter_s > 0 else 0.0
                 out.append((delay, frame))
             for delay, frame in out:
                 if delay > 0:

@@ -37,6 +37,9 @@ class MockRobot:
 
     #: How many (time, readings) entries :attr:`encoder_latches` keeps (200 s at 100 Hz SYNC).
     ENCODER_LOG_LEN = 20_000
+    #: How many poses the motion history keeps. History-dependent effects (backlash) only need
+    #: each leg's last motion, so a long tail is enough; bounded so a soak's memory stays flat.
+    POSE_LOG_LEN = 5_000
 
     def __init__(
         self,
@@ -56,7 +59,8 @@ class MockRobot:
         self._t0 = clock()
         self._P = np.asarray(truth.home.position, float)
         self._R = Rotation.from_quat(truth.home.quaternion, scalar_first=True).as_matrix()
-        self._poses: list[tuple] = []  # (P, R, t, T) of every pose moved to, in order
+        # (P, R, t, T, noise-free readings) of the last POSE_LOG_LEN poses moved to, in order.
+        self._poses: deque[tuple] = deque(maxlen=self.POSE_LOG_LEN)
         self.tool_visible = True
         #: (``clock()`` s, readings (6,) mm) of every :meth:`encoder_readings` call, oldest first:
         #: the instant each reading set was latched (the very array returned, so a device that
@@ -81,32 +85,34 @@ class MockRobot:
         the last pose moved to at or before ``at``; the current pose for a future ``at``, the
         first pose for an ``at`` before the robot existed."""
         with self._lock:
-            P, R = self._pose_at_locked(at)
+            P, R = self._pose_at_locked(at)[:2]
             return P.copy(), R.copy()
 
-    def _pose_at_locked(self, at: float) -> tuple[np.ndarray, np.ndarray]:
+    def _pose_at_locked(self, at: float) -> tuple:
+        """The pose log entry (P, R, t, T, readings) in effect at ``clock()`` time ``at``."""
         rel = at - self._t0
         # Searched from the newest: instruments ask about the last few tens of ms.
-        for P, R, t, _ in reversed(self._poses):
-            if t <= rel:
-                return P, R
-        P, R, _, _ = self._poses[0]
-        return P, R
+        for entry in reversed(self._poses):
+            if entry[2] <= rel:
+                return entry
+        return self._poses[0]
 
     def _true_readings(self) -> np.ndarray:
         """Noise-free readings (6,) mm at the current pose, effects included. Every pose the
         robot has been moved to is kept, so history-dependent effects (backlash) see the real
         order of motions."""
         t = self.clock() - self._t0
-        self._poses.append((self._P.copy(), self._R.copy(), t, self.temperature(t)))
+        P0, R0, T = self._P.copy(), self._R.copy(), self.temperature(t)
         if not self.sim.effects:
-            return self.sim.readings(self._P[None], self._R[None])[0]
-        P = np.array([p[0] for p in self._poses])
-        R = np.array([p[1] for p in self._poses])
-        ctx = PoseContext(
-            P, R, np.array([p[2] for p in self._poses]), np.array([p[3] for p in self._poses])
-        )
-        return self.sim.readings(P, R, ctx)[-1]
+            rho = self.sim.readings(P0[None], R0[None])[0]
+        else:
+            hist = [*self._poses, (P0, R0, t, T)]
+            P = np.array([p[0] for p in hist])
+            R = np.array([p[1] for p in hist])
+            ctx = PoseContext(P, R, np.array([p[2] for p in hist]), np.array([p[3] for p in hist]))
+            rho = self.sim.readings(P, R, ctx)[-1]
+        self._poses.append((P0, R0, t, T, rho))
+        return rho
 
     # -- what the instruments see ----------------------------------------------------------------
     def tracker_sample(
@@ -121,17 +127,21 @@ class MockRobot:
         with self._lock:
             if not self.tool_visible:
                 return None
-            P0, R0 = (self._P, self._R) if at is None else self._pose_at_locked(at)
+            P0, R0 = (self._P, self._R) if at is None else self._pose_at_locked(at)[:2]
             P, R, _ = self.sim.noise.apply(self._rng, P0[None], R0[None])
         q = Rotation.from_matrix(R[0]).as_quat(scalar_first=True)
         return P[0], q, float(self.sim.noise.sigma_position_mm)
 
-    def encoder_readings(self) -> np.ndarray:
-        """The six encoder readings (6,) mm with encoder noise, latched now (the call's time is
-        logged in :attr:`encoder_latches`)."""
+    def encoder_readings(self, at: float | None = None) -> np.ndarray:
+        """The six encoder readings (6,) mm with encoder noise, latched now or, with ``at`` (s,
+        on :attr:`clock`), at that past instant — an encoder latches in hardware at the SYNC,
+        however late its answer is computed. The latch time is logged in
+        :attr:`encoder_latches`."""
         with self._lock:
-            t = self.clock()
-            rho = self._readings.copy()
+            if at is None:
+                t, rho = self.clock(), self._readings.copy()
+            else:
+                t, rho = at, self._pose_at_locked(at)[4].copy()
             sig = self.sim.noise
             if sig.reading_mm:
                 rho = rho + sig._draw(self._rng, sig.reading_mm, (6,))

@@ -528,3 +528,67 @@ def test_replayed_log_decodes_to_the_same_readings(tmp_path, robot, target, suff
         assert not r.complete and any(
             f.startswith("leg 5 encoder (node 0x25) sent no position") for f in r.faults
         )
+
+
+# -- attribution under stalls ----------------------------------------------------------------------
+class _Mover:
+    """Moves the robot a little every 2 ms, so every SYNC latches clearly different readings and
+    a position kept in the wrong set cannot pass for the right one."""
+
+    def __init__(self, robot: MockRobot):
+        self.robot = robot
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.home_p, self.home_r = robot.true_pose()
+
+    def run(self) -> None:
+        i = 0
+        while not self.stop.wait(0.002):
+            i += 1
+            dz = 2.0 * np.sin(i / 5.0)  # mm: about 0.4 mm between SYNCs 10 ms apart
+            self.robot.move_to(self.home_p + [0.0, 0.0, dz], self.home_r)
+
+
+#: Chance that handling a frame (driver) or a SYNC (mock) stalls for 0.5 to 1.5 SYNC periods.
+STALL_P = {"driver": 0.05, "mock": 0.25}
+
+
+@pytest.mark.parametrize("who", ["driver", "mock"])
+def test_a_stalled_thread_never_puts_a_position_in_the_wrong_set(robot, target, who, monkeypatch):
+    """A busy computer stalls the driver's receive thread (or the mock nodes' thread) for more
+    than a SYNC period now and then. Every set marked complete must still hold exactly the
+    positions latched at its own SYNC; sets the stall damaged are flagged, none is lost."""
+    need_virtual(target)
+    cfg = make_config("virtual", unique_channel())
+    rng = np.random.default_rng(7)
+    mover = _Mover(robot)
+    with MockEncoderNodes(robot, cfg) as nodes, LegEncoders(cfg) as drv:
+        victim, name = (drv, "_dispatch") if who == "driver" else (nodes, "_on_sync")
+        inner = getattr(victim, name)
+
+        def stalling(*args, **kwargs):
+            if rng.random() < STALL_P[who]:
+                time.sleep(rng.uniform(0.5, 1.5) * SYNC_S)
+            return inner(*args, **kwargs)
+
+        monkeypatch.setattr(victim, name, stalling)
+        mover.thread.start()
+        try:
+            sets = read_sets(drv, 150)
+        finally:
+            mover.stop.set()
+            mover.thread.join()
+        latched = nodes.latched()
+    assert_contiguous(sets)
+    complete = [s for s in sets if s.complete]
+    assert len(complete) > 30, f"only {len(complete)} of 150 sets complete"
+    quantum = 0.5 / np.array(CPM) + 1e-9
+    for s in sets:
+        assert_honest(s)
+        assert s.complete or only_timing(s), s.faults
+        if s.complete:
+            err = np.abs(s.readings_mm - latched[s.sync_counter])
+            assert np.all(err <= quantum), (s.index, s.sync_counter, err)
+    # The robot moved between SYNCs: a position from the neighbouring SYNC would have been seen.
+    steps = [np.abs(latched[c % 240 + 1] - latched[c]).max() for c in list(latched)[:-1]]
+    assert np.median(steps) > 50 * quantum.max()
