@@ -123,12 +123,18 @@ def read_legs(
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     name = f"align{uuid.uuid4().hex[:8]}"
-    robot = MockRobot(left_hand(), seed=args.seed)
+    # The mocks' logs hold the ground truth read at the end: long enough for the whole run.
+    log_len = int(200 * (args.seconds + 5))
+    robot = MockRobot(left_hand(), seed=args.seed, log_len=log_len)
     faults = FaultSettings(delay_s=args.delay_ms * 1e-3, jitter_s=args.jitter_ms * 1e-3)
     rate = args.frame_rate * (1.0 + args.rate_ppm * 1e-6)  # the tracker's clock vs the host's
-    device = register_robot(name, robot, seed=args.seed, frame_rate_hz=rate, faults=faults)
+    device = register_robot(
+        name, robot, seed=args.seed, frame_rate_hz=rate, faults=faults, log_len=log_len
+    )
     can_cfg = default_can_config(channel=f"hexcal-{name}")
-    nodes = MockEncoderNodes(robot, can_cfg, jitter_s=args.can_jitter_ms * 1e-3, seed=args.seed)
+    nodes = MockEncoderNodes(
+        robot, can_cfg, jitter_s=args.can_jitter_ms * 1e-3, seed=args.seed, log_len=log_len
+    )
     nodes.start()
     stop = threading.Event()
     tracker_rows: list[tuple[int, float, float, float]] = []
@@ -261,9 +267,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "notes": [
             "stamp error = stamped time - the mock's true measurement instant; positive: late",
             "legs: t_sync is taken just before the driver sends the SYNC; the mock nodes latch "
-            "when their thread has received it from python-can's virtual bus, so a negative "
-            "error is that delivery delay (thread wake-up, GIL), a property of the simulated "
-            "bus rather than of the driver; on a real bus the encoders latch within a frame time",
+            "at the SYNC's bus time (as a CiA 406 encoder latches in hardware), so the error is "
+            "the time between taking t_sync and python-can stamping the SYNC on the bus",
             "tracker: stamped from the frame clock; its residual is about half the driver's "
             "assumed command_delay_spread_s, which a real USB link needs and the mock does not",
         ],

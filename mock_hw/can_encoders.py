@@ -72,8 +72,8 @@ class MockEncoderNodes:
     ``heartbeat_period_s`` defaults to a quarter of ``config.heartbeat_timeout_s``.
     ``jitter_s``: each TPDO is delayed by U(0, jitter_s) s (0: sent at once). ``seed`` seeds the
     jitter. Observables for tests: ``states`` {leg: NMT state}, ``nmt_log`` [(cs, node)],
-    ``history`` [(SYNC counter, readings (6,) mm latched at that SYNC)] (read it through
-    :meth:`latched` while running), ``syncs_seen``.
+    ``history`` [(SYNC counter, readings (6,) mm latched at that SYNC)], the last ``log_len``
+    (read it through :meth:`latched` while running), ``syncs_seen``.
     """
 
     def __init__(
@@ -86,6 +86,7 @@ class MockEncoderNodes:
         jitter_s: float = 0.0,
         latency_s: float = 100e-6,
         seed: int = 0,
+        log_len: int = 1_000,
     ):
         self.robot = robot
         self.config = config
@@ -111,7 +112,7 @@ class MockEncoderNodes:
         self._scheduled: list[tuple[float, int, can.Message]] = []
         self._seq = itertools.count()
         self.nmt_log: list[tuple[int, int]] = []
-        self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=100_000)
+        self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=log_len)
         self.syncs_seen = 0
 
     # -- lifecycle -------------------------------------------------------------------------------

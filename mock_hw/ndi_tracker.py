@@ -175,10 +175,12 @@ _COMMAND = re.compile(rb"([A-Z0-9]+)([: ]?)(.*)", re.S)
 
 class MockNDITracker:
     """The simulated tracker. ``robot`` (default: ``MockRobot(left_hand(), seed=seed)``) gives
-    the tool's pose; ``seed`` also drives the fault draws; ``clock`` (s) times the frames."""
+    the tool's pose; ``seed`` also drives the fault draws; ``clock`` (s) times the frames;
+    ``log_len`` bounds :attr:`frame_times`."""
 
-    #: How many frames :attr:`frame_times` remembers (about 28 min at 60 Hz).
-    FRAME_LOG_LEN = 100_000
+    #: How many frames :attr:`frame_times` remembers by default (about 17 s at 60 Hz: bounded
+    #: so that a long run's memory stays flat; benchmarks that need more pass ``log_len``).
+    FRAME_LOG_LEN = 1_000
 
     def __init__(
         self,
@@ -191,6 +193,7 @@ class MockNDITracker:
         faults: FaultSettings | None = None,
         clock: Callable[[], float] = time.monotonic,
         name: str = "ndimock",
+        log_len: int | None = None,
     ):
         if robot is None:
             from hexcal.study import left_hand
@@ -224,7 +227,7 @@ class MockNDITracker:
         self.generation = 0  # bumped at each unplug: ports opened before are dead
         #: (frame number, ``clock()`` time s at which it was measured) of every frame served in a
         #: TX/BX reply, oldest first; the ground truth for the host's frame time stamps.
-        self.frame_times: deque[tuple[int, float]] = deque(maxlen=self.FRAME_LOG_LEN)
+        self.frame_times: deque[tuple[int, float]] = deque(maxlen=log_len or self.FRAME_LOG_LEN)
         # Commands received and not acted on yet: (line, device clock s, time.monotonic() s
         # at which each takes effect), and the times of the one being handled.
         self._inbox: deque[tuple[bytes, float, float]] = deque()

@@ -22,13 +22,13 @@ from hexcal.study import left_hand
 WINDOW = StillWindow(duration_s=0.5)
 
 
-def _samples(n=20, move_mm=0.0, leg_move=0.0, t0=0.0, rng=None):
+def _samples(n=20, move_mm=0.0, leg_move=0.0, t0=0.0, rng=None, sigma_mm=0.002):
     rng = rng or np.random.default_rng(0)
     q = Rotation.from_rotvec([0.01, -0.02, 0.03]).as_quat(scalar_first=True)
     ts = [
         TrackerSample(
             t0 + 0.5 * i / n,
-            np.array([1.0, 2.0, 200.0 + move_mm * i / n]) + rng.normal(0, 0.002, 3),
+            np.array([1.0, 2.0, 200.0 + move_mm * i / n]) + rng.normal(0, sigma_mm, 3),
             q,
             0.01,
         )
@@ -63,6 +63,18 @@ def test_still_window_is_averaged_and_raw_samples_kept():
 def test_motion_refuses_the_pose(kwargs, match):
     ts, ls = _samples(**kwargs)
     with pytest.raises(PoseRefused, match=match):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+def test_a_noisy_still_pose_is_kept_and_a_slow_drift_of_the_same_size_is_not():
+    """Motion is judged by drift between the window's halves, not by max − min: a tracker whose
+    noise (σ 0.02 mm) spreads the samples over more than the 0.05 mm limit is still; a drift of
+    that same 0.06 mm over the window is motion."""
+    ts, ls = _samples(sigma_mm=0.02, rng=np.random.default_rng(3))
+    pose = record_pose(ts, ls, WINDOW, t_end=0.5)
+    assert pose.position_spread_mm > WINDOW.max_position_drift_mm  # the old test would refuse
+    ts, ls = _samples(move_mm=0.12, rng=np.random.default_rng(3))
+    with pytest.raises(PoseRefused, match=r"platform moved during the pose \(drifted 0\.0"):
         record_pose(ts, ls, WINDOW, t_end=0.5)
 
 
@@ -125,12 +137,7 @@ class _Legs:
 
 def test_threaded_acquisition_against_the_mock_robot():
     robot = MockRobot(left_hand(), seed=1)
-    window = StillWindow(
-        duration_s=0.2,
-        max_position_spread_mm=0.1,
-        max_angle_spread_deg=0.02,
-        max_reading_spread_mm=0.02,
-    )
+    window = StillWindow(duration_s=0.2)  # default motion limits against the mock's noise
     with Acquisition(_Tracker(robot), _Legs(robot), window) as acq:
         time.sleep(0.05)
         pose = acq.record()

@@ -29,6 +29,18 @@ def test_reads_a_config_with_defaults(tmp_path):
     assert cfg.still.window().duration_s == 0.3
 
 
+def test_still_limits_of_schema_1_files_still_load(tmp_path):
+    """Before motion was judged by drift, the limits were named *_spread_*."""
+    p = tmp_path / "rig.toml"
+    p.write_text(GOOD + "max_position_spread_mm = 0.2\nmax_reading_spread_mm = 0.03\n")
+    w = load_devices_config(p).still.window()
+    assert (w.max_position_drift_mm, w.max_reading_drift_mm, w.max_angle_drift_deg) == (
+        0.2,
+        0.03,
+        0.01,
+    )
+
+
 @pytest.mark.parametrize(
     "text, match",
     [

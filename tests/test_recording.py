@@ -126,17 +126,9 @@ def test_a_slipping_direction_clamp_fails_the_step_check(rig_parts, constraint, 
 
 
 def window():
-    """A short still window: enough frames (60 Hz) and SYNC sets (100 Hz) to average. The mock
-    bus is Python threads: on a loaded machine a stalled thread flags a few sets in a row, so
-    these tests (about calibration, not about the fault policy, which test_acquisition covers)
-    leave out up to 30 % flagged samples instead of 10 %."""
-    return StillWindow(
-        duration_s=0.2,
-        max_position_spread_mm=0.1,
-        max_angle_spread_deg=0.02,
-        max_reading_spread_mm=0.03,
-        max_fault_share=0.3,
-    )
+    """A short still window (enough frames at 60 Hz and SYNC sets at 100 Hz to average), with
+    the default motion and fault limits."""
+    return StillWindow(duration_s=0.2)
 
 
 def test_slips_on_the_mock_rig_are_caught_and_nothing_is_lost(design):

@@ -9,8 +9,13 @@ time falls in ``[t_end − duration, t_end]``. Samples a device flagged (a tool 
 frame, a CRC error, a CAN set with a late or lost position) are left out of the average and
 named in the pose's ``notes``; the pose is refused — never silently kept — when more than
 ``max_fault_share`` of either stream was flagged (the fault lasted, it was not a glitch), when
-the platform or a leg moved during the window (spreads above the thresholds), or when a stream
-delivered too few good samples. The raw samples behind each recorded pose, flagged ones
+the platform or a leg moved during the window, or when a stream delivered too few good samples.
+
+Motion is judged by *drift*: how far the mean of the window's second half lies from the mean of
+its first half. Its noise is 2σ/√n, so the thresholds hold whatever the instruments' noise (a
+max − min spread grows with the noise and with the number of samples, and refused still poses
+of a tracker noisier than the thresholds assumed). The spreads are still measured and kept with
+each pose. The raw samples behind each recorded pose, flagged ones
 included, are kept for the session file.
 
 The sources are small interfaces (:class:`PoseSource`, :class:`LegSource`); the serial tracker
@@ -68,12 +73,14 @@ class LegSource(Protocol):
 
 @dataclass(frozen=True)
 class StillWindow:
-    """How long the platform must be still, and how still (spread = max − min over the window)."""
+    """How long the platform must be still, and how still: the largest drift (second half's
+    mean − first half's mean) of the tracker position per axis (mm), of its orientation (deg)
+    and of each leg reading (mm)."""
 
     duration_s: float = 0.5
-    max_position_spread_mm: float = 0.05
-    max_angle_spread_deg: float = 0.01
-    max_reading_spread_mm: float = 0.01
+    max_position_drift_mm: float = 0.05
+    max_angle_drift_deg: float = 0.01
+    max_reading_drift_mm: float = 0.01
     min_tracker_samples: int = 5
     min_leg_samples: int = 5
     #: Largest share of a stream's samples in the window that may be flagged and left out.
@@ -158,16 +165,22 @@ def record_pose(
     pos_spread = float(np.ptp(P, axis=0).max())
     rho = np.array([s.readings for s in ls])
     rho_spread = float(np.ptp(rho, axis=0).max())
-    if pos_spread > window.max_position_spread_mm or angle > window.max_angle_spread_deg:
+    # Drift: second half's mean against the first half's (samples are in time order).
+    h_t, h_l = len(ts) // 2, len(ls) // 2
+    pos_drift = float(np.abs(P[h_t:].mean(axis=0) - P[:h_t].mean(axis=0)).max())
+    ang_drift = float(np.rad2deg((rot[h_t:].mean() * rot[:h_t].mean().inv()).magnitude()))
+    leg_drift = np.abs(rho[h_l:].mean(axis=0) - rho[:h_l].mean(axis=0))
+    if pos_drift > window.max_position_drift_mm or ang_drift > window.max_angle_drift_deg:
         raise PoseRefused(
-            f"the platform moved during the pose ({pos_spread:.3f} mm, {angle:.4f} deg spread; allowed "
-            f"{window.max_position_spread_mm} mm, {window.max_angle_spread_deg} deg): hold it still and record again"
+            f"the platform moved during the pose (drifted {pos_drift:.3f} mm, {ang_drift:.4f} deg "
+            f"within the window; allowed {window.max_position_drift_mm} mm, "
+            f"{window.max_angle_drift_deg} deg): hold it still and record again"
         )
-    if rho_spread > window.max_reading_spread_mm:
-        leg = int(np.argmax(np.ptp(rho, axis=0))) + 1
+    if leg_drift.max() > window.max_reading_drift_mm:
+        leg = int(np.argmax(leg_drift)) + 1
         raise PoseRefused(
-            f"leg {leg} moved during the pose ({rho_spread:.4f} mm spread, allowed {window.max_reading_spread_mm} mm): "
-            "wait for the legs to settle and record again"
+            f"leg {leg} moved during the pose (drifted {leg_drift.max():.4f} mm within the window, "
+            f"allowed {window.max_reading_drift_mm} mm): wait for the legs to settle and record again"
         )
     return RecordedPose(
         t=t_end,
@@ -186,7 +199,8 @@ def record_pose(
 
 class Acquisition:
     """Reads both sources in background threads into time-stamped buffers; :meth:`record`
-    waits out a still window and returns the recorded pose (or raises PoseRefused)."""
+    waits out a still window (and up to ``late_s`` for samples measured in it to arrive) and
+    returns the recorded pose (or raises PoseRefused)."""
 
     def __init__(
         self,
@@ -195,8 +209,10 @@ class Acquisition:
         window: StillWindow = StillWindow(),
         clock: Callable[[], float] = time.monotonic,
         buffer_s: float = 10.0,
+        late_s: float = 0.1,
     ):
         self.tracker, self.legs, self.window, self.clock = tracker, legs, window, clock
+        self.late_s = late_s  #: how long record() waits for samples measured before the end
         self._tbuf: deque[TrackerSample] = deque()
         self._lbuf: deque[LegSample] = deque()
         self._lock = threading.Lock()
@@ -259,6 +275,14 @@ class Acquisition:
         t_end = t_start + self.window.duration_s
         while self.clock() < t_end:
             time.sleep(min(0.01, max(t_end - self.clock(), 0.0)))
+        # Samples are stamped with their measurement instant and arrive a little later (a
+        # reading set once the set closes): wait, briefly, until both streams are past t_end.
+        give_up = t_end + self.late_s
+        while self.clock() < give_up:
+            with self._lock:
+                if self._tbuf and self._lbuf and min(self._tbuf[-1].t, self._lbuf[-1].t) >= t_end:
+                    break
+            time.sleep(0.005)
         with self._lock:
             ts, ls = list(self._tbuf), list(self._lbuf)
         return record_pose(ts, ls, self.window, t_end)

@@ -100,15 +100,7 @@ def run_demo(
         return (st.free_poses if s.leg == 0 else st.poses_per_step) or s.n_poses
 
     steps = [replace(s, n_poses=count(s)) for s in proc.expand()]
-    window = StillWindow(
-        duration_s=st.window_s,
-        max_position_spread_mm=0.1,
-        max_angle_spread_deg=0.02,
-        max_reading_spread_mm=0.03,
-        # The mock CAN bus runs in Python threads: a busy computer stalls them and flags a few
-        # sets in a row, which real encoders would not. Flagged sets are still left out.
-        max_fault_share=0.3,
-    )
+    window = StillWindow(duration_s=st.window_s)
     path = st.session_path or Path(f"hexcal-demo-{time.strftime('%Y%m%d-%H%M%S')}.json")
     t_start = time.monotonic()
     with mock_rig(truth, seed=st.seed, effects=[hook]) as rig:

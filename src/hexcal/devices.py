@@ -22,9 +22,9 @@ zero_mm = 0.0
 
 [still]                      # the still window a pose is recorded from
 duration_s = 0.5
-max_position_spread_mm = 0.05
-max_angle_spread_deg = 0.01
-max_reading_spread_mm = 0.01
+max_position_drift_mm = 0.05   # how far the mean may move between the window's halves
+max_angle_drift_deg = 0.01
+max_reading_drift_mm = 0.01
 ```
 """
 
@@ -33,7 +33,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
 
 from hexcal.acquisition import StillWindow
 from hexcal.drivers.can_config import CanBusConfig, default_can_config
@@ -58,9 +58,16 @@ class TrackerConfig(BaseModel):
 class StillConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     duration_s: float = Field(0.5, gt=0)
-    max_position_spread_mm: float = Field(0.05, gt=0)
-    max_angle_spread_deg: float = Field(0.01, gt=0)
-    max_reading_spread_mm: float = Field(0.01, gt=0)
+    # The *_spread_* names of schema 1 files (before motion was judged by drift) still load.
+    max_position_drift_mm: float = Field(
+        0.05, gt=0, validation_alias=AliasChoices("max_position_drift_mm", "max_position_spread_mm")
+    )
+    max_angle_drift_deg: float = Field(
+        0.01, gt=0, validation_alias=AliasChoices("max_angle_drift_deg", "max_angle_spread_deg")
+    )
+    max_reading_drift_mm: float = Field(
+        0.01, gt=0, validation_alias=AliasChoices("max_reading_drift_mm", "max_reading_spread_mm")
+    )
     min_tracker_samples: int = Field(5, ge=1)
     min_leg_samples: int = Field(5, ge=1)
     max_fault_share: float = Field(0.1, ge=0, le=1)
