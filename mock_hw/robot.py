@@ -41,7 +41,7 @@ class MockRobot:
     ENCODER_LOG_LEN = 1_000
     #: How many poses the motion history keeps. History-dependent effects (backlash) only need
     #: each leg's last motion, so a long tail is enough; bounded so a soak's memory stays flat.
-    POSE_LOG_LEN = 1_000
+    POSE_LOG_LEN = 200
 
     def __init__(
         self,
