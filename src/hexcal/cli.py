@@ -269,24 +269,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_session(args: argparse.Namespace) -> int:
-    from hexcal.measurements import read_measurements, write_measurements
-    from hexcal.robot import load_robot, save_robot
-    from hexcal.session import Session, SessionFile, load_session
+    from hexcal.measurements import read_measurements
+    from hexcal.robot import load_robot
+    from hexcal.session import Session, SessionFile, export_session, load_session
 
     if args.session_command == "export":
-        session = load_session(args.session)
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        write_measurements(session.measurements(), out / "measurements.csv")
-        save_robot(session.robot, out / "robot.json")
-        written = ["measurements.csv", "robot.json"]
-        cals = [r for r in session.results if r.kind == "calibration" and r.robot is not None]
-        if cals:
-            save_robot(cals[-1].robot, out / "calibrated.json")
-            written.append(
-                f"calibrated.json (Model {cals[-1].model}, {cals[-1].at:%Y-%m-%d %H:%M})"
-            )
-        print(f"exported {args.session} to {out}/: {', '.join(written)}")
+        written = export_session(load_session(args.session), args.out)
+        print(f"exported {args.session} to {Path(args.out)}/: {', '.join(written)}")
         return 0
     meas = read_measurements(args.measurements)
     sf = SessionFile.create(args.out, Session.from_measurements(meas, load_robot(args.robot)))

@@ -43,18 +43,20 @@ class DemoSettings:
     session_path: Path | None = None
 
 
-def _truth_vector(names: list[str], truth) -> np.ndarray:
+def truth_vector(names: list[str], truth) -> np.ndarray:
     true = {f"a{k + 1}.{c}": truth.a[k, j] for k in range(6) for j, c in enumerate("xyz")}
     true |= {f"b{k + 1}.{c}": truth.b[k, j] for k in range(6) for j, c in enumerate("xyz")}
     true |= {f"offset{k + 1}": truth.offsets[k] for k in range(6)}
     return np.array([true[n] for n in names])
 
 
-def _against_truth(ref, truth) -> dict[str, Any]:
-    """How far the refined geometry is from the truth, against its own uncertainty."""
+def against_truth(ref, truth) -> dict[str, Any]:
+    """How far a refinement's geometry (a, b, offsets) is from the simulator's truth, against
+    its own uncertainty: max and RMS error (mm), how many parameters lie outside their 95 %
+    interval, and the Mahalanobis distance² with its χ² p-value."""
     idx = [i for i, n in enumerate(ref.names) if re.fullmatch(r"[ab]\d\.[xyz]|offset\d", n)]
     names = [ref.names[i] for i in idx]
-    err = ref.x[idx] - _truth_vector(names, truth)
+    err = ref.x[idx] - truth_vector(names, truth)
     cov = ref.cov[np.ix_(idx, idx)]
     d2 = float(err @ np.linalg.solve(cov, err))
     return {
@@ -67,6 +69,42 @@ def _against_truth(ref, truth) -> dict[str, Any]:
     }
 
 
+@dataclass
+class HiddenRobot:
+    """A simulated robot built off its drawing: the ``design`` the lab has, the ``truth``, the
+    hidden ``effect`` (catalogue name), its ``values`` and the simulator ``hook`` that applies
+    it."""
+
+    design: Any
+    truth: Any
+    effect: str
+    values: np.ndarray
+    hook: Any
+
+    def hidden(self) -> dict[str, Any]:
+        """{name, values {parameter: value}} of the hidden effect."""
+        from hexcal.effects import get_effect
+
+        names = [sp.name for sp in get_effect(self.effect).params(self.truth)]
+        return {"name": self.effect, "values": dict(zip(names, self.values.tolist(), strict=True))}
+
+
+def hidden_robot(seed: int = 1, effect: str | None = None, scale: float = 1.0) -> HiddenRobot:
+    """The left-hand design, its true robot (points off by a few tenths of a mm, offsets by up
+    to a mm) and one hidden effect (``effect`` None: drawn from :data:`DEMO_EFFECTS`), all from
+    ``seed``."""
+    from hexcal.effects.inject import effect_hook, realistic_values
+    from hexcal.session_sim import SessionPlan, perturbed_truth
+    from hexcal.study import left_hand
+
+    rng = np.random.default_rng(seed)
+    effect = effect or str(rng.choice(DEMO_EFFECTS))
+    design = left_hand()
+    truth = perturbed_truth(design, rng, SessionPlan())
+    values = realistic_values(effect, rng, truth, scale)
+    return HiddenRobot(design, truth, effect, values, effect_hook(effect, values, truth))
+
+
 def run_demo(
     settings: DemoSettings | None = None, on_event: Callable[[str], None] = lambda m: None
 ) -> dict[str, Any]:
@@ -74,23 +112,15 @@ def run_demo(
     from hexcal.acquisition import StillWindow
     from hexcal.calibrate import calibrate
     from hexcal.diagnosis import diagnose
-    from hexcal.effects import get_effect
-    from hexcal.effects.inject import effect_hook, realistic_values
     from hexcal.live import open_rig
     from hexcal.mock_hw.rig import mock_rig
     from hexcal.procedure import load_procedure
     from hexcal.recording import Step, record_procedure
     from hexcal.session import ResultRecord, Session, SessionFile
-    from hexcal.session_sim import SessionPlan, perturbed_truth
-    from hexcal.study import left_hand
 
     st = settings or DemoSettings()
-    rng = np.random.default_rng(st.seed)
-    effect = st.effect or str(rng.choice(DEMO_EFFECTS))
-    design = left_hand()
-    truth = perturbed_truth(design, rng, SessionPlan())
-    values = realistic_values(effect, rng, truth, st.effect_scale)
-    hook = effect_hook(effect, values, truth)
+    hr = hidden_robot(st.seed, st.effect, st.effect_scale)
+    design, truth, effect, hook = hr.design, hr.truth, hr.effect, hr.hook
 
     proc = load_procedure(st.procedure)
 
@@ -155,7 +185,6 @@ def run_demo(
             summary=base.to_dict(),
         )
     )
-    names = [sp.name for sp in get_effect(effect).params(truth)]
     return {
         "session": str(path),
         "procedure": proc.name,
@@ -167,7 +196,7 @@ def run_demo(
             "orientation_deg": inst.tracker.orientation_sigma_deg,
             "reading_mm": inst.encoders.reading_sigma_mm,
         },
-        "hidden_effect": {"name": effect, "values": dict(zip(names, values.tolist(), strict=True))},
+        "hidden_effect": hr.hidden(),
         "calibrated": {
             "base_points": cal_with.robot.a.tolist(),
             "platform_points": cal_with.robot.b.tolist(),
@@ -191,8 +220,8 @@ def run_demo(
                 for d in steps_out
             ],
         },
-        "model_42_vs_truth": _against_truth(cal.refinement, truth),
-        "with_effect_vs_truth": _against_truth(cal_with.refinement, truth),
+        "model_42_vs_truth": against_truth(cal.refinement, truth),
+        "with_effect_vs_truth": against_truth(cal_with.refinement, truth),
     }
 
 

@@ -259,7 +259,7 @@ class SessionRecording:
 
         Per-sample levels from the windows divided by √(samples per window): the mean tracker
         frame count and leg set count of the accepted poses."""
-        lv = _per_pose_noise([a.pose for a in self.accepted])
+        lv = per_pose_noise([a.pose for a in self.accepted])
         return Instruments(
             tracker=TrackerNoise(
                 position_sigma_mm=lv.position_mm, orientation_sigma_deg=lv.orientation_deg
@@ -326,7 +326,7 @@ def record_procedure(
             if step.leg:
                 mover.release()
             if failed is None:
-                check = rec.finish(_per_pose_noise(rec.poses), platform_radius_mm)
+                check = rec.finish(per_pose_noise(rec.poses), platform_radius_mm)
                 session.checks.append((step, check))
                 failed = None if check.ok else check.message
             if failed is None:
@@ -379,8 +379,8 @@ def _record_step(acq, mover, rec: StepRecorder, session, settings, on_event, tel
     return None
 
 
-def _per_pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
-    """The noise of window-averaged poses, from their own windows."""
+def per_pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
+    """The noise (1σ) of window-averaged poses, from the scatter inside their own windows."""
     lv = still_window_noise(poses)
     n_t = float(np.mean([len(p.good_tracker_samples) for p in poses]))
     n_l = float(np.mean([len(p.good_leg_samples) for p in poses]))

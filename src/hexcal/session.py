@@ -134,6 +134,18 @@ class OperatorNote(BaseModel):
     text: str
 
 
+class StepProgress(BaseModel):
+    """A procedure step the guided session has finished (``done``: its poses passed their
+    checks) or that the operator skipped; a resumed session starts at the first step with none."""
+
+    model_config = ConfigDict(extra="forbid")
+    step: str
+    status: Literal["done", "skipped"]
+    poses: int = Field(0, ge=0)
+    at: datetime = Field(default_factory=_now)
+    check: str = Field("", description="the end-of-step check, in words")
+
+
 class ResultRecord(BaseModel):
     """A calibration or diagnosis computed in the session: the model, the effects fitted with
     it, the calibrated robot (robot.json content) and a JSON summary (RMS, χ², verdict...)."""
@@ -171,6 +183,9 @@ class Session(BaseModel):
     set_aside: list[SetAside] = Field(default_factory=list)
     notes: list[OperatorNote] = Field(default_factory=list)
     results: list[ResultRecord] = Field(default_factory=list)
+    progress: list[StepProgress] = Field(
+        default_factory=list, description="the guided procedure's finished and skipped steps"
+    )
 
     # -- the interchange table ----------------------------------------------------------------
     def measurements(self) -> Measurements:
@@ -410,3 +425,26 @@ class SessionFile:
     def add_result(self, result: ResultRecord) -> None:
         self.session.results.append(result)
         self.save()
+
+    def add_progress(self, item: StepProgress) -> None:
+        self.session.progress.append(item)
+        self.save()
+
+
+def export_session(session: Session, out: str | Path) -> list[str]:
+    """Write the session as plain files into directory ``out`` (made if needed):
+    ``measurements.csv`` (the interchange table), ``robot.json`` (the design) and, when the
+    session holds a calibration, ``calibrated.json`` (the latest). The names written, in words."""
+    from hexcal.measurements import write_measurements
+    from hexcal.robot import save_robot
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_measurements(session.measurements(), out / "measurements.csv")
+    save_robot(session.robot, out / "robot.json")
+    written = ["measurements.csv", "robot.json"]
+    cals = [r for r in session.results if r.kind == "calibration" and r.robot is not None]
+    if cals:
+        save_robot(cals[-1].robot, out / "calibrated.json")
+        written.append(f"calibrated.json (Model {cals[-1].model}, {cals[-1].at:%Y-%m-%d %H:%M})")
+    return written

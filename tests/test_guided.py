@@ -1,0 +1,154 @@
+"""The guided session engine: steps, clamps, record/undo/skip, resume, live monitor, conditioning."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from hexcal.calibrate import calibrate
+from hexcal.demo import against_truth, hidden_robot
+from hexcal.guided import GuidedError, GuidedSession
+from hexcal.mock_hw.instant import InstantAcquisition
+from hexcal.mock_hw.motion import MockMotionController
+from hexcal.mock_hw.robot import MockRobot
+from hexcal.procedure import load_procedure
+from hexcal.session import Session, SessionFile
+
+
+def _setup(tmp_path, seed=3, n=6, free=12, procedure="model42-direction-length", effects=True):
+    hr = hidden_robot(seed, "gain")
+    robot = MockRobot(hr.truth, effects=[hr.hook] if effects else [], seed=seed)
+    proc = load_procedure(procedure)
+    steps = [
+        s if s.at_home else replace(s, n_poses=free if s.leg == 0 else n)
+        for s in proc.expand()
+    ]
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=hr.design))
+    acq = InstantAcquisition(robot)
+    mover = MockMotionController(robot, seed=seed)
+    radius = float(np.linalg.norm(hr.design.b, axis=1).max())
+    g = GuidedSession(sf, steps, acq, platform_radius_mm=radius, mover=mover)
+    return g, hr, robot, mover
+
+
+def _run_step(g: GuidedSession) -> None:
+    if g.step.leg:
+        g.clamp()
+    while g.n_poses < g.step.n_poses:
+        g.move()
+        ok, msg = g.record()
+        assert ok, msg
+    assert g.finish_step().ok
+
+
+def test_a_whole_procedure_calibrates_to_the_truth(tmp_path):
+    g, hr, _, _ = _setup(tmp_path, effects=False)
+    while not g.finished:
+        _run_step(g)
+    assert [s[1] for s in g.summary()] == ["done"] * len(g.steps)
+    meas = g.sf.session.measurements()
+    assert len(meas) == 1 + 12 * 6 + 12
+    cal = calibrate(meas, hr.design, 42)
+    d2 = against_truth(cal.refinement, hr.truth)["mahalanobis2"]
+    assert d2 < stats.chi2.ppf(0.999, 42), d2
+
+
+def test_resume_starts_at_the_first_unfinished_step_with_its_poses(tmp_path):
+    g, _, robot, mover = _setup(tmp_path)
+    _run_step(g)  # home
+    g.clamp()
+    for _ in range(2):
+        g.move()
+        assert g.record()[0]
+    name = g.step.name
+    again = GuidedSession(
+        SessionFile.resume(g.sf.path),
+        g.steps,
+        g.acquisition,
+        platform_radius_mm=g.platform_radius_mm,
+        mover=mover,
+    )
+    assert again.step.name == name and again.n_poses == 2 and again.clamped
+    assert [s[1] for s in again.summary()[:2]] == ["done", "now"]
+
+
+def test_undo_sets_the_pose_aside_and_skip_moves_on(tmp_path):
+    g, *_ = _setup(tmp_path)
+    _run_step(g)
+    g.clamp()
+    g.move()
+    g.record()
+    g.undo()
+    assert g.n_poses == 0 and len(g.sf.session.set_aside) == 1
+    assert g.sf.session.set_aside[0].reason == "undone by the operator"
+    with pytest.raises(GuidedError, match="no pose to undo"):
+        g.undo()
+    with pytest.raises(GuidedError, match="needs at least 4 poses"):
+        g.finish_step()
+    first = g.step.name
+    g.skip_step()
+    assert g.step.name != first and g.sf.session.progress[-1].status == "skipped"
+
+
+def test_recording_needs_the_clamp(tmp_path):
+    g, *_ = _setup(tmp_path)
+    _run_step(g)
+    with pytest.raises(GuidedError, match=r"clamp leg 1 \(direction\+length\) before recording"):
+        g.record()
+    with pytest.raises(GuidedError, match="clamp leg 1"):
+        g.move()
+
+
+def test_a_slipping_length_clamp_is_seen_live_and_refuses_the_pose(tmp_path):
+    g, _, _, mover = _setup(tmp_path)
+    _run_step(g)
+    _run_step(g)  # leg 1 direction+length
+    assert g.step.constraint == "length"
+    g.clamp()
+    g.move()
+    assert g.record()[0]
+    mover.slip(mm_per_move=0.05)
+    g.move()
+    g.acquisition.refresh()
+    live = g.live()
+    assert not live.clamp_ok and "SLIPPING" in live.clamp
+    ok, msg = g.record()
+    assert not ok and "clamp is slipping" in msg
+    assert g.sf.session.set_aside[-1].pose is not None  # the refused pose is kept
+
+
+def test_a_moving_point_clamp_is_seen_live_and_fails_the_step(tmp_path):
+    g, *_ = _setup(tmp_path)
+    _run_step(g)
+    g.clamp()
+    for _ in range(5):
+        g.move()
+        g.record()
+    g.mover.slip(mm_per_move=0.4)
+    g.move()
+    g.acquisition.refresh()
+    live = g.live()
+    assert not live.clamp_ok and "CLAMP MOVED?" in live.clamp
+    g.record()
+    check = g.finish_step()
+    assert not check.ok and "the poses do not fit one clamped point" in check.message
+    assert g.n_poses == 0 and g.step.name == "leg1-direction+length"
+    assert sum(1 for s in g.sf.session.set_aside if s.pose is not None) == 6
+
+
+def test_conditioning_tightens_with_poses_and_hints_a_motion(tmp_path):
+    g, *_ = _setup(tmp_path)
+    _run_step(g)
+    g.clamp()
+    sig = []
+    for _ in range(8):
+        g.move()
+        g.record()
+        c = g.conditioning()
+        sig.append(c.sigma_b_mm)
+    assert np.isnan(sig[0]) and np.isfinite(sig[3])
+    assert sig[-1] < sig[3]
+    assert c.hint.startswith("tilt the platform about ")
