@@ -23,8 +23,7 @@ def _setup(tmp_path, seed=3, n=6, free=12, procedure="model42-direction-length",
     robot = MockRobot(hr.truth, effects=[hr.hook] if effects else [], seed=seed)
     proc = load_procedure(procedure)
     steps = [
-        s if s.at_home else replace(s, n_poses=free if s.leg == 0 else n)
-        for s in proc.expand()
+        s if s.at_home else replace(s, n_poses=free if s.leg == 0 else n) for s in proc.expand()
     ]
     sf = SessionFile.create(tmp_path / "s.json", Session(robot=hr.design))
     acq = InstantAcquisition(robot)
@@ -57,7 +56,7 @@ def test_a_whole_procedure_calibrates_to_the_truth(tmp_path):
 
 
 def test_resume_starts_at_the_first_unfinished_step_with_its_poses(tmp_path):
-    g, _, robot, mover = _setup(tmp_path)
+    g, _, _, mover = _setup(tmp_path)
     _run_step(g)  # home
     g.clamp()
     for _ in range(2):
