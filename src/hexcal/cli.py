@@ -268,6 +268,41 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    from hexcal.tui.app import HexcalApp
+    from hexcal.tui.backend import RealBackend, mock_backend
+
+    if args.mock:
+        backend = mock_backend(args.seed, args.effect, args.window_s)
+        if args.robot:
+            raise SystemExit("hexcal run: --robot goes with --config (the mock rig has its own)")
+    else:
+        if not args.config:
+            print(
+                "hexcal run: give the rig's device configuration (--config rig.toml, see "
+                "`hexcal devices check`) and its design (--robot robot.json), or --mock to run "
+                "on simulated hardware",
+                file=sys.stderr,
+            )
+            return 2
+        from hexcal.devices import load_devices_config
+        from hexcal.robot import load_robot
+        from hexcal.study import left_hand
+
+        load_devices_config(args.config)  # refuse a bad file before the UI starts
+        design = load_robot(args.robot) if args.robot else left_hand()
+        backend = RealBackend(design, f"rig from {args.config}", config_path=args.config)
+    app = HexcalApp(
+        backend,
+        session_path=args.session,
+        procedure=args.procedure,
+        poses_per_step=args.poses_per_step,
+        free_poses=args.free_poses,
+    )
+    app.run()
+    return 0
+
+
 def _cmd_session(args: argparse.Namespace) -> int:
     from hexcal.measurements import read_measurements
     from hexcal.robot import load_robot
@@ -442,6 +477,30 @@ def build_parser() -> argparse.ArgumentParser:
     dm.add_argument("--session", type=Path, help="session file to write (must not exist)")
     dm.add_argument("--json", action="store_true", help="print one JSON object")
     dm.set_defaults(func=_cmd_demo)
+
+    rn = sub.add_parser(
+        "run",
+        help="the operator's text UI: guided clamping and recording, result, diagnosis, export",
+    )
+    rn.add_argument("--mock", action="store_true", help="simulated devices (no hardware)")
+    rn.add_argument("--config", type=Path, help="the rig's device configuration (TOML)")
+    rn.add_argument("--robot", type=Path, help="the robot's design, robot.json")
+    rn.add_argument("--session", type=Path, help="session file to propose (new or to resume)")
+    rn.add_argument(
+        "--procedure",
+        default="model42-direction-length",
+        choices=["model42-direction-length", "model36-direction", "free-validation"],
+    )
+    rn.add_argument("--poses-per-step", type=int, help="instead of the procedure's counts")
+    rn.add_argument("--free-poses", type=int, help="instead of the procedure's count")
+    rn.add_argument("--seed", type=int, default=1, help="--mock: the simulated robot")
+    rn.add_argument(
+        "--effect",
+        choices=["gain", "backlash", "leadscrew"],
+        help="--mock: the effect the robot hides (default: drawn by the seed)",
+    )
+    rn.add_argument("--window-s", type=float, default=0.25, help="--mock: still window, s")
+    rn.set_defaults(func=_cmd_run)
 
     se = sub.add_parser("session", help="export a session file, or make one from a CSV")
     se_sub = se.add_subparsers(dest="session_command", required=True)

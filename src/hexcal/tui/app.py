@@ -1,0 +1,188 @@
+"""``hexcal run``: the operator's text UI.
+
+Start → (new session: robot, devices, procedure, session file | resume a session file) → the
+guided recording, step by step (:mod:`hexcal.tui.record`) → the Model 36/42 result and the
+diagnosis, adding effects until the residual is at the noise floor (:mod:`hexcal.tui.results`)
+→ export. Everything recorded is saved in the session file after every pose.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from textual import work
+from textual.app import App, ComposeResult
+from textual.containers import Grid, Horizontal, Vertical
+from textual.screen import Screen
+from textual.widgets import Button, Footer, Header, Input, Label, Select, Static
+
+from hexcal.guided import GuidedSession
+from hexcal.procedure import BUILTIN, Procedure, load_procedure
+from hexcal.recording import Step
+from hexcal.session import Session, SessionFile, SessionFileError
+from hexcal.tui.backend import Backend, Rig
+
+
+class StartScreen(Screen):
+    """Robot, devices, procedure and session file; start a new session or resume one."""
+
+    BINDINGS = [("ctrl+n", "new", "New session"), ("ctrl+r", "resume", "Resume session")]
+
+    def compose(self) -> ComposeResult:
+        app: HexcalApp = self.app  # type: ignore[assignment]
+        yield Header()
+        with Vertical(id="start"):
+            yield Static(
+                "[b]hexcal[/b] — calibrate a Gough–Stewart platform by clamping its legs.\n"
+                "Start a new session or resume one; every pose is saved in the session file "
+                "as it is recorded.",
+                id="intro",
+            )
+            with Grid(id="start-form"):
+                yield Label("Robot (design)")
+                yield Static(app.backend.design.name or "unnamed robot", id="robot")
+                yield Label("Devices")
+                yield Static(app.backend.label, id="devices")
+                yield Label("Procedure")
+                yield Select(
+                    [(load_procedure(k).name, k) for k in BUILTIN],
+                    value=app.procedure_name,
+                    allow_blank=False,
+                    id="procedure",
+                )
+                yield Label("Session file")
+                yield Input(str(app.session_path), id="session-path")
+            with Horizontal(id="start-buttons"):
+                yield Button("New session", id="new", variant="primary")
+                yield Button("Resume session", id="resume")
+            yield Static("", id="start-message")
+        yield Footer()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        if event.button.id == "new":
+            self.action_new()
+        else:
+            self.action_resume()
+
+    def _say(self, text: str) -> None:
+        self.query_one("#start-message", Static).update(text)
+
+    def action_new(self) -> None:
+        app: HexcalApp = self.app  # type: ignore[assignment]
+        path = Path(self.query_one("#session-path", Input).value.strip())
+        name = str(self.query_one("#procedure", Select).value)
+        try:
+            proc = load_procedure(name)
+            sf = SessionFile.create(
+                path, Session(robot=app.backend.design, procedure=proc.model_dump(by_alias=True))
+            )
+        except (SessionFileError, ValueError, OSError) as exc:
+            self._say(f"[red]{exc}[/red]")
+            return
+        self._say("opening the devices…")
+        app.begin(sf, proc)
+
+    def action_resume(self) -> None:
+        app: HexcalApp = self.app  # type: ignore[assignment]
+        path = Path(self.query_one("#session-path", Input).value.strip())
+        try:
+            sf = SessionFile.resume(path)
+            if sf.session.procedure is None:
+                raise SessionFileError(
+                    f"{path}: holds no procedure (imported from a table?) — calibrate it with "
+                    "`hexcal calibrate`, or start a new session"
+                )
+            proc = Procedure.model_validate(sf.session.procedure)
+        except (SessionFileError, ValueError) as exc:
+            self._say(f"[red]{exc}[/red]")
+            return
+        self._say(f"resuming {path} ({len(sf.session.poses)} poses)… opening the devices…")
+        app.begin(sf, proc)
+
+
+class HexcalApp(App):
+    """The operator's UI. ``backend`` opens the devices; ``session_path`` is proposed on the
+    start screen; ``poses_per_step`` / ``free_poses`` override the procedure's recommended
+    counts (a quick tour, tests)."""
+
+    CSS_PATH = "hexcal.tcss"
+    TITLE = "hexcal"
+
+    def __init__(
+        self,
+        backend: Backend,
+        session_path: str | Path | None = None,
+        procedure: str = "model42-direction-length",
+        poses_per_step: int | None = None,
+        free_poses: int | None = None,
+    ):
+        super().__init__()
+        self.backend = backend
+        self.session_path = Path(
+            session_path or f"hexcal-session-{time.strftime('%Y%m%d-%H%M%S')}.json"
+        )
+        self.procedure_name = procedure
+        self.poses_per_step = poses_per_step
+        self.free_poses = free_poses
+        self.rig: Rig | None = None
+        self.guided: GuidedSession | None = None
+        self.procedure: Procedure | None = None
+        self.sub_title = backend.label
+
+    def on_mount(self) -> None:
+        self.push_screen(StartScreen())
+
+    def steps(self, proc: Procedure) -> list[Step]:
+        def count(s: Step) -> int:
+            if s.at_home:
+                return s.n_poses
+            n = self.free_poses if s.leg == 0 else self.poses_per_step
+            return max(n, s.min_poses) if n else s.n_poses
+
+        return [replace(s, n_poses=count(s)) for s in proc.expand()]
+
+    @work(thread=True, exclusive=True, group="devices")
+    def begin(self, sf: SessionFile, proc: Procedure) -> None:
+        """Open the devices (in a worker: it takes a second), then start recording."""
+        try:
+            rig = self.rig or self.backend.open()
+        except Exception as exc:  # any driver error: show it, stay on the start screen
+            self.call_from_thread(self._start_failed, exc)
+            return
+        self.rig = rig
+        if rig.devices is not None and sf.session.devices is None:
+            sf.session.devices = rig.devices
+            sf.save()
+        design = sf.session.robot
+        self.procedure = proc
+        self.guided = GuidedSession(
+            sf,
+            self.steps(proc),
+            rig.acquisition,
+            platform_radius_mm=float(np.linalg.norm(design.b, axis=1).max()),
+            mover=rig.mover,
+            encoders=rig.encoders,
+            clock_start=time.monotonic(),
+        )
+        self.call_from_thread(self._show_recording)
+
+    def _start_failed(self, exc: Exception) -> None:
+        screen = self.screen
+        if isinstance(screen, StartScreen):
+            screen._say(f"[red]could not open the devices: {exc}[/red]")
+
+    def _show_recording(self) -> None:
+        from hexcal.tui.record import RecordScreen
+
+        self.switch_screen(RecordScreen())
+
+    def on_unmount(self) -> None:
+        self.backend.close()
+
+
+def run_app(app: HexcalApp) -> int:
+    app.run()
+    return 0

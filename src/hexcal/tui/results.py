@@ -1,0 +1,287 @@
+"""The result screens: the Model 36/42 calibration, then the diagnosis.
+
+The diagnosis compares the model with the measurements (held-out residuals per leg against the
+noise floor, in a terminal plot), says where it fails, ranks the missing effects, and adds the
+one it names (``a``): the refit is shown beside the previous ones, so the operator watches the
+error fall until the verdict is ``none``. Every calibration and diagnosis is stored in the
+session file; ``e`` exports the session as plain files. Computations run in worker threads.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.markup import escape
+from textual import work
+from textual.binding import Binding
+from textual.containers import Horizontal, VerticalScroll
+from textual.screen import Screen
+from textual.widgets import Footer, Header, Static
+from textual_plotext import PlotextPlot
+
+from hexcal.session import ResultRecord, export_session
+
+
+def _app_state(screen: Screen) -> tuple[Any, Any, Any]:
+    app = screen.app
+    return app.guided, app.procedure, app.rig  # type: ignore[attr-defined]
+
+
+def session_inputs(guided) -> tuple[Any, Any, Any]:
+    """(measurements, design robot, instruments) of the guided session: the noise estimated
+    from the recorded poses' still windows (None when they carry no raw samples)."""
+    from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+    from hexcal.recording import per_pose_noise
+
+    sess = guided.sf.session
+    meas = sess.measurements()
+    inst = None
+    poses = _poses(sess)
+    if poses and all(p.tracker_samples and p.leg_samples for p in poses):
+        lv = per_pose_noise(poses)
+        if np.isfinite([lv.position_mm, lv.orientation_deg, lv.reading_mm]).all():
+            inst = Instruments(
+                tracker=TrackerNoise(
+                    position_sigma_mm=lv.position_mm, orientation_sigma_deg=lv.orientation_deg
+                ),
+                encoders=EncoderNoise(reading_sigma_mm=lv.reading_mm),
+                source="estimated from the still windows of the recorded poses",
+            )
+    return meas, sess.robot, inst
+
+
+def _poses(sess) -> list:
+    from hexcal.guided import pose_from_record
+
+    return [pose_from_record(r) for r in sess.poses]
+
+
+class ResultScreen(Screen):
+    """The calibrated geometry with its intervals (see :func:`hexcal.report_text`)."""
+
+    BINDINGS = [
+        Binding("d", "diagnose", "Diagnose"),
+        Binding("e", "export", "Export"),
+        Binding("escape", "back", "Back to recording"),
+        Binding("q", "app.quit", "Quit"),
+    ]
+
+    def compose(self):
+        yield Header()
+        with VerticalScroll(id="result-scroll"):
+            yield Static("calibrating…", id="result")
+        yield Static("", id="result-message")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self._calibrate()
+
+    @work(thread=True, exclusive=True, group="compute")
+    def _calibrate(self) -> None:
+        from hexcal.calibrate import calibrate
+        from hexcal.report_text import calibration_text
+
+        guided, proc, rig = _app_state(self)
+        try:
+            meas, design, inst = session_inputs(guided)
+            cal = calibrate(meas, design, proc.model, inst)
+        except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
+            self.app.call_from_thread(
+                self._show, f"[red]cannot calibrate yet:[/red]\n{exc}\n\nEscape to record more."
+            )
+            return
+        noise = inst.source if inst else "estimated from the residual"
+        text = escape(calibration_text(cal, f"{guided.sf.path} ({len(meas)} poses)", noise))
+        if rig is not None and rig.truth is not None and cal.refinement is not None:
+            text += "\n\n" + truth_line(cal.refinement, rig.truth)
+        guided.sf.add_result(
+            ResultRecord(
+                kind="calibration",
+                model=proc.model,
+                pose_ids=[int(i) for i in meas.pose_id],
+                robot=cal.robot,
+                summary={"rms_mm": cal.rms_mm},
+            )
+        )
+        self.app.call_from_thread(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
+
+    def _show(self, text: str) -> None:
+        self.query_one("#result", Static).update(text)
+
+    def action_diagnose(self) -> None:
+        self.app.push_screen(DiagnosisScreen())
+
+    def action_back(self) -> None:
+        self.app.pop_screen()
+
+    def action_export(self) -> None:
+        self.query_one("#result-message", Static).update(export_text(self))
+
+
+def truth_line(refinement: Any, truth: Any) -> str:
+    """How a refined geometry compares with a simulated robot's truth, one line."""
+    from hexcal.demo import against_truth
+
+    t = against_truth(refinement, truth)
+    return (
+        f"[b]vs the simulator's truth[/b]: max error {t['max_error_mm']:.4f} mm, "
+        f"{t['outside_95']}/{t['parameters']} outside 95 %, "
+        f"Mahalanobis² {t['mahalanobis2']:.1f} (p {t['mahalanobis2_p']:.2f})"
+    )
+
+
+def export_text(screen: Screen) -> str:
+    """Export the session next to its file; one line for the operator."""
+    guided, _, _ = _app_state(screen)
+    out = Path(guided.sf.path).with_suffix("")
+    out = out.with_name(out.name + "-export")
+    try:
+        written = export_session(guided.sf.session, out)
+    except (OSError, ValueError) as exc:
+        return f"[red]export failed: {exc}[/red]"
+    return f"[green]exported to {out}/: {', '.join(written)}[/green]"
+
+
+class DiagnosisScreen(Screen):
+    """Model against measurements, where it fails, the missing effect; add it, watch the error
+    fall (see module docstring)."""
+
+    BINDINGS = [
+        Binding("a", "add", "Add the named effect"),
+        Binding("e", "export", "Export"),
+        Binding("escape", "back", "Back"),
+        Binding("q", "app.quit", "Quit"),
+    ]
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.history: list[Any] = []
+        self.busy = False
+
+    def compose(self):
+        yield Header()
+        with Horizontal(id="diag-top"):
+            yield Static(
+                "diagnosing… (every catalogue effect is scored and the leaders refitted)",
+                id="diag-summary",
+            )
+            yield PlotextPlot(id="diag-plot")
+        with VerticalScroll(id="diag-scroll"):
+            yield Static("", id="diag-text")
+        yield Static("", id="diag-message")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.busy = True
+        self._diagnose(())
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action == "add":
+            if self.busy or not self.history:
+                return None
+            return self.history[-1].verdict not in ("none", "unexplained") or None
+        return True
+
+    @work(thread=True, exclusive=True, group="compute")
+    def _diagnose(self, add: tuple[str, ...]) -> None:
+        from hexcal.diagnosis import diagnose
+
+        guided, proc, _ = _app_state(self)
+        try:
+            meas, design, inst = session_inputs(guided)
+            prev = self.history[-1] if self.history else None
+            d = diagnose(
+                meas,
+                design,
+                proc.model,
+                add=list(add),
+                instruments=inst,
+                problem=prev.problem if prev else None,
+            )
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            self.app.call_from_thread(self._failed, str(exc))
+            return
+        guided.sf.add_result(
+            ResultRecord(
+                kind="diagnosis",
+                model=proc.model,
+                effects=[e for e in d.effects if e != "offset"],
+                pose_ids=[int(i) for i in meas.pose_id],
+                summary=d.to_dict(),
+            )
+        )
+        self.app.call_from_thread(self._show, d)
+
+    def _failed(self, msg: str) -> None:
+        self.busy = False
+        self.query_one("#diag-text", Static).update(f"[red]cannot diagnose: {msg}[/red]")
+        self.refresh_bindings()
+
+    def _show(self, d: Any) -> None:
+        from hexcal.diagnosis.text import before_after_text, diagnosis_text
+
+        self.history.append(d)
+        self.busy = False
+        guided, _, rig = _app_state(self)
+        self.query_one("#diag-text", Static).update(
+            escape(
+                before_after_text(self.history) + "\n\n" + diagnosis_text(d, str(guided.sf.path))
+            )
+        )
+        lines = [
+            f"[b]verdict: {d.verdict}[/b]   χ²/dof {d.chi2_per_dof:.2f}, "
+            f"floor {1000 * d.noise_floor_mm:.2f} µm",
+            "",
+            *(
+                f"{h.fit.model_name:<20} {1000 * h.fit.cv_rms_mm:6.2f} µm held-out"
+                for h in self.history
+            ),
+            "",
+        ]
+        if d.verdict == "none":
+            lines.append("[green]the residual is at the noise floor: nothing is missing[/green]")
+        elif d.verdict == "unexplained":
+            lines.append(
+                "[yellow]a structured residual no catalogue effect explains[/yellow]: "
+                + escape(d.where["summary"])
+            )
+        else:
+            lines.append(f"press [b]a[/b] to add [b]{d.verdict}[/b] and refit")
+        if rig is not None and rig.hidden is not None:
+            lines.append(f"(the mock robot hides: {rig.hidden['name']})")
+            if d.fit.refinement is not None:
+                lines.append(truth_line(d.fit.refinement, rig.truth))
+        self.query_one("#diag-summary", Static).update("\n".join(lines))
+        self.query_one("#diag-message", Static).update("")
+        self._plot()
+        self.refresh_bindings()
+
+    def _plot(self) -> None:
+        plot = self.query_one("#diag-plot", PlotextPlot)
+        plt = plot.plt
+        plt.clear_figure()
+        legs = [f"leg {k}" for k in range(1, 7)]
+        plt.multiple_bar(
+            legs,
+            [(1000 * d.fit.cv_rms_per_leg).tolist() for d in self.history],
+            labels=[d.fit.model_name for d in self.history],
+        )
+        floor = 1000 * self.history[-1].noise_floor_mm
+        plt.hline(floor, "red")
+        plt.title(f"held-out RMS per leg, µm — red line: noise floor {floor:.1f} µm")
+        plot.refresh()
+
+    def action_add(self) -> None:
+        d = self.history[-1]
+        self.busy = True
+        self.refresh_bindings()
+        self.query_one("#diag-message", Static).update(f"adding {d.verdict} and refitting…")
+        self._diagnose(tuple(e for e in d.effects if e != "offset") + (d.verdict,))
+
+    def action_export(self) -> None:
+        self.query_one("#diag-message", Static).update(export_text(self))
+
+    def action_back(self) -> None:
+        self.app.pop_screen()
