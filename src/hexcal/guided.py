@@ -238,7 +238,9 @@ class GuidedSession:
 
     def record(self) -> tuple[bool, str]:
         """Record one pose of the current step: (recorded, operator message). Blocks for the
-        still window. Refused poses are kept in the session file with their reason."""
+        still window. Refused poses are kept in the session file with their reason; record
+        again *at the same pose* (the motion history between recorded poses is what
+        direction-dependent effects such as backlash are fitted from)."""
         st = self.step
         if st.leg and not self.clamped:
             raise GuidedError(f"clamp leg {st.leg} ({st.constraint}) before recording")
@@ -253,9 +255,10 @@ class GuidedSession:
             self._sink("refused", st, pose, str(exc))
             return False, self._say(str(exc))
         self._sink("pose", st, pose, "")
+        # The notes name each flagged sample in full in the session file; here, how many.
+        left_out = "; ".join(n.split(":")[0] for n in pose.notes)
         return True, self._say(
-            f"{st.name}: pose {self.n_poses} recorded"
-            + (f" ({'; '.join(pose.notes)})" if pose.notes else "")
+            f"{st.name}: pose {self.n_poses} recorded" + (f" ({left_out})" if left_out else "")
         )
 
     def undo(self) -> str:

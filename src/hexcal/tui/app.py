@@ -8,6 +8,8 @@ diagnosis, adding effects until the residual is at the noise floor (:mod:`hexcal
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -103,6 +105,25 @@ class StartScreen(Screen):
         app.begin(sf, proc)
 
 
+class _ToScreen(logging.Handler):
+    """hexcal's log records (driver warnings: a late tracker, a silent node...) shown in the UI
+    instead of written over the screen."""
+
+    def __init__(self, app: HexcalApp):
+        super().__init__(logging.INFO)
+        self.app = app
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        try:
+            if threading.current_thread() is threading.main_thread():
+                self.app.device_message(text, record.levelno)
+            else:
+                self.app.call_from_thread(self.app.device_message, text, record.levelno)
+        except RuntimeError:  # the app is closing
+            pass
+
+
 class HexcalApp(App):
     """The operator's UI. ``backend`` opens the devices; ``session_path`` is proposed on the
     start screen; ``poses_per_step`` / ``free_poses`` override the procedure's recommended
@@ -133,7 +154,20 @@ class HexcalApp(App):
         self.sub_title = backend.label
 
     def on_mount(self) -> None:
+        self._log = logging.getLogger("hexcal")
+        self._handler = _ToScreen(self)
+        self._log.addHandler(self._handler)
+        self._propagate, self._log.propagate = self._log.propagate, False
         self.push_screen(StartScreen())
+
+    def device_message(self, text: str, level: int = logging.WARNING) -> None:
+        """A message from the devices: into the recording log, else a notification."""
+        from hexcal.tui.record import RecordScreen
+
+        if isinstance(self.screen, RecordScreen):
+            self.screen.log_line(text, "yellow" if level >= logging.WARNING else "")
+        elif level >= logging.WARNING:
+            self.notify(text, severity="warning", timeout=8)
 
     def steps(self, proc: Procedure) -> list[Step]:
         def count(s: Step) -> int:
@@ -180,6 +214,8 @@ class HexcalApp(App):
         self.switch_screen(RecordScreen())
 
     def on_unmount(self) -> None:
+        self._log.removeHandler(self._handler)
+        self._log.propagate = self._propagate
         self.backend.close()
 
 

@@ -273,7 +273,10 @@ class RecordScreen(Screen):
                 if st.leg and not g.clamped:
                     call(self.log_line, g.clamp())
                 if g.n_poses < st.n_poses:
-                    g.move()
+                    # A refused pose is recorded again where it stands, as record_procedure
+                    # does: moving on would hide a motion from history-dependent effects.
+                    if refused == 0:
+                        g.move()
                     ok, msg = g.record()
                     refused = 0 if ok else refused + 1
                     call(self.log_line, msg, "" if ok else "red")

@@ -1,0 +1,232 @@
+"""The operator's text UI, driven by Textual's Pilot: a whole guided session on the mock rig
+through the real drivers, snapshots of the main screens, and resuming a killed session."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from hexcal.demo import against_truth
+from hexcal.measurements import read_measurements
+from hexcal.session import Session, load_session
+from hexcal.study import left_hand
+from hexcal.tui.app import HexcalApp
+from hexcal.tui.backend import InstantBackend, mock_backend
+from hexcal.tui.record import RecordScreen
+from hexcal.tui.results import DiagnosisScreen, ResultScreen
+
+SIZE = (130, 42)
+
+
+async def _settle(pilot) -> None:
+    await pilot.pause()
+    await pilot.app.workers.wait_for_complete()
+    await pilot.pause()
+
+
+async def _until(pilot, cond, timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < end, "timed out"
+        await pilot.pause(0.1)
+
+
+def instant_app(path: Path, **kw) -> HexcalApp:
+    backend = InstantBackend(left_hand(), "instant mock rig", simulated=True, seed=2, effect="gain")
+    return HexcalApp(backend, session_path=path, poses_per_step=4, free_poses=12, **kw)
+
+
+# -- the whole guided session, through the drivers -------------------------------------------------
+def test_a_whole_guided_session_on_the_mock_rig(tmp_path):
+    """Start a session, clamp and record every leg's steps and the free poses through the mock
+    rig's drivers, calibrate, diagnose, add the named effect, export: the result matches the
+    simulator's truth within its uncertainty, the diagnosis names the hidden effect, adding it
+    lowers the error, and the export re-imports identically."""
+    path = tmp_path / "session.json"
+    app = HexcalApp(
+        mock_backend(seed=5, effect="gain", window_s=0.25),
+        session_path=path,
+        poses_per_step=5,
+        free_poses=15,
+    )
+
+    async def run() -> tuple[list, object]:
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.click("#new")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 30)
+            g = app.guided
+            # The first steps by hand, as an operator would: record home, next, clamp, move...
+            await pilot.press("r")
+            await _until(pilot, lambda: g.n_poses == 1, 10)
+            await pilot.press("n")
+            await pilot.press("c")
+            assert g.clamped
+            for i in range(5):
+                await pilot.press("m", "r")
+                await _until(pilot, lambda i=i: g.n_poses == i + 1 or not app.screen.busy, 10)
+            await _until(pilot, lambda: not app.screen.busy, 10)
+            await pilot.press("n")
+            # ...and the rest with the mock operator.
+            await pilot.press("A")
+            await _until(pilot, lambda: g.finished and not app.screen.busy, 300)
+            assert [s[1] for s in g.summary()] == ["done"] * len(g.steps)
+            await pilot.press("k")
+            await _until(pilot, lambda: isinstance(app.screen, ResultScreen), 5)
+            await _settle(pilot)
+            await pilot.press("d")
+            await _until(pilot, lambda: isinstance(app.screen, DiagnosisScreen), 5)
+            screen = app.screen
+            await _until(pilot, lambda: len(screen.history) == 1, 60)
+            await pilot.press("a")
+            await _until(pilot, lambda: len(screen.history) == 2, 60)
+            await pilot.press("e")
+            await pilot.pause()
+            return screen.history, app.rig
+
+    history, rig = asyncio.run(run())
+    base, added = history
+    assert base.verdict == "gain" == rig.hidden["name"]
+    assert added.fit.cv_rms_mm < 0.5 * base.fit.cv_rms_mm
+    assert added.verdict == "none"
+    d2 = against_truth(added.fit.refinement, rig.truth)["mahalanobis2"]
+    assert d2 < stats.chi2.ppf(0.999, 42), d2
+    session = load_session(path)
+    assert [r.kind for r in session.results] == ["calibration", "diagnosis", "diagnosis"]
+    exported = read_measurements(tmp_path / "session-export" / "measurements.csv")
+    assert exported == session.measurements()
+    again = Session.from_measurements(exported, session.robot)
+    assert again.measurements() == session.measurements()
+
+
+# -- snapshots of the main screens -----------------------------------------------------------------
+@pytest.fixture
+def in_tmp(tmp_path, monkeypatch):
+    """Run in an empty directory so the screens show the same relative session path."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_snapshot_start(snap_compare, in_tmp):
+    assert snap_compare(instant_app(Path("session.json")), terminal_size=SIZE)
+
+
+async def _record_some(pilot) -> None:
+    await pilot.click("#new")
+    await _settle(pilot)
+    await pilot.press("r")
+    await _settle(pilot)
+    await pilot.press("n", "c")
+    for _ in range(3):
+        await pilot.press("m", "r")
+        await _settle(pilot)
+
+
+def test_snapshot_recording(snap_compare, in_tmp):
+    assert snap_compare(
+        instant_app(Path("session.json")), terminal_size=SIZE, run_before=_record_some
+    )
+
+
+async def _record_all(pilot) -> None:
+    await pilot.click("#new")
+    await _settle(pilot)
+    await pilot.press("A")
+    await _until(pilot, lambda: pilot.app.guided.finished and not pilot.app.screen.busy, 60)
+    await pilot.press("k")
+    await _settle(pilot)
+
+
+def test_snapshot_result(snap_compare, in_tmp):
+    assert snap_compare(
+        instant_app(Path("session.json")), terminal_size=SIZE, run_before=_record_all
+    )
+
+
+async def _diagnose_and_add(pilot) -> None:
+    await _record_all(pilot)
+    await pilot.press("d")
+    await _settle(pilot)
+    await pilot.press("a")
+    await _settle(pilot)
+
+
+def test_snapshot_diagnosis(snap_compare, in_tmp):
+    assert snap_compare(
+        instant_app(Path("session.json")), terminal_size=SIZE, run_before=_diagnose_and_add
+    )
+
+
+# -- a kill while recording ----------------------------------------------------------------------
+RECORDER = textwrap.dedent(
+    """
+    import asyncio, sys
+    sys.path.insert(0, {tests!r})
+    from test_tui import instant_app
+    from pathlib import Path
+
+    async def main():
+        app = instant_app(Path(sys.argv[1]))
+        app.free_poses = 100000  # records until killed
+        async with app.run_test(size=(130, 42)) as pilot:
+            await pilot.click("#new")
+            await pilot.app.workers.wait_for_complete()
+            await pilot.pause()
+            await pilot.press("A")
+            print("recording", flush=True)
+            while True:
+                await pilot.pause(0.05)
+
+    asyncio.run(main())
+    """
+)
+
+
+@pytest.mark.parametrize("delay_s", [0.4, 1.7])
+def test_a_killed_ui_leaves_a_session_that_resumes_where_it_stopped(tmp_path, delay_s):
+    path = tmp_path / "killed.json"
+    code = RECORDER.format(tests=str(Path(__file__).parent))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, env=env, cwd=tmp_path
+    )
+    assert proc.stdout.readline().strip() == b"recording"
+    time.sleep(delay_s)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    saved = load_session(path)  # whole: a kill never leaves a damaged file
+    n = len(saved.poses)
+    assert n >= 1 and [p.pose_id for p in saved.poses] == list(range(1, n + 1))
+    done = {p.step for p in saved.progress}
+
+    app = instant_app(path)
+
+    async def resume() -> tuple[str, int, int]:
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.click("#resume")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 10)
+            g = app.guided
+            before = g.n_poses
+            await pilot.press("m" if g.step.leg == 0 or g.clamped else "c")
+            if g.step.leg and not g.clamped:
+                await pilot.press("m")
+            await pilot.press("r")
+            await _settle(pilot)
+            return g.step.name, before, g.n_poses
+
+    step, before, after = asyncio.run(resume())
+    first_open = next(s.name for s in app.guided.steps if s.name not in done)
+    assert step == first_open
+    assert before == sum(1 for p in saved.poses if p.step == step)
+    assert after == before + 1
+    assert len(load_session(path).poses) == n + 1
+    assert np.all(np.isfinite(load_session(path).measurements().readings))
