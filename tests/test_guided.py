@@ -151,3 +151,20 @@ def test_conditioning_tightens_with_poses_and_hints_a_motion(tmp_path):
     assert np.isnan(sig[0]) and np.isfinite(sig[3])
     assert sig[-1] < sig[3]
     assert c.hint.startswith("tilt the platform about ")
+
+
+def test_resuming_on_a_restarted_motion_controller_restarts_a_clamped_step(tmp_path):
+    g, hr, _, _ = _setup(tmp_path)
+    _run_step(g)
+    g.clamp()
+    for _ in range(2):
+        g.move()
+        g.record()
+    fresh = MockMotionController(MockRobot(hr.truth, seed=9), seed=9)
+    again = GuidedSession(
+        SessionFile.resume(g.sf.path), g.steps, g.acquisition, platform_radius_mm=100.0, mover=fresh
+    )
+    assert again.step.name == "leg1-direction+length" and again.n_poses == 0
+    assert not again.clamped
+    kept = [s for s in again.sf.session.set_aside if s.pose is not None]
+    assert len(kept) == 2 and "starts again" in kept[0].reason

@@ -19,7 +19,9 @@ With a motion controller (the mock rig's), :meth:`clamp`, :meth:`move` and :meth
 the operator's hands' work; on a real robot the operator clamps and moves, and confirms.
 
 A resumed session starts at the first step not marked done or skipped in the file, with the
-poses already recorded for it.
+poses already recorded for it — under the operator's clamp, which is still on. With a motion
+controller (a simulated rig restarted) the clamp is gone, so a partly recorded clamped step is
+set aside and starts again.
 """
 
 from __future__ import annotations
@@ -177,11 +179,25 @@ class GuidedSession:
             self.recorder = None
             return
         self.recorder = StepRecorder(self.step, self.clamp_tolerance_mm)
-        for rec in self.sf.session.poses:
-            if rec.step == self.step.name:
-                self.recorder.accept(pose_from_record(rec))
+        mine = [r for r in self.sf.session.poses if r.step == self.step.name]
+        held = getattr(self.mover, "clamp_state", None)
+        still_clamped = held is not None and (held.leg, held.constraint) == (
+            self.step.leg,
+            self.step.constraint,
+        )
+        if mine and self.step.leg and self.mover is not None and not still_clamped:
+            # A motion controller starts unclamped (a simulated rig starts afresh): the step's
+            # poses were taken under a clamp that is gone, so the step starts again.
+            self.sf.set_aside_step(
+                self.step.name,
+                "the session was resumed on a motion controller that no longer holds this "
+                "step's clamp: the step starts again",
+            )
+            return
+        for rec in mine:
+            self.recorder.accept(pose_from_record(rec))
         if self.recorder.poses and self.step.leg:
-            self.clamped = True  # poses were recorded under the clamp: it is still on
+            self.clamped = True  # the operator's clamp is still on, as the poses were taken
 
     @property
     def finished(self) -> bool:

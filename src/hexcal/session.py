@@ -385,6 +385,16 @@ class SessionFile:
         self.save()
         return record
 
+    def set_aside_step(self, step: str, reason: str) -> int:
+        """Move every recorded pose of ``step`` to ``set_aside`` (kept, with ``reason``); how
+        many."""
+        mine = [r for r in self.session.poses if r.step == step]
+        if mine:
+            self.session.poses = [r for r in self.session.poses if r.step != step]
+            self.session.set_aside += [SetAside(step=step, reason=reason, pose=r) for r in mine]
+            self.save()
+        return len(mine)
+
     def recording_sink(self, run_start: float):
         """An ``on_record`` callback for :func:`hexcal.recording.record_procedure` that saves
         the session after every pose. ``run_start`` is the run's monotonic start (s): pose

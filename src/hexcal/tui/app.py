@@ -63,6 +63,9 @@ class StartScreen(Screen):
             yield Static("", id="start-message")
         yield Footer()
 
+    def on_mount(self) -> None:
+        self.query_one("#new", Button).focus()  # Enter starts; Tab reaches the fields
+
     def on_button_pressed(self, event: Button.Pressed) -> None:
         if event.button.id == "new":
             self.action_new()
