@@ -182,6 +182,34 @@ class MockMotionController:
         self.moves += 1
         return P[0], R[0]
 
+    def move_near(
+        self, position: np.ndarray, rotation: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Move as an operator follows a suggested pose (P (3,) mm, R (3, 3)): the rotation as
+        given, the position the nearest one the clamp allows (on the true geometry: the clamp,
+        not the operator, holds the constraint). Returns the pose reached; MotionError if it
+        is outside the limits."""
+        self._creep()
+        c = self.clamp_state
+        P, R = np.asarray(position, float), np.asarray(rotation, float)
+        if c is not None:
+            k = c.leg - 1
+            rb = R @ self.robot.truth.b[k]
+            a = self.robot.truth.a[k]
+            if c.constraint == "direction":
+                rho = float((P + rb - a) @ c.direction)
+                P = a + rho * c.direction - rb
+            elif c.constraint == "length":
+                v = P + rb - a
+                P = a + c.length * v / np.linalg.norm(v) - rb
+            else:
+                P = c.point - rb
+        if not self.sim.feasible(P, R):
+            raise MotionError("that pose is outside the robot's joint limits or leg stroke")
+        self.robot.move_to(P, R)
+        self.moves += 1
+        return P, R
+
     def home(self) -> None:
         """Back to the robot's home pose (refused while a leg is clamped away from it)."""
         home = self.robot.truth.home

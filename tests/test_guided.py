@@ -168,3 +168,21 @@ def test_resuming_on_a_restarted_motion_controller_restarts_a_clamped_step(tmp_p
     assert not again.clamped
     kept = [s for s in again.sf.session.set_aside if s.pose is not None]
     assert len(kept) == 2 and "starts again" in kept[0].reason
+
+
+def test_the_next_best_pose_is_suggested_and_can_be_followed(tmp_path):
+    g, hr, *_ = _setup(tmp_path)
+    _run_step(g)
+    g.clamp()
+    for _ in range(3):
+        g.move()
+        g.record()
+    assert g.suggestion(hr.design) is None  # three poses do not determine the clamp yet
+    g.move()
+    g.record()
+    s = g.suggestion(hr.design)
+    assert s is not None and s.sigma_after_mm < s.sigma_before_mm
+    g.move_to_suggestion(s)
+    ok, msg = g.record()
+    assert ok, msg  # the clamp held: the pose is on the clamped manifold of the true robot
+    assert g.finish_step().ok

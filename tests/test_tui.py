@@ -41,9 +41,9 @@ async def _until(pilot, cond, timeout_s: float) -> None:
         await pilot.pause(0.1)
 
 
-def instant_app(path: Path, **kw) -> HexcalApp:
+def instant_app(path: Path, poses_per_step: int = 4, **kw) -> HexcalApp:
     backend = InstantBackend(left_hand(), "instant mock rig", simulated=True, seed=2, effect="gain")
-    return HexcalApp(backend, session_path=path, poses_per_step=4, free_poses=12, **kw)
+    return HexcalApp(backend, session_path=path, poses_per_step=poses_per_step, free_poses=12, **kw)
 
 
 # -- the whole guided session, through the drivers -------------------------------------------------
@@ -126,14 +126,17 @@ async def _record_some(pilot) -> None:
     await pilot.press("r")
     await _settle(pilot)
     await pilot.press("n", "c")
-    for _ in range(3):
+    for _ in range(5):
         await pilot.press("m", "r")
         await _settle(pilot)
 
 
 def test_snapshot_recording(snap_compare, in_tmp):
+    """Five poses into a step of eight: the next best pose is suggested."""
     assert snap_compare(
-        instant_app(Path("session.json")), terminal_size=SIZE, run_before=_record_some
+        instant_app(Path("session.json"), poses_per_step=8),
+        terminal_size=SIZE,
+        run_before=_record_some,
     )
 
 

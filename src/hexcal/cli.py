@@ -177,7 +177,16 @@ def _cmd_devices(args: argparse.Namespace) -> int:
 
 def _cmd_study(args: argparse.Namespace) -> int:
     from hexcal.simulate import PoseRanges
-    from hexcal.study import StudyConfig, factor_table, plot, run_study, to_json, write_csv
+    from hexcal.study import (
+        StudyConfig,
+        efficiency_table,
+        factor_table,
+        plot,
+        plot_efficiency,
+        run_study,
+        to_json,
+        write_csv,
+    )
 
     cfg = StudyConfig(
         trials=args.trials,
@@ -195,11 +204,13 @@ def _cmd_study(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_csv(result, out / "study.csv")
     (out / "study.json").write_text(to_json(result), encoding="utf-8")
-    pngs = [] if args.no_plots else plot(result, out)
+    pngs = [] if args.no_plots else [*plot(result, out), plot_efficiency(result, out)]
     if args.json:
         print(to_json(result))
     else:
         print(factor_table(result))
+        print()
+        print(efficiency_table(result))
         print(
             f"\n{cfg.trials} trials per N, {elapsed:.1f} s; wrote {out / 'study.csv'}, {out / 'study.json'}"
             + "".join(f", {p}" for p in pngs)

@@ -13,7 +13,8 @@ procedure's steps and where the operator is in them, and the acquisition to reco
   live pose against the line or point the step's poses fit so far for a direction clamp;
 * :meth:`conditioning` tells how well the step's poses so far determine the leg's points: the
   predicted 1σ of the platform and base points from the linear system and the noise, and the
-  motion the poses have varied least.
+  motion the poses have varied least; :meth:`suggestion` gives the next best pose
+  (:mod:`hexcal.nbp`) on the geometry the step's poses estimate, once they determine it.
 
 With a motion controller (the mock rig's), :meth:`clamp`, :meth:`move` and :meth:`release` do
 the operator's hands' work; on a real robot the operator clamps and moves, and confirms.
@@ -32,7 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal import nbp
 from hexcal.acquisition import LegSample, PoseRefused, RecordedPose, TrackerSample
+from hexcal.noise import NoiseSigmas
 from hexcal.recording import (
     ClampSlipped,
     Mover,
@@ -43,8 +46,10 @@ from hexcal.recording import (
     StepRecorder,
     per_pose_noise,
 )
+from hexcal.robot import Robot
 from hexcal.session import PoseRecord, SessionFile, StepProgress
-from hexcal.solvers.direct import type_i_system, type_ii_system
+from hexcal.simulate import Simulator
+from hexcal.solvers.direct import sphere_fit, type_i_system, type_ii_system
 from hexcal.solvers.linalg import lstsq
 from hexcal.solvers.paper import platform_point_positions
 
@@ -512,6 +517,55 @@ class GuidedSession:
         if d < 3:
             return f"tilt the platform about {axis} (its poses span only ±{half:.1f}° so far)"
         return f"move the platform along {axis} (its poses span only ±{half:.1f} mm so far)"
+
+    def suggestion(self, design: Robot, n_candidates: int = 300) -> nbp.Suggestion | None:
+        """The next best pose of the current clamped step (None before its poses determine the
+        clamp, or on a free step). Every 5th is a space-filling one. Seeded by the pose count,
+        so the same poses give the same suggestion."""
+        st = self.step
+        n = self.n_poses
+        if not st.leg or n < 4:
+            return None
+        k = st.leg - 1
+        P, R, rho = self._arrays()
+        noise = self._noise()
+        sig = NoiseSigmas(noise.position_mm, np.deg2rad(noise.orientation_deg), noise.reading_mm)
+        try:
+            if st.constraint == "direction":
+                x = lstsq(*type_i_system(P, R, rho + design.offsets[k]))
+                u = x[6:] / np.linalg.norm(x[6:])
+                geo = nbp.LegGeometry(k, x[3:6], x[:3], direction=u)
+            elif st.constraint == "direction+length":
+                x = lstsq(*type_ii_system(P, R))
+                geo = nbp.LegGeometry(k, design.a[k], x[:3], point=x[3:])
+            else:
+                b = design.b[k]
+                a, r = sphere_fit(platform_point_positions(P, R, b))
+                v = P[-1] + R[-1] @ b - a
+                geo = nbp.LegGeometry(k, a, b, direction=v / np.linalg.norm(v), length=float(r))
+            a_all, b_all = design.a.copy(), design.b.copy()
+            a_all[k], b_all[k] = geo.a, geo.b
+            sim = Simulator(design.with_geometry(a_all, b_all, design.offsets))
+            return nbp.suggest(
+                st.constraint,
+                geo,
+                P,
+                R,
+                sig,
+                sim,
+                np.random.default_rng(n),
+                n_candidates=n_candidates,
+                space_filling=n % 5 == 4,
+            )
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
+            return None  # a degenerate fit or no feasible candidate: no suggestion this time
+
+    def move_to_suggestion(self, s: nbp.Suggestion) -> str:
+        """Follow a suggestion with the motion controller (the mock's: it holds the clamp)."""
+        if self.mover is None or not hasattr(self.mover, "move_near"):
+            raise GuidedError("no motion controller that can follow a suggestion")
+        self.mover.move_near(s.position, s.rotation)
+        return "moved to the suggested pose"
 
     # -- what was recorded ------------------------------------------------------------------------
     def set_aside_count(self) -> int:

@@ -10,6 +10,15 @@ Type II set of N1 = 7, then the offset by eq. (19) over the Type III poses.
 The paper's output/input factor divides the mean error by the noise, with the noise in cm and
 degrees given the same number. The defaults keep that pairing: err_p = err_l = 0.1 mm
 (0.01 cm) with err_a = 0.01 deg, and factor = mean error (mm) / err_p (mm).
+
+Beyond the paper, every row also carries the statistical limit (:mod:`hexcal.bound`): the mean
+squared error E‖x̂ − x‖² (mm²) of the base and platform points, its KCR bound for the same pose
+sets (mean over trials of the trace of the bound, evaluated at the true poses), the efficiency
+= bound / mean squared error (1: nothing left to gain), and the bias: the largest |mean error|
+of a coordinate over its standard deviation. A fourth set, ``type_iii_known_b``, runs Type III
+with the true b, so that its bound is that of the sphere fit alone. The bound is the Gaussian
+one: with ``noise="uniform"`` it is computed for the same standard deviations and the
+efficiencies are indicative only.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ from typing import Literal
 
 import numpy as np
 
+from hexcal import bound
 from hexcal.noise import NoiseSigmas
 from hexcal.robot import Robot
 from hexcal.simulate import NoiseModel, PoseRanges, Simulator
@@ -31,7 +41,7 @@ from hexcal.solvers import direct, paper, weighted
 from hexcal.solvers.linalg import METHOD as lstsq_method
 
 METHODS = ("paper", "direct", "refined")
-SETS = ("type_i", "type_ii", "type_iii")
+SETS = ("type_i", "type_ii", "type_iii", "type_iii_known_b")
 #: The paper's factors at N = 7 (§5.1, §5.2).
 PAPER_FACTORS = {
     "type_i": {"base": 13.0, "platform": 1.4},
@@ -92,6 +102,18 @@ def _errors(est: np.ndarray, true: np.ndarray) -> float:
     return float(np.mean(np.linalg.norm(est - true, axis=-1)))
 
 
+def _limit(est: np.ndarray | None, true: np.ndarray, bound_mm2: float) -> tuple[float, ...]:
+    """(mean squared error mm², bound mm², efficiency, bias in σ) of a point estimate (T, 3)."""
+    nan = float("nan")
+    if est is None:
+        return nan, nan, nan, nan
+    err = est - true
+    mse = float(np.mean(np.sum(err**2, axis=-1)))
+    sd = err.std(axis=0)
+    bias = float(np.max(np.abs(err.mean(axis=0)) / np.where(sd > 0, sd, np.inf)))
+    return mse, bound_mm2, bound_mm2 / mse if mse > 0 else nan, bias
+
+
 def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -> StudyResult:
     """Run the whole grid. Every trial of one N is drawn and solved in one batch; the three
     pose-set sweeps run on their own threads (numpy releases the GIL) with independent random
@@ -99,9 +121,9 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
     from concurrent.futures import ThreadPoolExecutor
 
     robot = robot or left_hand()
-    streams = np.random.SeedSequence(config.seed).spawn(3)
-    sweeps = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii)
-    with ThreadPoolExecutor(max_workers=min(3, os.cpu_count() or 1)) as pool:
+    streams = np.random.SeedSequence(config.seed).spawn(4)
+    sweeps = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii, _sweep_type_iii_known_b)
+    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
         futures = [
             pool.submit(f, config, robot, np.random.default_rng(s))
             for f, s in zip(sweeps, streams, strict=True)
@@ -129,11 +151,13 @@ class _Sweep:
         # The batched solves use the paper's normal equations (eq. 7): same numbers, faster.
         lstsq_method.set("normal")
 
-    def add(self, pose_set, n, method, a=None, b=None, off=None):
+    def add(self, pose_set, n, method, a=None, b=None, off=None, bound_a=None, bound_b=None):
         nan = float("nan")
         ea = _errors(a, self.a) if a is not None else nan
         eb = _errors(b, self.b) if b is not None else nan
         eo = float(np.mean(np.abs(off - self.off))) if off is not None else nan
+        la = _limit(a if bound_a is not None else None, self.a, bound_a or nan)
+        lb = _limit(b if bound_b is not None else None, self.b, bound_b or nan)
         self.rows.append(
             {
                 "set": pose_set,
@@ -144,24 +168,45 @@ class _Sweep:
                 "offset_err_mm": eo,
                 "base_factor": ea / self.ref_noise,
                 "platform_factor": eb / self.ref_noise,
+                "base_mse_mm2": la[0],
+                "base_bound_mm2": la[1],
+                "base_efficiency": la[2],
+                "base_bias_sigma": la[3],
+                "platform_mse_mm2": lb[0],
+                "platform_bound_mm2": lb[1],
+                "platform_efficiency": lb[2],
+                "platform_bias_sigma": lb[3],
             }
         )
 
+    def bound_ok(self) -> bool:
+        """The bound needs noise on every instrument (it inverts their covariance)."""
+        return self.noisy
+
     def type_ii(self, n, rng):
-        """b from T Type II sets of n poses by each method: {method: (T, 3)}."""
+        """b from T Type II sets of n poses by each method: ({method: (T, 3)}, the bound on
+        E‖b̂ − b‖² mm² averaged over the sets)."""
         sim, k = self.sim, self.k
-        P, R, _ = sim.measure(rng, *sim.type_ii(k, (self.config.trials, n), rng))
+        Pt, Rt = sim.type_ii(k, (self.config.trials, n), rng)
+        P, R, _ = sim.measure(rng, Pt, Rt)
         b_p = paper.type_ii_paper(P, R)
         b_d, c_d = direct.type_ii_direct(P, R)
         b_r = weighted.refine_type_ii(P, R, b_d, c_d, self.sig)[0] if self.noisy else b_d
-        return {"paper": b_p, "direct": b_d, "refined": b_r}
+        bnd = None
+        if self.bound_ok():
+            info = bound.information_type_ii(
+                Pt, Rt, np.broadcast_to(self.b, (len(Pt), 3)), self.sig
+            )
+            bnd = float(bound.base_point_mse_bound(info, "type_ii").mean())
+        return {"paper": b_p, "direct": b_d, "refined": b_r}, bnd
 
 
 def _sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
     sw = _Sweep(config, robot)
     sim, k = sw.sim, sw.k
     for n in range(config.n_type_i[0], config.n_type_i[1] + 1):
-        P, R, rho = sim.measure(rng, *sim.type_i(k, (config.trials, n), rng))
+        Pt, Rt = sim.type_i(k, (config.trials, n), rng)
+        P, R, rho = sim.measure(rng, Pt, Rt)
         length = rho[..., k] + sw.off
         b_p, a_p = paper.type_i_paper(P, R, length)
         b_d, a_d, u_d = direct.type_i_direct(P, R, length)
@@ -170,17 +215,37 @@ def _sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) -
             if sw.noisy
             else (b_d, a_d, u_d)
         )
-        sw.add("type_i", n, "paper", a_p, b_p)
-        sw.add("type_i", n, "direct", a_d, b_d)
-        sw.add("type_i", n, "refined", a_r, b_r)
+        bounds: dict = {}
+        if sw.bound_ok():
+            v = Pt + (Rt @ sw.b[:, None])[..., 0] - sw.a  # true leg vectors (T, n, 3)
+            true_len = np.linalg.norm(v, axis=-1)
+            u = v[:, 0] / true_len[:, :1]
+            T = config.trials
+            info = bound.information_type_i(
+                Pt,
+                Rt,
+                true_len,
+                np.broadcast_to(sw.b, (T, 3)),
+                np.broadcast_to(sw.a, (T, 3)),
+                u,
+                sw.sig,
+            )
+            bounds = {
+                "bound_a": float(bound.base_point_mse_bound(info, "type_i").mean()),
+                "bound_b": float(bound.platform_point_mse_bound(info).mean()),
+            }
+        sw.add("type_i", n, "paper", a_p, b_p, **bounds)
+        sw.add("type_i", n, "direct", a_d, b_d, **bounds)
+        sw.add("type_i", n, "refined", a_r, b_r, **bounds)
     return sw.rows
 
 
 def _sweep_type_ii(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
     sw = _Sweep(config, robot)
     for n in range(config.n_type_ii[0], config.n_type_ii[1] + 1):
-        for method, b in sw.type_ii(n, rng).items():
-            sw.add("type_ii", n, method, b=b)
+        est, bnd = sw.type_ii(n, rng)
+        for method, b in est.items():
+            sw.add("type_ii", n, method, b=b, bound_b=bnd)
     return sw.rows
 
 
@@ -188,7 +253,7 @@ def _sweep_type_iii(config: StudyConfig, robot: Robot, rng: np.random.Generator)
     sw = _Sweep(config, robot)
     sim, k = sw.sim, sw.k
     for n in range(config.n_type_iii[0], config.n_type_iii[1] + 1):
-        bs = sw.type_ii(config.n_type_ii_for_iii, rng)
+        bs, _ = sw.type_ii(config.n_type_ii_for_iii, rng)
         P, R, rho = sim.measure(rng, *sim.type_iii(k, (config.trials, n), rng))
         r_k = rho[..., k]
         a_p = paper.type_iii_paper(P, R, bs["paper"])
@@ -214,6 +279,29 @@ def _sweep_type_iii(config: StudyConfig, robot: Robot, rng: np.random.Generator)
     return sw.rows
 
 
+def _sweep_type_iii_known_b(
+    config: StudyConfig, robot: Robot, rng: np.random.Generator
+) -> list[dict]:
+    """Type III with the true b: the sphere fit alone, against its own bound."""
+    sw = _Sweep(config, robot)
+    sim, k = sw.sim, sw.k
+    T = config.trials
+    b = np.broadcast_to(sw.b, (T, 3))
+    for n in range(config.n_type_iii[0], config.n_type_iii[1] + 1):
+        Pt, Rt = sim.type_iii(k, (T, n), rng)
+        P, R, _ = sim.measure(rng, Pt, Rt)
+        a_p = paper.type_iii_paper(P, R, b)
+        a_d, rad_d = direct.type_iii_direct(P, R, b)
+        a_r = weighted.refine_type_iii(P, R, b, a_d, rad_d, sw.sig)[0] if sw.noisy else a_d
+        bnd = None
+        if sw.bound_ok():
+            info = bound.information_type_iii(Pt, Rt, b, np.broadcast_to(sw.a, (T, 3)), sw.sig)
+            bnd = float(bound.base_point_mse_bound(info, "type_iii").mean())
+        for method, a in (("paper", a_p), ("direct", a_d), ("refined", a_r)):
+            sw.add("type_iii_known_b", n, method, a, bound_a=bnd)
+    return sw.rows
+
+
 # -- output -------------------------------------------------------------------------------------
 def write_csv(result: StudyResult, path: str | Path) -> None:
     with open(path, "w", newline="", encoding="utf-8") as fh:
@@ -231,6 +319,7 @@ def to_json(result: StudyResult, n: int = 7) -> str:
             "config": asdict(result.config),
             "factors_at_n": n,
             "factors": result.factors(n),
+            "efficiency": {str(m): efficiency(result, m) for m in (7, 20)},
             "paper_factors": PAPER_FACTORS,
             "rows": [{k: clean(v) for k, v in r.items()} for r in result.rows],
         },
@@ -290,6 +379,90 @@ def plot(result: StudyResult, outdir: str | Path) -> list[Path]:
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+#: The estimates whose efficiency the study reports: (set, point, label).
+EFFICIENCY_ROWS = (
+    ("type_i", "base", "Type I, base point a"),
+    ("type_i", "platform", "Type I, platform point b"),
+    ("type_ii", "platform", "Type II, platform point b"),
+    ("type_iii_known_b", "base", "Type III (b known), base point a"),
+)
+
+
+def efficiency(result: StudyResult, n: int) -> dict[str, dict[str, dict[str, float]]]:
+    """{"set/point": {method: {efficiency, bias_sigma, rms_mm, bound_rms_mm}}} at N = n."""
+    out: dict = {}
+    for pose_set, q, _ in EFFICIENCY_ROWS:
+        for r in result.rows:
+            if r["set"] == pose_set and r["n"] == n:
+                out.setdefault(f"{pose_set}/{q}", {})[r["method"]] = {
+                    "efficiency": r[f"{q}_efficiency"],
+                    "bias_sigma": r[f"{q}_bias_sigma"],
+                    "rms_mm": float(np.sqrt(r[f"{q}_mse_mm2"])),
+                    "bound_rms_mm": float(np.sqrt(r[f"{q}_bound_mm2"])),
+                }
+    return out
+
+
+def efficiency_table(result: StudyResult, ns: tuple[int, ...] = (7, 20)) -> str:
+    """Efficiency (bound / mean squared error) and bias (σ) per method, as text."""
+    lines = [
+        "efficiency = KCR bound / mean squared error (1 = the statistical limit); bias = largest "
+        "|mean error| / σ of a coordinate:",
+        f"  {'estimate':<34}{'N':>3}{'bound RMS mm':>14}"
+        + "".join(f"{m + ' eff':>13}{'bias':>7}" for m in METHODS),
+    ]
+    for n in ns:
+        eff = efficiency(result, n)
+        for pose_set, q, label in EFFICIENCY_ROWS:
+            row = eff.get(f"{pose_set}/{q}")
+            if not row:
+                continue
+            b = next(iter(row.values()))["bound_rms_mm"]
+            lines.append(
+                f"  {label:<34}{n:>3}{b:>14.4f}"
+                + "".join(
+                    f"{row[m]['efficiency']:>13.3f}{row[m]['bias_sigma']:>7.3f}" for m in METHODS
+                )
+            )
+    return "\n".join(lines)
+
+
+def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
+    """PNG: efficiency against N for every estimate and method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
+    fig, axes = plt.subplots(1, len(EFFICIENCY_ROWS), figsize=(16, 3.8), sharey=True)
+    for ax, (pose_set, q, label) in zip(axes, EFFICIENCY_ROWS, strict=True):
+        for method in METHODS:
+            n, e = result.curve(pose_set, method, f"{q}_efficiency")
+            c, m = style[method]
+            ax.plot(n, e, color=c, marker=m, ms=3, lw=1.2, label=method)
+        ax.axhline(1.0, color="0.4", lw=0.8)
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("number of poses N")
+        ax.set_ylim(0, 1.15)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("efficiency = bound / MSE")
+    axes[0].legend()
+    cfg = result.config
+    kind = "σ" if cfg.noise == "gaussian" else "uniform ±"
+    fig.suptitle(
+        f"efficiency against the KCR bound — {cfg.noise} noise: {kind}{cfg.err_p_mm} mm position, "
+        f"{kind}{cfg.err_a_deg}° orientation, {kind}{cfg.err_l_mm} mm reading; "
+        f"{cfg.trials} trials per N; leg {cfg.leg}",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    path = Path(outdir) / "study_efficiency.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def factor_table(result: StudyResult, n: int = 7) -> str:

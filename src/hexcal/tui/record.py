@@ -10,6 +10,7 @@ a still window, so it runs in a worker thread and the screen stays live.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from textual import work
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
@@ -18,6 +19,7 @@ from textual.widgets import Footer, Header, ProgressBar, RichLog, Static
 
 from hexcal.guided import GuidedError, GuidedSession
 from hexcal.mock_hw.motion import MotionError
+from hexcal.nbp import motion_text
 
 
 def _fmt(v: np.ndarray | None, digits: int = 3) -> str:
@@ -31,13 +33,14 @@ class RecordScreen(Screen):
 
     BINDINGS = [
         Binding("c", "clamp", "Clamped"),
-        Binding("m", "move", "Move (mock)"),
+        Binding("m", "move", "Move"),
+        Binding("g", "go_suggested", "Suggested pose"),
         Binding("r", "record", "Record"),
         Binding("u", "undo", "Undo"),
         Binding("n", "finish", "Next step"),
         Binding("s", "skip", "Skip"),
-        Binding("a", "auto", "Auto step (mock)"),
-        Binding("A", "auto_all", "Auto all (mock)", show=False),
+        Binding("a", "auto", "Auto"),
+        Binding("A", "auto_all", "Auto all", show=False),
         Binding("k", "calibrate", "Calibrate"),
         Binding("q", "app.quit", "Quit"),
     ]
@@ -46,6 +49,7 @@ class RecordScreen(Screen):
         super().__init__()
         self.busy = False
         self._stop_auto = False
+        self.suggested = None
 
     @property
     def guided(self) -> GuidedSession:
@@ -128,20 +132,29 @@ class RecordScreen(Screen):
         self.query_one("#progress", ProgressBar).update(
             total=st.n_poses, progress=min(n, st.n_poses)
         )
-        c = g.conditioning(self.app.backend.design.b)  # type: ignore[attr-defined]
+        design = self.app.backend.design  # type: ignore[attr-defined]
+        c = g.conditioning(design.b)
+        self.suggested = g.suggestion(design) if g.clamped else None
+        text = ""
         if st.leg and np.isfinite(c.sigma_a_mm):
             b = "" if np.isnan(c.sigma_b_mm) else f"platform point ±{c.sigma_b_mm:.3f} mm   "
-            a = (
-                "base point"
-                if "length" == st.constraint or st.constraint == "direction"
-                else "clamped point"
+            a = "clamped point" if st.constraint == "direction+length" else "base point"
+            text = f"predicted 1σ: {b}{a} ±{c.sigma_a_mm:.3f} mm   (condition {c.condition:.0f})\n"
+        s = self.suggested
+        if s is not None and g.recorder.poses:
+            last = g.recorder.poses[-1]
+            R_last = Rotation.from_quat(last.quaternion, scalar_first=True).as_matrix()
+            why = (
+                "to cover the workspace"
+                if s.space_filling
+                else f"1σ {s.sigma_before_mm:.3f} → {s.sigma_after_mm:.3f} mm"
             )
-            text = (
-                f"predicted 1σ: {b}{a} ±{c.sigma_a_mm:.3f} mm   "
-                f"(condition {c.condition:.0f})\nmost useful motion: {c.hint}"
-            )
+            move = motion_text(last.position, R_last, s.position, s.rotation)
+            text += f"next best pose: {move} ({why})"
+            if g.mover is not None:
+                text += " — [b]g[/b] goes there"
         else:
-            text = f"most useful motion: {c.hint}"
+            text += f"most useful motion: {c.hint}"
         self.query_one("#conditioning", Static).update(text)
 
     def _show_steps(self) -> None:
@@ -206,6 +219,12 @@ class RecordScreen(Screen):
         self._guard(self.guided.move)
         self.refresh_live()
 
+    def action_go_suggested(self) -> None:
+        if self.suggested is not None:
+            if (msg := self._guard(self.guided.move_to_suggestion, self.suggested)) is not None:
+                self.log_line(msg)
+        self.refresh_live()
+
     def action_undo(self) -> None:
         if (msg := self._guard(self.guided.undo)) is not None:
             self.log_line(msg, "yellow")
@@ -260,6 +279,17 @@ class RecordScreen(Screen):
         self._set_busy(True)
         self._auto_worker(all_steps)
 
+    def _auto_move(self, g: GuidedSession) -> None:
+        """The mock operator follows the next best pose once there is one, else moves at random."""
+        s = g.suggestion(self.app.backend.design) if g.clamped else None  # type: ignore[attr-defined]
+        if s is not None:
+            try:
+                g.move_to_suggestion(s)
+                return
+            except MotionError:
+                pass
+        g.move()
+
     @work(thread=True, exclusive=True, group="record")
     def _auto_worker(self, all_steps: bool) -> None:
         """The mock operator: clamp, move and record until the step's recommended count, then
@@ -276,7 +306,7 @@ class RecordScreen(Screen):
                     # A refused pose is recorded again where it stands, as record_procedure
                     # does: moving on would hide a motion from history-dependent effects.
                     if refused == 0:
-                        g.move()
+                        self._auto_move(g)
                     ok, msg = g.record()
                     refused = 0 if ok else refused + 1
                     call(self.log_line, msg, "" if ok else "red")
