@@ -9,15 +9,16 @@ diagnosis, adding effects until the residual is at the noise floor (:mod:`hexcal
 from __future__ import annotations
 
 import logging
-import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from textual import work
+from textual import on, work
 from textual.app import App, ComposeResult
 from textual.containers import Grid, Horizontal, Vertical
+from textual.message import Message
 from textual.screen import Screen
 from textual.widgets import Button, Footer, Header, Input, Label, Select, Static
 
@@ -108,23 +109,25 @@ class StartScreen(Screen):
         app.begin(sf, proc)
 
 
+class RunInApp(Message):
+    """A callable for the app's thread, posted from a worker or device thread."""
+
+    def __init__(self, fn: Callable[..., object], args: tuple[object, ...]):
+        super().__init__()
+        self.fn, self.args = fn, args
+
+
 class _ToScreen(logging.Handler):
     """hexcal's log records (driver warnings: a late tracker, a silent node...) shown in the UI
-    instead of written over the screen."""
+    instead of written over the screen. Emitting never waits for the UI: device threads log
+    while the app may be busy closing them."""
 
     def __init__(self, app: HexcalApp):
         super().__init__(logging.INFO)
         self.app = app
 
     def emit(self, record: logging.LogRecord) -> None:
-        text = record.getMessage()
-        try:
-            if threading.current_thread() is threading.main_thread():
-                self.app.device_message(text, record.levelno)
-            else:
-                self.app.call_from_thread(self.app.device_message, text, record.levelno)
-        except RuntimeError:  # the app is closing
-            pass
+        self.app.post(self.app.device_message, record.getMessage(), record.levelno)
 
 
 class HexcalApp(App):
@@ -155,6 +158,16 @@ class HexcalApp(App):
         self.guided: GuidedSession | None = None
         self.procedure: Procedure | None = None
         self.sub_title = backend.label
+
+    def post(self, fn: Callable[..., object], *args: object) -> None:
+        """Run ``fn(*args)`` on the app's thread, from any thread, without waiting for it
+        (``call_from_thread`` waits, and would deadlock a worker against an app closing the
+        devices that worker reads). Dropped once the app has stopped."""
+        self.post_message(RunInApp(fn, args))
+
+    @on(RunInApp)
+    def _run_in_app(self, message: RunInApp) -> None:
+        message.fn(*message.args)
 
     def on_mount(self) -> None:
         self._log = logging.getLogger("hexcal")
@@ -187,7 +200,7 @@ class HexcalApp(App):
         try:
             rig = self.rig or self.backend.open()
         except Exception as exc:  # any driver error: show it, stay on the start screen
-            self.call_from_thread(self._start_failed, exc)
+            self.post(self._start_failed, exc)
             return
         self.rig = rig
         if rig.devices is not None and sf.session.devices is None:
@@ -204,7 +217,7 @@ class HexcalApp(App):
             encoders=rig.encoders,
             clock_start=time.monotonic(),
         )
-        self.call_from_thread(self._show_recording)
+        self.post(self._show_recording)
 
     def _start_failed(self, exc: Exception) -> None:
         screen = self.screen

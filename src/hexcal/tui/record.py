@@ -257,7 +257,7 @@ class RecordScreen(Screen):
             ok, msg = self.guided.record()
         except GuidedError as exc:
             ok, msg = False, str(exc)
-        self.app.call_from_thread(self._recorded, ok, msg)
+        self.app.post(self._recorded, ok, msg)
 
     def _recorded(self, ok: bool, msg: str) -> None:
         self.log_line(msg, "" if ok else "red")
@@ -295,7 +295,7 @@ class RecordScreen(Screen):
         """The mock operator: clamp, move and record until the step's recommended count, then
         end the step (and go on through the procedure with ``all_steps``)."""
         g = self.guided
-        call = self.app.call_from_thread
+        call = self.app.post
         refused = 0
         try:
             while not g.finished and not self._stop_auto:

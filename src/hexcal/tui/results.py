@@ -88,7 +88,7 @@ class ResultScreen(Screen):
             meas, design, inst = session_inputs(guided)
             cal = calibrate(meas, design, proc.model, inst)
         except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
-            self.app.call_from_thread(
+            self.app.post(
                 self._show, f"[red]cannot calibrate yet:[/red]\n{exc}\n\nEscape to record more."
             )
             return
@@ -105,7 +105,7 @@ class ResultScreen(Screen):
                 summary={"rms_mm": cal.rms_mm},
             )
         )
-        self.app.call_from_thread(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
+        self.app.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
     def _show(self, text: str) -> None:
         self.query_one("#result", Static).update(text)
@@ -201,7 +201,7 @@ class DiagnosisScreen(Screen):
                 problem=prev.problem if prev else None,
             )
         except (ValueError, np.linalg.LinAlgError) as exc:
-            self.app.call_from_thread(self._failed, str(exc))
+            self.app.post(self._failed, str(exc))
             return
         guided.sf.add_result(
             ResultRecord(
@@ -212,7 +212,7 @@ class DiagnosisScreen(Screen):
                 summary=d.to_dict(),
             )
         )
-        self.app.call_from_thread(self._show, d)
+        self.app.post(self._show, d)
 
     def _failed(self, msg: str) -> None:
         self.busy = False
