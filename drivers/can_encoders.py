@@ -722,19 +722,17 @@ class LegEncoders:
         s = self._open.popleft()
         self._last_closed_t_bus = s.t_bus
         cfg = self.config
+        bus_down = self._bus_state != BUS_ACTIVE
         for k in range(6):
-            if s.arrival[k] != s.arrival[k]:  # NaN: no position for this SYNC
-                self._missing[k] += 1
-                s.faults.setdefault(
-                    f"missing{k}",
-                    f"{self._names[k]} sent no position for SYNC {s.counter} on {self._bus_name}: "
-                    "frame lost or late — set flagged incomplete; if it repeats check that node's "
-                    "cable and the bus termination",
-                )
+            # The cause (a silent node, a node not started, the bus down) is reported instead
+            # of its symptom, the missing position, so the operator reads what to fix.
+            cause = False
             if self._age(k, now) > cfg.heartbeat_timeout_s:
                 s.faults[f"silent{k}"] = self._silent_message(k, now)
+                cause = True
             st = self._hb_state[k]
             if st is not None and st != NMT_OPERATIONAL:
+                cause = True
                 s.faults[f"nmt{k}"] = (
                     f"{self._names[k]} reports NMT state {NMT_STATES.get(st, hex(st))} on "
                     f"{self._bus_name}, not OPERATIONAL, so it sends no position — "
@@ -745,7 +743,16 @@ class LegEncoders:
                         else "the NMT master must start it"
                     )
                 )
-        if self._bus_state != BUS_ACTIVE:
+            if s.arrival[k] != s.arrival[k]:  # NaN: no position for this SYNC
+                self._missing[k] += 1
+                if not (cause or bus_down):
+                    s.faults.setdefault(
+                        f"missing{k}",
+                        f"{self._names[k]} sent no position for SYNC {s.counter} on {self._bus_name}: "
+                        "frame lost or late — set flagged incomplete; if it repeats check that node's "
+                        "cable and the bus termination",
+                    )
+        if bus_down:
             s.faults["bus"] = self._bus_message()
         complete = s.n == 6 and not s.faults
         rs = ReadingSet(

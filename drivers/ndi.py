@@ -1190,6 +1190,7 @@ class NDITracker:
         self.timing_warning: str | None = None
         self._lock = threading.RLock()
         self._dead = False  # the port failed: only reconnect() helps
+        self._resume_tracking = False  # it was tracking when the port failed
         self._resync = False  # a reply timed out: it may still arrive late
         self._latencies: deque[float] = deque(maxlen=50)
         self._last_sample_frame: int | None = None
@@ -1284,8 +1285,10 @@ class NDITracker:
             self.tracking = False
 
     def connect(self) -> NDITracker:
-        """open(), setup_tools() and start() in one call."""
-        self.open()
+        """open() (unless the port is open already, as inside ``with``), setup_tools() and
+        start() in one call."""
+        if self.port is None or self._dead:
+            self.open()
         self.setup_tools()
         self.start()
         return self
@@ -1294,7 +1297,7 @@ class NDITracker:
         """After :class:`TrackerDisconnected`: reopen the same port (retrying for up to
         ``wait_s`` seconds while it is absent), reset, set up the tools and resume tracking if it
         was tracking."""
-        was_tracking = self.tracking
+        was_tracking = self.tracking or self._resume_tracking
         deadline = time.monotonic() + wait_s
         while True:
             try:
@@ -1307,7 +1310,18 @@ class NDITracker:
         self.setup_tools()
         if was_tracking:
             self.start()
+        self._resume_tracking = False
         return self
+
+    @property
+    def lost(self) -> bool:
+        """The connection failed (:class:`TrackerDisconnected`): only :meth:`reconnect` helps."""
+        return self._dead
+
+    def mark_lost(self, exc: BaseException) -> None:
+        """Take the connection as lost after ``exc`` (a reconnect that failed half way)."""
+        with self._lock:
+            self._lost(exc)
 
     def close(self) -> None:
         """Stop tracking, put the tracker back to 9600 baud (so the next session can reset it by
@@ -1502,6 +1516,8 @@ class NDITracker:
 
     def _lost(self, exc: BaseException) -> TrackerDisconnected:
         self._dead = True
+        # reconnect() must resume tracking: the loss, not the operator, ended it.
+        self._resume_tracking = self._resume_tracking or self.tracking
         self.tracking = False
         return TrackerDisconnected(
             f"lost the connection to the tracker on {self.url} ({exc}): the cable or USB adapter was "

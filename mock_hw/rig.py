@@ -9,6 +9,7 @@ opens this one unchanged.
 from __future__ import annotations
 
 import contextlib
+import sys
 import uuid
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -22,6 +23,9 @@ from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregiste
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
 from hexcal.robot import Robot
 from hexcal.simulate import LengthEffect, NoiseModel, PoseRanges
+
+#: Python's thread switch interval (s) while a mock rig runs (see :func:`mock_rig`).
+MOCK_SWITCH_INTERVAL_S = 0.0005
 
 
 @dataclass
@@ -55,6 +59,13 @@ def mock_rig(
 
         truth = left_hand()
     name = f"rig{uuid.uuid4().hex[:8]}"
+    # The simulated devices are Python threads in this process: a real encoder answers a SYNC
+    # within microseconds, the mock's thread only once it holds the GIL. Behind a busy thread
+    # (the text UI rendering) the default 5 ms switch interval let its answers reach the bus
+    # after the next SYNC — out of bus-time order, which no real bus does. Switching every
+    # 0.5 ms keeps the mock's timing that of hardware; the interval is restored on exit.
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch, MOCK_SWITCH_INTERVAL_S))
     robot = MockRobot(truth, noise=noise, effects=effects, seed=seed)
     tracker = register_robot(name, robot, seed=seed, **(tracker_kwargs or {}))
     can_cfg = default_can_config(channel=f"hexcal-{name}")
@@ -73,3 +84,4 @@ def mock_rig(
     finally:
         nodes.stop()
         unregister(name)
+        sys.setswitchinterval(switch)

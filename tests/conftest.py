@@ -85,6 +85,14 @@ def pytest_addoption(parser):
     parser.addoption(
         "--can-channel", help="python-can channel of a real bus (or HEXCAL_CAN_CHANNEL)"
     )
+    parser.addoption(
+        "--can-mock-channel",
+        help="channel the mock encoder nodes answer on, e.g. a second adapter wired to the first "
+        "(or HEXCAL_CAN_MOCK_CHANNEL; default: the --can-channel)",
+    )
+    parser.addoption(
+        "--tracker-baud", help="working baud rate for the real tracker (or HEXCAL_TRACKER_BAUD)"
+    )
 
 
 def pytest_configure(config):
@@ -92,6 +100,8 @@ def pytest_configure(config):
         ("--tracker-port", "HEXCAL_TRACKER_PORT"),
         ("--can-interface", "HEXCAL_CAN_INTERFACE"),
         ("--can-channel", "HEXCAL_CAN_CHANNEL"),
+        ("--can-mock-channel", "HEXCAL_CAN_MOCK_CHANNEL"),
+        ("--tracker-baud", "HEXCAL_TRACKER_BAUD"),
     ):
         value = config.getoption(opt)
         if value:

@@ -35,6 +35,7 @@ from hexcal.drivers.can_encoders import (
     describe_error_frame,
 )
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
+from hexcal.mock_hw.can_replay import replay_log
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
 from hexcal.study import left_hand
 
@@ -506,13 +507,8 @@ def test_replayed_log_decodes_to_the_same_readings(tmp_path, robot, target, suff
     assert dropped
 
     replay_cfg = cfg.model_copy(update={"channel": unique_channel()})
-    with (
-        LegEncoders(replay_cfg, listen_only=True) as listener,
-        can.Bus(interface="virtual", channel=replay_cfg.channel) as player,
-        can.LogReader(path) as reader,
-    ):
-        for msg in can.MessageSync(reader, timestamps=True):
-            player.send(msg)
+    with LegEncoders(replay_cfg, listen_only=True) as listener:
+        assert replay_log(path, replay_cfg) > 13 * 7  # every SYNC and TPDO, and more
         replayed = {}
         while True:
             try:
@@ -528,6 +524,16 @@ def test_replayed_log_decodes_to_the_same_readings(tmp_path, robot, target, suff
         assert not r.complete and any(
             f.startswith("leg 5 encoder (node 0x25) sent no position") for f in r.faults
         )
+
+
+def test_replay_names_a_missing_or_unreadable_log(tmp_path):
+    cfg = make_config("virtual", unique_channel())
+    with pytest.raises(FileNotFoundError, match=r"nope\.blf: no such CAN log"):
+        replay_log(tmp_path / "nope.blf", cfg)
+    odd = tmp_path / "run.xyz"
+    odd.write_text("not a log")
+    with pytest.raises(ValueError, match=r"run\.xyz: python-can cannot read this log format"):
+        replay_log(odd, cfg)
 
 
 # -- attribution under stalls ----------------------------------------------------------------------

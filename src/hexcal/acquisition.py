@@ -5,11 +5,14 @@ device measured: a leg-reading set with the SYNC that latched it, a tracker samp
 frame's measurement time estimated from the tracker's frame numbers (see
 :mod:`hexcal.drivers.ndi`, "Timing"). A pose is
 recorded from a *still window*: every tracker sample and every leg-reading set whose arrival
-time falls in ``[t_end − duration, t_end]``. Samples a device flagged (a tool MISSING for a
-frame, a CRC error, a CAN set with a late or lost position) are left out of the average and
-named in the pose's ``notes``; the pose is refused — never silently kept — when more than
-``max_fault_share`` of either stream was flagged (the fault lasted, it was not a glitch), when
-the platform or a leg moved during the window, or when a stream delivered too few good samples.
+time falls in ``[t_end − duration, t_end]``. A pose taken during a device fault is refused,
+never kept: by default one flagged sample in the window (a tool MISSING for a frame, a CRC
+error, a cut reply, a CAN set with a late or lost position, an error frame, a lost heartbeat, a
+disconnected port) refuses the pose, with the fault that touched most samples named first — the
+operator records again at the same pose once the fault is gone. A lab whose devices glitch now
+and then may allow a share of flagged samples (``max_fault_share``): those are left out of the
+average and named in the pose's ``notes``. The pose is also refused when the platform or a leg
+moved during the window, or when a stream delivered too few good samples.
 
 Motion is judged by *drift*: how far the mean of the window's second half lies from the mean of
 its first half. Its noise is 2σ/√n, so the thresholds hold whatever the instruments' noise (a
@@ -24,9 +27,10 @@ and CAN encoder drivers implement them, and so do test doubles.
 
 from __future__ import annotations
 
+import re
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -83,8 +87,9 @@ class StillWindow:
     max_reading_drift_mm: float = 0.01
     min_tracker_samples: int = 5
     min_leg_samples: int = 5
-    #: Largest share of a stream's samples in the window that may be flagged and left out.
-    max_fault_share: float = 0.1
+    #: Largest share of a stream's samples in the window that may be flagged and left out of
+    #: the average; 0 (the default): any flagged sample refuses the pose.
+    max_fault_share: float = 0.0
 
 
 @dataclass
@@ -114,8 +119,29 @@ class RecordedPose:
         return [s for s in self.leg_samples if s.complete]
 
 
+_NUMBER = re.compile(r"\d+(?:\.\d+)?")
+
+
 class PoseRefused(Exception):
     """The pose was not recorded; the message says why and what to do."""
+
+
+class StreamShort(PoseRefused):
+    """A stream delivered too few good samples in the window (the device may have stopped)."""
+
+
+def _by_count(faults: list[str]) -> list[str]:
+    """The distinct fault messages, the one that flagged most samples first (a lasting cause —
+    a node's lost heartbeat, BUS-OFF, an unplugged port — before a glitch). Messages that
+    differ only in their numbers ("silent for 0.6 s", "… 0.7 s") count as one, told by its
+    latest instance."""
+    count: Counter[str] = Counter()
+    latest: dict[str, str] = {}
+    for m in faults:
+        key = _NUMBER.sub("#", m)
+        count[key] += 1
+        latest[key] = m
+    return [latest[key] for key, _ in count.most_common()]
 
 
 def record_pose(
@@ -134,25 +160,24 @@ def record_pose(
         ("leg reading sets", len(ls_all) - len(ls), len(ls_all), l_faults),
     ):
         if bad and bad > window.max_fault_share * n_all:
-            uniq = list(dict.fromkeys(faults))
             raise PoseRefused(
                 f"a device reported a fault during the pose ({bad} of {n_all} {name} flagged): "
-                + "; ".join(uniq[:3])
-                + " — fix it and record again"
+                + "; ".join(_by_count(faults)[:3])
+                + " — fix it and record again at the same pose"
             )
     if len(ts) < window.min_tracker_samples:
-        raise PoseRefused(
+        raise StreamShort(
             f"the tracker gave {len(ts)} good samples in {window.duration_s:g} s (need {window.min_tracker_samples}): "
             "is it tracking the platform's tool?"
         )
     if len(ls) < window.min_leg_samples:
-        raise PoseRefused(
+        raise StreamShort(
             f"the leg encoders gave {len(ls)} good reading sets in {window.duration_s:g} s (need {window.min_leg_samples}): "
             "is the CAN bus running?"
         )
     notes = tuple(
         f"{len(ts_all) - len(ts) if kind == 'tracker' else len(ls_all) - len(ls)} flagged {kind} "
-        f"sample(s) left out: {'; '.join(list(dict.fromkeys(f))[:2])}"
+        f"sample(s) left out: {'; '.join(_by_count(f)[:2])}"
         for kind, f in (("tracker", t_faults), ("leg", l_faults))
         if f
     )
@@ -218,21 +243,25 @@ class Acquisition:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._errors: deque[str] = deque(maxlen=20)
+        self._errors: deque[tuple[float, str]] = deque(maxlen=20)  # (time, what a device raised)
+        #: Per stream, since when its thread has waited for the device's next sample (None: not).
+        self._waiting: dict[str, float | None] = {}
         self.buffer_s = buffer_s
 
     def _pump(self, source, buf: deque, name: str) -> None:
         while not self._stop.is_set():
+            self._waiting[name] = self.clock()
             try:
                 s = source.sample()
             except Exception as exc:  # a device failing must not kill acquisition silently
-                self._errors.append(f"{name}: {exc}")
+                self._errors.append((self.clock(), f"{name}: {exc}"))
                 s = (
                     TrackerSample(self.clock(), None, None, fault=f"{name}: {exc}")
                     if name == "tracker"
                     else LegSample(self.clock(), np.full(6, np.nan), (f"{name}: {exc}",))
                 )
                 self._stop.wait(0.05)
+            self._waiting[name] = None
             with self._lock:
                 buf.append(s)
                 while buf and buf[0].t < s.t - self.buffer_s:
@@ -285,4 +314,18 @@ class Acquisition:
             time.sleep(0.005)
         with self._lock:
             ts, ls = list(self._tbuf), list(self._lbuf)
-        return record_pose(ts, ls, self.window, t_end)
+        try:
+            return record_pose(ts, ls, self.window, t_end)
+        except StreamShort as exc:
+            # A device that stopped answering leaves no sample in the window to name the
+            # fault: what it last raised (a timeout, a lost port) says more than the count.
+            now = self.clock()
+            stalled = [
+                f"the {name} has not answered for {now - since:.1f} s (waiting for its reply)"
+                for name, since in self._waiting.items()
+                if since is not None and now - since > self.window.duration_s / 2
+            ]
+            recent = [f"the device said: {m}" for t, m in list(self._errors) if t >= t_start - 2.0]
+            if stalled or recent:
+                raise StreamShort(" — ".join([str(exc), *stalled, *recent[-1:]])) from None
+            raise

@@ -25,6 +25,8 @@ duration_s = 0.5
 max_position_drift_mm = 0.05   # how far the mean may move between the window's halves
 max_angle_drift_deg = 0.01
 max_reading_drift_mm = 0.01
+max_fault_share = 0.0          # share of flagged samples (CRC error, late CAN set...) a pose may
+                               # leave out; 0: any flagged sample refuses the pose
 ```
 """
 
@@ -70,7 +72,9 @@ class StillConfig(BaseModel):
     )
     min_tracker_samples: int = Field(5, ge=1)
     min_leg_samples: int = Field(5, ge=1)
-    max_fault_share: float = Field(0.1, ge=0, le=1)
+    # 0: a pose with any flagged sample is refused; a lab whose devices glitch now and then
+    # may allow a share, left out of the average and noted with the pose.
+    max_fault_share: float = Field(0.0, ge=0, le=1)
 
     def window(self) -> StillWindow:
         return StillWindow(**self.model_dump())

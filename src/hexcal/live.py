@@ -9,6 +9,8 @@ devices, in that order, whatever happened.
 from __future__ import annotations
 
 import contextlib
+import logging
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -16,15 +18,46 @@ from typing import Any
 from hexcal.acquisition import Acquisition, StillWindow, TrackerSample
 from hexcal.devices import DevicesConfig
 
+log = logging.getLogger(__name__)
+
 
 class _BinaryPoll:
-    """An NDI tracker as a PoseSource polled with BX (float32, finer than TX's text)."""
+    """An NDI tracker as a PoseSource polled with BX (float32, finer than TX's text).
 
-    def __init__(self, tracker: Any):
+    A lost connection (cable or USB adapter pulled, tracker switched off) is reconnected here,
+    in the acquisition's thread: every ``retry_s`` it reopens the port, resets the tracker,
+    sets the tools up and resumes tracking. Until that works each sample raises
+    :class:`~hexcal.drivers.ndi.TrackerDisconnected` with what to do, so the acquisition flags
+    that time and a pose recorded in it is refused; the operator only plugs the cable back."""
+
+    def __init__(self, tracker: Any, retry_s: float = 1.0):
         self.tracker = tracker
+        self.retry_s = retry_s
+        self._next_try = 0.0
 
     def sample(self) -> TrackerSample:
+        from hexcal.drivers.ndi import TrackerDisconnected, TrackerError
+
+        if self.tracker.lost:
+            now = time.monotonic()
+            if now < self._next_try:
+                time.sleep(min(self._next_try - now, 0.05))
+                raise TrackerDisconnected(self._unplugged(), self.tracker.url)
+            self._next_try = now + self.retry_s
+            try:
+                self.tracker.reconnect()
+            except TrackerError as exc:
+                # The tracker can fail again half way through (reset, tools): still lost.
+                self.tracker.mark_lost(exc)
+                raise TrackerDisconnected(self._unplugged(), self.tracker.url) from exc
+            log.warning("tracker on %s reconnected: tracking again", self.tracker.url)
         return self.tracker.sample(binary=True)
+
+    def _unplugged(self) -> str:
+        return (
+            f"the tracker on {self.tracker.url} is disconnected: plug its cable or USB adapter "
+            "back in on the same port (and check it is switched on); hexcal reconnects by itself"
+        )
 
 
 @dataclass
