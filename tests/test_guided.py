@@ -15,7 +15,7 @@ from hexcal.mock_hw.instant import InstantAcquisition
 from hexcal.mock_hw.motion import MockMotionController
 from hexcal.mock_hw.robot import MockRobot
 from hexcal.procedure import load_procedure
-from hexcal.session import Session, SessionFile
+from hexcal.session import Session, SessionFile, load_session
 
 
 def _setup(tmp_path, seed=3, n=6, free=12, procedure="model42-direction-length", effects=True):
@@ -186,3 +186,43 @@ def test_the_next_best_pose_is_suggested_and_can_be_followed(tmp_path):
     ok, msg = g.record()
     assert ok, msg  # the clamp held: the pose is on the clamped manifold of the true robot
     assert g.finish_step().ok
+
+
+def test_a_thermometer_stamps_every_pose_and_the_table_carries_it(tmp_path):
+    g, _, _, _ = _setup(tmp_path)
+    g.thermometer = lambda: 21.25
+    _run_step(g)  # home
+    rec = g.sf.session.poses[0]
+    assert rec.temperature == 21.25
+    meas = g.sf.session.measurements()
+    assert "temperature" in meas.columns and meas.temperature.tolist() == [21.25]
+    again = Session.from_measurements(meas, g.sf.session.robot)
+    assert again.measurements() == meas
+
+
+def test_the_operator_types_the_temperature_and_notes(tmp_path):
+    g, _, _, _ = _setup(tmp_path)
+    _run_step(g)  # home, temperature unknown
+    with pytest.raises(GuidedError, match="'warm' is not a temperature: type degrees Celsius"):
+        g.set_temperature("warm")
+    with pytest.raises(GuidedError, match=r"120 °C is outside -40\.\.80 °C"):
+        g.set_temperature("120")
+    said = g.set_temperature(" 21,5 ")  # a decimal comma, as typed in many labs
+    assert "21.5 °C" in said and "(1 pose before it has none" in said
+    g.clamp()
+    g.move()
+    ok, msg = g.record()
+    assert ok, msg
+    with pytest.raises(GuidedError, match="the note is empty"):
+        g.note("  ")
+    assert "note kept" in g.note("re-tightened the clamp on leg 1")
+    on_disk = load_session(g.sf.path)
+    assert [r.temperature for r in on_disk.poses] == [None, 21.5]
+    assert on_disk.columns.index("temperature") == on_disk.columns.index("rho6") + 1
+    assert [n.text for n in on_disk.notes] == [
+        "structure temperature 21.5 °C (entered by the operator)",
+        "re-tightened the clamp on leg 1",
+    ]
+    # No empty temperature cell in the interchange table: with one pose unknown, no column.
+    meas = on_disk.measurements()
+    assert meas.temperature is None and "temperature" not in meas.columns

@@ -18,6 +18,7 @@ from scipy import stats
 
 from hexcal.demo import against_truth
 from hexcal.measurements import read_measurements
+from hexcal.robot import load_robot
 from hexcal.session import Session, load_session
 from hexcal.study import left_hand
 from hexcal.tui.app import HexcalApp
@@ -121,6 +122,42 @@ def test_a_whole_guided_session_on_the_mock_rig(tmp_path):
     assert exported == session.measurements()
     again = Session.from_measurements(exported, session.robot)
     assert again.measurements() == session.measurements()
+    # The robot files re-import to what the session holds: the design, and the calibration.
+    assert load_robot(tmp_path / "session-export" / "robot.json") == session.robot
+    calibrated = load_robot(tmp_path / "session-export" / "calibrated.json")
+    assert calibrated == session.results[0].robot
+
+
+def test_the_operator_keeps_a_note_and_types_the_temperature(tmp_path):
+    """o: a note, kept in the file with the time; t: the structure temperature (this rig has no
+    thermometer), carried by every pose recorded after it; a wrong entry is refused, named."""
+    path = tmp_path / "session.json"
+    app = instant_app(path)
+
+    async def run() -> None:
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.click("#new")
+            await _settle(pilot)
+            await pilot.press("o")
+            await pilot.press(*"leg 2 clamp swapped", "enter")
+            await pilot.press("t")
+            await pilot.press(*"hot", "enter")
+            await pilot.press("t")
+            await pilot.press(*"22.5", "enter")
+            await pilot.press("r")
+            await _settle(pilot)
+            text = "\n".join(str(line) for line in app.screen.query_one("#log").lines)
+            assert "'hot' is not a temperature" in text and "note kept" in text
+            assert "22.5 °C (entered)" in str(app.screen.query_one("#live").render())
+
+    asyncio.run(run())
+    on_disk = load_session(path)
+    assert [n.text for n in on_disk.notes] == [
+        "leg 2 clamp swapped",
+        "structure temperature 22.5 °C (entered by the operator)",
+    ]
+    assert [r.temperature for r in on_disk.poses] == [22.5]
+    assert on_disk.measurements().temperature.tolist() == [22.5]
 
 
 # -- snapshots of the main screens -----------------------------------------------------------------

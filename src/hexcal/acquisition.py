@@ -107,6 +107,8 @@ class RecordedPose:
     reading_spread_mm: float = 0.0
     alignment_s: float = 0.0  #: difference between the two streams' mean sample times
     notes: tuple[str, ...] = ()  #: flagged samples left out of the average, and why
+    #: The structure's temperature at the pose, degC, when a thermometer or the operator gave it.
+    temperature: float | None = None
 
     @property
     def good_tracker_samples(self) -> list[TrackerSample]:

@@ -28,7 +28,7 @@ set aside and starts again.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -157,8 +157,13 @@ class GuidedSession:
         clamp_tolerance_mm: float = 0.02,
         clock_start: float = 0.0,
         on_event: Callable[[str], None] = lambda message: None,
+        thermometer: Callable[[], float] | None = None,
     ):
         self.sf = sf
+        self.thermometer = thermometer
+        #: The structure temperature the operator last entered (degC), for rigs without a
+        #: thermometer: every pose recorded after it carries it, until the next entry.
+        self.temperature_c: float | None = None
         self.steps = list(steps)
         self.acquisition = acquisition
         self.mover = mover
@@ -266,7 +271,7 @@ class GuidedSession:
         if st.leg and not self.clamped:
             raise GuidedError(f"clamp leg {st.leg} ({st.constraint}) before recording")
         try:
-            pose = self.acquisition.record()
+            pose = replace(self.acquisition.record(), temperature=self.temperature())
         except PoseRefused as exc:
             self._sink("refused", st, None, str(exc))
             return False, self._say(f"pose refused: {exc}")
@@ -571,8 +576,49 @@ class GuidedSession:
     def set_aside_count(self) -> int:
         return len(self.sf.session.set_aside)
 
-    def note(self, text: str) -> None:
+    def note(self, text: str) -> str:
+        """Keep the operator's note in the session file (with the time)."""
+        text = text.strip()
+        if not text:
+            raise GuidedError("the note is empty: type what you want to keep, then Enter")
         self.sf.add_note(text)
+        return self._say(f"note kept: {text}")
+
+    def temperature(self) -> float | None:
+        """The structure temperature for the next pose (degC): the thermometer's reading, else
+        what the operator last entered, else None (unknown)."""
+        if self.thermometer is not None:
+            return float(self.thermometer())
+        return self.temperature_c
+
+    def set_temperature(self, text: str) -> str:
+        """The operator read the structure's temperature (degC, as typed): every pose from now
+        on carries it, so the diagnosis can see thermal expansion."""
+        try:
+            value = float(text.strip().replace(",", "."))
+        except ValueError:
+            raise GuidedError(
+                f"{text.strip()!r} is not a temperature: type degrees Celsius, e.g. 21.5"
+            ) from None
+        if not -40.0 <= value <= 80.0:
+            raise GuidedError(
+                f"{value:g} °C is outside -40..80 °C: type the structure's temperature in degrees Celsius"
+            )
+        if self.thermometer is not None:
+            raise GuidedError("this rig reads its own thermometer: the typed value is not used")
+        self.temperature_c = value
+        self.sf.add_note(f"structure temperature {value:g} °C (entered by the operator)")
+        before = sum(r.temperature is None for r in self.sf.session.poses)
+        return self._say(
+            f"structure temperature {value:g} °C: the next poses carry it"
+            + (
+                f" ({before} pose{'s' if before > 1 else ''} before it "
+                f"{'have' if before > 1 else 'has'} none, so the measurement table leaves "
+                "temperature out: enter it before the first pose to fit thermal expansion)"
+                if before
+                else ""
+            )
+        )
 
     def summary(self) -> list[tuple[str, str, int, int, int]]:
         """(step, state, poses, min, recommended) for every step; state 'done', 'skipped',

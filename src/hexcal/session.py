@@ -194,7 +194,10 @@ class Session(BaseModel):
             raise SessionFileError("the session has no recorded pose yet")
         p = self.poses
         temps = [r.temperature for r in p]
-        has_t = "temperature" in self.columns
+        # The interchange table has no empty temperature cell: the column goes out with every
+        # pose's temperature known, or not at all (poses recorded before one was entered).
+        has_t = "temperature" in self.columns and None not in temps
+        columns = [c for c in self.columns if has_t or c != "temperature"]
         extra_names = [c for c in self.columns if c in p[0].extra]
         return Measurements(
             pose_id=[r.pose_id for r in p],
@@ -207,7 +210,7 @@ class Session(BaseModel):
             readings=[r.readings for r in p],
             temperature=_none_to_nan(temps) if has_t else None,
             extra={k: [r.extra.get(k, "") for r in p] for k in extra_names},
-            columns=tuple(self.columns),
+            columns=tuple(columns),
         )
 
     @classmethod
@@ -258,7 +261,7 @@ class Session(BaseModel):
             position=[float(v) for v in pose.position],
             quaternion=[float(v) for v in pose.quaternion],
             readings=[float(v) for v in pose.readings],
-            temperature=temperature,
+            temperature=pose.temperature if temperature is None else temperature,
             recorded_at=_now(),
             notes=list(pose.notes),
             tracker_samples=[RawTrackerSample.of(s) for s in pose.tracker_samples],
@@ -369,6 +372,12 @@ class SessionFile:
             ) from None
 
     def add_pose(self, record: PoseRecord) -> None:
+        if record.temperature is not None and "temperature" not in self.session.columns:
+            # The table's temperature column comes with the first pose that has one (the
+            # poses before it export an empty cell); it sits after the required columns.
+            cols = self.session.columns
+            at = max(cols.index(c) for c in REQUIRED_COLUMNS) + 1
+            self.session.columns = [*cols[:at], "temperature", *cols[at:]]
         self.session.poses.append(record)
         self.save()
 

@@ -216,6 +216,7 @@ class HexcalApp(App):
             mover=rig.mover,
             encoders=rig.encoders,
             clock_start=time.monotonic(),
+            thermometer=rig.thermometer,
         )
         self.post(self._show_recording)
 

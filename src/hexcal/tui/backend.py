@@ -26,6 +26,9 @@ class Rig:
     devices: Any = None
     truth: Robot | None = None
     hidden: dict[str, Any] | None = None
+    #: Reads the structure temperature (degC), when the rig has a thermometer; else the
+    #: operator types it (key t in the recording screen).
+    thermometer: Any = None
 
 
 @dataclass
@@ -81,7 +84,16 @@ class MockBackend(Backend):
         live = self._stack.enter_context(
             open_rig(rig.config, StillWindow(duration_s=self.window_s))
         )
-        return Rig(live.acquisition, live.encoders, rig.motion, rig.config, hr.truth, hr.hidden())
+        robot = rig.robot
+        return Rig(
+            live.acquisition,
+            live.encoders,
+            rig.motion,
+            rig.config,
+            hr.truth,
+            hr.hidden(),
+            thermometer=lambda: robot.temperature(robot.clock()),
+        )
 
 
 @dataclass

@@ -20,6 +20,7 @@ from textual.widgets import Footer, Header, ProgressBar, RichLog, Static
 from hexcal.guided import GuidedError, GuidedSession
 from hexcal.mock_hw.motion import MotionError
 from hexcal.nbp import motion_text
+from hexcal.tui.prompt import TextPrompt
 
 
 def _fmt(v: np.ndarray | None, digits: int = 3) -> str:
@@ -34,13 +35,15 @@ class RecordScreen(Screen):
     BINDINGS = [
         Binding("c", "clamp", "Clamped"),
         Binding("m", "move", "Move"),
-        Binding("g", "go_suggested", "Suggested pose"),
+        Binding("g", "go_suggested", "Go suggested"),
         Binding("r", "record", "Record"),
         Binding("u", "undo", "Undo"),
         Binding("n", "finish", "Next step"),
         Binding("s", "skip", "Skip"),
         Binding("a", "auto", "Auto"),
         Binding("A", "auto_all", "Auto all", show=False),
+        Binding("o", "note", "Note"),
+        Binding("t", "temperature", "Temp °C"),
         Binding("k", "calibrate", "Calibrate"),
         Binding("q", "app.quit", "Quit"),
     ]
@@ -166,7 +169,14 @@ class RecordScreen(Screen):
         self.query_one("#steps", Static).update("\n".join(lines))
 
     def refresh_live(self) -> None:
-        lv = self.guided.live()
+        g = self.guided
+        lv = g.live()
+        temp = g.temperature()
+        structure = (
+            "structure  temperature unknown ([b]t[/b] to enter it)"
+            if temp is None
+            else f"structure  {temp:.1f} °C ({'thermometer' if g.thermometer else 'entered'})"
+        )
         self.query_one("#live", Static).update(
             "[b]Live[/b]\n"
             f"tracker  {lv.tracker_status}\n"
@@ -174,7 +184,8 @@ class RecordScreen(Screen):
             f"  rotation deg {_fmt(lv.rotvec_deg)}\n"
             f"legs mm  {lv.bus_status}\n"
             f"  1-3 {_fmt(lv.readings[:3])}\n"
-            f"  4-6 {_fmt(lv.readings[3:])}"
+            f"  4-6 {_fmt(lv.readings[3:])}\n"
+            f"{structure}"
         )
         style = "green" if lv.clamp_ok else "bold red"
         self.query_one("#clamp", Static).update(
@@ -187,7 +198,13 @@ class RecordScreen(Screen):
         if action in ("auto", "auto_all"):
             return g.mover is not None and not g.finished
         if self.busy and action not in ("calibrate",):
-            return None if action in ("clamp", "move", "record", "undo", "finish", "skip") else True
+            # A note or a temperature saves the file, as the recording worker does: not at once.
+            busy_off = ("clamp", "move", "record", "undo", "finish", "skip", "note", "temperature")
+            return None if action in busy_off else True
+        if action == "note":
+            return True
+        if action == "temperature":
+            return g.thermometer is None or None
         if g.finished:
             return action in ("calibrate", "app.quit") or None
         st = g.step
@@ -209,6 +226,27 @@ class RecordScreen(Screen):
         except (GuidedError, MotionError) as exc:
             self.log_line(str(exc), "red")
             return None
+
+    def action_note(self) -> None:
+        def keep(text: str | None) -> None:
+            if text is not None and (msg := self._guard(self.guided.note, text)) is not None:
+                self.log_line(msg)
+
+        self.app.push_screen(
+            TextPrompt("Note for the session file (kept with the time):", "e.g. re-clamped leg 3"),
+            keep,
+        )
+
+    def action_temperature(self) -> None:
+        def keep(text: str | None) -> None:
+            if text is not None and (msg := self._guard(self.guided.set_temperature, text)):
+                self.log_line(msg)
+                self.show_step()
+
+        self.app.push_screen(
+            TextPrompt("Structure temperature now, °C (every next pose carries it):", "e.g. 21.5"),
+            keep,
+        )
 
     def action_clamp(self) -> None:
         if (msg := self._guard(self.guided.clamp)) is not None:
