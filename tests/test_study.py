@@ -23,6 +23,7 @@ def test_noise_free_study_is_exact():
             n_type_i=(4, 6),
             n_type_ii=(4, 5),
             n_type_iii=(5, 6),
+            n_free=(),  # the free-pose linear form's exactness: tests/test_solvers_free.py
         )
     )
     for r in res.rows:

@@ -14,7 +14,9 @@ Lesort 2004). The constraints, parameters and gauge:
 * Type I (direction clamped): ``P + R b − a − ρ u = 0`` (3 per pose), θ = (b, a, u) with |u|
   = 1: u varies in its tangent plane (2 coordinates), so M is 8×8;
 * Type II (direction and length): ``P + R b − C = 0`` (3 per pose), θ = (b, C), 6×6;
-* Type III (length): ``|P + R b − a| − r = 0`` (1 per pose), θ = (a, r) with b known, 4×4.
+* Type III (length): ``|P + R b − a| − r = 0`` (1 per pose), θ = (a, r) with b known, 4×4;
+* Types II and III together (the paper's §3.3: b from the Type II set, a and r from the Type
+  III set through that same b), θ = (b, C, a, r), 10×10.
 
 ``J_z Σ_z J_zᵀ`` is the covariance of the constraint at the truth: position σp² I, the
 orientation σθ² (R[b]×)(R[b]×)ᵀ (a body-frame rotation, as :class:`~hexcal.simulate.NoiseModel`
@@ -27,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from hexcal.noise import NoiseSigmas
-from hexcal.solvers.weighted import _inv3_sym, _point_cov, _tangent_basis
+from hexcal.solvers.weighted import _inv3_sym, _point_cov, _tangent_basis, type_iii_rows
 
 
 def _information(jac: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -56,14 +58,22 @@ def information_type_ii(P, R, b, sig: NoiseSigmas) -> np.ndarray:
     return _information(jac, _inv3_sym(_point_cov(R, b, sig)))
 
 
-def information_type_iii(P, R, b, a, sig: NoiseSigmas) -> np.ndarray:
-    """Fisher information (..., 4, 4) on (a, r), b known."""
-    v = P + (R @ b[..., None, :, None])[..., 0]
-    d = v - a[..., None, :]
-    n = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    var = (n[..., None, :] @ _point_cov(R, b, sig) @ n[..., :, None])[..., 0, 0]
-    jac = np.concatenate([-n, -np.ones((*n.shape[:-1], 1))], axis=-1)[..., None, :]
-    return _information(jac, (1.0 / var)[..., None, None])
+def information_type_iii(P, R, b, a, sig: NoiseSigmas, with_b: bool = False) -> np.ndarray:
+    """Fisher information (..., 4, 4) on (a, r), b known; with ``with_b``, (..., 7, 7) on
+    (b, a, r) — alone singular along b (a sphere fixes only |P + R b − a|), it is what a
+    Type III set adds when b is estimated too (:func:`information_type_ii_iii`)."""
+    _, _, jac, w = type_iii_rows(P, R, b, a, sig)
+    return _information(jac if with_b else jac[..., 3:], w)
+
+
+def information_type_ii_iii(P2, R2, P3, R3, b, a, sig: NoiseSigmas) -> np.ndarray:
+    """Fisher information (..., 10, 10) on (b, C, a, r) of the paper's §3.3 pose sets taken
+    together: a Type II set (fixes b and C) and a Type III set (a and r, through the same b)."""
+    info = np.zeros((*np.shape(b)[:-1], 10, 10))
+    info[..., :6, :6] = information_type_ii(P2, R2, b, sig)
+    idx = np.r_[0:3, 6:10]
+    info[..., idx[:, None], idx[None, :]] += information_type_iii(P3, R3, b, a, sig, with_b=True)
+    return info
 
 
 def bound(information: np.ndarray) -> np.ndarray:
@@ -73,9 +83,15 @@ def bound(information: np.ndarray) -> np.ndarray:
 
 
 def base_point_mse_bound(information: np.ndarray, pose_type: str) -> np.ndarray:
-    """The bound on E‖â − a‖² (..., ) mm² (Types I and III), or on E‖b̂ − b‖² (Type II)."""
+    """The bound on E‖â − a‖² (..., ) mm² (Types I and III, and Types II + III together), or
+    on E‖b̂ − b‖² (Type II)."""
     cov = bound(information)
-    block = {"type_i": slice(3, 6), "type_ii": slice(0, 3), "type_iii": slice(0, 3)}[pose_type]
+    block = {
+        "type_i": slice(3, 6),
+        "type_ii": slice(0, 3),
+        "type_iii": slice(0, 3),
+        "type_ii_iii": slice(6, 9),
+    }[pose_type]
     return np.trace(cov[..., block, block], axis1=-2, axis2=-1)
 
 

@@ -41,7 +41,7 @@ from hexcal.solvers import direct, paper, weighted
 from hexcal.solvers.linalg import METHOD as lstsq_method
 
 METHODS = ("paper", "direct", "refined")
-SETS = ("type_i", "type_ii", "type_iii", "type_iii_known_b")
+SETS = ("type_i", "type_ii", "type_iii", "type_iii_known_b", "free")
 #: The paper's factors at N = 7 (§5.1, §5.2).
 PAPER_FACTORS = {
     "type_i": {"base": 13.0, "platform": 1.4},
@@ -70,6 +70,10 @@ class StudyConfig:
     n_type_ii: tuple[int, int] = (4, 30)
     n_type_iii: tuple[int, int] = (5, 30)
     n_type_ii_for_iii: int = 7
+    #: Free-pose sets (Model 42 of the whole robot from all six leg lengths): the numbers of
+    #: poses, and the trials per number (each is a 42-parameter least-squares fit, not a batch).
+    n_free: tuple[int, ...] = (20, 40)
+    trials_free: int = 300
     seed: int = 0
     ranges: PoseRanges = field(
         default_factory=lambda: PoseRanges(stroke_mm=30.0, tilt_deg=30.0, cone_deg=30.0)
@@ -103,11 +107,12 @@ def _errors(est: np.ndarray, true: np.ndarray) -> float:
 
 
 def _limit(est: np.ndarray | None, true: np.ndarray, bound_mm2: float) -> tuple[float, ...]:
-    """(mean squared error mm², bound mm², efficiency, bias in σ) of a point estimate (T, 3)."""
+    """(mean squared error mm², bound mm², efficiency, bias in σ) of a point estimate (T, 3)
+    or of a scalar one (T,)."""
     nan = float("nan")
     if est is None:
         return nan, nan, nan, nan
-    err = est - true
+    err = np.reshape(est - true, (len(est), -1))
     mse = float(np.mean(np.sum(err**2, axis=-1)))
     sd = err.std(axis=0)
     bias = float(np.max(np.abs(err.mean(axis=0)) / np.where(sd > 0, sd, np.inf)))
@@ -121,9 +126,9 @@ def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -
     from concurrent.futures import ThreadPoolExecutor
 
     robot = robot or left_hand()
-    streams = np.random.SeedSequence(config.seed).spawn(4)
-    sweeps = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii, _sweep_type_iii_known_b)
-    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+    streams = np.random.SeedSequence(config.seed).spawn(5)
+    sweeps = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii, _sweep_type_iii_known_b, _sweep_free)
+    with ThreadPoolExecutor(max_workers=min(5, os.cpu_count() or 1)) as pool:
         futures = [
             pool.submit(f, config, robot, np.random.default_rng(s))
             for f, s in zip(sweeps, streams, strict=True)
@@ -151,13 +156,26 @@ class _Sweep:
         # The batched solves use the paper's normal equations (eq. 7): same numbers, faster.
         lstsq_method.set("normal")
 
-    def add(self, pose_set, n, method, a=None, b=None, off=None, bound_a=None, bound_b=None):
+    def add(
+        self,
+        pose_set,
+        n,
+        method,
+        a=None,
+        b=None,
+        off=None,
+        bound_a=None,
+        bound_b=None,
+        bound_off=None,
+        **extra,
+    ):
         nan = float("nan")
         ea = _errors(a, self.a) if a is not None else nan
         eb = _errors(b, self.b) if b is not None else nan
         eo = float(np.mean(np.abs(off - self.off))) if off is not None else nan
         la = _limit(a if bound_a is not None else None, self.a, bound_a or nan)
         lb = _limit(b if bound_b is not None else None, self.b, bound_b or nan)
+        lo = _limit(off if bound_off is not None else None, self.off, bound_off or nan)
         self.rows.append(
             {
                 "set": pose_set,
@@ -176,6 +194,11 @@ class _Sweep:
                 "platform_bound_mm2": lb[1],
                 "platform_efficiency": lb[2],
                 "platform_bias_sigma": lb[3],
+                "offset_mse_mm2": lo[0],
+                "offset_bound_mm2": lo[1],
+                "offset_efficiency": lo[2],
+                "offset_bias_sigma": lo[3],
+                "all_efficiency": extra.get("all_efficiency", nan),
             }
         )
 
@@ -185,20 +208,21 @@ class _Sweep:
 
     def type_ii(self, n, rng):
         """b from T Type II sets of n poses by each method: ({method: (T, 3)}, the bound on
-        E‖b̂ − b‖² mm² averaged over the sets)."""
+        E‖b̂ − b‖² mm² averaged over the sets, and the sets themselves: true and measured
+        poses, and the refined fixed point C)."""
         sim, k = self.sim, self.k
         Pt, Rt = sim.type_ii(k, (self.config.trials, n), rng)
         P, R, _ = sim.measure(rng, Pt, Rt)
         b_p = paper.type_ii_paper(P, R)
         b_d, c_d = direct.type_ii_direct(P, R)
-        b_r = weighted.refine_type_ii(P, R, b_d, c_d, self.sig)[0] if self.noisy else b_d
+        b_r, c_r = weighted.refine_type_ii(P, R, b_d, c_d, self.sig) if self.noisy else (b_d, c_d)
         bnd = None
         if self.bound_ok():
             info = bound.information_type_ii(
                 Pt, Rt, np.broadcast_to(self.b, (len(Pt), 3)), self.sig
             )
             bnd = float(bound.base_point_mse_bound(info, "type_ii").mean())
-        return {"paper": b_p, "direct": b_d, "refined": b_r}, bnd
+        return {"paper": b_p, "direct": b_d, "refined": b_r}, bnd, (Pt, Rt, P, R, c_r)
 
 
 def _sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
@@ -243,39 +267,125 @@ def _sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) -
 def _sweep_type_ii(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
     sw = _Sweep(config, robot)
     for n in range(config.n_type_ii[0], config.n_type_ii[1] + 1):
-        est, bnd = sw.type_ii(n, rng)
+        est, bnd, _ = sw.type_ii(n, rng)
         for method, b in est.items():
             sw.add("type_ii", n, method, b=b, bound_b=bnd)
     return sw.rows
 
 
 def _sweep_type_iii(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
+    """The paper's §3.3: b from a Type II set of N1 poses, a and the offset from a Type III set
+    of N poses. The paper's and the direct methods go in sequence (b, then a through it); the
+    refinement fits both sets at once (:func:`~hexcal.solvers.weighted.refine_type_ii_iii`),
+    so the Type III poses sharpen b too. The bound is the joint one of both sets; the offset's
+    adds the mean clamped reading's own noise, σρ²/N."""
     sw = _Sweep(config, robot)
     sim, k = sw.sim, sw.k
+    T = config.trials
     for n in range(config.n_type_iii[0], config.n_type_iii[1] + 1):
-        bs, _ = sw.type_ii(config.n_type_ii_for_iii, rng)
-        P, R, rho = sim.measure(rng, *sim.type_iii(k, (config.trials, n), rng))
+        bs, _, (Pt2, Rt2, P2, R2, c_r) = sw.type_ii(config.n_type_ii_for_iii, rng)
+        Pt, Rt = sim.type_iii(k, (T, n), rng)
+        P, R, rho = sim.measure(rng, Pt, Rt)
         r_k = rho[..., k]
         a_p = paper.type_iii_paper(P, R, bs["paper"])
         a_d, _ = direct.type_iii_direct(P, R, bs["direct"])
         a_s, rad_s = direct.type_iii_direct(P, R, bs["refined"])
-        a_r, rad_r = (
-            weighted.refine_type_iii(P, R, bs["refined"], a_s, rad_s, sw.sig)
-            if sw.noisy
-            else (a_s, rad_s)
-        )
-        sw.add(
-            "type_iii", n, "paper", a_p, bs["paper"], paper.offset_eq19(P, R, bs["paper"], a_p, r_k)
-        )
-        sw.add(
-            "type_iii",
-            n,
-            "direct",
-            a_d,
-            bs["direct"],
-            paper.offset_eq19(P, R, bs["direct"], a_d, r_k),
-        )
-        sw.add("type_iii", n, "refined", a_r, bs["refined"], rad_r - r_k.mean(axis=-1))
+        b_r = bs["refined"]
+        if sw.noisy:
+            a_s, rad_s = weighted.refine_type_iii(P, R, b_r, a_s, rad_s, sw.sig)
+            b_r, _, a_r, rad_r = weighted.refine_type_ii_iii(
+                P2, R2, P, R, b_r, c_r, a_s, rad_s, sw.sig
+            )
+        else:
+            a_r, rad_r = a_s, rad_s
+        bounds: dict = {}
+        if sw.bound_ok():
+            cov = bound.bound(
+                bound.information_type_ii_iii(
+                    Pt2,
+                    Rt2,
+                    Pt,
+                    Rt,
+                    np.broadcast_to(sw.b, (T, 3)),
+                    np.broadcast_to(sw.a, (T, 3)),
+                    sw.sig,
+                )
+            )
+            bounds = {
+                "bound_a": float(np.trace(cov[:, 6:9, 6:9], axis1=1, axis2=2).mean()),
+                "bound_b": float(np.trace(cov[:, 0:3, 0:3], axis1=1, axis2=2).mean()),
+                "bound_off": float((cov[:, 9, 9] + sw.sig.reading_mm**2 / n).mean()),
+            }
+        for method, a, b, off in (
+            ("paper", a_p, bs["paper"], paper.offset_eq19(P, R, bs["paper"], a_p, r_k)),
+            ("direct", a_d, bs["direct"], paper.offset_eq19(P, R, bs["direct"], a_d, r_k)),
+            ("refined", a_r, b_r, rad_r - r_k.mean(axis=-1)),
+        ):
+            sw.add("type_iii", n, method, a, b, off, **bounds)
+    return sw.rows
+
+
+def _sweep_free(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> list[dict]:
+    """Model 42 of the whole robot from free poses (all six leg lengths, nothing clamped):
+    the free-pose linear form per leg (the paper's method has none: its row is the linear
+    seed), then the whole-robot refinement of :mod:`hexcal.refine`, whose whitening by each
+    pose's 6×6 covariance is the first-order maximum likelihood of explicit leg-length
+    constraints. The bound is ``(J_wᵀ J_w)⁻¹`` of the whitened leg-length Jacobian at the true
+    geometry and poses; ``all_efficiency`` is tr(bound) / E‖θ̂ − θ‖² over all 42 parameters."""
+    from hexcal.refine import _model, _whiteners, refine
+    from hexcal.solvers.free import free_linear
+
+    sw = _Sweep(config, robot)
+    sim, k = sw.sim, sw.k
+    T = config.trials_free
+    x_true = np.concatenate([robot.a.ravel(), robot.b.ravel(), robot.offsets])
+    for n in config.n_free:
+        Pt, Rt = sim.free((T, n), rng)
+        P, R, rho = sim.measure(rng, Pt, Rt)
+        seeds, fits, bounds = [], [], []
+        for t in range(T):
+            lin = [free_linear(P[t], R[t], rho[t, :, j]) for j in range(6)]
+            a0 = np.array([s[1] for s in lin])
+            b0 = np.array([s[0] for s in lin])
+            off0 = np.array([s[2] for s in lin])
+            seeds.append(np.concatenate([a0.ravel(), b0.ravel(), off0]))
+            if sw.noisy:
+                fit = refine(P[t], R[t], rho[t], a0, b0, off0, True, sw.sig)
+                fits.append(fit.x[:42])
+            else:
+                fits.append(seeds[-1])
+            if sw.bound_ok():
+                w = _whiteners(robot.a, robot.b, Pt[t], Rt[t], sw.sig)
+                true_rho = sim.true_lengths(Pt[t], Rt[t]) - robot.offsets
+                _, jac = _model(x_true, Pt[t], Rt[t], true_rho, robot.offsets, True)
+                jw = np.einsum("mij,mjp->mip", w, jac).reshape(-1, 42)
+                bounds.append(np.linalg.pinv(jw.T @ jw, hermitian=True))
+        seeds_a, fits_a = np.array(seeds), np.array(fits)
+        extra: dict = {}
+        if bounds:
+            cov = np.mean(bounds, axis=0)
+            ia, ib, io = slice(3 * k, 3 * k + 3), slice(18 + 3 * k, 21 + 3 * k), 36 + k
+            extra = {
+                "bound_a": float(np.trace(cov[ia, ia])),
+                "bound_b": float(np.trace(cov[ib, ib])),
+                "bound_off": float(cov[io, io]),
+            }
+        for method, x in (("direct", seeds_a), ("refined", fits_a)):
+            all_eff = (
+                float(np.trace(cov) / np.mean(np.sum((x - x_true) ** 2, axis=-1)))
+                if bounds
+                else float("nan")
+            )
+            sw.add(
+                "free",
+                n,
+                method,
+                x[:, 3 * k : 3 * k + 3],
+                x[:, 18 + 3 * k : 21 + 3 * k],
+                x[:, 36 + k],
+                all_efficiency=all_eff,
+                **extra,
+            )
     return sw.rows
 
 
@@ -386,7 +496,13 @@ EFFICIENCY_ROWS = (
     ("type_i", "base", "Type I, base point a"),
     ("type_i", "platform", "Type I, platform point b"),
     ("type_ii", "platform", "Type II, platform point b"),
+    ("type_iii", "base", "Types II+III (§3.3), base point a"),
+    ("type_iii", "platform", "Types II+III (§3.3), platform point b"),
+    ("type_iii", "offset", "Types II+III (§3.3), leg offset"),
     ("type_iii_known_b", "base", "Type III (b known), base point a"),
+    ("free", "base", "free poses (Model 42), base point a"),
+    ("free", "platform", "free poses (Model 42), platform point b"),
+    ("free", "offset", "free poses (Model 42), leg offset"),
 )
 
 
@@ -410,7 +526,7 @@ def efficiency_table(result: StudyResult, ns: tuple[int, ...] = (7, 20)) -> str:
     lines = [
         "efficiency = KCR bound / mean squared error (1 = the statistical limit); bias = largest "
         "|mean error| / σ of a coordinate:",
-        f"  {'estimate':<34}{'N':>3}{'bound RMS mm':>14}"
+        f"  {'estimate':<40}{'N':>3}{'bound RMS mm':>14}"
         + "".join(f"{m + ' eff':>13}{'bias':>7}" for m in METHODS),
     ]
     for n in ns:
@@ -421,9 +537,12 @@ def efficiency_table(result: StudyResult, ns: tuple[int, ...] = (7, 20)) -> str:
                 continue
             b = next(iter(row.values()))["bound_rms_mm"]
             lines.append(
-                f"  {label:<34}{n:>3}{b:>14.4f}"
+                f"  {label:<40}{n:>3}{b:>14.4f}"
                 + "".join(
-                    f"{row[m]['efficiency']:>13.3f}{row[m]['bias_sigma']:>7.3f}" for m in METHODS
+                    f"{row[m]['efficiency']:>13.3f}{row[m]['bias_sigma']:>7.3f}"
+                    if m in row
+                    else f"{'—':>13}{'':>7}"
+                    for m in METHODS
                 )
             )
     return "\n".join(lines)
@@ -437,10 +556,15 @@ def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
     import matplotlib.pyplot as plt
 
     style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
-    fig, axes = plt.subplots(1, len(EFFICIENCY_ROWS), figsize=(16, 3.8), sharey=True)
-    for ax, (pose_set, q, label) in zip(axes, EFFICIENCY_ROWS, strict=True):
+    cols = (len(EFFICIENCY_ROWS) + 1) // 2
+    fig, axes = plt.subplots(2, cols, figsize=(3.4 * cols, 7.2), sharey=True, squeeze=False)
+    for ax in axes.flat[len(EFFICIENCY_ROWS) :]:
+        ax.set_visible(False)
+    for ax, (pose_set, q, label) in zip(axes.flat, EFFICIENCY_ROWS, strict=False):
         for method in METHODS:
             n, e = result.curve(pose_set, method, f"{q}_efficiency")
+            if not len(n):
+                continue
             c, m = style[method]
             ax.plot(n, e, color=c, marker=m, ms=3, lw=1.2, label=method)
         ax.axhline(1.0, color="0.4", lw=0.8)
@@ -448,8 +572,9 @@ def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
         ax.set_xlabel("number of poses N")
         ax.set_ylim(0, 1.15)
         ax.grid(True, alpha=0.3)
-    axes[0].set_ylabel("efficiency = bound / MSE")
-    axes[0].legend()
+    for row in axes:
+        row[0].set_ylabel("efficiency = bound / MSE")
+    axes[0, 0].legend()
     cfg = result.config
     kind = "σ" if cfg.noise == "gaussian" else "uniform ±"
     fig.suptitle(

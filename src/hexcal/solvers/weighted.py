@@ -47,14 +47,25 @@ def _point_cov(R: np.ndarray, b: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
     ) - sig.orientation_rad**2 * (rb @ np.swapaxes(rb, -1, -2))
 
 
-def _gn_step(jac: np.ndarray, w: np.ndarray, res: np.ndarray) -> np.ndarray:
-    """Gauss-Newton step (..., p) from per-pose blocks: jac (..., N, q, p), weights w (..., N,
-    q, q) = Σ⁻¹, residual res (..., N, q)."""
+def _normal(jac: np.ndarray, w: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations (JᵀWJ (..., p, p), JᵀWr (..., p, 1)) summed over per-pose blocks: jac
+    (..., N, q, p), weights w (..., N, q, q) = Σ⁻¹, residual res (..., N, q)."""
     wj = w @ jac
     jtj = np.sum(np.swapaxes(jac, -1, -2) @ wj, axis=-3)
     jtr = np.sum(np.swapaxes(wj, -1, -2) @ res[..., None], axis=-3)
+    return jtj, jtr
+
+
+def _solve_step(jtj: np.ndarray, jtr: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step (..., p) of the normal equations (a whisker of damping keeps a
+    degenerate batch member from stopping the others)."""
     damp = 1e-12 * np.trace(jtj, axis1=-2, axis2=-1)[..., None, None] * np.eye(jtj.shape[-1])
     return -np.linalg.solve(jtj + damp, jtr)[..., 0]
+
+
+def _gn_step(jac: np.ndarray, w: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """Gauss-Newton step (..., p) from per-pose blocks (see :func:`_normal`)."""
+    return _solve_step(*_normal(jac, w, res))
 
 
 def _tangent_basis(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -117,3 +128,61 @@ def refine_type_iii(P, R, b, a0, r0, sig: NoiseSigmas, iterations: int = 3):
         dx = _gn_step(j, (1.0 / var)[..., None, None], (dist - r[..., None])[..., None])
         a, r = a + dx[..., :3], r + dx[..., 3]
     return a, r
+
+
+def type_iii_rows(P, R, b, a, sig: NoiseSigmas):
+    """Per-pose Type III pieces at (b, a): distance |v − a| (..., N), unit leg direction n
+    (..., N, 3), the constraint's Jacobian on (b, a, r) (..., N, 1, 7) and its weight
+    1 / var (..., N, 1, 1), with v = P + R b and var = nᵀ Σ_B n."""
+    v = P + (R @ b[..., None, :, None])[..., 0]
+    d = v - a[..., None, :]
+    dist = np.linalg.norm(d, axis=-1)
+    n = d / dist[..., None]
+    var = (n[..., None, :] @ _point_cov(R, b, sig) @ n[..., :, None])[..., 0, 0]
+    jac = np.concatenate(
+        [(n[..., None, :] @ R)[..., 0, :], -n, -np.ones((*dist.shape, 1))], axis=-1
+    )[..., None, :]
+    return dist, n, jac, (1.0 / var)[..., None, None]
+
+
+def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterations: int = 4):
+    """The paper's §3.3 pose sets fitted together: a Type II set (``P2`` (..., N1, 3), ``R2``)
+    and a Type III set (``P3`` (..., N, 3), ``R3``) of the same leg share its platform point b,
+    so θ = (b, C, a, r) is fitted to both at once, each pose's constraint weighted by its
+    propagated covariance (recomputed at every iteration): ``P + R b − C`` (Type II, 3 rows)
+    and ``|P + R b − a| − r`` (Type III, 1 row). Seeds: b, C (..., 3) from the Type II set, a
+    (..., 3), r (...,) from the Type III set. Returns (b, C, a, r)."""
+    x = np.concatenate([b0, c0, a0, np.asarray(r0, float)[..., None]], axis=-1)
+    eye = np.broadcast_to(np.eye(3), R2.shape)
+    zero2 = np.zeros((*R2.shape[:-1], 4))
+    j2 = np.concatenate([R2, -eye, zero2], axis=-1)  # (b, C, a, r) for Type II
+
+    def terms(x):
+        b, c, a, r = x[..., :3], x[..., 3:6], x[..., 6:9], x[..., 9]
+        res2 = P2 + (R2 @ b[..., None, :, None])[..., 0] - c[..., None, :]
+        w2 = _inv3_sym(_point_cov(R2, b, sig))
+        dist, _, j3, w3 = type_iii_rows(P3, R3, b, a, sig)
+        res3 = (dist - r[..., None])[..., None]
+        cost = np.sum((res2[..., None, :] @ w2 @ res2[..., :, None])[..., 0, 0], axis=-1)
+        cost = cost + np.sum(w3[..., 0, 0] * res3[..., 0] ** 2, axis=-1)
+        return res2, w2, j3, w3, res3, cost
+
+    for _ in range(iterations):
+        res2, w2, j3, w3, res3, cost = terms(x)
+        j3 = np.concatenate([j3[..., :3], np.zeros((*j3.shape[:-1], 3)), j3[..., 3:]], axis=-1)
+        jtj, jtr = _normal(j2, w2, res2)
+        jtj3, jtr3 = _normal(j3, w3, res3)
+        dx = _solve_step(jtj + jtj3, jtr + jtr3)
+        # Step control: with few Type III poses the sphere is barely determined and a full
+        # step can run away; a step that raises the weighted cost is halved, up to 6 times,
+        # and a member whose every trial step does is left where it is.
+        done = np.zeros(cost.shape, bool)
+        for _half in range(7):
+            trial = x + dx
+            better = ~done & (terms(trial)[-1] <= cost)
+            x = np.where(better[..., None], trial, x)
+            done |= better
+            if done.all():
+                break
+            dx = 0.5 * dx
+    return x[..., :3], x[..., 3:6], x[..., 6:9], x[..., 9]
