@@ -226,3 +226,26 @@ def test_the_operator_types_the_temperature_and_notes(tmp_path):
     # No empty temperature cell in the interchange table: with one pose unknown, no column.
     meas = on_disk.measurements()
     assert meas.temperature is None and "temperature" not in meas.columns
+
+
+def test_suggestions_stop_at_the_steps_target(tmp_path):
+    """With a target 1σ, the step needs more poses until the suggested ones predict it, then it
+    says so (``done``, ``target_met``) — well before a long recommended count."""
+    g, hr, *_ = _setup(tmp_path)
+    g.steps = [replace(s, n_poses=40) if s.leg else s for s in g.steps]
+    _run_step(g)  # home
+    g.clamp()
+    for _ in range(4):
+        g.move()
+        assert g.record()[0]
+    first = g.suggestion(hr.design)
+    target = 0.6 * first.sigma_before_mm
+    g.steps[g.index] = replace(g.step, target_sigma_mm=target)
+    assert not g.target_met(hr.design)
+    while not g.target_met(hr.design):
+        assert g.n_poses < 40, "the target was never reached"
+        g.move_to_suggestion(g.suggestion(hr.design))
+        assert g.record()[0]
+    s = g.suggestion(hr.design)
+    assert s.done and s.sigma_before_mm <= target and g.n_poses < 20
+    assert g.finish_step().ok

@@ -46,6 +46,33 @@ def leg_residuals(robot_a, robot_b, offsets, meas: Measurements) -> np.ndarray:
     return meas.readings + offsets - np.linalg.norm(v, axis=-1)
 
 
+#: A fit whose χ²/dof exceeds this has not converged to the data's optimum (a linear seed too
+#: far off, as the free-pose form is with few poses): it is tried again from the design.
+RETRY_CHI2_PER_DOF = 10.0
+
+
+def refine_from_seeds(P, R, rho, lin_a, lin_b, lin_off, design: Robot, fit_offsets, sig):
+    """:func:`~hexcal.refine.refine` from the linear seed; when that fit fails (χ²/dof >
+    :data:`RETRY_CHI2_PER_DOF`), again from the design's geometry, keeping the lower χ² and
+    saying so in its notes. P (M, 3) mm, R (M, 3, 3), rho (M, 6) mm; seeds (6, 3), (6,) mm."""
+    ref = refine(P, R, rho, lin_a, lin_b, lin_off, fit_offsets, sig)
+    first = ref.chi2 / max(ref.dof, 1)
+    if np.isfinite(first) and first <= RETRY_CHI2_PER_DOF:
+        return ref
+    alt = refine(P, R, rho, design.a, design.b, design.offsets, fit_offsets, sig)
+    if not alt.chi2 >= ref.chi2:  # NaN from the linear seed counts as failed too
+        alt.notes.append(
+            f"the fit from the linear seed stopped at χ²/dof {first:.1f}; started from the design's "
+            f"geometry it reached {alt.chi2 / max(alt.dof, 1):.2f}: that fit is kept"
+        )
+        return alt
+    ref.notes.append(
+        f"χ²/dof {first:.1f}: a fit started from the design's geometry did no better "
+        f"({alt.chi2 / max(alt.dof, 1):.1f})"
+    )
+    return ref
+
+
 def calibrate(
     meas: Measurements,
     design: Robot,
@@ -58,7 +85,8 @@ def calibrate(
     """Calibrate Model 36 or 42 from a measurement table.
 
     ``design`` supplies the known offsets for Model 36 and every key that is not geometry
-    (name, home, pitch...); its points are never used as a starting guess. ``instruments``
+    (name, home, pitch...); its points are a starting guess only when the fit from the linear
+    seed fails (:func:`refine_from_seeds`). ``instruments``
     gives the noise that weights the refinement; without it the level is estimated.
     ``effects`` (catalogue names) are fitted jointly with the geometry.
     """
@@ -73,7 +101,9 @@ def calibrate(
     a, b, off = lin.a, lin.b, lin.offsets
     if do_refine:
         sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
-        ref = refine(meas.position, R, meas.readings, a, b, off, model == 42, sig)
+        ref = refine_from_seeds(
+            meas.position, R, meas.readings, a, b, off, design, model == 42, sig
+        )
         a, b, off = ref.a, ref.b, ref.offsets(off)
     robot = design.with_geometry(a, b, off)
     return Calibration(

@@ -561,9 +561,19 @@ class GuidedSession:
                 np.random.default_rng(n),
                 n_candidates=n_candidates,
                 space_filling=n % 5 == 4,
+                target_mm=st.target_sigma_mm or 0.0,
             )
         except (ValueError, np.linalg.LinAlgError, RuntimeError):
             return None  # a degenerate fit or no feasible candidate: no suggestion this time
+
+    def target_met(self, design: Robot) -> bool:
+        """The step has its minimum count and its poses already predict the step's target 1σ
+        (``Step.target_sigma_mm``): more poses are not needed."""
+        st = self.step
+        if st.target_sigma_mm is None or self.n_poses < st.min_poses:
+            return False
+        s = self.suggestion(design)
+        return s is not None and s.done
 
     def move_to_suggestion(self, s: nbp.Suggestion) -> str:
         """Follow a suggestion with the motion controller (the mock's: it holds the clamp)."""

@@ -16,6 +16,9 @@ A procedure file (see ``procedures/*.toml``, shipped as ``hexcal.procedures``)::
     tolerance_mm = 0.02                # how far the clamp may give before a pose is refused
     min_poses = 4                      # fewer and the step cannot be finished
     recommended_poses = 8              # what the operator is asked for
+    target_sigma_mm = 0.004            # optional: the predicted 1σ of the point that matters
+                                       # (base point; platform point for direction+length) at
+                                       # which the step has enough poses: suggestions stop there
     checks = ["clamp-length", "step-fit"]
     at_home = false                    # true: the step's poses are taken at the home pose
 
@@ -65,6 +68,7 @@ class ProcedureStep(BaseModel):
     tolerance_mm: float = Field(0.02, gt=0, allow_inf_nan=False)
     min_poses: int = Field(ge=1)
     recommended_poses: int = Field(ge=1)
+    target_sigma_mm: float | None = Field(None, gt=0, allow_inf_nan=False)
     checks: list[Check] = Field(default_factory=list)
     at_home: bool = False
 
@@ -151,6 +155,7 @@ def _step(s: ProcedureStep, leg: int) -> Step:
         tolerance_mm=s.tolerance_mm,
         checks=tuple(s.checks),
         at_home=s.at_home,
+        target_sigma_mm=s.target_sigma_mm,
     )
 
 

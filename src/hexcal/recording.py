@@ -63,6 +63,9 @@ class Step:
     tolerance_mm: float | None = None
     checks: tuple[str, ...] | None = None
     at_home: bool = False  #: its poses are taken at the robot's home pose
+    #: The predicted 1σ (mm) of the point that matters at which the step has enough poses: the
+    #: next-best-pose suggestions stop there (None: no target, suggest until the count).
+    target_sigma_mm: float | None = None
 
     def runs(self, check: str) -> bool:
         """Whether ``check`` runs for this step."""

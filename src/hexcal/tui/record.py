@@ -144,7 +144,12 @@ class RecordScreen(Screen):
             a = "clamped point" if st.constraint == "direction+length" else "base point"
             text = f"predicted 1σ: {b}{a} ±{c.sigma_a_mm:.3f} mm   (condition {c.condition:.0f})\n"
         s = self.suggested
-        if s is not None and g.recorder.poses:
+        if s is not None and s.done and n >= st.min_poses:
+            text += (
+                f"[green]target reached[/green]: predicted 1σ {s.sigma_before_mm:.3f} mm ≤ "
+                f"{st.target_sigma_mm:g} mm — enough poses for this step, [b]n[/b] for the next"
+            )
+        elif s is not None and g.recorder.poses:
             last = g.recorder.poses[-1]
             R_last = Rotation.from_quat(last.quaternion, scalar_first=True).as_matrix()
             why = (
@@ -340,7 +345,7 @@ class RecordScreen(Screen):
                 st = g.step
                 if st.leg and not g.clamped:
                     call(self.log_line, g.clamp())
-                if g.n_poses < st.n_poses:
+                if g.n_poses < st.n_poses and not g.target_met(self.app.backend.design):  # type: ignore[attr-defined]
                     # A refused pose is recorded again where it stands, as record_procedure
                     # does: moving on would hide a motion from history-dependent effects.
                     if refused == 0:
