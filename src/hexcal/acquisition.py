@@ -323,7 +323,8 @@ class Acquisition:
             # fault: what it last raised (a timeout, a lost port) says more than the count.
             now = self.clock()
             stalled = [
-                f"the {name} has not answered for {now - since:.1f} s (waiting for its reply)"
+                f"the {name} {'have' if name.endswith('s') else 'has'} not answered for "
+                f"{now - since:.1f} s (waiting for a reply)"
                 for name, since in self._waiting.items()
                 if since is not None and now - since > self.window.duration_s / 2
             ]
