@@ -212,7 +212,7 @@ def record_pose(
     return RecordedPose(
         t=t_end,
         position=P.mean(axis=0),
-        quaternion=mean_rot.as_quat(scalar_first=True),
+        quaternion=mean_rot.as_quat(canonical=True, scalar_first=True),  # qw ≥ 0: readable
         readings=rho.mean(axis=0),
         tracker_samples=ts_all,
         leg_samples=ls_all,

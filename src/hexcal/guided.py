@@ -161,6 +161,7 @@ class GuidedSession:
     ):
         self.sf = sf
         self.thermometer = thermometer
+        self._suggested: tuple | None = None  # (what it was computed for, the suggestion)
         #: The structure temperature the operator last entered (degC), for rigs without a
         #: thermometer: every pose recorded after it carries it, until the next entry.
         self.temperature_c: float | None = None
@@ -526,7 +527,15 @@ class GuidedSession:
     def suggestion(self, design: Robot, n_candidates: int = 300) -> nbp.Suggestion | None:
         """The next best pose of the current clamped step (None before its poses determine the
         clamp, or on a free step). Every 5th is a space-filling one. Seeded by the pose count,
-        so the same poses give the same suggestion."""
+        so the same poses give the same suggestion — computed once for them (the screen, the
+        target check and the mock operator all ask)."""
+        poses = self.recorder.poses if self.recorder else []
+        key = (self.index, self.step, len(poses), poses[-1].t if poses else None, id(design))
+        if self._suggested is None or self._suggested[0] != (key, n_candidates):
+            self._suggested = ((key, n_candidates), self._suggest(design, n_candidates))
+        return self._suggested[1]
+
+    def _suggest(self, design: Robot, n_candidates: int) -> nbp.Suggestion | None:
         st = self.step
         n = self.n_poses
         if not st.leg or n < 4:
