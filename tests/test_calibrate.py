@@ -1,4 +1,5 @@
-"""Whole-robot calibration: the fallback start from the design when the linear seed's fit fails."""
+"""Whole-robot calibration: the fallback start from the design when the linear seed's fit fails,
+and the test of the clamps' constraints."""
 
 from __future__ import annotations
 
@@ -8,9 +9,14 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hexcal.calibrate import RETRY_CHI2_PER_DOF, refine_from_seeds
+from hexcal.calibrate import RETRY_CHI2_PER_DOF, calibrate, refine_from_seeds
+from hexcal.effects.inject import effect_hook, realistic_values
+from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
 from hexcal.refine import refine
+from hexcal.report_text import calibration_json, calibration_text
+from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
 from hexcal.simulate import NoiseModel, PoseRanges, Simulator
 from hexcal.solvers.free import free_linear
 from hexcal.study import left_hand
@@ -53,3 +59,77 @@ def test_a_good_fit_is_not_tried_again():
     far_design = TRUTH.with_geometry(TRUTH.a + 500.0, TRUTH.b, TRUTH.offsets)
     ref = refine_from_seeds(P, R, rho, TRUTH.a, TRUTH.b, TRUTH.offsets, far_design, True, SIG)
     assert ref.chi2 / ref.dof < RETRY_CHI2_PER_DOF and not any("design" in n for n in ref.notes)
+
+
+# --------------------------------------------------------------------------------------------
+# The clamps' constraints: used when the clamps held, refused (and said why) when not.
+
+INST = Instruments(
+    tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+    encoders=EncoderNoise(reading_sigma_mm=0.002),
+)
+
+
+def _slipped_session(design, seed: int, slip_mm: float, leg: int = 2):
+    """A session whose leg-``leg`` direction-and-length clamp slid ``slip_mm`` along x over its
+    step: the platform point no longer stays at one point in space, while every pose's leg
+    lengths stay true."""
+    plan = SessionPlan(noise=NoiseModel(), resolution=None)
+    meas, truth = simulate_session(design, seed, plan)
+    P, R = meas.position.copy(), meas.rotations.as_matrix()
+    rows = np.where((meas.leg == leg) & (meas.constraint == "direction+length"))[0]
+    P[rows, 0] += np.linspace(0.0, slip_mm, len(rows))
+    sim = Simulator(truth, noise=SessionPlan().noise)
+    Pm, Rm, rho = sim.measure(np.random.default_rng(seed), P, R)
+    q = Rotation.from_matrix(Rm).as_quat(scalar_first=True)
+    return Measurements.from_arrays(
+        Pm, q, rho, leg=meas.leg, constraint=meas.constraint, step=meas.step
+    ), truth
+
+
+def test_clamps_that_held_are_used(design):
+    meas, _ = simulate_session(design, 5, SessionPlan())
+    cal = calibrate(meas, design, 42, INST)
+    check = cal.clamp_check
+    assert check is not None and check.used and not check.model_misfit
+    assert check.steps == 18
+    assert check.ratio < check.limit
+    assert cal.refinement.clamp_steps is not None
+    assert "clamp constraints used" in calibration_text(cal, "s", "n")
+    assert json.loads(calibration_json(cal, "s", "n"))["clamp_check"]["used"] is True
+    plain = calibrate(meas, design, 42, INST, clamps=False)
+    assert plain.clamp_check is None and plain.refinement.clamp_steps is None
+
+
+def test_a_slipping_clamp_is_refused_and_named(design):
+    """A 0.1 mm slide of one clamp over its step (ten times the tracker's noise): the rows the
+    clamps add raise χ² far beyond their share, the fit from the leg lengths is kept, and the
+    report says the clamps did not hold. The same poses without the slide pass."""
+    held = calibrate(_slipped_session(design, 6, 0.0)[0], design, 42, INST).clamp_check
+    assert held.used
+    meas, truth = _slipped_session(design, 6, 0.1)
+    cal = calibrate(meas, design, 42, INST)
+    check = cal.clamp_check
+    assert not check.used and not check.model_misfit
+    assert check.ratio > check.limit
+    assert cal.refinement is check.lengths_only
+    assert "did not hold" in check.text and "slipped" in check.text
+    # The lengths-only geometry is unharmed by the slip (the lengths were true).
+    err = cal.refinement.x - np.concatenate([truth.a.ravel(), truth.b.ravel(), truth.offsets])
+    assert np.abs(err).max() < 6 * cal.refinement.sigma.max()
+
+
+def test_a_missing_effect_is_not_blamed_on_the_clamps(design):
+    """Encoder gain hidden in the data: the leg lengths alone already misfit, so the clamps are
+    not judged (and not used) until the effect is added; then they are."""
+    rng = np.random.default_rng(3)
+    truth = perturbed_truth(design, rng, SessionPlan())
+    hook = effect_hook("gain", realistic_values("gain", rng, truth), truth)
+    meas, _ = simulate_session(design, 3, SessionPlan(), effects=[hook], truth=truth)
+    without = calibrate(meas, design, 42, INST).clamp_check
+    assert without.model_misfit and not without.used
+    assert "misses an effect" in without.text
+    with_gain = calibrate(meas, design, 42, INST, effects=("gain",))
+    assert with_gain.clamp_check.used
+    assert with_gain.refinement.clamp_steps is not None
+    assert sum(n.startswith("gain.") for n in with_gain.refinement.names) == 6

@@ -42,7 +42,12 @@ def test_noise_free_refinement_is_exact(design):
 @pytest.mark.parametrize("known", [True, False])
 def test_intervals_have_their_coverage(design, known):
     """Over 80 random sessions the Mahalanobis distance of the error follows χ²(42) and the 95 %
-    intervals cover the truth 95 % of the time, within Monte-Carlo error."""
+    intervals cover the truth 95 % of the time, within Monte-Carlo error.
+
+    With the noise stated, the reported covariance is widened by max(1, χ²/dof) on purpose (an
+    under-fitting model must not narrow the intervals), which shifts the distance below χ²(42)
+    by a few percent; the distance is taken with the covariance before that widening, which is
+    the one the χ² law is about."""
     d2, inside = [], []
     inst = None
     if known:
@@ -56,7 +61,8 @@ def test_intervals_have_their_coverage(design, known):
         meas, truth = simulate_session(design, 1000 + seed, SMALL)
         ref = calibrate(meas, design, 42, instruments=inst).refinement
         err = ref.x - _truth_vector(truth)
-        d2.append(err @ np.linalg.solve(ref.cov, err))
+        widened = max(1.0, ref.chi2 / ref.dof) if known else 1.0
+        d2.append(widened * (err @ np.linalg.solve(ref.cov, err)))
         inside.append(np.abs(err) <= ref.ci95)
     # χ²(42): a Kolmogorov-Smirnov test at the 0.1 % level.
     assert stats.kstest(d2, stats.chi2(42).cdf).pvalue > 1e-3, np.mean(d2)

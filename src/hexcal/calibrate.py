@@ -1,11 +1,20 @@
-"""Whole-robot calibration: the linear methods per leg, then the weighted refinement."""
+"""Whole-robot calibration: the linear methods per leg, then the weighted refinement.
+
+The refinement runs twice: from the leg lengths alone (the seed, and the fallback), then with
+each clamped step's own constraint added (:mod:`hexcal.clamp_rows`), which is the maximum
+likelihood estimate when the clamps held. Whether they held is tested: the rows the clamps add
+must not raise χ² by more than their degrees of freedom allow (:class:`ClampCheck`); when they
+do, the leg-lengths fit is kept and the report says why.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
+from hexcal.clamp_rows import ClampSteps
 from hexcal.instruments import Instruments
 from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
@@ -29,6 +38,7 @@ class Calibration:
     residuals: np.ndarray  #: (M, 6) mm, measured length − predicted, at the final geometry
     linear_residuals: np.ndarray | None = None  #: (M, 6) mm at the linear seed
     effects: tuple[str, ...] = ()  #: catalogue effects fitted with the geometry
+    clamp_check: ClampCheck | None = None  #: whether the clamps' constraints were used
 
     @property
     def methods(self) -> list[str]:
@@ -44,6 +54,95 @@ def leg_residuals(robot_a, robot_b, offsets, meas: Measurements) -> np.ndarray:
     r = meas.rotations.as_matrix()
     v = meas.position[:, None, :] + np.einsum("mij,kj->mki", r, robot_b) - robot_a[None]
     return meas.readings + offsets - np.linalg.norm(v, axis=-1)
+
+
+#: The clamps' rows are refused when their χ² excess has a p-value below this.
+CLAMP_TEST_P = 1e-3
+
+
+@dataclass(frozen=True)
+class ClampCheck:
+    """The test of the clamps' constraints against the leg lengths.
+
+    ``excess`` is χ²(with clamps) − χ²(leg lengths only), ``df`` the rows the clamps add less
+    their nuisance unknowns; ``ratio`` = (excess/df) / (χ²/dof of the lengths-only fit, at
+    least 1 when the noise is stated), so that a model missing an effect, which raises both
+    fits alike, does not fail it; ``limit`` its 1 − :data:`CLAMP_TEST_P` quantile.
+    """
+
+    steps: int
+    excess: float
+    df: int
+    ratio: float
+    limit: float
+    used: bool
+    lengths_only: Refinement  #: the fit without the clamp rows, for comparison
+    #: The lengths-only fit already exceeds the stated noise (a missing effect): the clamps
+    #: cannot be judged until the model fits.
+    model_misfit: bool = False
+
+    @property
+    def text(self) -> str:
+        head = (
+            f"{self.steps} clamped steps add {self.df} degrees of freedom; χ² rose by "
+            f"{self.excess:.1f} ({self.ratio:.2f}× their share, limit {self.limit:.2f})"
+        )
+        if self.used:
+            return f"clamp constraints used: {head}: the clamps held"
+        if self.model_misfit:
+            fit = self.lengths_only
+            return (
+                f"clamp constraints not used: {head}, but the leg lengths alone already leave "
+                f"χ²/dof {fit.chi2 / fit.dof:.2f} against the stated noise: the model misses an "
+                "effect (run hexcal diagnose, then --add it) and the clamps can be judged only "
+                "once it fits; the geometry is fitted from the leg lengths alone"
+            )
+        return (
+            f"clamp constraints NOT used: {head}: the clamps did not hold what they claim (a "
+            "clamp slipped or has play, a step mixes two clamp settings, or the wrong leg or "
+            "constraint is recorded); the geometry is fitted from the leg lengths alone"
+        )
+
+
+def with_clamps(
+    meas: Measurements, lengths: Refinement, fit_offsets: bool, sig, fixed_offsets, basis=None
+) -> tuple[Refinement, ClampCheck | None]:
+    """Refit with the clamp rows, seeded by the lengths-only fit ``lengths``; keep it if the
+    clamps pass :class:`ClampCheck`. Returns (the kept fit, the check; None without clamped
+    steps)."""
+    steps = ClampSteps.from_table(meas.leg, meas.constraint, meas.step)
+    if not len(steps):
+        return lengths, None
+    q = 0 if basis is None else basis.shape[-1]
+    p0 = 36 + (6 if fit_offsets else 0)
+    ref = refine(
+        meas.position,
+        meas.rotations.as_matrix(),
+        meas.readings,
+        lengths.a,
+        lengths.b,
+        lengths.offsets(fixed_offsets),
+        fit_offsets,
+        sig,
+        basis=basis,
+        basis_names=lengths.names[p0:] if q else None,
+        theta0=lengths.x[p0:] if q else None,
+        clamps=steps,
+    )
+    n_len = lengths.dof + len(lengths.x)
+    df = (ref.dof + len(ref.x) + steps.n_nuisance) - n_len - steps.n_nuisance
+    scale = lengths.chi2 / max(lengths.dof, 1)
+    if sig is not None:
+        scale = max(1.0, scale)
+    excess = ref.chi2 - lengths.chi2
+    ratio = excess / max(df, 1) / scale
+    limit = float(stats.chi2.ppf(1.0 - CLAMP_TEST_P, max(df, 1)) / max(df, 1))
+    used = bool(np.isfinite(ratio) and ratio <= limit)
+    misfit = sig is not None and scale > 1.0 + 4.0 * (2.0 / max(lengths.dof, 1)) ** 0.5
+    check = ClampCheck(
+        len(steps), float(excess), int(df), float(ratio), limit, used, lengths, bool(misfit)
+    )
+    return (ref if used else lengths), check
 
 
 #: A fit whose χ²/dof exceeds this has not converged to the data's optimum (a linear seed too
@@ -83,6 +182,7 @@ def calibrate(
     form: Form = "paper",
     do_refine: bool = True,
     effects: tuple[str, ...] | list[str] = (),
+    clamps: bool = True,
 ) -> Calibration:
     """Calibrate Model 36 or 42 from a measurement table.
 
@@ -90,22 +190,26 @@ def calibrate(
     (name, home, pitch...); its points are a starting guess only when the fit from the linear
     seed fails (:func:`refine_from_seeds`). ``instruments``
     gives the noise that weights the refinement; without it the level is estimated.
-    ``effects`` (catalogue names) are fitted jointly with the geometry.
+    ``effects`` (catalogue names) are fitted jointly with the geometry. ``clamps`` adds the
+    clamped steps' own constraints to the refinement (:func:`with_clamps`; False: leg lengths
+    only).
     """
     effects = tuple(e for e in effects if not (e == "offset" and model == 42))
     if effects:
-        return _calibrate_with_effects(meas, design, model, instruments, effects)
+        return _calibrate_with_effects(meas, design, model, instruments, effects, clamps)
     R = meas.rotations.as_matrix()
     lin = calibrate_linear(
         meas.position, R, meas.readings, meas.leg, meas.constraint, model, design.offsets, form
     )
-    ref = None
+    ref, check = None, None
     a, b, off = lin.a, lin.b, lin.offsets
     if do_refine:
         sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
         ref = refine_from_seeds(
             meas.position, R, meas.readings, a, b, off, design, model == 42, sig
         )
+        if clamps:
+            ref, check = with_clamps(meas, ref, model == 42, sig, design.offsets)
         a, b, off = ref.a, ref.b, ref.offsets(off)
     robot = design.with_geometry(a, b, off)
     return Calibration(
@@ -115,21 +219,26 @@ def calibrate(
         ref,
         leg_residuals(a, b, off, meas),
         leg_residuals(lin.a, lin.b, lin.offsets, meas),
+        clamp_check=check,
     )
 
 
-def _calibrate_with_effects(meas, design, model, instruments, effects) -> Calibration:
-    from hexcal.diagnosis.model import Problem, fit_model
+def _calibrate_with_effects(meas, design, model, instruments, effects, clamps) -> Calibration:
+    from hexcal.diagnosis.model import Problem, _stack, fit_model
 
     sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
     problem = Problem.build(meas, design, sig)
     full = (("offset",) if model == 42 else ()) + tuple(effects)
     fit = fit_model(problem, full, cross_validate=False)
-    ref = fit.refinement
+    ref, check = fit.refinement, None
+    if clamps:
+        basis, _ = _stack(problem, full)
+        ref, check = with_clamps(meas, ref, model == 42, sig, design.offsets, basis)
     lin = problem.linear42 if model == 42 else problem.linear36
     robot = design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
     cal = Calibration(
-        model, robot, lin, ref, fit.residuals, leg_residuals(lin.a, lin.b, lin.offsets, meas)
+        model, robot, lin, ref, ref.residuals, leg_residuals(lin.a, lin.b, lin.offsets, meas)
     )
     cal.effects = tuple(effects)
+    cal.clamp_check = check
     return cal

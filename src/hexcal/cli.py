@@ -54,6 +54,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         instruments=inst,
         form=args.form,
         do_refine=not args.no_refine,
+        clamps=not args.lengths_only,
         effects=tuple(args.add or ()),
     )
     if inst is not None:
@@ -358,6 +359,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="linear seed: the paper's forms or the direct ones",
     )
     c.add_argument("--no-refine", action="store_true", help="stop after the linear methods")
+    c.add_argument(
+        "--lengths-only",
+        action="store_true",
+        help="refine from the leg lengths alone, without the clamps' own constraints",
+    )
     c.add_argument(
         "--add", nargs="+", metavar="EFFECT", help="catalogue effects to fit with the geometry"
     )

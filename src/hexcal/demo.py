@@ -222,6 +222,10 @@ def run_demo(
         },
         "model_42_vs_truth": against_truth(cal.refinement, truth),
         "with_effect_vs_truth": against_truth(cal_with.refinement, truth),
+        "clamps": {
+            "model_42": cal.clamp_check.text if cal.clamp_check else None,
+            "with_effect": cal_with.clamp_check.text if cal_with.clamp_check else None,
+        },
     }
 
 
@@ -256,6 +260,10 @@ def demo_text(r: dict[str, Any]) -> str:
         f"    with the effect added: max error {after['max_error_mm']:.4f} mm, "
         f"{after['outside_95']} outside their 95 % interval, Mahalanobis² {after['mahalanobis2']:.1f} "
         f"(χ²₄₂: p = {after['mahalanobis2_p']:.2f})",
+    ]
+    if r["clamps"]["with_effect"]:
+        lines.append(f"    {r['clamps']['with_effect']}")
+    lines += [
         "",
         f"  next: hexcal diagnose {r['session']} --add {eff['name']} --report report.html",
     ]

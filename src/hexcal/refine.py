@@ -19,6 +19,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
+from hexcal.clamp_rows import ClampModel, ClampSteps, Nuisance
 from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 
 #: Relative eigenvalue of the scaled normal matrix below which a direction is not determined.
@@ -60,6 +61,10 @@ class Refinement:
     whitened_jacobian: np.ndarray | None = None  #: (6M, p) at the solution
     whitened_residual: np.ndarray | None = None  #: (6M,)
     whiteners: np.ndarray | None = None  #: (M, 6, 6) W with W Σ Wᵀ = I
+    #: With clamp rows (``refine(clamps=...)``): the steps and their fitted nuisance values;
+    #: the whitened arrays above are then left None (their rows are not the six leg lengths).
+    clamp_steps: ClampSteps | None = None
+    clamp_nuisance: Nuisance | None = None
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -141,6 +146,7 @@ def refine(
     basis_names: list[str] | None = None,
     theta0: np.ndarray | None = None,
     passes: int = 2,
+    clamps: ClampSteps | None = None,
 ) -> Refinement:
     """Weighted nonlinear least squares of the geometry, seeded by (a0, b0, offsets0).
 
@@ -148,8 +154,26 @@ def refine(
     fixed unless ``fit_offsets``). ``sigmas`` are the instruments' noise; None means unknown.
     ``basis`` (M, 6, q) adds effect parameters θ (named ``basis_names``, seeded by ``theta0`` or
     zeros) with predicted length ``reading + offset + basis @ θ``. ``passes`` re-evaluations of
-    the pose covariances (the second at the first pass's solution).
+    the pose covariances (the second at the first pass's solution). ``clamps`` adds each clamped
+    step's own constraint (:mod:`hexcal.clamp_rows`); its nuisance unknowns are eliminated from
+    the reported parameters and covariance.
     """
+    if clamps is not None and len(clamps):
+        return _refine_with_clamps(
+            P,
+            R,
+            rho,
+            a0,
+            b0,
+            offsets0,
+            fit_offsets,
+            sigmas,
+            basis,
+            basis_names,
+            theta0,
+            passes,
+            clamps,
+        )
     known = sigmas is not None
     sig = sigmas if known else DEFAULT_SIGMAS
     fixed = np.asarray(offsets0, float)
@@ -180,6 +204,75 @@ def refine(
     out.whitened_jacobian = jw
     out.whitened_residual = sol.fun
     out.whiteners = W
+    return out
+
+
+def _refine_with_clamps(
+    P, R, rho, a0, b0, offsets0, fit_offsets, sigmas, basis, basis_names, theta0, passes, clamps
+) -> Refinement:
+    """:func:`refine` with the clamp rows: the same parameters, plus each step's nuisance."""
+    known = sigmas is not None
+    sig = sigmas if known else DEFAULT_SIGMAS
+    fixed = np.asarray(offsets0, float)
+    m = len(P)
+    basis = np.zeros((m, 6, 0)) if basis is None else basis
+    q = basis.shape[-1]
+    th = np.zeros(q) if theta0 is None else np.asarray(theta0, float)
+    x = np.concatenate([np.ravel(a0), np.ravel(b0)] + ([fixed] if fit_offsets else []) + [th])
+    p0 = len(x)
+    nu = Nuisance.seed(clamps, x[:18].reshape(6, 3), x[18:36].reshape(6, 3), P, R)
+    nfev = 0
+    for _ in range(passes):
+        model = ClampModel(clamps, P, R, rho, fixed, fit_offsets, basis, nu.u)
+        xf = np.concatenate([x, model.nuisance_vector(nu)])
+        W = model.whiteners(xf, sig.position_mm, sig.orientation_rad, sig.reading_mm)
+        mask = model.mask
+
+        def fun(xx, W=W, model=model, mask=mask):
+            res, _, _ = model.evaluate(xx, want_jac=False, want_jz=False)
+            return (W @ res[..., None])[..., 0][mask]
+
+        def jac(xx, W=W, model=model, mask=mask):
+            _, j, _ = model.evaluate(xx, want_jz=False)
+            return (W @ j)[mask]
+
+        sol = least_squares(
+            fun, xf, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac"
+        )
+        nfev += sol.nfev
+        x, nu = sol.x[:p0], model.nuisance_values(sol.x)
+    res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis if q else None)
+    jw = jac(sol.x)
+    names = parameter_names(fit_offsets) + list(basis_names or [f"theta{i}" for i in range(q)])
+    full = _statistics(
+        sol.x, res, jw, sol.fun, known, names + clamps.nuisance_names, nfev, bool(sol.success)
+    )
+    # The marginal covariance of the parameters is their block of the full inverse: the
+    # nuisance unknowns are eliminated (Schur complement), not held fixed.
+    keep = set(names)
+    full.strong_correlations = [
+        c for c in full.strong_correlations if c[0] in keep and c[1] in keep
+    ]
+    out = Refinement(
+        names=names,
+        x=x,
+        cov=full.cov[:p0, :p0],
+        sigma=full.sigma[:p0],
+        ci95=full.ci95[:p0],
+        corr=full.corr[:p0, :p0],
+        chi2=full.chi2,
+        dof=full.dof,
+        noise_scale=full.noise_scale,
+        noise_source=full.noise_source,
+        residuals=full.residuals,
+        status=full.status[:p0],
+        notes=full.notes,
+        strong_correlations=full.strong_correlations,
+        nfev=nfev,
+        success=full.success,
+    )
+    out.clamp_nuisance = nu
+    out.clamp_steps = clamps
     return out
 
 

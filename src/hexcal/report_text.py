@@ -64,6 +64,8 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
                 lines.append(
                     f"  {name:<16} {v:12.5g} ± {c:.3g}" + ("" if st == "ok" else f"  ({st})")
                 )
+    if cal.clamp_check is not None:
+        lines.append(cal.clamp_check.text)
     if ref:
         lines.append(f"chi²/dof = {ref.chi2 / ref.dof:.3f} over {ref.dof} degrees of freedom")
         if (
@@ -132,6 +134,17 @@ def calibration_json(cal: Calibration, source: str, noise_source: str) -> str:
             {"a": a, "b": b, "r": r} for a, b, r in ref.strong_correlations
         ]
         out["notes"] = ref.notes
+    if cal.clamp_check is not None:
+        c = cal.clamp_check
+        out["clamp_check"] = {
+            "used": c.used,
+            "steps": c.steps,
+            "chi2_excess": c.excess,
+            "df": c.df,
+            "ratio": c.ratio,
+            "limit": c.limit,
+            "text": c.text,
+        }
 
     def finite(o):
         if isinstance(o, float) and not np.isfinite(o):
