@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from hexcal.kinematics import (
     ForwardKinematicsError,
+    condition_number,
     forward_kinematics,
     inverse_kinematics,
     leg_vectors,
@@ -65,3 +66,17 @@ def test_jacobian_transpose_is_statics(design):
     assert np.allclose(J.T @ f, w)
     assert np.all(f < 0)  # every leg pushes up (compression) under a weight at the centre
     assert leg_vectors(design.a, design.b, P, R).shape == (1, 6, 3)
+
+
+def test_condition_number_grows_towards_the_singularity(design):
+    """About 5 at home; a rotation about the vertical towards 90° (where the legs of this
+    platform fall into a singular configuration) makes it grow without bound."""
+    home = np.asarray(design.home.position, float)
+    angles = [0.0, 60.0, 85.0, 89.9]
+    cond = [
+        condition_number(design.a, design.b, home, Rotation.from_rotvec([0, 0, np.deg2rad(g)]))[0]
+        for g in angles
+    ]
+    assert 3.0 < cond[0] < 8.0
+    assert np.all(np.diff(cond) > 0)
+    assert cond[-1] > 1e3

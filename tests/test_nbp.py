@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from hexcal import nbp
+from hexcal.kinematics import condition_number
 from hexcal.noise import NoiseSigmas
 from hexcal.simulate import Simulator
 from hexcal.study import left_hand
@@ -59,3 +61,20 @@ def test_motion_text_names_the_largest_components():
     R1 = Rotation.from_rotvec([np.deg2rad(8.0), 0.0, 0.0]).as_matrix()
     text = nbp.motion_text(np.zeros(3), R0, np.array([0.0, 0.0, 12.0]), R1)
     assert text == "tilt the platform about x by +8.0°, move it along z by +12 mm"
+
+
+def test_candidates_keep_away_from_singularities(monkeypatch):
+    """With the limit lowered to the median condition number of the Type II manifold, half the
+    draws are near-"singular": every candidate returned is within the limit, and none is lost."""
+    sim = Simulator(ROBOT)
+    k = 2
+    P, R = sim.type_ii(k, (1,), np.random.default_rng(0))
+    geo = nbp.LegGeometry(k, ROBOT.a[k], ROBOT.b[k], point=P[0] + R[0] @ ROBOT.b[k])
+    Pc, Rc = nbp.candidates(sim, "direction+length", geo, 400, np.random.default_rng(1))
+    cond = condition_number(ROBOT.a, ROBOT.b, Pc, Rotation.from_matrix(Rc))
+    assert cond.max() <= nbp.MAX_CONDITION
+    limit = float(np.median(cond))
+    monkeypatch.setattr(nbp, "MAX_CONDITION", limit)
+    Pc, Rc = nbp.candidates(sim, "direction+length", geo, 400, np.random.default_rng(1))
+    assert len(Pc) == 400
+    assert condition_number(ROBOT.a, ROBOT.b, Pc, Rotation.from_matrix(Rc)).max() <= limit

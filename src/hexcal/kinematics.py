@@ -51,6 +51,18 @@ def platform_jacobian(
     return np.concatenate([n, np.cross(rb, n)], axis=-1)
 
 
+def condition_number(
+    a: np.ndarray, b: np.ndarray, position: np.ndarray, rotations: Rotation
+) -> np.ndarray:
+    """Condition number (N,) of the leg-rate Jacobian made dimensionless (its moment columns
+    divided by the mean platform radius, mm): about 5 near home for a typical Gough platform,
+    infinite at a singularity, where the legs no longer hold the platform in every direction."""
+    jac = platform_jacobian(a, b, position, rotations)
+    radius = float(np.linalg.norm(np.atleast_2d(b), axis=-1).mean())
+    jac[..., 3:] /= radius
+    return np.linalg.cond(jac)
+
+
 class ForwardKinematicsError(RuntimeError):
     """No pose reproduces the given leg lengths within tolerance."""
 

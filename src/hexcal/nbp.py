@@ -1,14 +1,15 @@
 """Next best pose: which pose of the clamped leg's constraint manifold to record next.
 
 For the leg being calibrated and its clamp type, feasible candidate poses are drawn on the
-manifold (within stroke and joint-angle limits, :class:`~hexcal.simulate.Simulator`) of the
-geometry estimated so far; each is scored by what it adds to the information of the step's
-constraint (:mod:`hexcal.bound`): the predicted E‖â − a‖² (Types I and III) or E‖b̂ − b‖²
-(Type II) once it is recorded — A-optimality on the point that matters, computed for every
-candidate at once with the Woodbury identity. The best is suggested. Every
-``space_filling_every``-th suggestion (every 5th by default) is instead the candidate farthest from the poses already
-taken (in position and orientation), so the poses keep covering the workspace and the diagnosis
-can still see effects the model does not have. Suggestions stop when the predicted 1σ of the
+manifold (within stroke and joint-angle limits, :class:`~hexcal.simulate.Simulator`, and away
+from singularities, :data:`MAX_CONDITION`) of the geometry estimated so far; each is scored by
+what it adds to the information of the step's constraint (:mod:`hexcal.bound`): the predicted
+E‖â − a‖² (Types I and III) or E‖b̂ − b‖² (Type II) once it is recorded — A-optimality on the
+point that matters, computed for every candidate at once with the Woodbury identity. The best
+is suggested. Every ``space_filling_every``-th suggestion (every 5th by default) is instead the
+candidate farthest from the poses already taken (in position and orientation), so the poses
+keep covering the workspace and the diagnosis can still see effects the model does not have.
+Suggestions stop when the predicted 1σ of the
 point meets the target.
 
 A ridge prior (``prior_mm``, a very loose one) keeps the information invertible before the
@@ -23,10 +24,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal import bound
+from hexcal.kinematics import condition_number
 from hexcal.noise import NoiseSigmas
 from hexcal.robot import Robot
 from hexcal.simulate import PoseRanges, Simulator
 
+#: Candidates whose dimensionless leg Jacobian has a larger condition number are dropped: near
+#: a singularity the legs do not hold the platform rigidly (about 5 at home, at most 13 over
+#: ± 45° tilts and ± 60 mm for the Left Hand robot; 50 is a rotation of 85° about the vertical).
+MAX_CONDITION = 50.0
 #: Parameters of each clamp type's constraint and which block is "the point that matters".
 _POINT = {"direction": slice(3, 6), "direction+length": slice(0, 3), "length": slice(0, 3)}
 
@@ -114,12 +120,29 @@ def _prior(constraint: str, prior_mm: float) -> np.ndarray:
 def candidates(
     sim: Simulator, constraint: str, geo: LegGeometry, n: int, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` feasible poses (P (n, 3), R (n, 3, 3)) on the step's manifold of ``sim``'s robot."""
-    if constraint == "direction":
-        return sim.type_i(geo.k, (n,), rng, direction=geo.direction)
-    if constraint == "direction+length":
-        return sim.type_ii(geo.k, (n,), rng, point=geo.point)
-    return sim.type_iii(geo.k, (n,), rng, length=geo.length, axis=geo.direction)
+    """``n`` feasible poses (P (n, 3), R (n, 3, 3)) on the step's manifold of ``sim``'s robot,
+    away from singularities (:data:`MAX_CONDITION`; fewer than ``n`` only if most of the
+    manifold is near one)."""
+
+    def draw(m: int):
+        if constraint == "direction":
+            return sim.type_i(geo.k, (m,), rng, direction=geo.direction)
+        if constraint == "direction+length":
+            return sim.type_ii(geo.k, (m,), rng, point=geo.point)
+        return sim.type_iii(geo.k, (m,), rng, length=geo.length, axis=geo.direction)
+
+    P, R = draw(n)
+    robot = sim.robot
+    for _ in range(20):
+        bad = condition_number(robot.a, robot.b, P, Rotation.from_matrix(R)) > MAX_CONDITION
+        if not bad.any():
+            break
+        Pn, Rn = draw(int(bad.sum()))
+        P[bad], R[bad] = Pn, Rn
+    else:
+        keep = condition_number(robot.a, robot.b, P, Rotation.from_matrix(R)) <= MAX_CONDITION
+        P, R = P[keep], R[keep]
+    return P, R
 
 
 def suggest(
@@ -138,6 +161,11 @@ def suggest(
     """The next pose (see module docstring). ``P_done`` (N, 3) mm and ``R_done`` (N, 3, 3) are
     the step's poses so far (N may be 0); ``target_mm``: the 1σ at which the step has enough."""
     Pc, Rc = candidates(sim, constraint, geo, n_candidates, rng)
+    if not len(Pc):
+        raise ValueError(
+            f"no pose of leg {geo.k + 1}'s {constraint} clamp is away from a singularity within "
+            "the motion ranges: check the clamp setting and the robot's geometry"
+        )
     M = _prior(constraint, prior_mm)
     if len(P_done):
         M = M + information(constraint, geo, P_done, R_done, sig)
