@@ -128,6 +128,9 @@ def with_clamps(
         basis_names=lengths.names[p0:] if q else None,
         theta0=lengths.x[p0:] if q else None,
         clamps=steps,
+        # The seed is the converged lengths-only fit: the pose covariances evaluated there
+        # differ from those at the solution by far less than the noise, so one pass suffices.
+        passes=1,
     )
     n_len = lengths.dof + len(lengths.x)
     df = (ref.dof + len(ref.x) + steps.n_nuisance) - n_len - steps.n_nuisance

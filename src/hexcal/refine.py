@@ -187,11 +187,11 @@ def refine(
 
         def fun(xx, W=W):
             res, _ = _model(xx, P, R, rho, fixed, fit_offsets, basis)
-            return np.einsum("mij,mj->mi", W, res).ravel()
+            return (W @ res[..., None]).ravel()
 
         def jac(xx, W=W):
             _, j = _model(xx, P, R, rho, fixed, fit_offsets, basis)
-            return np.einsum("mij,mjp->mip", W, j).reshape(-1, len(xx))
+            return (W @ j).reshape(-1, len(xx))
 
         sol = least_squares(
             fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac"
