@@ -49,7 +49,7 @@ from hexcal.recording import (
 from hexcal.robot import Robot
 from hexcal.session import PoseRecord, SessionFile, StepProgress
 from hexcal.simulate import Simulator
-from hexcal.solvers.direct import sphere_fit, type_i_system, type_ii_system
+from hexcal.solvers.direct import type_i_system, type_ii_system
 from hexcal.solvers.linalg import lstsq
 from hexcal.solvers.paper import platform_point_positions
 
@@ -545,18 +545,7 @@ class GuidedSession:
         noise = self._noise()
         sig = NoiseSigmas(noise.position_mm, np.deg2rad(noise.orientation_deg), noise.reading_mm)
         try:
-            if st.constraint == "direction":
-                x = lstsq(*type_i_system(P, R, rho + design.offsets[k]))
-                u = x[6:] / np.linalg.norm(x[6:])
-                geo = nbp.LegGeometry(k, x[3:6], x[:3], direction=u)
-            elif st.constraint == "direction+length":
-                x = lstsq(*type_ii_system(P, R))
-                geo = nbp.LegGeometry(k, design.a[k], x[:3], point=x[3:])
-            else:
-                b = design.b[k]
-                a, r = sphere_fit(platform_point_positions(P, R, b))
-                v = P[-1] + R[-1] @ b - a
-                geo = nbp.LegGeometry(k, a, b, direction=v / np.linalg.norm(v), length=float(r))
+            geo = nbp.estimate_geometry(st.constraint, k, P, R, rho, design)
             a_all, b_all = design.a.copy(), design.b.copy()
             a_all[k], b_all[k] = geo.a, geo.b
             sim = Simulator(design.with_geometry(a_all, b_all, design.offsets))

@@ -27,7 +27,7 @@ from hexcal import bound
 from hexcal.kinematics import condition_number
 from hexcal.noise import NoiseSigmas
 from hexcal.robot import Robot
-from hexcal.simulate import PoseRanges, Simulator
+from hexcal.simulate import NoiseModel, PoseRanges, Simulator
 
 #: Candidates whose dimensionless leg Jacobian has a larger condition number are dropped: near
 #: a singularity the legs do not hold the platform rigidly (about 5 at home, at most 13 over
@@ -157,10 +157,14 @@ def suggest(
     space_filling: bool = False,
     prior_mm: float = 1e3,
     target_mm: float = 0.0,
+    score_geo: LegGeometry | None = None,
 ) -> Suggestion:
     """The next pose (see module docstring). ``P_done`` (N, 3) mm and ``R_done`` (N, 3, 3) are
-    the step's poses so far (N may be 0); ``target_mm``: the 1σ at which the step has enough."""
+    the step's poses so far (N may be 0); ``target_mm``: the 1σ at which the step has enough.
+    Candidates are drawn on ``geo``'s manifold and scored with ``score_geo`` (default ``geo``):
+    tests draw them on the true clamp and score them with what noisy poses estimate."""
     Pc, Rc = candidates(sim, constraint, geo, n_candidates, rng)
+    geo = score_geo or geo
     if not len(Pc):
         raise ValueError(
             f"no pose of leg {geo.k + 1}'s {constraint} clamp is away from a singularity within "
@@ -192,6 +196,29 @@ def suggest(
     )
 
 
+def estimate_geometry(
+    constraint: str, k: int, P: np.ndarray, R: np.ndarray, rho: np.ndarray, design: Robot
+) -> LegGeometry:
+    """The step's clamp and leg k's points (0-based) as its own poses so far estimate them (the
+    direct linear forms; at least 4 poses): P (N, 3) mm, R (N, 3, 3), rho (N,) leg k's readings
+    mm. What the step cannot tell (a for Type II, b for Type III, the offset for Type I) comes
+    from ``design``. Raises ValueError or LinAlgError on a degenerate set."""
+    from hexcal.solvers.direct import sphere_fit, type_i_system, type_ii_system
+    from hexcal.solvers.linalg import lstsq
+    from hexcal.solvers.paper import platform_point_positions
+
+    if constraint == "direction":
+        x = lstsq(*type_i_system(P, R, rho + design.offsets[k]))
+        return LegGeometry(k, x[3:6], x[:3], direction=x[6:] / np.linalg.norm(x[6:]))
+    if constraint == "direction+length":
+        x = lstsq(*type_ii_system(P, R))
+        return LegGeometry(k, design.a[k], x[:3], point=x[3:])
+    b = design.b[k]
+    a, r = sphere_fit(platform_point_positions(P, R, b))
+    v = P[-1] + R[-1] @ b - a
+    return LegGeometry(k, a, b, direction=v / np.linalg.norm(v), length=float(r))
+
+
 def _coverage_distance(Pc, Rc, P_done, R_done) -> np.ndarray:
     """Distance of each candidate to its nearest done pose: mm plus 2 mm per degree."""
     dp = np.linalg.norm(Pc[:, None] - P_done[None], axis=-1)
@@ -211,24 +238,25 @@ def sequence(
     ranges: PoseRanges | None = None,
     space_filling_every: int = 5,
     n_candidates: int = 1000,
+    design: Robot | None = None,
 ) -> np.ndarray:
     """The predicted 1σ (mm) of the point that matters after each of ``n_poses`` poses on one
-    clamp of leg ``k`` of ``robot`` (the truth: what an oracle geometry would predict), poses
-    chosen by ``strategy``: "suggested" (this module) or "random" (drawn on the same manifold).
-    The clamp is set where the first random pose puts the leg."""
+    clamp of leg ``k`` of ``robot`` (the truth), poses chosen by ``strategy``: "suggested"
+    (this module) or "random" (drawn on the same manifold). The clamp is set where the first
+    random pose puts the leg; the 1σ is the bound at the truth for the poses taken.
+
+    Without ``design`` the suggestions are scored with the true geometry (an oracle). With it,
+    as on a rig: the poses are measured with Gaussian noise ``sig``, and from the 4th pose on
+    the suggestions are scored with the geometry those measurements estimate
+    (:func:`estimate_geometry`, ``design`` filling in what the step cannot tell; before that,
+    with ``design``'s), while the poses stay on the true clamp (the clamp holds the robot)."""
     sim = Simulator(robot, ranges=ranges or PoseRanges())
     constraint_kind = {"direction": "type_i", "direction+length": "type_ii", "length": "type_iii"}
     P0, R0 = getattr(sim, constraint_kind[constraint])(k, (1,), rng)
-    v = P0[0] + R0[0] @ robot.b[k] - robot.a[k]
-    geo = LegGeometry(
-        k,
-        robot.a[k],
-        robot.b[k],
-        direction=v / np.linalg.norm(v),
-        point=P0[0] + R0[0] @ robot.b[k],
-        length=float(np.linalg.norm(v)),
-    )
+    geo = _clamp_geometry(robot, k, P0[0], R0[0])
+    noise = NoiseModel(sig.position_mm, np.rad2deg(sig.orientation_rad), sig.reading_mm)
     P, R = P0, R0
+    measured = [noise.apply(rng, P, R, sim.readings(P, R)[:, k])] if design is not None else []
     out = [
         predicted_sigma_mm(
             constraint, _prior(constraint, 1e3) + information(constraint, geo, P, R, sig)
@@ -238,6 +266,15 @@ def sequence(
         if strategy == "random":
             Pn, Rn = candidates(sim, constraint, geo, 1, rng)
         else:
+            score = None
+            if design is not None:
+                Pm, Rm, rho = (np.concatenate(c) for c in zip(*measured, strict=True))
+                score = _clamp_geometry(design, k, Pm[0], Rm[0])
+                if len(P) >= 4:
+                    try:
+                        score = estimate_geometry(constraint, k, Pm, Rm, rho, design)
+                    except (ValueError, np.linalg.LinAlgError):
+                        pass
             s = suggest(
                 constraint,
                 geo,
@@ -248,12 +285,28 @@ def sequence(
                 rng,
                 n_candidates=n_candidates,
                 space_filling=space_filling_every > 0 and i % space_filling_every == 0,
+                score_geo=score,
             )
             Pn, Rn = s.position[None], s.rotation[None]
+            if design is not None:
+                measured.append(noise.apply(rng, Pn, Rn, sim.readings(Pn, Rn)[:, k]))
         P, R = np.concatenate([P, Pn]), np.concatenate([R, Rn])
         info = _prior(constraint, 1e3) + information(constraint, geo, P, R, sig)
         out.append(predicted_sigma_mm(constraint, info))
     return np.array(out)
+
+
+def _clamp_geometry(robot: Robot, k: int, P: np.ndarray, R: np.ndarray) -> LegGeometry:
+    """Leg k's points and the clamp that holds the leg where pose (P (3,) mm, R) puts it."""
+    v = P + R @ robot.b[k] - robot.a[k]
+    return LegGeometry(
+        k,
+        robot.a[k],
+        robot.b[k],
+        direction=v / np.linalg.norm(v),
+        point=P + R @ robot.b[k],
+        length=float(np.linalg.norm(v)),
+    )
 
 
 def motion_text(
