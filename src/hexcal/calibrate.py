@@ -132,8 +132,10 @@ def with_clamps(
         # differ from those at the solution by far less than the noise, so one pass suffices.
         passes=1,
     )
-    n_len = lengths.dof + len(lengths.x)
-    df = (ref.dof + len(ref.x) + steps.n_nuisance) - n_len - steps.n_nuisance
+    # Rows in use = dof + unknowns; the clamp fit's unknowns include the steps' nuisance.
+    rows_lengths = lengths.dof + len(lengths.x)
+    rows_clamps = ref.dof + len(ref.x) + steps.n_nuisance
+    df = rows_clamps - rows_lengths - steps.n_nuisance
     scale = lengths.chi2 / max(lengths.dof, 1)
     if sig is not None:
         scale = max(1.0, scale)
@@ -141,9 +143,9 @@ def with_clamps(
     ratio = excess / max(df, 1) / scale
     limit = float(stats.chi2.ppf(1.0 - CLAMP_TEST_P, max(df, 1)) / max(df, 1))
     used = bool(np.isfinite(ratio) and ratio <= limit)
-    misfit = sig is not None and scale > 1.0 + 4.0 * (2.0 / max(lengths.dof, 1)) ** 0.5
+    misfit = lengths.exceeds_stated_noise
     check = ClampCheck(
-        len(steps), float(excess), int(df), float(ratio), limit, used, lengths, bool(misfit)
+        len(steps), float(excess), int(df), float(ratio), limit, used, lengths, misfit
     )
     return (ref if used else lengths), check
 

@@ -70,6 +70,15 @@ class Refinement:
         return float(self.x[self.names.index(name)])
 
     @property
+    def exceeds_stated_noise(self) -> bool:
+        """χ²/dof above what the stated noise allows (4σ of χ²/dof, √(2/dof) each): the model
+        misses something. Always False when the noise level was estimated."""
+        return (
+            self.noise_source == "instruments"
+            and self.chi2 / self.dof > 1.0 + 4.0 * (2.0 / self.dof) ** 0.5
+        )
+
+    @property
     def a(self) -> np.ndarray:
         return self.x[:18].reshape(6, 3)
 

@@ -68,10 +68,7 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
         lines.append(cal.clamp_check.text)
     if ref:
         lines.append(f"chi²/dof = {ref.chi2 / ref.dof:.3f} over {ref.dof} degrees of freedom")
-        if (
-            ref.noise_source == "instruments"
-            and ref.chi2 / ref.dof > 1.0 + 4.0 * (2.0 / ref.dof) ** 0.5
-        ):
+        if ref.exceeds_stated_noise:
             lines.append(
                 f"  warning: the residual is {ref.noise_scale:.2f}× the stated noise: the model misses "
                 "something (an effect, a wrong known offset, a slipping clamp); the intervals above are "
