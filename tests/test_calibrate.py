@@ -133,3 +133,17 @@ def test_a_missing_effect_is_not_blamed_on_the_clamps(design):
     assert with_gain.clamp_check.used
     assert with_gain.refinement.clamp_steps is not None
     assert sum(n.startswith("gain.") for n in with_gain.refinement.names) == 6
+
+
+def test_clamps_that_fit_as_well_as_a_misfit_model_are_used_and_the_effect_named(design):
+    """Backlash hidden in a short session (4 + 4 clamped poses per leg, 12 free): the leg lengths
+    alone misfit; the clamp rows, judged against that misfit, pass and are used, and the report
+    names the missing effect instead of saying only that the clamps held."""
+    plan = SessionPlan(n_type_i=0, n_type_ii=4, n_type_iii=4, n_free=12)
+    rng = np.random.default_rng(1)
+    truth = perturbed_truth(design, rng, plan)
+    hook = effect_hook("backlash", realistic_values("backlash", rng, truth), truth)
+    meas, _ = simulate_session(design, 1, plan, effects=[hook], truth=truth)
+    check = calibrate(meas, design, 42, INST).clamp_check
+    assert check.model_misfit and check.used
+    assert "misses an effect" in check.text and "the clamps held" not in check.text

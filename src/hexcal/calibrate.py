@@ -87,10 +87,16 @@ class ClampCheck:
             f"{self.steps} clamped steps add {self.df} degrees of freedom; χ² rose by "
             f"{self.excess:.1f} ({self.ratio:.2f}× their share, limit {self.limit:.2f})"
         )
+        fit = self.lengths_only
+        if self.used and self.model_misfit:
+            return (
+                f"clamp constraints used: {head}: the clamp rows fit as well as the leg lengths "
+                f"do, but those alone leave χ²/dof {fit.chi2 / fit.dof:.2f} against the stated "
+                "noise: the model misses an effect (run hexcal diagnose, then --add it)"
+            )
         if self.used:
             return f"clamp constraints used: {head}: the clamps held"
         if self.model_misfit:
-            fit = self.lengths_only
             return (
                 f"clamp constraints not used: {head}, but the leg lengths alone already leave "
                 f"χ²/dof {fit.chi2 / fit.dof:.2f} against the stated noise: the model misses an "
