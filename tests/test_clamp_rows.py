@@ -38,8 +38,6 @@ def test_steps_group_poses_by_step_leg_and_constraint():
     assert steps.nuisance_names[:3] == ["s1:u.t1", "s1:u.t2", "s2:r"]
     # Without a step column, one clamp per leg and constraint (as the linear methods assume).
     assert ClampSteps.from_table(leg, con).group.tolist() == [0, 0, 1, -1, 0, 1, 2]
-    sub = steps.subset(np.array([2, 3, 6]))
-    assert sub.group.tolist() == [0, -1, 1] and sub.kind == ("length", "direction+length")
 
 
 def test_rows_in_use_per_constraint(design):

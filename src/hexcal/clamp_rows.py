@@ -85,19 +85,6 @@ class ClampSteps:
             for n in _NUISANCE_LABELS[c]
         ]
 
-    def subset(self, idx: np.ndarray) -> ClampSteps:
-        """The same steps for the poses ``idx`` (steps left without a pose are dropped)."""
-        g = self.group[idx]
-        kept = np.unique(g[g >= 0])
-        remap = np.full(len(self) + 1, -1)
-        remap[kept] = np.arange(len(kept))
-        return ClampSteps(
-            np.where(g >= 0, remap[g], -1),
-            self.leg[kept],
-            tuple(self.kind[i] for i in kept),
-            tuple(self.label[i] for i in kept),
-        )
-
 
 @dataclass
 class Nuisance:

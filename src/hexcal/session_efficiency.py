@@ -11,7 +11,7 @@ the truth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -53,10 +53,7 @@ def session_efficiency(
     ``seed``, the noise of trial t from ``seed + 1 + t``.
     """
     plan = plan or SessionPlan()
-    clean = SessionPlan(
-        plan.n_type_i, plan.n_type_ii, plan.n_type_iii, plan.n_free,
-        plan.point_sigma_mm, plan.offset_halfwidth_mm, NoiseModel(), plan.ranges, None,
-    )  # fmt: skip
+    clean = replace(plan, noise=NoiseModel(), resolution=None)  # the true poses and readings
     meas, truth = simulate_session(design, seed, clean)
     P, R, rho = meas.position, meas.rotations.as_matrix(), meas.readings
     steps = ClampSteps.from_table(meas.leg, meas.constraint, meas.step)
