@@ -160,3 +160,116 @@ def test_calibrate_with_an_added_effect(tmp_path, capsys):
         p = est[f"gain.g{k}"]
         assert abs(p["value"] - g) < 4 * p["sigma"]
     assert np.max(np.abs(np.array(out["base_points"]) - truth.a)) < 0.2
+
+
+def _base(session) -> list[str]:
+    return [
+        str(session / "measurements.csv"),
+        "--robot",
+        str(session / "robot.json"),
+        "--instruments",
+        str(session / "instruments.json"),
+    ]
+
+
+def test_out_never_overwrites_an_input_and_needs_force_over_a_file(session, tmp_path, capsys):
+    robot = tmp_path / "robot.json"
+    robot.write_text((session / "robot.json").read_text())
+    args = [str(session / "measurements.csv"), "--robot", str(robot)]
+    assert main(["calibrate", *args, "--out", str(robot)]) == EXIT_INPUT
+    assert "this is the robot input" in capsys.readouterr().err
+    assert robot.read_text() == (session / "robot.json").read_text()
+    meas = session / "measurements.csv"
+    before = meas.read_text()
+    assert main(["diagnose", *args, "--residuals", str(meas)]) == EXIT_INPUT
+    assert "this is the measurements input" in capsys.readouterr().err
+    assert meas.read_text() == before
+    out = tmp_path / "cal.json"
+    out.write_text("{}")
+    assert main(["calibrate", *args, "--out", str(out)]) == EXIT_INPUT
+    assert "pass --force" in capsys.readouterr().err
+    assert main(["calibrate", *args, "--out", str(out), "--force"]) == 0
+    assert "calibration" in json.loads(out.read_text())
+
+
+def test_diagnose_auto_out_writes_the_model_with_its_effects(tmp_path, capsys):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--seed", "3", "--effect", "gain"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "cal.json"
+    assert main(["diagnose", *_base(sim), "--auto", "--out", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [s["verdict"] for s in result["steps"]] == ["gain", "none"]
+    assert result["written"]["model"] == "Model 42 + gain"
+    for s in result["steps"]:
+        assert s["pose_accuracy"]["heldout"] and s["pose_accuracy"]["position_rms_mm"] > 0
+    assert result["design_pose_accuracy"]["model"] == "design (drawing)"
+    cal = json.loads(out.read_text())["calibration"]
+    assert [e["name"] for e in cal["effects"]] == ["gain"]
+    assert [a["model"] for a in cal["accuracy"]] == [
+        "design (drawing)",
+        "Model 42",
+        "Model 42 + gain",
+    ]
+    # The text shows the pose error beside the leg-length RMS, model by model.
+    assert main(["diagnose", *_base(sim), "--auto"]) == 0
+    text = capsys.readouterr().out
+    assert "the error as effects are added" in text and "pose floor (noise alone)" in text
+    assert "design (drawing, all poses)" in text
+
+
+def test_predict_round_trips_through_csv(session, tmp_path, capsys):
+    """readings → poses → readings through the CLI, with the model of a calibration."""
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", *_base(session), "--add", "gain", "--out", str(cal)]) == 0
+    poses = tmp_path / "poses.csv"
+    table = session / "measurements.csv"
+    assert main(["predict", str(cal), str(table), "--to", "pose", "--out", str(poses)]) == 0
+    readings = tmp_path / "readings.csv"
+    assert main(["predict", str(cal), str(poses), "--to", "readings", "--out", str(readings)]) == 0
+    capsys.readouterr()
+    from hexcal.measurements import read_measurements
+
+    a, b = read_measurements(table), read_measurements(readings)
+    assert np.abs(a.readings - b.readings).max() < 1e-6
+    # Without --to, a table with both kinds of columns is refused with what to do.
+    assert main(["predict", str(cal), str(table)]) == EXIT_INPUT
+    assert "--to pose or --to readings" in capsys.readouterr().err
+
+
+def test_predict_names_a_bad_cell_and_a_row_out_of_the_workspace(session, tmp_path, capsys):
+    bad = tmp_path / "r.csv"
+    bad.write_text("rho1,rho2,rho3,rho4,rho5,rho6\n50,50,50,50,50,50\n50,50,x,50,50,50\n")
+    robot = str(session / "robot.json")
+    assert main(["predict", robot, str(bad)]) == EXIT_INPUT
+    assert "r.csv: line 3, column 'rho3': 'x' is not a number" in capsys.readouterr().err
+    bad.write_text("rho1,rho2,rho3,rho4,rho5,rho6\n50,50,50,50,50,50\n0,0,0,900,900,900\n")
+    assert main(["predict", robot, str(bad)]) == EXIT_INPUT
+    assert "row 2 are outside the workspace" in capsys.readouterr().err
+
+
+def test_validate_json_has_the_contract(session, capsys):
+    assert (
+        main(
+            [
+                "validate",
+                str(session / "robot.json"),
+                str(session / "measurements.csv"),
+                "--instruments",
+                str(session / "instruments.json"),
+                "--json",
+            ]
+        )
+        == 0
+    )
+    v = json.loads(capsys.readouterr().out)
+    for key in (
+        "position_rms_mm",
+        "position_p95_mm",
+        "orientation_rms_deg",
+        "leg_rms_mm",
+        "noise_floor_mm",
+        "verdict",
+    ):
+        assert key in v
+    assert v["model"].startswith("design") and v["verdict"] != "none"

@@ -12,6 +12,7 @@ import pytest
 from hexcal.cli import main
 from hexcal.demo import DemoSettings, demo_text, run_demo
 from hexcal.measurements import read_measurements
+from hexcal.model_file import load_model
 from hexcal.session import load_session
 
 
@@ -46,11 +47,18 @@ def test_the_session_file_has_everything_and_exports_losslessly(demo, tmp_path, 
     assert {p.step for p in s.poses} >= {"home", "leg6-length", "free"}
     assert all(p.tracker_samples and p.leg_samples for p in s.poses)
     assert s.instruments is not None and s.devices is not None and s.procedure["model"] == 42
-    assert [r.kind for r in s.results] == ["calibration", "calibration", "diagnosis"]
+    assert [r.kind for r in s.results] == ["calibration", "diagnosis"]
+    # Every step keeps its whole model: Model 42, then Model 42 + backlash with its values.
+    first, last = (r.calibrated for r in s.results)
+    assert first.calibration.model == "Model 42" and not first.calibration.effects
+    assert last.calibration.model == "Model 42 + backlash"
     assert main(["session", "export", demo["session"], "--out", str(tmp_path / "x")]) == 0
     exported = read_measurements(tmp_path / "x" / "measurements.csv")
     assert exported == s.measurements()
-    assert (tmp_path / "x" / "calibrated.json").exists()
+    shipped = load_model(tmp_path / "x" / "calibrated.json")
+    assert shipped == last
+    betas = [p.value for p in shipped.calibration.effects[0].parameters]
+    assert [p["value"] for p in demo["calibrated"]["effects"][0]["parameters"]] == betas
     new = tmp_path / "again.json"
     args = [str(tmp_path / "x" / "measurements.csv"), "--robot", str(tmp_path / "x" / "robot.json")]
     assert main(["session", "import", *args, "--out", str(new)]) == 0
@@ -59,6 +67,16 @@ def test_the_session_file_has_everything_and_exports_losslessly(demo, tmp_path, 
     assert main(["calibrate", demo["session"], "--add", "backlash", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["model"] == 42
+
+
+def test_the_pose_error_falls_to_the_floor(demo):
+    """Pose error (the pose from the readings against the tracker): the drawing, Model 42 and
+    Model 42 + backlash on held-out poses; the last within 30 % of the noise floor."""
+    design, model42, added = demo["pose_accuracy"]
+    assert design["model"] == "design (drawing)" and added["model"] == "Model 42 + backlash"
+    assert design["position_rms_mm"] > model42["position_rms_mm"] > added["position_rms_mm"]
+    assert added["position_rms_mm"] < 1.3 * added["floor_position_rms_mm"]
+    assert model42["position_rms_mm"] > 2 * added["floor_position_rms_mm"]
 
 
 def test_demo_text_says_what_happened(demo):

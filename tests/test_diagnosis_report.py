@@ -76,8 +76,11 @@ def test_report_shows_verdict_provenance_and_images(report, session):
     assert hashlib.sha256(csv.read_bytes()).hexdigest() in text
     assert hexcal.__version__ in text
     assert before.fit.model_name in text and after.fit.model_name in text
-    # The drawn plots of both steps plus the before/after figure; the others hold their place.
-    assert text.count("data:image/png;base64,") == 2 * len(DRAWN) + 1
+    # The drawn plots of both steps, the before/after figure and the pose-error map; the
+    # others hold their place.
+    assert text.count("data:image/png;base64,") == 2 * len(DRAWN) + 2
+    assert '<section id="accuracy"><h2>Pose accuracy</h2>' in text
+    assert "design (drawing)" in text and "noise floor" in text
     assert text.count('class="skipped"') == 2 * (len(PLOT_NAMES) - len(DRAWN))
     for png in re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", text):
         assert base64.b64decode(png).startswith(b"\x89PNG")

@@ -97,7 +97,7 @@ def test_create_never_replaces_an_existing_file(tmp_path, design):
             r"line 1, column \d+: not valid JSON .* left untouched",
         ),
         ("[1, 2]", "not a hexcal session file"),
-        ('{"schema_version": 99}', r"newer hexcal \(session schema 99; .* reads schema 1\)"),
+        ('{"schema_version": 99}', r"newer hexcal \(session schema 99; .* reads schema 2\)"),
         ('{"schema_version": 1, "robot": {}}', r"field robot\.\w+: Field required"),
     ],
 )
@@ -112,7 +112,10 @@ def test_damaged_or_newer_files_are_refused_and_left_untouched(tmp_path, text, m
 
 def test_schema_is_printed_and_versioned():
     schema = json.loads(session_json_schema())
-    assert schema["properties"]["schema_version"]["const"] == SCHEMA_VERSION
+    version = schema["properties"]["schema_version"]
+    # Schema 2 reads schema 1 files (it only adds fields) and writes 2.
+    assert version["enum"] == [1, SCHEMA_VERSION] and version["default"] == SCHEMA_VERSION
+    assert "calibrated" in schema["$defs"]["ResultRecord"]["properties"]
     assert "poses" in schema["properties"]
 
 

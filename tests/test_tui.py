@@ -4,6 +4,7 @@ through the real drivers, snapshots of the main screens, and resuming a killed s
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import signal
 import subprocess
@@ -16,8 +17,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hexcal.demo import against_truth
+from hexcal.demo import DemoSettings, against_truth, run_demo
 from hexcal.measurements import read_measurements
+from hexcal.model_file import load_model, save_model
 from hexcal.robot import load_robot
 from hexcal.session import Session, load_session
 from hexcal.study import left_hand
@@ -122,10 +124,60 @@ def test_a_whole_guided_session_on_the_mock_rig(tmp_path):
     assert exported == session.measurements()
     again = Session.from_measurements(exported, session.robot)
     assert again.measurements() == session.measurements()
-    # The robot files re-import to what the session holds: the design, and the calibration.
+    # The robot files re-import to what the session holds: the design, and the model of the
+    # last step — the refit with the effect added, its geometry and its gains.
     assert load_robot(tmp_path / "session-export" / "robot.json") == session.robot
-    calibrated = load_robot(tmp_path / "session-export" / "calibrated.json")
-    assert calibrated == session.results[0].robot
+    shipped = load_model(tmp_path / "session-export" / "calibrated.json")
+    refit = session.results[-1]
+    assert shipped == refit.calibrated and refit.effects == ["gain"]
+    assert shipped.calibration.model == "Model 42 + gain"
+    geometry = load_robot(tmp_path / "session-export" / "calibrated.json")
+    assert geometry == refit.robot.model_copy(update={"name": geometry.name})
+    gains = np.array([p.value for p in shipped.calibration.effects[0].parameters])
+    fitted = np.array([added.fit.refinement.value(f"gain.g{k}") for k in range(1, 7)])
+    sigma = np.array([p.sigma for p in shipped.calibration.effects[0].parameters])
+    assert np.all(np.abs(gains - fitted) < 3 * sigma)  # the clamp-aware refit of the same model
+    _validate_on_a_second_session(
+        tmp_path,
+        shipped_path=tmp_path / "session-export" / "calibrated.json",
+        uncorrected=session.results[0].calibrated,
+    )
+
+
+def _validate_on_a_second_session(tmp_path, shipped_path, uncorrected) -> None:
+    """A second session of the same mock robot (same truth and hidden gain, the rig's noise
+    and motion drawn anew), recorded headless through the same drivers and workflow: the
+    exported model's pose error is at the noise floor there, the uncorrected model's is not."""
+    second = tmp_path / "second.json"
+    run_demo(
+        DemoSettings(
+            seed=5, effect="gain", rig_seed=55, poses_per_step=5, free_poses=15, session_path=second
+        )
+    )
+    plain = tmp_path / "model42.json"
+    save_model(uncorrected, plain)
+
+    def validate(model_path) -> dict:
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "hexcal.cli",
+                "validate",
+                str(model_path),
+                str(second),
+                "--json",
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        return json.loads(out.stdout)
+
+    good, bad = validate(shipped_path), validate(plain)
+    assert good["verdict"] == "none", good
+    assert good["position_rms_mm"] < 1.15 * good["position_floor_mm"], good
+    assert bad["verdict"] != "none" and bad["position_rms_mm"] > 1.5 * bad["position_floor_mm"], bad
 
 
 def test_the_operator_keeps_a_note_and_types_the_temperature(tmp_path):

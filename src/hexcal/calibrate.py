@@ -18,6 +18,7 @@ from hexcal.clamp_rows import ClampSteps
 from hexcal.instruments import Instruments
 from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
+from hexcal.predict import LegModel
 from hexcal.refine import Refinement, refine
 from hexcal.robot import Robot
 from hexcal.solvers.whole_robot import Form, LinearCalibration, calibrate_linear
@@ -43,6 +44,24 @@ class Calibration:
     @property
     def methods(self) -> list[str]:
         return self.linear.methods
+
+    @property
+    def model_name(self) -> str:
+        """e.g. ``"Model 42 + gain"``."""
+        return f"Model {self.model}" + "".join(f" + {e}" for e in self.effects)
+
+    def leg_model(self) -> LegModel:
+        """The calibrated model as a predictor: the geometry with the fitted effects."""
+        if self.refinement is None or not self.effects:
+            return LegModel(self.robot)
+        r = self.refinement
+        p0 = 42 if self.model == 42 else 36
+        return LegModel(self.robot, self.effects, r.x[p0:])
+
+    def sigmas(self) -> dict[str, float]:
+        """Standard deviation of every fitted parameter, by name (empty without refinement)."""
+        r = self.refinement
+        return {} if r is None else dict(zip(r.names, r.sigma.tolist(), strict=True))
 
     @property
     def rms_mm(self) -> float:
@@ -235,16 +254,34 @@ def calibrate(
 
 
 def _calibrate_with_effects(meas, design, model, instruments, effects, clamps) -> Calibration:
-    from hexcal.diagnosis.model import Problem, _stack, fit_model
+    from hexcal.diagnosis.model import (
+        GEOMETRY_PASSES,
+        GEOMETRY_TOL,
+        Problem,
+        fit_model,
+        fitted_robot,
+    )
+    from hexcal.effects import get_effect
 
     sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
     problem = Problem.build(meas, design, sig)
     full = (("offset",) if model == 42 else ()) + tuple(effects)
     fit = fit_model(problem, full, cross_validate=False)
-    ref, check = fit.refinement, None
+    ref, check, basis = fit.refinement, None, fit.basis
     if clamps:
-        basis, _ = _stack(problem, full)
-        ref, check = with_clamps(meas, ref, model == 42, sig, design.offsets, basis)
+        ref, check = with_clamps(meas, fit.refinement, model == 42, sig, design.offsets, basis)
+        # The clamp rows move the geometry: effects that use it are evaluated there again, so
+        # the calibrated model predicts exactly what this fit did.
+        if ref is not fit.refinement and any(get_effect(e).uses_geometry for e in effects):
+            for _ in range(GEOMETRY_PASSES):
+                new, _ = problem.stack(full, fitted_robot(design, ref))
+                change = np.max(np.abs(new - basis)) / max(np.max(np.abs(new)), 1e-300)
+                if change < GEOMETRY_TOL:
+                    break
+                basis = new
+                ref, check = with_clamps(
+                    meas, fit.refinement, model == 42, sig, design.offsets, basis
+                )
     lin = problem.linear42 if model == 42 else problem.linear36
     robot = design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
     cal = Calibration(

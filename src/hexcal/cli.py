@@ -15,104 +15,106 @@ EXIT_INPUT = 2  # bad input: a file, a field or a pose set the user must fix
 EXIT_REFUSED = 3  # the data cannot calibrate the robot: more or other poses are needed
 
 
-def _inputs(args: argparse.Namespace):
-    """(design robot, measurement table) from a session file, or from a CSV and --robot."""
-    from hexcal.measurements import read_measurements
-    from hexcal.robot import load_robot
-    from hexcal.session import load_session, looks_like_session
+def _read_inputs(args: argparse.Namespace):
+    """The workflow's inputs from the command's files; a calibrated.json given as --robot
+    brings its effects (said on stderr)."""
+    from hexcal.workflow import read_inputs
 
-    if looks_like_session(args.measurements):
-        session = load_session(args.measurements)
-        design = load_robot(args.robot) if args.robot else session.robot
-        if not args.instruments and session.instruments is not None:
-            args.session_instruments = session.instruments
-        return design, session.measurements()
-    if not args.robot:
-        raise ValueError(
-            f"{args.measurements}: a measurement table needs the robot description: pass "
-            "--robot robot.json (a session file carries its own)"
+    inp = read_inputs(args.measurements, args.robot, args.instruments)
+    if inp.model_effects and not getattr(args, "json", False):
+        print(
+            f"hexcal: {args.robot} is a calibrated model: its effects "
+            f"({', '.join(inp.model_effects)}) are part of the model",
+            file=sys.stderr,
         )
-    return load_robot(args.robot), read_measurements(args.measurements)
+    return inp
+
+
+def _noise_line(inp, cal) -> str:
+    inst = inp.instruments
+    if inst is not None:
+        return (
+            f"{inp.noise_source}: tracker {inst.tracker.position_sigma_mm} mm, "
+            f"{inst.tracker.orientation_sigma_deg} deg; encoders {inst.encoders.reading_sigma_mm} mm (1 sigma)"
+        )
+    line = (
+        "estimated from the residual (no --instruments given: relative weights of a typical tracker "
+        "and encoder, overall level from chi²/dof)"
+    )
+    if cal.refinement is not None:
+        line += f"; the fit implies {cal.refinement.noise_scale:.2f}× those typical sigmas"
+    return line
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from hexcal.calibrate import calibrate
-    from hexcal.instruments import load_instruments
-    from hexcal.report_text import calibration_json, calibration_text
-    from hexcal.robot import save_robot
+    import json
 
-    design, meas = _inputs(args)
-    inst = (
-        load_instruments(args.instruments)
-        if args.instruments
-        else getattr(args, "session_instruments", None)
-    )
-    cal = calibrate(
-        meas,
-        design,
+    from hexcal.accuracy import accuracy_table
+    from hexcal.report_text import calibration_json, calibration_text
+    from hexcal.workflow import calibrate_model, refuse_overwrite, save_result
+
+    inp = _read_inputs(args)
+    if args.out:
+        refuse_overwrite(args.out, inp, args.force)
+    result = calibrate_model(
+        inp,
         model=args.model,
-        instruments=inst,
+        effects=tuple(args.add or ()),
+        clamps=not args.lengths_only,
         form=args.form,
         do_refine=not args.no_refine,
-        clamps=not args.lengths_only,
-        effects=tuple(args.add or ()),
     )
-    if inst is not None:
-        noise_src = f"stated in {args.instruments or args.measurements}"
-        noise_line = (
-            f"{noise_src}: tracker {inst.tracker.position_sigma_mm} mm, {inst.tracker.orientation_sigma_deg} deg; "
-            f"encoders {inst.encoders.reading_sigma_mm} mm (1 sigma)"
-        )
-    else:
-        noise_src = "estimated from the residual"
-        noise_line = (
-            "estimated from the residual (no --instruments given: relative weights of a typical tracker "
-            "and encoder, overall level from chi²/dof)"
-        )
-        if cal.refinement is not None:
-            noise_line += (
-                f"; the fit implies {cal.refinement.noise_scale:.2f}× those typical sigmas"
-            )
+    cal = result.calibration
     if args.out:
-        save_robot(cal.robot.model_copy(update={"name": f"{design.name}-calibrated"}), args.out)
+        save_result(result, args.out, inp, args.force)
     if args.json:
-        print(calibration_json(cal, str(args.measurements), noise_src))
+        out = json.loads(calibration_json(cal, str(args.measurements), inp.noise_source))
+        out["model_name"] = result.name
+        out["effects"] = list(cal.effects)
+        out["pose_accuracy"] = [a.to_dict() for a in result.accuracy]
+        print(json.dumps(out, indent=2, default=_jsonable))
     else:
-        print(calibration_text(cal, f"{args.measurements} ({len(meas)} poses)", noise_line))
+        print(calibration_text(cal, inp.label, _noise_line(inp, cal)))
+        print(
+            "\npose accuracy (the pose the model computes from the readings, against the tracker):"
+        )
+        print(accuracy_table(result.accuracy))
         if args.out:
-            print(f"\ncalibrated robot written to {args.out}")
+            print(f"\ncalibrated model ({result.name}) written to {args.out}")
     return 0
+
+
+def _jsonable(o):
+    import math
+
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    raise TypeError(f"not JSON: {type(o).__name__}")
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     import json
 
-    from hexcal.diagnosis import diagnose
     from hexcal.diagnosis.text import before_after_text, diagnosis_text
-    from hexcal.instruments import load_instruments
+    from hexcal.workflow import diagnose_chain, model_of, refuse_overwrite, save_result
 
-    design, meas = _inputs(args)
-    inst = (
-        load_instruments(args.instruments)
-        if args.instruments
-        else getattr(args, "session_instruments", None)
-    )
-    added = list(args.add or ())
-    steps = [diagnose(meas, design, args.model, add=added, instruments=inst)]
-    # --auto: add the named effect and diagnose again, until nothing identifiable is missing.
-    while args.auto and steps[-1].verdict not in ("none", "unexplained") and len(steps) < 8:
-        added.append(steps[-1].verdict)
-        steps.append(
-            diagnose(
-                meas, design, args.model, add=added, instruments=inst, problem=steps[0].problem
-            )
-        )
+    inp = _read_inputs(args)
+    for out_path in (args.out, args.residuals, args.report):
+        if out_path:
+            refuse_overwrite(Path(out_path), inp, force=True)
+    if args.out:
+        refuse_overwrite(args.out, inp, args.force)
+    steps = diagnose_chain(inp, args.model, add=tuple(args.add or ()), auto=args.auto)
+    result = model_of(inp, steps, args.model) if args.out else None
+    if result is not None:
+        save_result(result, args.out, inp, args.force)
     if args.plots:
-        from hexcal.diagnosis.plots import before_after, write_plots
+        from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
 
         out = Path(args.plots)
         out.mkdir(parents=True, exist_ok=True)
         paths = write_plots(steps[-1], out)
+        paths.append(pose_error_map(steps, out))
         for i in range(1, len(steps)):
             paths.append(before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png"))
     if args.residuals:
@@ -122,12 +124,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.report:
         from hexcal.diagnosis.report import write_report
 
-        inputs = {"measurements": Path(args.measurements)}
-        if args.robot:
-            inputs["robot"] = Path(args.robot)
-        if args.instruments:
-            inputs["instruments"] = Path(args.instruments)
-        write_report(steps, Path(args.report), inputs)
+        write_report(steps, Path(args.report), dict(inp.files))
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
@@ -139,20 +136,73 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
                     "noise_floor_mm": d.noise_floor_mm,
                     "verdict": d.verdict,
+                    "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
                 }
                 for d in steps
             ]
-        print(json.dumps(out, indent=2))
+        if result is not None:
+            out["written"] = {"path": str(args.out), "model": result.name}
+        print(json.dumps(out, indent=2, default=_jsonable))
     else:
         for d in steps:
-            print(diagnosis_text(d, f"{args.measurements} ({len(meas)} poses)"))
+            print(diagnosis_text(d, inp.label))
             print()
-        if len(steps) > 1:
-            print(before_after_text(steps))
+        print(before_after_text(steps))
         if args.plots:
             print(f"plots written to {args.plots}/")
         if args.report:
             print(f"report written to {args.report}")
+        if result is not None:
+            print(f"calibrated model ({result.name}) written to {args.out}")
+    return 0
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    import json
+
+    from hexcal.model_file import CalibratedRobot, leg_model_of, load_model, model_label
+    from hexcal.model_validation import validate_model
+    from hexcal.workflow import read_inputs
+
+    loaded = load_model(args.model)
+    model = leg_model_of(loaded)
+    # The robot of the table is the model's own (a session file's design is not used).
+    inp = read_inputs(args.measurements, args.model, args.instruments)
+    sig, source = inp.sigmas, inp.noise_source
+    if args.instruments is None and isinstance(loaded, CalibratedRobot):
+        from hexcal.session import looks_like_session
+
+        noise = loaded.calibration.noise
+        if noise is not None and not looks_like_session(args.measurements):
+            from hexcal.noise import NoiseSigmas
+
+            sig = NoiseSigmas.from_instruments(noise)
+            source = f"the model's own ({args.model}: {loaded.calibration.noise_source})"
+    v = validate_model(model, model_label(loaded), inp.meas, sig, source)
+    if args.json:
+        print(json.dumps(v.to_dict(), indent=2, default=_jsonable))
+    else:
+        print(v.text(inp.label))
+    return 0
+
+
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from hexcal.fileio import write_text_atomic
+    from hexcal.model_file import leg_model_of, load_model
+    from hexcal.predict_table import direction, predict_table, read_table, write_table
+
+    model = leg_model_of(load_model(args.model))
+    table = read_table(args.table)
+    to = direction(table, args.to)
+    names, values = predict_table(model, table, to, args.temperature)
+    text = write_table(table, names, values)
+    if args.out:
+        if Path(args.out).resolve() in (Path(args.table).resolve(), Path(args.model).resolve()):
+            raise ValueError(f"{args.out}: this is an input; write the output to another file")
+        write_text_atomic(args.out, text)
+        print(f"{len(values)} {'poses' if to == 'pose' else 'readings'} written to {args.out}")
+    else:
+        sys.stdout.write(text)
     return 0
 
 
@@ -240,7 +290,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ValueError(
             "--effect compliance needs the platform mass: pass --mass-kg (or a robot.json with platform_mass_kg)"
         )
-    out = write_session_dir(args.out, design, args.seed, plan, args.effect, args.effect_scale)
+    out = write_session_dir(
+        args.out, design, args.seed, plan, args.effect, args.effect_scale, args.pose_seed
+    )
     hidden = f", hidden effect: {args.effect}" if args.effect else ""
     print(
         f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json{hidden})"
@@ -268,6 +320,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         free_poses=args.free_poses,
         window_s=args.window_s,
         session_path=args.session,
+        rig_seed=args.rig_seed,
     )
     say = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
     result = run_demo(settings, on_event=say)
@@ -341,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("calibrate", help="calibrate Model 36 or 42 from a measurement table")
     c.add_argument(
-        "measurements", type=Path, help="measurements.csv (INTERCHANGE.md) or a session file"
+        "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"
     )
     c.add_argument(
         "--robot",
@@ -368,14 +421,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--add", nargs="+", metavar="EFFECT", help="catalogue effects to fit with the geometry"
     )
     c.add_argument("--json", action="store_true", help="print one JSON object")
-    c.add_argument("--out", type=Path, help="write the calibrated robot.json here")
+    c.add_argument(
+        "--out",
+        type=Path,
+        help="write the calibrated model here (calibrated.json: the geometry as robot.json has "
+        "it, plus every effect with its parameters; docs/formats.md)",
+    )
+    c.add_argument("--force", action="store_true", help="replace an existing --out file")
     c.set_defaults(func=_cmd_calibrate)
 
     d = sub.add_parser(
         "diagnose", help="compare the model with the measurements and find the missing effect"
     )
     d.add_argument(
-        "measurements", type=Path, help="measurements.csv (INTERCHANGE.md) or a session file"
+        "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"
     )
     d.add_argument("--robot", type=Path, help="robot.json (a session file carries its own)")
     d.add_argument("--model", type=int, choices=(36, 42), default=42)
@@ -396,7 +455,50 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument(
         "--residuals", help="write predicted against measured for every pose and leg (CSV)"
     )
+    d.add_argument(
+        "--out",
+        type=Path,
+        help="write the last step's calibrated model here (calibrated.json, with its effects)",
+    )
+    d.add_argument("--force", action="store_true", help="replace an existing --out file")
     d.set_defaults(func=_cmd_diagnose)
+
+    v = sub.add_parser(
+        "validate",
+        help="a model on poses it was not fitted on: leg-length residual, pose error, verdict",
+    )
+    v.add_argument(
+        "model", type=Path, help="calibrated.json, or a plain robot.json (e.g. the drawing)"
+    )
+    v.add_argument(
+        "measurements", type=Path, help="measurements.csv or a session file of other poses"
+    )
+    v.add_argument(
+        "--instruments",
+        type=Path,
+        help="instruments.json: the noise of these poses (default: a session file's own, else "
+        "the model's, else estimated from the poses and said so)",
+    )
+    v.add_argument("--json", action="store_true", help="print one JSON object")
+    v.set_defaults(func=_cmd_validate, robot=None)
+
+    pr = sub.add_parser(
+        "predict",
+        help="readings → poses, or poses → readings (the compensation), with the model's effects",
+    )
+    pr.add_argument("model", type=Path, help="calibrated.json or robot.json")
+    pr.add_argument(
+        "table",
+        type=Path,
+        help="CSV with rho1..rho6 (mm) to compute poses, or x,y,z (mm),qw,qx,qy,qz to compute "
+        "readings; optional t (s), temperature (degC); rows in motion order",
+    )
+    pr.add_argument(
+        "--to", choices=("pose", "readings"), help="what to compute (when the table has both)"
+    )
+    pr.add_argument("--temperature", type=float, help="structure temperature for every row, degC")
+    pr.add_argument("--out", type=Path, help="CSV to write (default: standard output)")
+    pr.set_defaults(func=_cmd_predict)
 
     dv = sub.add_parser("devices", help="the rig's devices")
     dv_sub = dv.add_subparsers(dest="devices_command", required=True)
@@ -444,7 +546,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     m.add_argument("--out", type=Path, required=True)
     m.add_argument("--robot", type=Path, help="design robot.json (default: the paper's Left Hand)")
-    m.add_argument("--seed", type=int, default=1)
+    m.add_argument(
+        "--seed", type=int, default=1, help="draws the robot: its true geometry and hidden effect"
+    )
+    m.add_argument(
+        "--pose-seed",
+        type=int,
+        help="draws the poses and the noise (default: --seed); another value with the same "
+        "--seed is a second session of the same robot, to validate a calibration on",
+    )
     m.add_argument("--n-type-i", type=int, default=8)
     m.add_argument("--n-type-ii", type=int, default=8)
     m.add_argument("--n-type-iii", type=int, default=8)
@@ -482,6 +592,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="a whole calibration on mock hardware, headless, with a scripted operator",
     )
     dm.add_argument("--seed", type=int, default=1, help="the simulated robot and its effect")
+    dm.add_argument(
+        "--rig-seed",
+        type=int,
+        help="the rig's noise and motion (default: --seed); another value with the same --seed "
+        "and --effect records a second session of the same robot, to validate on",
+    )
     dm.add_argument(
         "--effect",
         choices=("gain", "backlash", "leadscrew"),

@@ -14,7 +14,7 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,9 @@ class DemoSettings:
     free_poses: int | None = None
     window_s: float = 0.25
     session_path: Path | None = None
+    #: The rig's noise and motion (None: ``seed``); another value records a second session of
+    #: the same robot, to validate a calibration on.
+    rig_seed: int | None = None
 
 
 def truth_vector(names: list[str], truth) -> np.ndarray:
@@ -110,37 +113,38 @@ def run_demo(
 ) -> dict[str, Any]:
     """Run the demo; the JSON-ready result (see module docstring)."""
     from hexcal.acquisition import StillWindow
-    from hexcal.calibrate import calibrate
-    from hexcal.diagnosis import diagnose
     from hexcal.live import open_rig
     from hexcal.mock_hw.rig import mock_rig
     from hexcal.procedure import load_procedure
-    from hexcal.recording import Step, record_procedure
-    from hexcal.session import ResultRecord, Session, SessionFile
+    from hexcal.recording import record_procedure
+    from hexcal.session import Session, SessionFile
+    from hexcal.workflow import (
+        calibrate_model,
+        diagnose_chain,
+        model_of,
+        procedure_steps,
+        session_inputs,
+        store,
+    )
 
     st = settings or DemoSettings()
     hr = hidden_robot(st.seed, st.effect, st.effect_scale)
     design, truth, effect, hook = hr.design, hr.truth, hr.effect, hr.hook
 
     proc = load_procedure(st.procedure)
-
-    def count(s: Step) -> int:
-        if s.at_home:
-            return s.n_poses
-        return (st.free_poses if s.leg == 0 else st.poses_per_step) or s.n_poses
-
-    steps = [replace(s, n_poses=count(s)) for s in proc.expand()]
+    steps = procedure_steps(proc, st.poses_per_step, st.free_poses)
     window = StillWindow(duration_s=st.window_s)
     path = st.session_path or Path(f"hexcal-demo-{time.strftime('%Y%m%d-%H%M%S')}.json")
     t_start = time.monotonic()
-    with mock_rig(truth, seed=st.seed, effects=[hook]) as rig:
+    rig_seed = st.seed if st.rig_seed is None else st.rig_seed
+    with mock_rig(truth, seed=rig_seed, effects=[hook]) as rig:
         sf = SessionFile.create(
             path,
             Session(robot=design, devices=rig.config, procedure=proc.model_dump(by_alias=True)),
         )
         on_event(f"session file: {path}")
         with open_rig(rig.config, window) as live:
-            recording = record_procedure(
+            record_procedure(
                 live.acquisition,
                 rig.motion,
                 steps,
@@ -149,42 +153,23 @@ def run_demo(
                 on_record=sf.recording_sink(time.monotonic()),
             )
     t_record = time.monotonic() - t_start
-    meas = sf.session.measurements()
-    inst = recording.instruments()
+    inp = session_inputs(sf.session, path)
+    inst = inp.instruments
+    if inst is None:
+        raise ValueError(f"{path}: the recorded poses carry no still-window samples")
     sf.session.instruments = inst
     sf.save()
+    meas = inp.meas
     on_event(f"{len(meas)} poses recorded in {t_record:.0f} s; calibrating Model {proc.model}")
-    cal = calibrate(meas, design, proc.model, inst)
-    base = diagnose(meas, design, proc.model, instruments=inst)
-    steps_out = [base]
+    first = calibrate_model(inp, proc.model)
+    store(sf, "calibration", first, meas)
+    chain = diagnose_chain(inp, proc.model)
+    base = chain[0]
     if base.verdict not in ("none", "unexplained"):
-        steps_out.append(
-            diagnose(
-                meas, design, proc.model, add=[base.verdict], instruments=inst, problem=base.problem
-            )
-        )
-    final = steps_out[-1]
-    cal_with = calibrate(meas, design, proc.model, inst, effects=tuple(final.effects))
-    for d, c in ((base, cal), (final, cal_with)):
-        sf.add_result(
-            ResultRecord(
-                kind="calibration",
-                model=proc.model,
-                effects=[e for e in d.effects if e != "offset"],
-                pose_ids=[int(i) for i in meas.pose_id],
-                robot=c.robot,
-                summary={"rms_mm": c.rms_mm, "cv_rms_mm": d.fit.cv_rms_mm},
-            )
-        )
-    sf.add_result(
-        ResultRecord(
-            kind="diagnosis",
-            model=proc.model,
-            effects=[e for e in base.effects if e != "offset"],
-            pose_ids=[int(i) for i in meas.pose_id],
-            summary=base.to_dict(),
-        )
-    )
+        chain += diagnose_chain(inp, proc.model, add=[base.verdict], previous=base)
+    final = model_of(inp, chain, proc.model)
+    store(sf, "diagnosis", final, meas, summary=base.to_dict())
+    cal, cal_with = first.calibration, final.calibration
     return {
         "session": str(path),
         "procedure": proc.name,
@@ -198,9 +183,11 @@ def run_demo(
         },
         "hidden_effect": hr.hidden(),
         "calibrated": {
+            "model": final.name,
             "base_points": cal_with.robot.a.tolist(),
             "platform_points": cal_with.robot.b.tolist(),
             "leg_offsets": cal_with.robot.offsets.tolist(),
+            "effects": [e.model_dump() for e in final.file.calibration.effects],
         },
         "truth": {
             "base_points": truth.a.tolist(),
@@ -217,9 +204,10 @@ def run_demo(
                     "noise_floor_mm": d.noise_floor_mm,
                     "verdict": d.verdict,
                 }
-                for d in steps_out
+                for d in chain
             ],
         },
+        "pose_accuracy": [a.to_dict() for a in final.accuracy],
         "model_42_vs_truth": against_truth(cal.refinement, truth),
         "with_effect_vs_truth": against_truth(cal_with.refinement, truth),
         "clamps": {
@@ -263,6 +251,19 @@ def demo_text(r: dict[str, Any]) -> str:
     ]
     if r["clamps"]["with_effect"]:
         lines.append(f"    {r['clamps']['with_effect']}")
+    lines += ["", "  pose error (the pose from the readings against the tracker), mm and degrees:"]
+    for a in r["pose_accuracy"]:
+        where = "held-out" if a["heldout"] else "all poses"
+        lines.append(
+            f"    {a['model']:<26} position {a['position_rms_mm']:.4f} RMS, "
+            f"{a['position_p95_mm']:.4f} p95; orientation {a['orientation_rms_deg']:.4f}° ({where})"
+        )
+    last = r["pose_accuracy"][-1]
+    if last.get("floor_position_rms_mm") is not None:
+        lines.append(
+            f"    {'noise floor':<26} position {last['floor_position_rms_mm']:.4f} RMS; "
+            f"orientation {last['floor_orientation_rms_deg']:.4f}°"
+        )
     lines += [
         "",
         f"  next: hexcal diagnose {r['session']} --add {eff['name']} --report report.html",

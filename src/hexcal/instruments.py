@@ -1,4 +1,4 @@
-"""The instruments' noise (``instruments.json`` of INTERCHANGE.md).
+"""The instruments' noise (``instruments.json`` of docs/formats.md).
 
 One standard deviation each, as the instruments' specifications or a repeatability test state:
 tracker position (mm, per axis), tracker orientation (deg, a small rotation about each axis of the
@@ -77,7 +77,7 @@ def _hint(field: str) -> str:
         return "give one standard deviation in degrees, > 0"
     if field.endswith("_mm"):
         return "give one standard deviation in millimetres, > 0"
-    return 'see INTERCHANGE.md: {"tracker": {...}, "encoders": {...}}'
+    return 'see docs/formats.md: {"tracker": {...}, "encoders": {...}}'
 
 
 def load_instruments(path: str | Path) -> Instruments:

@@ -1,4 +1,4 @@
-"""The measurement table (``measurements.csv`` of INTERCHANGE.md): read, validate, write.
+"""The measurement table (``measurements.csv`` of docs/formats.md): read, validate, write.
 
 One row per recorded pose: its id, time (s), procedure step, the clamped leg (1..6, 0 for a free
 pose) and the constraint applied, the platform pose from the tracker (position mm, unit
@@ -779,7 +779,7 @@ def _count_issue(fields: list[str], header: list[str], line: int) -> Issue:
 
 
 def read_measurements(path: str | Path) -> Measurements:
-    """Read and validate measurements.csv (INTERCHANGE.md).
+    """Read and validate measurements.csv (docs/formats.md).
 
     Raises :class:`MeasurementError` listing every bad row (up to :data:`MAX_MESSAGES`), each
     with file, line (header = line 1) and column; also for a missing, unreadable, non-UTF-8 or

@@ -258,18 +258,12 @@ class SessionRecording:
         return still_window_noise([a.pose for a in self.accepted])
 
     def instruments(self) -> Instruments:
-        """The noise of the recorded (window-averaged) poses, as instruments.json states it.
-
-        Per-sample levels from the windows divided by √(samples per window): the mean tracker
-        frame count and leg set count of the accepted poses."""
-        lv = per_pose_noise([a.pose for a in self.accepted])
-        return Instruments(
-            tracker=TrackerNoise(
-                position_sigma_mm=lv.position_mm, orientation_sigma_deg=lv.orientation_deg
-            ),
-            encoders=EncoderNoise(reading_sigma_mm=lv.reading_mm),
-            source="estimated from the still windows of the recorded poses",
-        )
+        """The noise of the recorded (window-averaged) poses, as instruments.json states it
+        (:func:`window_instruments`)."""
+        inst = window_instruments([a.pose for a in self.accepted])
+        if inst is None:
+            raise ValueError("the recorded poses carry no still-window samples to estimate noise")
+        return inst
 
 
 class Recorder(Protocol):
@@ -391,4 +385,22 @@ def per_pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
         lv.position_mm / np.sqrt(n_t),
         lv.orientation_deg / np.sqrt(n_t),
         lv.reading_mm / np.sqrt(n_l),
+    )
+
+
+def window_instruments(poses: Sequence[RecordedPose]) -> Instruments | None:
+    """instruments.json's noise of window-averaged poses: per-sample levels from the scatter
+    in their still windows divided by √(samples per window) (:func:`per_pose_noise`). None
+    when the poses carry no raw samples (an imported table) or too few to tell."""
+    if not poses or not all(p.tracker_samples and p.leg_samples for p in poses):
+        return None
+    lv = per_pose_noise(poses)
+    if not np.isfinite([lv.position_mm, lv.orientation_deg, lv.reading_mm]).all():
+        return None
+    return Instruments(
+        tracker=TrackerNoise(
+            position_sigma_mm=lv.position_mm, orientation_sigma_deg=lv.orientation_deg
+        ),
+        encoders=EncoderNoise(reading_sigma_mm=lv.reading_mm),
+        source="estimated from the still windows of the recorded poses",
     )

@@ -43,7 +43,7 @@ class Home(BaseModel):
 
 
 class Robot(BaseModel):
-    """A Gough platform's geometry as in robot.json (INTERCHANGE.md). Unknown keys are kept."""
+    """A Gough platform's geometry as in robot.json (docs/formats.md). Unknown keys are kept."""
 
     model_config = ConfigDict(extra="allow")
     name: str = "robot"
@@ -55,6 +55,8 @@ class Robot(BaseModel):
     leadscrew_pitch_mm: float | None = None
     platform_mass_kg: float | None = None
     leg_range_mm: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None
+    #: Half-angle of each joint's cone about the leg's direction at home, deg (both ends).
+    joint_limit_deg: float | None = Field(None, gt=0, le=180)
 
     @field_validator("units")
     @classmethod
@@ -95,8 +97,9 @@ class Robot(BaseModel):
         return json.dumps(self.model_dump(exclude_none=True), indent=2) + "\n"
 
 
-def load_robot(path: str | Path) -> Robot:
-    """Read robot.json; errors name the file and the field and say what to fix."""
+def read_robot_json(path: str | Path) -> object:
+    """The JSON object of a robot file (robot.json or calibrated.json); errors name the file,
+    line and column."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -104,12 +107,29 @@ def load_robot(path: str | Path) -> Robot:
         raise RobotFileError(
             f"{path}: no such file; pass the robot description with --robot"
         ) from None
+    except UnicodeDecodeError as exc:
+        raise RobotFileError(
+            f"{path}: not a JSON text file (byte {exc.start} is not UTF-8)"
+        ) from None
     try:
-        data = json.loads(text)
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise RobotFileError(
             f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})"
         ) from None
+
+
+def load_robot(path: str | Path) -> Robot:
+    """Read robot.json (or a calibrated.json: its geometry); errors name the file and the field
+    and say what to fix."""
+    data = read_robot_json(path)
+    if isinstance(data, dict) and "calibration" in data:
+        # A calibrated.json read as a robot: its geometry (the calibration block is validated
+        # and left out; hexcal.model_file reads the effects).
+        from hexcal.model_file import CalibratedRobot, parse_model
+
+        model = parse_model(data, str(path))
+        return model.plain_robot() if isinstance(model, CalibratedRobot) else model
     try:
         return Robot.model_validate(data)
     except ValidationError as exc:

@@ -35,10 +35,11 @@ from hexcal.devices import DevicesConfig
 from hexcal.fileio import write_text_atomic
 from hexcal.instruments import Instruments
 from hexcal.measurements import REQUIRED_COLUMNS, Measurements
+from hexcal.model_file import CalibratedRobot, save_model
 from hexcal.robot import Robot
 from hexcal.validation import format_validation_error
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 
 def _now() -> datetime:
@@ -157,6 +158,9 @@ class ResultRecord(BaseModel):
     effects: list[str] = Field(default_factory=list)
     pose_ids: list[int] = Field(default_factory=list, description="the poses it used")
     robot: Robot | None = None
+    calibrated: CalibratedRobot | None = Field(
+        None, description="the whole model: geometry and effects (calibrated.json's content)"
+    )
     summary: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -164,7 +168,7 @@ class Session(BaseModel):
     """A calibration session (see the module docstring)."""
 
     model_config = ConfigDict(extra="forbid")
-    schema_version: Literal[1] = SCHEMA_VERSION
+    schema_version: Literal[1, 2] = SCHEMA_VERSION
     hexcal_version: str = __version__
     created: datetime = Field(default_factory=_now)
     robot: Robot
@@ -363,6 +367,8 @@ class SessionFile:
         return cls(path, load_session(path))
 
     def save(self) -> None:
+        # A schema 1 file is upgraded when hexcal writes it (schema 2 only adds fields).
+        self.session.schema_version = SCHEMA_VERSION
         try:
             write_text_atomic(self.path, session_to_text(self.session))
         except OSError as exc:
@@ -450,10 +456,18 @@ class SessionFile:
         self.save()
 
 
+def latest_model(session: Session) -> ResultRecord | None:
+    """The session's latest result that holds a model (a calibration or a diagnosis step)."""
+    with_model = [r for r in session.results if r.calibrated is not None or r.robot is not None]
+    return with_model[-1] if with_model else None
+
+
 def export_session(session: Session, out: str | Path) -> list[str]:
     """Write the session as plain files into directory ``out`` (made if needed):
-    ``measurements.csv`` (the interchange table), ``robot.json`` (the design) and, when the
-    session holds a calibration, ``calibrated.json`` (the latest). The names written, in words."""
+    ``measurements.csv`` (the interchange table), ``robot.json`` (the design),
+    ``instruments.json`` (the noise, when the session holds it) and, when the
+    session holds a model, ``calibrated.json``: the latest calibration or diagnosis step's whole
+    model, effects included (docs/formats.md). The names written, in words."""
     from hexcal.measurements import write_measurements
     from hexcal.robot import save_robot
 
@@ -462,8 +476,18 @@ def export_session(session: Session, out: str | Path) -> list[str]:
     write_measurements(session.measurements(), out / "measurements.csv")
     save_robot(session.robot, out / "robot.json")
     written = ["measurements.csv", "robot.json"]
-    cals = [r for r in session.results if r.kind == "calibration" and r.robot is not None]
-    if cals:
-        save_robot(cals[-1].robot, out / "calibrated.json")
-        written.append(f"calibrated.json (Model {cals[-1].model}, {cals[-1].at:%Y-%m-%d %H:%M})")
+    if session.instruments is not None:
+        from hexcal.instruments import save_instruments
+
+        save_instruments(session.instruments, out / "instruments.json")
+        written.append("instruments.json")
+    latest = latest_model(session)
+    if latest is not None:
+        when = f"{latest.at:%Y-%m-%d %H:%M}"
+        if latest.calibrated is not None:
+            save_model(latest.calibrated, out / "calibrated.json")
+            written.append(f"calibrated.json ({latest.calibrated.calibration.model}, {when})")
+        elif latest.robot is not None:  # a session from before the model file: geometry only
+            save_robot(latest.robot, out / "calibrated.json")
+            written.append(f"calibrated.json (Model {latest.model} geometry, {when})")
     return written

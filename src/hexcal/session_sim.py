@@ -136,10 +136,13 @@ def write_session_dir(
     plan: SessionPlan = SessionPlan(),
     effect: str | None = None,
     effect_scale: float = 1.0,
+    pose_seed: int | None = None,
 ) -> Path:
     """Write robot.json (design), measurements.csv, instruments.json and truth.json; with
     ``effect``, that catalogue effect is hidden at a realistic size (its true values go to
-    truth.json)."""
+    truth.json). ``seed`` draws the robot (its truth and effect); ``pose_seed`` (default
+    ``seed``) the poses and the noise, so another ``pose_seed`` is a second session of the same
+    robot (for validation)."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -151,7 +154,8 @@ def write_session_dir(
         values = realistic_values(effect, rng, truth, effect_scale)
         hooks = [effect_hook(effect, values, truth)]
         label = effect
-    meas, truth = simulate_session(design, seed, plan, effects=hooks, truth=truth)
+    poses = seed if pose_seed is None else pose_seed
+    meas, truth = simulate_session(design, poses, plan, effects=hooks, truth=truth)
     save_robot(design, outdir / "robot.json")
     write_measurements(meas, outdir / "measurements.csv")
     inst = Instruments(

@@ -20,7 +20,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hexcal.diagnosis.model import ModelFit, Problem, fit_model, noise_floor
+from hexcal.accuracy import PoseAccuracy, PoseErrors
+from hexcal.diagnosis.model import (
+    ModelFit,
+    Problem,
+    design_accuracy,
+    design_pose_errors,
+    fit_model,
+    heldout_accuracy,
+    heldout_pose_errors,
+    noise_floor,
+)
 from hexcal.diagnosis.where import concentrations
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.instruments import Instruments
@@ -83,6 +93,13 @@ class Diagnosis:
     floor_per_residual: np.ndarray
     problem: Problem
     notes: list[str] = field(default_factory=list)
+    #: Pose error on held-out poses (the random folds), with the floor the noise gives
+    accuracy: PoseAccuracy | None = None
+    #: Pose error of the drawing (robot.json as designed) on every pose
+    design_accuracy: PoseAccuracy | None = None
+    #: Per pose: the held-out pose errors of this model, and the drawing's
+    pose_errors: PoseErrors | None = None
+    design_pose_errors: PoseErrors | None = None
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -154,6 +171,10 @@ class Diagnosis:
                 }
                 for p in f.params
             ],
+            "pose_accuracy": None if self.accuracy is None else self.accuracy.to_dict(),
+            "design_pose_accuracy": (
+                None if self.design_accuracy is None else self.design_accuracy.to_dict()
+            ),
             "notes": self.notes + f.notes,
         }
 
@@ -354,6 +375,11 @@ def diagnose(
     else:
         verdict = "none"
     where = concentrations(problem, fit, floor)
+    floor_sig = sig if sig is not None else _scaled(DEFAULT_SIGMAS, float(np.sqrt(s2)))
+    errors = heldout_pose_errors(problem, fit)
+    accuracy = heldout_accuracy(problem, fit, floor_sig, errors)
+    if problem.design_pose_accuracy is None:
+        problem.design_pose_accuracy = design_accuracy(problem, floor_sig)
     candidates.sort(
         key=lambda c: (np.isnan(c.delta_bic), c.delta_bic if np.isfinite(c.delta_bic) else -c.score)
     )
@@ -369,4 +395,12 @@ def diagnose(
         floor,
         problem,
         notes,
+        accuracy,
+        problem.design_pose_accuracy,
+        errors,
+        design_pose_errors(problem),
     )
+
+
+def _scaled(sig: NoiseSigmas, s: float) -> NoiseSigmas:
+    return NoiseSigmas(s * sig.position_mm, s * sig.orientation_rad, s * sig.reading_mm)

@@ -7,9 +7,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hexcal.accuracy import PoseAccuracy, PoseErrors, pose_errors, pose_floor
 from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
 from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas, leg_covariance
+from hexcal.predict import LegModel
 from hexcal.refine import Refinement, _model, refine
 from hexcal.robot import Robot
 from hexcal.solvers.whole_robot import LinearCalibration, calibrate_linear
@@ -55,6 +57,10 @@ class ModelFit:
     cv_residuals: np.ndarray | None = None  #: (M, 6) held-out residuals, random folds
     cv_blocked_residuals: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    #: (M, 6, q) the effects' basis as fitted: at the fitted geometry for effects that use it
+    basis: np.ndarray | None = None
+    #: The random folds' held-out poses and the parameter vector fitted without them
+    folds: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
     @property
     def model_name(self) -> str:
@@ -101,6 +107,20 @@ class ModelFit:
     def nonphysical(self) -> list[ParamRow]:
         return [p for p in self.params if not p.physical]
 
+    def leg_model(self, design: Robot) -> LegModel:
+        """The fitted model as a predictor (geometry, offsets and effects)."""
+        return leg_model(design, self.effects, self.refinement.x)
+
+
+def leg_model(design: Robot, effects: tuple[str, ...], x: np.ndarray) -> LegModel:
+    """A predictor from a parameter vector laid out as the refinement's: a (18), b (18), the
+    offsets (6) when ``offset`` is among ``effects``, then the other effects' parameters."""
+    fit_offsets = "offset" in effects
+    p0 = 42 if fit_offsets else 36
+    off = x[36:42] if fit_offsets else design.offsets
+    robot = design.with_geometry(x[:18].reshape(6, 3), x[18:36].reshape(6, 3), off)
+    return LegModel(robot, effects, x[p0:])
+
 
 @dataclass
 class Problem:
@@ -113,6 +133,9 @@ class Problem:
     linear42: LinearCalibration
     data: EffectData
     _bases: dict[str, np.ndarray] = field(default_factory=dict)
+    #: The drawing's pose accuracy, computed once per session (see :func:`design_accuracy`)
+    design_pose_accuracy: PoseAccuracy | None = None
+    design_errors: PoseErrors | None = None
 
     @classmethod
     def build(cls, meas: Measurements, design: Robot, sigmas: NoiseSigmas | None) -> Problem:
@@ -139,17 +162,39 @@ class Problem:
     def missing(self, name: str) -> str | None:
         return get_effect(name).missing(self.data)
 
+    def stack(
+        self, effects: tuple[str, ...], robot: Robot | None = None
+    ) -> tuple[np.ndarray, list[ParamSpec]]:
+        """(M, 6, q) basis of ``effects`` (``offset`` excluded) and their specs; effects that use
+        the geometry are evaluated at ``robot``'s (None: at the linear seed)."""
+        specs = _specs(effects, self.design)
+        data = None if robot is None else self.data.at_geometry(robot)
+        cols = []
+        for e in effects:
+            if e == "offset":
+                continue
+            eff = get_effect(e)
+            cols.append(
+                eff.basis(data) if data is not None and eff.uses_geometry else self.basis(e)
+            )
+        m = len(self.meas)
+        return (np.concatenate(cols, axis=-1) if cols else np.zeros((m, 6, 0))), specs
+
 
 def _specs(effects: tuple[str, ...], robot: Robot) -> list[ParamSpec]:
     return [s for e in effects if e != "offset" for s in get_effect(e).params(robot)]
 
 
-def _stack(problem: Problem, effects: tuple[str, ...]) -> tuple[np.ndarray, list[ParamSpec]]:
-    specs = _specs(effects, problem.design)
-    cols = [problem.basis(e) for e in effects if e != "offset"]
-    m = len(problem.meas)
-    basis = np.concatenate(cols, axis=-1) if cols else np.zeros((m, 6, 0))
-    return basis, specs
+def fitted_robot(design: Robot, ref: Refinement) -> Robot:
+    """The design with a refinement's geometry and offsets (every other key kept)."""
+    return design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
+
+
+#: Effects that use the geometry are re-evaluated at the fitted one until their basis moves by
+#: less than this (mm per unit parameter, relative): then the stored model predicts what the fit did.
+GEOMETRY_TOL = 1e-12
+#: At most this many re-evaluations (the basis depends on the geometry weakly: two suffice).
+GEOMETRY_PASSES = 4
 
 
 def fit_model(
@@ -171,7 +216,7 @@ def fit_model(
         if why:
             raise ValueError(f"effect {e!r} cannot be fitted to these data: {why}")
     fit_offsets = "offset" in effects
-    basis, specs = _stack(problem, effects)
+    basis, specs = problem.stack(effects)
     lin = problem.linear42 if fit_offsets else problem.linear36
     a0, b0, off0 = lin.a, lin.b, lin.offsets if fit_offsets else problem.design.offsets
     theta0 = None
@@ -195,7 +240,10 @@ def fit_model(
         basis_names=names,
         theta0=theta0,
     )
+    if any(get_effect(e).uses_geometry for e in effects if e != "offset"):
+        ref, basis = _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names)
     fit = ModelFit(effects, ref, ref.residuals, _param_rows(ref, specs, problem.design), names)
+    fit.basis = basis
     if cross_validate:
         cross_validation(problem, fit, basis)
     notes = []
@@ -207,6 +255,33 @@ def fit_model(
         )
     fit.notes = notes + ref.notes
     return fit
+
+
+def _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names):
+    """Refit with the geometry-dependent effects evaluated at the fitted geometry, until it
+    settles (:data:`GEOMETRY_TOL`)."""
+    for _ in range(GEOMETRY_PASSES):
+        new, _ = problem.stack(effects, fitted_robot(problem.design, ref))
+        change = np.max(np.abs(new - basis)) / max(np.max(np.abs(new)), 1e-300)
+        basis = new
+        if change < GEOMETRY_TOL:
+            break
+        q = basis.shape[-1]
+        ref = refine(
+            problem.meas.position,
+            problem.R,
+            problem.meas.readings,
+            ref.a,
+            ref.b,
+            ref.offsets(problem.design.offsets),
+            fit_offsets,
+            problem.sigmas,
+            basis=basis,
+            basis_names=names,
+            theta0=ref.x[len(ref.x) - q :],
+            passes=1,
+        )
+    return ref, basis
 
 
 def _param_rows(ref: Refinement, specs: list[ParamSpec], design: Robot) -> list[ParamRow]:
@@ -279,12 +354,55 @@ def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None
             )
             res, _ = _model(r.x, P[test], R[test], rho[test], fixed, fit_offsets, basis[test])
             held[test] = -res
+            if not blocked:
+                fit.folds.append((test, r.x))
         if blocked:
             fit.cv_blocked_residuals = held
             fit.cv_blocked_rms_mm = float(np.sqrt(np.mean(held**2)))
         else:
             fit.cv_residuals = held
             fit.cv_rms_mm = float(np.sqrt(np.mean(held**2)))
+
+
+def heldout_pose_errors(problem: Problem, fit: ModelFit) -> PoseErrors:
+    """Each pose's pose error by the model of the random fold that did not see it (the folds
+    of :func:`cross_validation`): its pose from its readings against the tracker's."""
+    m = len(problem.meas)
+    pos, ang, closed = np.zeros(m), np.zeros(m), np.ones(m, bool)
+    for test, x in fit.folds:
+        e = pose_errors(leg_model(problem.design, fit.effects, x), problem.meas).take(test)
+        pos[test], ang[test], closed[test] = e.position_mm, e.orientation_deg, e.closed
+    return PoseErrors(pos, ang, closed)
+
+
+def heldout_accuracy(
+    problem: Problem,
+    fit: ModelFit,
+    sig: NoiseSigmas | None = None,
+    errors: PoseErrors | None = None,
+) -> PoseAccuracy:
+    """Pose accuracy on held-out poses (:func:`heldout_pose_errors`, or ``errors`` already
+    computed); with ``sig``, the floor the noise alone gives."""
+    errors = heldout_pose_errors(problem, fit) if errors is None else errors
+    r = fit.refinement
+    floor = None if sig is None else pose_floor(r.a, r.b, problem.meas, sig)
+    return PoseAccuracy.of(fit.model_name, errors, True, fit.cv_rms_mm, floor)
+
+
+def design_pose_errors(problem: Problem) -> PoseErrors:
+    """Every pose's pose error with the drawing (robot.json as designed, nothing fitted)."""
+    if problem.design_errors is None:
+        problem.design_errors = pose_errors(LegModel(problem.design), problem.meas)
+    return problem.design_errors
+
+
+def design_accuracy(problem: Problem, sig: NoiseSigmas | None = None) -> PoseAccuracy:
+    """Pose accuracy of the drawing (robot.json as designed, nothing fitted) on every pose."""
+    model = LegModel(problem.design)
+    leg_rms = float(np.sqrt(np.mean(model.residuals(problem.meas) ** 2)))
+    d = problem.design
+    floor = None if sig is None else pose_floor(d.a, d.b, problem.meas, sig)
+    return PoseAccuracy.of("design (drawing)", design_pose_errors(problem), False, leg_rms, floor)
 
 
 def noise_floor(problem: Problem, fit: ModelFit) -> np.ndarray:

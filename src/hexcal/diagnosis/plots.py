@@ -742,3 +742,52 @@ def before_after(
         ),
     ]
     return _finish(fig, outdir, name, legend)
+
+
+# --- pose error over the workspace ---------------------------------------------------------------
+
+
+def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error.png") -> Path:
+    """The pose error over the workspace, before and after: the platform positions seen from
+    above (x, y), coloured by the position error of the pose each model computes from the
+    readings (µm, one log scale for all panels), for the drawing, the first model and the last
+    (held-out). Returns the PNG path."""
+    from matplotlib.colors import LogNorm
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    first, last = diags[0], diags[-1]
+    panels = [("drawing (robot.json)", first.design_pose_errors, "all poses")]
+    panels.append((first.fit.model_name, first.pose_errors, "held-out"))
+    if len(diags) > 1:
+        panels.append((last.fit.model_name, last.pose_errors, "held-out"))
+    panels = [p for p in panels if p[1] is not None]
+    meas = first.problem.meas
+    x, y = meas.position[:, 0], meas.position[:, 1]
+    values = np.concatenate([e.position_mm[e.closed] for _, e, _ in panels]) * UM
+    lo = max(float(np.min(values[values > 0])), 1e-3)
+    norm_ = LogNorm(vmin=lo, vmax=max(float(values.max()), 10 * lo))
+    fig = Figure(figsize=(4.0 * len(panels) + 1.0, 4.8), layout="constrained")
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    art = None
+    for ax, (title, e, where) in zip(axes, panels, strict=True):
+        err = np.where(e.closed, e.position_mm, np.nan) * UM
+        order = np.argsort(err)  # the worst drawn last, on top
+        art = ax.scatter(x[order], y[order], c=err[order], s=16, cmap="viridis", norm=norm_)
+        rms = float(np.sqrt(np.nanmean(err**2)))
+        ax.set_title(f"{title}\nposition RMS {rms:.1f} µm ({where})", fontsize=10)
+        ax.set_xlabel("x (mm)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.25)
+    axes[0].set_ylabel("y (mm)")
+    if art is not None:
+        fig.colorbar(art, ax=list(axes), label="position error (µm, log scale)", shrink=0.9)
+    fig.suptitle(
+        "Pose error over the workspace: the pose computed from the six readings\nagainst the "
+        "tracker's, platform positions seen from above",
+        fontsize=11,
+    )
+    path = outdir / name
+    fig.savefig(path, dpi=DPI)
+    fig.clear()
+    return path

@@ -25,7 +25,7 @@ import numpy as np
 import hexcal
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.diagnosis.model import ParamRow
-from hexcal.diagnosis.plots import before_after, write_plots
+from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
 from hexcal.fileio import write_text_atomic
 
 UM = 1e3
@@ -261,8 +261,58 @@ def _header(diags: Sequence[Diagnosis]) -> str:
     )
 
 
+def _accuracy(diags: Sequence[Diagnosis], tmp: Path | None) -> str:
+    """Pose accuracy, the number a lab reports: the drawing's, then each model's on held-out
+    poses, beside the floor the noise alone gives; the map of the error over the workspace."""
+    rows = []
+    first = diags[0].design_accuracy
+    accs = ([first] if first is not None else []) + [d.accuracy for d in diags if d.accuracy]
+    for a in accs:
+        rows.append(
+            f"<tr><td>{_e(a.model)}</td><td>{'held-out' if a.heldout else 'all poses'}</td>"
+            f'<td class="num">{_um(a.leg_rms_mm)}</td>'
+            f'<td class="num">{_um(a.position_rms_mm)}</td><td class="num">{_um(a.position_p95_mm)}</td>'
+            f'<td class="num">{_um(a.position_max_mm)}</td>'
+            f'<td class="num">{_num(a.orientation_rms_deg, ".4f")}</td>'
+            f'<td class="num">{_num(a.orientation_p95_deg, ".4f")}</td></tr>'
+        )
+    last = diags[-1].accuracy
+    if last is not None and last.floor_position_rms_mm is not None:
+        rows.append(
+            '<tr class="muted"><td>noise floor</td><td>the noise alone</td><td></td>'
+            f'<td class="num">{_um(last.floor_position_rms_mm)}</td><td></td><td></td>'
+            f'<td class="num">{_num(last.floor_orientation_rms_deg, ".4f")}</td><td></td></tr>'
+        )
+    fig = ""
+    if tmp is not None and accs:
+        png = pose_error_map(list(diags), tmp / "accuracy")
+        fig = _figure(
+            "accuracy-map",
+            png,
+            "Pose error over the workspace, before and after",
+            "Each dot is a recorded pose seen from above, coloured by how far the pose the model "
+            "computes from the six readings lies from the tracker's (one log scale for all "
+            "panels): the drawing, then the models, each pose predicted by a fit that did not see it.",
+        )
+    return (
+        '<section id="accuracy"><h2>Pose accuracy</h2>'
+        '<p class="muted">Where the platform really is (the tracker) against where the model '
+        "puts it from the six encoder readings: position error at the platform origin and "
+        "orientation error, in µm and degrees.</p>"
+        "<table><tr><th>model</th><th>poses</th><th>leg RMS µm</th><th>position RMS µm</th>"
+        "<th>95 % µm</th><th>max µm</th><th>orientation RMS °</th><th>95 % °</th></tr>"
+        + "".join(rows)
+        + "</table>"
+        + fig
+        + "</section>"
+    )
+
+
 def _nav(diags: Sequence[Diagnosis]) -> str:
-    items = ['<li><a href="#provenance">Provenance</a></li>']
+    items = [
+        '<li><a href="#provenance">Provenance</a></li>',
+        '<li><a href="#accuracy">Pose accuracy</a></li>',
+    ]
     for i, d in enumerate(diags, 1):
         items.append(
             f'<li><a href="#step-{i}">Step {i}: {_e(d.fit.model_name)} — {_e(d.verdict)}</a></li>'
@@ -602,6 +652,7 @@ def render_report(
     ]
     with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
         tmp = Path(t) if plots else None
+        parts.append(_accuracy(diags, tmp))
         for i, step in enumerate(diags, 1):
             if i > 1:
                 parts.append(_change(diags[i - 2], step, i - 1, tmp))

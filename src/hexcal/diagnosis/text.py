@@ -21,6 +21,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             if d.excess_significant
             else " — consistent with the noise floor"
         ),
+        *_accuracy_lines(d),
         "",
         "per leg, µm:     " + "".join(f"{f'leg {k + 1}':>9}" for k in range(6)),
         "  in-sample RMS  " + "".join(f"{1000 * v:9.2f}" for v in f.rms_per_leg),
@@ -84,15 +85,62 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
     return "\n".join(lines)
 
 
+def _accuracy_lines(d: Diagnosis) -> list[str]:
+    """Pose error on held-out poses, and the drawing's, one line each."""
+    out = []
+    if d.accuracy is not None:
+        a = d.accuracy
+        floor = (
+            f"; floor {_um(a.floor_position_rms_mm).strip()} µm, {a.floor_orientation_rms_deg:.4f}°"
+            if a.floor_position_rms_mm is not None
+            else ""
+        )
+        out.append(f"pose error, held-out: {a.line()}{floor}")
+    if d.design_accuracy is not None:
+        out.append(
+            f"pose error of the drawing (robot.json as designed): {d.design_accuracy.line()}"
+        )
+    return out
+
+
 def before_after_text(steps: list[Diagnosis]) -> str:
-    """The fall of the error across added effects, side by side, µm."""
-    head = f"{'model':<34}{'held-out':>10}{'blocked':>10}{'floor':>8}   per-leg held-out"
-    lines = ["the error as effects are added (µm):", head.rstrip()]
+    """The fall of the error across added effects, side by side: held-out leg-length RMS and
+    pose error (the pose from the readings against the tracker's), µm and degrees."""
+    head = (
+        f"{'model':<34}{'held-out':>10}{'blocked':>10}{'floor':>8}{'pose':>10}{'p95':>9}"
+        f"{'angle °':>9}   per-leg held-out"
+    )
+    lines = [
+        "the error as effects are added (µm; pose = position error of the pose the model "
+        "computes from the readings, on held-out poses):",
+        head.rstrip(),
+    ]
+    first = steps[0].design_accuracy if steps else None
+    if first is not None:
+        lines.append(
+            f"{'design (drawing, all poses)':<34}{_um(first.leg_rms_mm or float('nan')):>10}"
+            f"{'':>10}{'':>8}{_um(first.position_rms_mm):>10}{_um(first.position_p95_mm):>9}"
+            f"{first.orientation_rms_deg:>9.4f}"
+        )
     for d in steps:
         f = d.fit
+        acc = d.accuracy
+        pose = (
+            f"{_um(acc.position_rms_mm):>10}{_um(acc.position_p95_mm):>9}{acc.orientation_rms_deg:>9.4f}"
+            if acc is not None
+            else f"{'':>28}"
+        )
         lines.append(
-            f"{f.model_name:<34}{_um(f.cv_rms_mm):>10}{_um(f.cv_blocked_rms_mm):>10}{_um(d.noise_floor_mm):>8}   "
+            f"{f.model_name:<34}{_um(f.cv_rms_mm):>10}{_um(f.cv_blocked_rms_mm):>10}{_um(d.noise_floor_mm):>8}"
+            + pose
+            + "   "
             + " ".join(f"{1000 * v:5.1f}" for v in f.cv_rms_per_leg)
             + f"   → {d.verdict}"
+        )
+    last = steps[-1].accuracy if steps else None
+    if last is not None and last.floor_position_rms_mm is not None:
+        lines.append(
+            f"{'pose floor (noise alone)':<34}{'':>28}{_um(last.floor_position_rms_mm):>10}{'':>9}"
+            f"{last.floor_orientation_rms_deg:>9.4f}"
         )
     return "\n".join(lines)

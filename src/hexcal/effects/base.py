@@ -58,6 +58,20 @@ class EffectData:
         """(M, 6) mm geometric lengths at the evaluation geometry."""
         return np.linalg.norm(self.leg_vectors, axis=-1)
 
+    def at_geometry(self, robot: Robot) -> EffectData:
+        """The same poses with the geometry (and offsets, pitch, mass) of ``robot``."""
+        return EffectData(
+            self.readings,
+            self.position,
+            self.rotation,
+            self.t,
+            self.temperature,
+            robot,
+            robot.a,
+            robot.b,
+            self.extras,
+        )
+
     def subset(self, idx: np.ndarray) -> EffectData:
         t = None if self.temperature is None else self.temperature[idx]
         return EffectData(
@@ -85,6 +99,10 @@ class Effect(ABC):
     physics: str = ""
     needs: tuple[str, ...] = ()
     separating_motion: str = ""
+    #: The basis depends on the robot's geometry (``data.a``, ``data.b`` or its offsets), so a
+    #: fit evaluates it at the fitted geometry and a calibrated model at its own: both then
+    #: predict the same lengths.
+    uses_geometry: bool = False
 
     @abstractmethod
     def params(self, robot: Robot) -> list[ParamSpec]:
@@ -96,6 +114,11 @@ class Effect(ABC):
 
     def missing(self, data: EffectData) -> str | None:
         """Why these data cannot carry the effect (None when they can)."""
+        return None
+
+    def cannot_predict(self, data: EffectData) -> str | None:
+        """Why a calibrated model cannot evaluate this effect on these data (a missing input,
+        not a lack of information as in :meth:`missing`); None when it can."""
         return None
 
     def contribution(self, data: EffectData, values: np.ndarray) -> np.ndarray:

@@ -32,6 +32,7 @@ class Compliance(Effect):
     name = "compliance"
     physics = "Each leg shortens under its axial load like a spring: ΔL = −c·f, the forces from the platform's weight by statics."
     needs = ("platform mass (robot.json platform_mass_kg)",)
+    uses_geometry = True
     separating_motion = (
         "poses that shift the load between legs: the platform far off-centre and tilted"
     )
@@ -49,3 +50,6 @@ class Compliance(Effect):
         if not data.robot.platform_mass_kg:
             return "robot.json has no platform_mass_kg, so the leg forces are unknown"
         return None
+
+    def cannot_predict(self, data: EffectData) -> str | None:
+        return self.missing(data)

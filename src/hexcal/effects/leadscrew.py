@@ -38,3 +38,6 @@ class Leadscrew(Effect):
         if not data.robot.leadscrew_pitch_mm:
             return "robot.json has no leadscrew_pitch_mm"
         return None
+
+    def cannot_predict(self, data: EffectData) -> str | None:
+        return self.missing(data)

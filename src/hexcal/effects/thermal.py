@@ -18,6 +18,7 @@ class Thermal(Effect):
         "α about 12 ppm/K for steel, 23 for aluminium."
     )
     needs = ("temperature column",)
+    uses_geometry = True
     separating_motion = "poses recorded over a temperature change of a few kelvin, with long and short legs at each temperature"
 
     def params(self, robot) -> list[ParamSpec]:
@@ -32,4 +33,9 @@ class Thermal(Effect):
             return "the measurements have no temperature column"
         if np.ptp(data.temperature) < 0.2:
             return f"the temperature hardly changed ({np.ptp(data.temperature):.2f} K)"
+        return None
+
+    def cannot_predict(self, data: EffectData) -> str | None:
+        if data.temperature is None:
+            return "give the structure temperature (degC) of every pose"
         return None

@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -186,13 +185,9 @@ class HexcalApp(App):
             self.notify(text, severity="warning", timeout=8)
 
     def steps(self, proc: Procedure) -> list[Step]:
-        def count(s: Step) -> int:
-            if s.at_home:
-                return s.n_poses
-            n = self.free_poses if s.leg == 0 else self.poses_per_step
-            return max(n, s.min_poses) if n else s.n_poses
+        from hexcal.workflow import procedure_steps
 
-        return [replace(s, n_poses=count(s)) for s in proc.expand()]
+        return procedure_steps(proc, self.poses_per_step, self.free_poses)
 
     @work(thread=True, exclusive=True, group="devices")
     def begin(self, sf: SessionFile, proc: Procedure) -> None:

@@ -21,41 +21,17 @@ from textual.screen import Screen
 from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
-from hexcal.session import ResultRecord, export_session
-
 
 def _app_state(screen: Screen) -> tuple[Any, Any, Any]:
     app = screen.app
     return app.guided, app.procedure, app.rig  # type: ignore[attr-defined]
 
 
-def session_inputs(guided) -> tuple[Any, Any, Any]:
-    """(measurements, design robot, instruments) of the guided session: the noise estimated
-    from the recorded poses' still windows (None when they carry no raw samples)."""
-    from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-    from hexcal.recording import per_pose_noise
+def session_inputs(guided) -> Any:
+    """The workflow's inputs of the guided session (its noise from the still windows)."""
+    from hexcal.workflow import session_inputs as inputs
 
-    sess = guided.sf.session
-    meas = sess.measurements()
-    inst = None
-    poses = _poses(sess)
-    if poses and all(p.tracker_samples and p.leg_samples for p in poses):
-        lv = per_pose_noise(poses)
-        if np.isfinite([lv.position_mm, lv.orientation_deg, lv.reading_mm]).all():
-            inst = Instruments(
-                tracker=TrackerNoise(
-                    position_sigma_mm=lv.position_mm, orientation_sigma_deg=lv.orientation_deg
-                ),
-                encoders=EncoderNoise(reading_sigma_mm=lv.reading_mm),
-                source="estimated from the still windows of the recorded poses",
-            )
-    return meas, sess.robot, inst
-
-
-def _poses(sess) -> list:
-    from hexcal.guided import pose_from_record
-
-    return [pose_from_record(r) for r in sess.poses]
+    return inputs(guided.sf.session, guided.sf.path)
 
 
 class ResultScreen(Screen):
@@ -80,31 +56,28 @@ class ResultScreen(Screen):
 
     @work(thread=True, exclusive=True, group="compute")
     def _calibrate(self) -> None:
-        from hexcal.calibrate import calibrate
+        from hexcal.accuracy import accuracy_table
         from hexcal.report_text import calibration_text
+        from hexcal.workflow import calibrate_model, store
 
         guided, proc, rig = _app_state(self)
         try:
-            meas, design, inst = session_inputs(guided)
-            cal = calibrate(meas, design, proc.model, inst)
+            inp = session_inputs(guided)
+            result = calibrate_model(inp, proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
             self.app.post(
                 self._show, f"[red]cannot calibrate yet:[/red]\n{exc}\n\nEscape to record more."
             )
             return
-        noise = inst.source if inst else "estimated from the residual"
-        text = escape(calibration_text(cal, f"{guided.sf.path} ({len(meas)} poses)", noise))
+        cal = result.calibration
+        text = escape(calibration_text(cal, inp.label, inp.noise_source))
+        text += (
+            "\n\n[b]pose accuracy[/b] (the pose computed from the readings, against the tracker):\n"
+        )
+        text += escape(accuracy_table(result.accuracy))
         if rig is not None and rig.truth is not None and cal.refinement is not None:
             text += "\n\n" + truth_line(cal.refinement, rig.truth)
-        guided.sf.add_result(
-            ResultRecord(
-                kind="calibration",
-                model=proc.model,
-                pose_ids=[int(i) for i in meas.pose_id],
-                robot=cal.robot,
-                summary={"rms_mm": cal.rms_mm},
-            )
-        )
+        store(guided.sf, "calibration", result, inp.meas)
         self.app.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
     def _show(self, text: str) -> None:
@@ -133,12 +106,15 @@ def truth_line(refinement: Any, truth: Any) -> str:
 
 
 def export_text(screen: Screen) -> str:
-    """Export the session next to its file; one line for the operator."""
+    """Export the session next to its file, the latest model as calibrated.json; one line for
+    the operator."""
+    from hexcal.workflow import export
+
     guided, _, _ = _app_state(screen)
     out = Path(guided.sf.path).with_suffix("")
     out = out.with_name(out.name + "-export")
     try:
-        written = export_session(guided.sf.session, out)
+        written = export(guided.sf.session, out)
     except (OSError, ValueError) as exc:
         return f"[red]export failed: {exc}[/red]"
     return f"[green]exported to {out}/: {', '.join(written)}[/green]"
@@ -186,32 +162,19 @@ class DiagnosisScreen(Screen):
 
     @work(thread=True, exclusive=True, group="compute")
     def _diagnose(self, add: tuple[str, ...]) -> None:
-        from hexcal.diagnosis import diagnose
+        from hexcal.workflow import diagnose_chain, model_of, store
 
         guided, proc, _ = _app_state(self)
         try:
-            meas, design, inst = session_inputs(guided)
+            inp = session_inputs(guided)
             prev = self.history[-1] if self.history else None
-            d = diagnose(
-                meas,
-                design,
-                proc.model,
-                add=list(add),
-                instruments=inst,
-                problem=prev.problem if prev else None,
-            )
+            (d,) = diagnose_chain(inp, proc.model, add=add, previous=prev)
+            # The step's model as a lab ships it: calibrated with its effects, clamps included.
+            result = model_of(inp, [*self.history, d], proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:
             self.app.post(self._failed, str(exc))
             return
-        guided.sf.add_result(
-            ResultRecord(
-                kind="diagnosis",
-                model=proc.model,
-                effects=[e for e in d.effects if e != "offset"],
-                pose_ids=[int(i) for i in meas.pose_id],
-                summary=d.to_dict(),
-            )
-        )
+        store(guided.sf, "diagnosis", result, inp.meas, summary=d.to_dict())
         self.app.post(self._show, d)
 
     def _failed(self, msg: str) -> None:
@@ -234,10 +197,8 @@ class DiagnosisScreen(Screen):
             f"[b]verdict: {d.verdict}[/b]   χ²/dof {d.chi2_per_dof:.2f}, "
             f"floor {1000 * d.noise_floor_mm:.2f} µm",
             "",
-            *(
-                f"{h.fit.model_name:<20} {1000 * h.fit.cv_rms_mm:6.2f} µm held-out"
-                for h in self.history
-            ),
+            f"{'model':<22}{'legs µm':>9}{'pose µm':>9}{'angle °':>9}",
+            *(_history_line(h) for h in self.history),
             "",
         ]
         if d.verdict == "none":
@@ -285,3 +246,14 @@ class DiagnosisScreen(Screen):
 
     def action_back(self) -> None:
         self.app.pop_screen()
+
+
+def _history_line(d: Any) -> str:
+    """One model of the chain: held-out leg RMS and pose error (µm, degrees)."""
+    acc = d.accuracy
+    pose = (
+        f"{1000 * acc.position_rms_mm:9.2f}{acc.orientation_rms_deg:9.4f}"
+        if acc is not None
+        else ""
+    )
+    return f"{d.fit.model_name:<22}{1000 * d.fit.cv_rms_mm:9.2f}{pose}"

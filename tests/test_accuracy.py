@@ -1,0 +1,111 @@
+"""Pose accuracy against the truth of simulation: the floor the noise alone gives (analytic,
+checked by Monte-Carlo), and a calibration validated on a second session of the same robot
+(``hexcal calibrate --add gain --out`` then ``hexcal validate``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hexcal.accuracy import pose_errors, pose_floor
+from hexcal.cli import main
+from hexcal.effects.inject import effect_hook, realistic_values
+from hexcal.noise import NoiseSigmas
+from hexcal.predict import LegModel
+from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session, write_session_dir
+from hexcal.study import left_hand
+
+SEED = 11
+PLAN = SessionPlan()
+
+
+def _truth():
+    """The simulated robot of ``hexcal simulate --seed SEED --effect gain`` and its model."""
+    design = left_hand()
+    rng = np.random.default_rng(SEED)
+    truth = perturbed_truth(design, rng, PLAN)
+    values = realistic_values("gain", rng, truth)
+    return design, truth, values
+
+
+def _sigmas() -> NoiseSigmas:
+    n = PLAN.noise
+    return NoiseSigmas(n.sigma_position_mm, n.sigma_orientation_rad, n.sigma_reading_mm)
+
+
+@pytest.fixture(scope="module")
+def monte_carlo_floor() -> dict:
+    """The position and orientation RMS of the TRUE model's pose error over 40 sessions of the
+    robot: what the instruments' noise alone gives (no model error at all)."""
+    _, truth, values = _truth()
+    hook = effect_hook("gain", values, truth)
+    model = LegModel(truth, ("gain",), values)
+    pos, ang, analytic = [], [], []
+    for pose_seed in range(100, 140):
+        meas, _ = simulate_session(left_hand(), pose_seed, PLAN, effects=[hook], truth=truth)
+        e = pose_errors(model, meas)
+        assert e.closed.all()
+        pos.append(np.mean(e.position_mm**2))
+        ang.append(np.mean(e.orientation_deg**2))
+        analytic.append(pose_floor(truth.a, truth.b, meas, _sigmas()))
+    per_session = np.sqrt(pos)
+    return {
+        "position_mm": float(np.sqrt(np.mean(pos))),
+        "position_spread": float(per_session.std(ddof=1)),
+        "orientation_deg": float(np.sqrt(np.mean(ang))),
+        "analytic_position_mm": float(np.mean([a[0] for a in analytic])),
+        "analytic_orientation_deg": float(np.mean([a[1] for a in analytic])),
+    }
+
+
+def test_the_analytic_pose_floor_matches_monte_carlo(monte_carlo_floor):
+    """The propagated floor (readings' noise through the kinematics plus the tracker's own)
+    equals the true model's RMS pose error over 40 noisy sessions, within the Monte-Carlo's own
+    uncertainty (≈ 1 % for 40 × 184 poses; 3 % allowed)."""
+    mc = monte_carlo_floor
+    assert mc["analytic_position_mm"] == pytest.approx(mc["position_mm"], rel=0.03)
+    assert mc["analytic_orientation_deg"] == pytest.approx(mc["orientation_deg"], rel=0.03)
+
+
+def test_a_calibration_validated_on_a_second_session_reaches_the_floor(
+    tmp_path, capsys, monte_carlo_floor
+):
+    """``hexcal calibrate --add gain --out cal.json`` on one session, ``hexcal validate
+    cal.json`` on a second session of the same robot (same truth, new poses and noise): the
+    position RMS is within 15 % of the floor the noise alone gives (Monte-Carlo above), and at
+    least 5× below the drawing's."""
+    fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
+    write_session_dir(fit_dir, left_hand(), SEED, PLAN, "gain")
+    write_session_dir(val_dir, left_hand(), SEED, PLAN, "gain", pose_seed=SEED + 1000)
+    cal = tmp_path / "cal.json"
+    args = [
+        "calibrate",
+        str(fit_dir / "measurements.csv"),
+        "--robot",
+        str(fit_dir / "robot.json"),
+        "--instruments",
+        str(fit_dir / "instruments.json"),
+        "--add",
+        "gain",
+        "--out",
+        str(cal),
+    ]
+    assert main(args) == 0
+    capsys.readouterr()
+
+    def validate(model) -> dict:
+        assert main(["validate", str(model), str(val_dir / "measurements.csv"), "--json"]) == 0
+        return json.loads(capsys.readouterr().out)
+
+    v = validate(cal)
+    floor = monte_carlo_floor["position_mm"]
+    assert v["model"] == "Model 42 + gain"
+    assert abs(v["position_rms_mm"] / floor - 1.0) < 0.15, (v["position_rms_mm"], floor)
+    assert v["verdict"] == "none"
+    for key in ("position_p95_mm", "orientation_rms_deg", "leg_rms_mm", "noise_floor_mm"):
+        assert np.isfinite(v[key])
+    design = validate(fit_dir / "robot.json")
+    assert design["position_rms_mm"] > 5 * v["position_rms_mm"]
+    assert design["verdict"] != "none"
