@@ -12,6 +12,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
+
+# Fuzzing (tests marked ``fuzz``): a few hundred examples per reader and parser in the default
+# run; HEXCAL_FUZZ=1 (CI's second pass) runs 10,000 each. No deadline: a loaded machine is
+# not a failure.
+settings.register_profile(
+    "default",
+    max_examples=200,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+settings.register_profile(
+    "fuzz",
+    max_examples=10_000,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+settings.load_profile("fuzz" if os.environ.get("HEXCAL_FUZZ") else "default")
 
 from hexcal.simulate import Simulator
 from hexcal.study import left_hand
