@@ -106,6 +106,9 @@ FAULT_PATTERNS: dict[str, re.Pattern[str]] = {
     "nmt": re.compile(r"reports NMT state"),
     "error_frame": re.compile(r"CAN error frame"),
     "discarded": re.compile(r"were discarded unread"),
+    "off_clock": re.compile(r"sent a position stamped [-+\d.]+ s off the clock"),
+    "clock_jump": re.compile(r"jumped [-+\d.]+ s"),
+    "non_finite": re.compile(r"non-finite|not a finite"),
 }
 
 #: What the mock latched at a SYNC it has not handled yet (see :class:`LegProbe`).

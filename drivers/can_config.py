@@ -19,6 +19,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from hexcal.drivers.limits import MAX_TIMEOUT_S
 from hexcal.validation import format_validation_error
 
 #: COB-ID bases of the CANopen services the driver uses (CiA 301 predefined connection set).
@@ -98,6 +99,8 @@ class CanBusConfig(BaseModel):
     ``max_tpdo_delay_s``: a position arriving later than this after its SYNC flags the set
     (timing jitter); None means half the SYNC period (5 ms when the driver does not produce
     SYNC). ``legs``: exactly six, legs 1..6 once each, node ids unique; kept sorted by leg.
+    Every duration is finite and at most :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S` (60 s):
+    the driver waits on them, and a wait must end.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -105,9 +108,11 @@ class CanBusConfig(BaseModel):
     interface: str = Field(default="virtual", min_length=1)
     channel: str = Field(default="hexcal", min_length=1)
     bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
-    sync_period_s: float = Field(default=0.01, ge=0, allow_inf_nan=False)
-    heartbeat_timeout_s: float = Field(default=0.5, gt=0, allow_inf_nan=False)
-    max_tpdo_delay_s: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    sync_period_s: float = Field(default=0.01, ge=0, le=MAX_TIMEOUT_S, allow_inf_nan=False)
+    heartbeat_timeout_s: float = Field(default=0.5, gt=0, le=MAX_TIMEOUT_S, allow_inf_nan=False)
+    max_tpdo_delay_s: float | None = Field(
+        default=None, gt=0, le=MAX_TIMEOUT_S, allow_inf_nan=False
+    )
     legs: list[LegEncoderConfig] = Field(default_factory=default_legs)
 
     @field_validator("legs")
@@ -191,6 +196,10 @@ def load_can_config(path: str | Path) -> CanBusConfig:
             data = tomllib.loads(raw.decode("utf-8"))
     except (ValueError, UnicodeDecodeError) as exc:
         raise CanConfigError(f"{path}: not valid {path.suffix or 'TOML'} ({exc})") from None
+    except RecursionError:  # both parsers recurse per nesting level: [[[[... is no configuration
+        raise CanConfigError(
+            f"{path}: not valid {path.suffix or 'TOML'} (nested too deeply to be a configuration)"
+        ) from None
     try:
         return CanBusConfig.model_validate(data)
     except ValidationError as exc:

@@ -27,6 +27,21 @@ is discarded (that set was flagged with the position missing); two positions fro
 one SYNC flag the set. Produced SYNCs are kept at least ``tpdo_deadline_s`` apart, so after a
 stall no catch-up SYNC can overtake the answers to the one before.
 
+Clock jumps. The bus interface's clock is not the host's and can jump: an adapter that resets
+restarts its clock, SocketCAN stamps with the system time, which an operator or NTP may step,
+and one corrupt timestamp is enough to matter. A frame whose (arrival − bus time) differs from
+the learnt offset by more than ``clock_jump_s`` (1 s by default: a thousand times the jitter of
+a stamp, more than any stall a working receive thread has) cannot be placed on the bus clock,
+so its bus time is not trusted: it takes no part in attribution, closing or the offset, and a
+position it carries is discarded and its set flagged (naming the leg and the jump). When the
+next frame is on the known clock again, those were stray stamps: the driver says so (a warning
+naming the bus and the offset the first time, at info level after). If instead frames keep
+coming with one new offset (at least three, over more than two SYNC periods) the clock itself
+has jumped: the driver re-anchors — the new offset replaces the old one and the open sets are
+moved onto the new clock — logs a warning naming the bus and the jump, once, and flags the set
+it happens in. A single frame stamped an hour off thus costs one flagged set, a clock reset a
+few; neither leaves the driver stuck until a restart. (``status()`` counts both.)
+
 Anything unusual during a set — a position missing, late or twice, a silent node, a node not
 OPERATIONAL, a CAN error frame, the bus not error-active, a SYNC that could not be sent — is
 written into that set's ``faults`` and the set is not ``complete``. No set is dropped: every
@@ -64,6 +79,7 @@ from hexcal.drivers.can_config import (
     CanBusConfig,
     LegEncoderConfig,
 )
+from hexcal.drivers.limits import check_duration
 
 log = logging.getLogger(__name__)
 
@@ -165,9 +181,11 @@ class TpdoDecoder:
             )
 
     def decode(self, msg: can.Message) -> tuple[int, float] | None:
-        """(leg 1..6, reading mm) of a TPDO1 from a configured node; None for any other frame.
+        """(leg 1..6, reading mm, finite) of a TPDO1 from a configured node; None for any other
+        frame.
 
-        Raises :class:`EncoderError` for a TPDO1 too short to hold 0x6004."""
+        Raises :class:`EncoderError` for a TPDO1 too short to hold 0x6004, and for counts the
+        leg's scaling cannot turn into a finite reading."""
         entry = self.table.get(msg.arbitration_id)
         if entry is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
             return None
@@ -177,7 +195,11 @@ class TpdoDecoder:
                 _short_tpdo_message(self.config.leg(entry[0]), len(data), self.config)
             )
         leg, sign, cpm, zero = entry
-        return leg, sign * int.from_bytes(data[:4], "little", signed=True) / cpm + zero
+        counts = int.from_bytes(data[:4], "little", signed=True)
+        mm = sign * counts / cpm + zero
+        if not math.isfinite(mm):
+            raise EncoderError(_nonfinite_message(self.config.leg(leg), counts, self.config))
+        return leg, mm
 
     def decode_batch(
         self, cob_ids: np.ndarray, payload: np.ndarray
@@ -185,7 +207,8 @@ class TpdoDecoder:
         """Vectorised decode of N standard data frames.
 
         ``cob_ids`` (N,) int; ``payload`` (N, ≥4) uint8 (the frames' data bytes). Returns legs
-        (N,) int (0 where the frame is not a configured TPDO1) and readings (N,) mm (NaN there).
+        (N,) int (0 where the frame is not a configured TPDO1) and readings (N,) mm (NaN there,
+        and where the leg's scaling gives no finite reading: :meth:`decode` raises there).
         """
         ids = np.asarray(cob_ids, np.int64)
         legs = np.zeros(ids.shape, np.int64)
@@ -194,8 +217,9 @@ class TpdoDecoder:
         raw = np.ascontiguousarray(np.asarray(payload, np.uint8)[:, :4])
         counts = raw.view("<i4")[:, 0].astype(float)
         idx = np.where(legs > 0, ids, 0)
-        mm = self._sign[idx] * counts / self._cpm[idx] + self._zero[idx]
-        mm[legs == 0] = np.nan
+        with np.errstate(over="ignore", invalid="ignore"):  # flagged just below, not warned
+            mm = self._sign[idx] * counts / self._cpm[idx] + self._zero[idx]
+        mm[(legs == 0) | ~np.isfinite(mm)] = np.nan
         return legs, mm
 
 
@@ -221,6 +245,14 @@ def describe_error_frame(msg: can.Message) -> str:
         if ctrl & CAN_ERR_CRTL_ACTIVE:
             words.append("controller back to error-active")
     return ", ".join(words) or "error frame"
+
+
+def _nonfinite_message(leg: LegEncoderConfig, counts: int, config: CanBusConfig) -> str:
+    return (
+        f"{leg.name} sent {counts} counts on {config.bus_name}, which its scaling "
+        f"(counts_per_mm {leg.counts_per_mm:g}, zero_mm {leg.zero_mm:g}) turns into no finite "
+        "reading — position discarded; check that leg's scaling in the CAN configuration"
+    )
 
 
 def _short_tpdo_message(leg: LegEncoderConfig, n: int, config: CanBusConfig) -> str:
@@ -260,6 +292,20 @@ class ReadingSet:
         if not self.complete and not faults:  # cannot happen by construction; never hide it
             faults = ("leg encoder reading set incomplete",)
         return LegSample(self.t_sync, self.readings_mm.copy(), faults)
+
+
+class _JumpCandidate:
+    """Frames stamped off the bus clock by about one amount, since ``first_t`` (monotonic s):
+    a clock jump once enough of them agree (see :meth:`LegEncoders._clock_step`)."""
+
+    __slots__ = ("first_t", "frames", "lag", "lag_min", "offset")
+
+    def __init__(self, first_t: float, lag: float, offset: float):
+        self.first_t = first_t
+        self.lag = lag  # the first frame's arrival − bus time, s
+        self.lag_min = lag  # the smallest of them, s: the new offset if it is a jump
+        self.offset = offset  # the offset (s) they stray from
+        self.frames = 0
 
 
 class _Pending:
@@ -366,7 +412,10 @@ class LegEncoders:
     for sniffing a bus another master runs, or replaying a log. ``log_path``: write every frame
     received and sent to this python-can log (.asc, .blf, ...). ``max_queue``: reading sets kept
     for :meth:`read_set` (100 000 ≈ 17 min at 100 Hz); beyond it the oldest are discarded and the
-    next set says so.
+    next set says so. ``clock_jump_s``: how far (s) a frame's bus time may stray from the learnt
+    bus-to-host clock offset before it is taken for a clock jump (module docstring). The
+    configuration's durations must be at most :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S`
+    (ValueError naming the field otherwise).
 
     Implements the acquisition's ``LegSource`` (:meth:`sample`). A context manager.
     """
@@ -379,7 +428,14 @@ class LegEncoders:
         listen_only: bool = False,
         log_path: str | Path | None = None,
         max_queue: int = 100_000,
+        clock_jump_s: float = 1.0,
     ):
+        # The config file is validated where it is read; a config built in code is checked
+        # here too, since every wait below derives from these durations.
+        check_duration("heartbeat_timeout_s", config.heartbeat_timeout_s)
+        check_duration("sync_period_s", config.sync_period_s, allow_zero=True)
+        check_duration("max_tpdo_delay_s", config.tpdo_deadline_s)
+        self.clock_jump_s = check_duration("clock_jump_s", clock_jump_s)
         self.config = config
         self.listen_only = listen_only
         self.log_path = None if log_path is None else Path(log_path)
@@ -393,6 +449,8 @@ class LegEncoders:
         self._close_after = (
             2 * config.sync_period_s + 0.1 if self._producing else config.heartbeat_timeout_s
         )
+        # A new clock offset is believed once frames have shown it for this long (s).
+        self._jump_confirm_s = 2 * max(config.sync_period_s, self._deadline)
         self._leg_of_hb = {c.heartbeat_cob_id: c.leg - 1 for c in config.legs}
         self._names = [c.name for c in config.legs]
         self._bus_name = config.bus_name
@@ -428,6 +486,10 @@ class LegEncoders:
         # Bus clock → monotonic: the smallest (arrival − bus time) in this and the last window.
         self._offset_min = [math.inf, math.inf]
         self._offset_window_end = 0.0
+        self._jump: _JumpCandidate | None = None  # frames off the clock, not yet explained
+        self._clock_jumps = 0
+        self._untrusted_stamps = 0
+        self._warned_stamp = False
         self._sync_counter = 0
         self._sync_sent = 0
         self._foreign_syncs = 0
@@ -454,6 +516,8 @@ class LegEncoders:
         Raises :class:`BusError` if the bus cannot be opened, :class:`EncoderSilent` naming the
         nodes that never sent a heartbeat, :class:`EncoderError` for a node that did not start.
         """
+        if timeout is not None:
+            timeout = check_duration("timeout", timeout)
         if self._running:
             return self
         self._reset_run()
@@ -544,7 +608,10 @@ class LegEncoders:
         """The next reading set in SYNC order (complete or flagged), waiting up to ``timeout`` s.
 
         Raises :class:`BusError` when none came and the bus is at fault, :class:`EncoderError`
-        when none came otherwise (no SYNC on the bus, or the driver is stopped and drained)."""
+        when none came otherwise (no SYNC on the bus, or the driver is stopped and drained).
+        ``timeout`` is finite, >= 0 and at most :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S`
+        (ValueError otherwise)."""
+        timeout = check_duration("timeout", timeout, allow_zero=True)
         end = time.monotonic() + timeout
         with self._cond:
             while not self._queue:
@@ -586,7 +653,9 @@ class LegEncoders:
         ``bus_state`` ('ACTIVE', 'ERROR-PASSIVE', 'BUS-OFF', 'ERROR'), ``bus_detail``,
         ``error_frames``, ``sync_sent``, ``foreign_syncs``, ``sets``, ``incomplete_sets``,
         ``late_discarded`` (positions that came after their set had closed),
-        ``skipped_syncs`` (SYNCs the producer skipped after a stall of its thread), ``queued``,
+        ``skipped_syncs`` (SYNCs the producer skipped after a stall of its thread),
+        ``clock_jumps`` (times the bus clock jumped and attribution re-anchored),
+        ``untrusted_stamps`` (frames whose bus time was not trusted), ``queued``,
         ``discarded``, and ``legs``: six dicts with ``leg``, ``node_id``, ``alive``,
         ``heartbeat_age_s`` (s, None if never heard), ``nmt_state`` (name, None if never heard),
         ``tpdo_frames``, ``missing`` (sets without this leg's position).
@@ -623,6 +692,8 @@ class LegEncoders:
                 "incomplete_sets": self._incomplete,
                 "late_discarded": self._late_discarded,
                 "skipped_syncs": self._skipped_syncs,
+                "clock_jumps": self._clock_jumps,
+                "untrusted_stamps": self._untrusted_stamps,
                 "queued": len(self._queue),
                 "discarded": self._discarded,
                 "legs": legs,
@@ -681,16 +752,76 @@ class LegEncoders:
         target[key] = message
 
     # -- clocks ----------------------------------------------------------------------------------
-    def _bus_time(self, msg: can.Message, t: float) -> float:
-        """The frame's bus time (s on the interface's clock); learns the clock offset. ``t`` is
-        its monotonic arrival time."""
-        ts = msg.timestamp or (time.time() - time.monotonic() + t)
+    def _bus_time(self, msg: can.Message, t: float) -> tuple[float, bool]:
+        """The frame's bus time (s on the interface's clock) and whether it is trusted; learns
+        the clock offset and follows its jumps (module docstring). ``t`` is the frame's
+        monotonic arrival time. Lock held."""
+        stamp = msg.timestamp
+        # No stamp (or no number): stamped on arrival, on the wall clock as python-can does.
+        ts = stamp if stamp and math.isfinite(stamp) else time.time() - time.monotonic() + t
         if t >= self._offset_window_end:  # a fresh window every 5 s follows clock drift
             self._offset_min = [math.inf, self._offset_min[0]]
             self._offset_window_end = t + 5.0
-        if t - ts < self._offset_min[0]:
-            self._offset_min[0] = t - ts
-        return ts
+        lag = t - ts
+        offset = min(self._offset_min)
+        if offset != math.inf and abs(lag - offset) > self.clock_jump_s:
+            return ts, self._clock_step(t, lag, offset)
+        if self._jump is not None:  # on the known clock again: what strayed were frames' stamps
+            self._stray_stamps(self._jump)
+            self._jump = None
+        if lag < self._offset_min[0]:
+            self._offset_min[0] = lag
+        return ts, True
+
+    def _clock_step(self, t: float, lag: float, offset: float) -> bool:
+        """A frame arrived ``lag`` s after its bus time, ``offset`` expected: count it towards a
+        clock jump; True when it confirms one (the driver re-anchored: its stamp holds now)."""
+        jump = self._jump
+        if jump is None or abs(lag - jump.lag) > self.clock_jump_s / 2:
+            if jump is not None:
+                self._stray_stamps(jump)
+            jump = self._jump = _JumpCandidate(t, lag, offset)
+        jump.lag_min = min(jump.lag_min, lag)
+        jump.frames += 1
+        if jump.frames >= 3 and t - jump.first_t >= self._jump_confirm_s:
+            self._reanchor(jump.lag_min, offset)
+            return True
+        self._untrusted_stamps += 1
+        return False
+
+    def _stray_stamps(self, jump: _JumpCandidate) -> None:
+        """Frames stamped off the clock turned out not to be a jump (the frames after them are
+        on the known clock): say so — a warning the first time, then at info level."""
+        level = logging.INFO if self._warned_stamp else logging.WARNING
+        self._warned_stamp = True
+        log.log(
+            level,
+            "%s: %d frame(s) stamped %+.3f s off the bus clock (against the host clock) — "
+            "their bus times were not trusted, positions in them discarded and their sets "
+            "flagged; the clock itself did not jump (a corrupt timestamp?)",
+            self._bus_name,
+            jump.frames,
+            jump.offset - jump.lag,
+        )
+
+    def _reanchor(self, new: float, old: float) -> None:
+        """The bus clock jumped: (arrival − bus time) is ``new`` s now, ``old`` s before. Move
+        the open sets, the closing evidence and the offset onto the new clock."""
+        shift = old - new  # a bus time on the old clock + shift = the same instant on the new
+        for s in self._open:
+            s.t_bus += shift
+        self._evidence += shift
+        self._last_closed_t_bus += shift
+        self._offset_min = [new, new]
+        self._jump = None
+        self._clock_jumps += 1
+        message = (
+            f"the clock of {self._bus_name} jumped {shift:+.3f} s (frame timestamps against the "
+            "host clock: the interface's clock was reset or the system time stepped) — SYNC "
+            "attribution re-anchored to the new clock; sets around the jump are flagged"
+        )
+        log.warning("%s", message)
+        self._note("clock_jump", message)
 
     def _to_bus(self, t: float) -> float:
         """Monotonic time ``t`` on the bus clock (the offset errs early: a frame is never
@@ -791,7 +922,7 @@ class LegEncoders:
 
     def _dispatch(self, msg: can.Message, t: float) -> None:
         with self._lock:
-            ts = self._bus_time(msg, t)
+            ts, trusted = self._bus_time(msg, t)
         if msg.is_error_frame:
             self._on_error_frame(msg, t)
             return
@@ -800,13 +931,17 @@ class LegEncoders:
         cid = msg.arbitration_id
         entry = self.decoder.table.get(cid)
         if entry is not None:
-            self._on_tpdo(entry, msg.data, ts)
+            if trusted:
+                self._on_tpdo(entry, msg.data, ts)
+            else:
+                self._on_unplaced_tpdo(entry[0] - 1, t - ts)
         elif cid == SYNC_COB_ID:
-            self._on_bus_sync(msg, t, ts)
+            self._on_bus_sync(msg, t, ts if trusted else None)
         elif cid in self._leg_of_hb:
             self._on_heartbeat(self._leg_of_hb[cid], msg.data, t)
-        with self._lock:
-            self._close_until(ts)
+        if trusted:  # an untrusted bus time must not close sets
+            with self._lock:
+                self._close_until(ts)
         if self._bus_state == BUS_OFF:
             with self._lock:
                 # A frame came through: the controller is receiving again.
@@ -828,8 +963,15 @@ class LegEncoders:
                     f"short{k}", _short_tpdo_message(self.config.legs[k], len(data), self.config)
                 )
                 return
-            mm = sign * int.from_bytes(data[:4], "little", signed=True) / cpm + zero
+            counts = int.from_bytes(data[:4], "little", signed=True)
+            mm = sign * counts / cpm + zero
             s = next((o for o in reversed(self._open) if o.t_bus <= ts), None)
+            if not math.isfinite(mm):  # a fault of that set, never a reading
+                target = s.faults if s is not None else self._pending_faults
+                target[f"nonfinite{k}"] = _nonfinite_message(
+                    self.config.legs[k], counts, self.config
+                )
+                return
             if s is None:
                 if ts >= self._last_closed_t_bus:
                     # Its SYNC's set was closed already (flagged with this position missing).
@@ -862,7 +1004,22 @@ class LegEncoders:
                 )
             self._cond.notify_all()
 
-    def _on_bus_sync(self, msg: can.Message, t: float, ts: float) -> None:
+    def _on_unplaced_tpdo(self, k: int, lag: float) -> None:
+        """A position whose bus time is not trusted (it arrived ``lag`` s after it): no SYNC
+        window can be told for it, so it is discarded and the newest set flagged."""
+        with self._lock:
+            self._frames[k] += 1
+            off = min(self._offset_min) - lag
+            self._note(
+                f"stamp{k}",
+                f"{self._names[k]} sent a position stamped {off:+.3f} s off the clock of "
+                f"{self._bus_name} (against the host clock) — no SYNC can be told for it, so it "
+                "was discarded and this set flagged; a jump of the interface's clock or a corrupt "
+                "timestamp",
+            )
+
+    def _on_bus_sync(self, msg: can.Message, t: float, ts: float | None) -> None:
+        """A SYNC on the bus at bus time ``ts`` (None: not trusted, placed by arrival ``t``)."""
         counter = msg.data[0] if len(msg.data) >= 1 else 0
         with self._lock:
             if self._producing:
@@ -873,6 +1030,13 @@ class LegEncoders:
                         f"another SYNC producer is on {self._bus_name} (SYNC not sent by hexcal) — "
                         "the encoders answer both; switch it off, or set sync_period_s = 0 to follow it",
                     )
+                return
+            if ts is None:
+                self._open_set(t, self._to_bus(t), counter)
+                self._open[-1].faults["sync_stamp"] = (
+                    f"SYNC {counter} on {self._bus_name} carried a timestamp off the bus clock: "
+                    "placed by its arrival instead, so its positions may be misplaced — set flagged"
+                )
                 return
             self._open_set(ts + min(self._offset_min), ts, counter)
 

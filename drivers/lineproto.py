@@ -43,6 +43,7 @@ import numpy as np
 import serial
 
 from hexcal.acquisition import TrackerSample
+from hexcal.drivers.limits import check_duration
 from hexcal.drivers.ndi import TrackerDisconnected, TrackerFormatError, TrackerTimeout
 
 #: Longest line accepted (bytes): a stream without newlines is not this protocol.
@@ -150,10 +151,11 @@ def parse_line(
     names = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "rms")
     v = [_number(f, n, raw, source, lineno) for f, n in zip(fields, names, strict=False)]
     q = np.array(v[4:8])
-    norm = float(np.sqrt(q @ q))
+    norm = math.hypot(*v[4:8])  # scaled: huge components give their norm, not an overflow
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        shown = f"{norm:.6f}" if norm < 1e6 else f"{norm:.6g}"  # not 300 digits
         raise LineProtocolError(
-            f"{_where(source, lineno)}: the quaternion (qw qx qy qz) has norm {norm:.6f}, not 1: "
+            f"{_where(source, lineno)}: the quaternion (qw qx qy qz) has norm {shown}, not 1: "
             f"wrong column order or units? {raw!r}",
             source,
             lineno,
@@ -194,13 +196,14 @@ class LineTracker:
 
     :meth:`read_pose` returns the next record; :meth:`sample` the next one as a
     :class:`~hexcal.acquisition.TrackerSample` (the acquisition's PoseSource; MISSING becomes a
-    fault sample). ``timeout`` (s) bounds the wait for one line.
+    fault sample). ``timeout`` (s, finite, > 0 and at most
+    :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S`, else ValueError) bounds the wait for one line.
     """
 
     def __init__(self, url: str, baudrate: int = 115200, timeout: float = 1.0):
         self.url = url
         self.baudrate = baudrate
-        self.timeout = float(timeout)
+        self.timeout = check_duration("timeout", timeout)
         self.port: serial.SerialBase | None = None
         self.lineno = 0
         self._buf = bytearray()

@@ -70,6 +70,11 @@ content does not follow the format above raises (:class:`TrackerCRCError`,
 :class:`TrackerTimeout`, :class:`TrackerFormatError`). A tool the tracker does not see is not an
 error of the link: the frame reports it (``state == "missing"``) and :meth:`NDITracker.sample`
 turns it into a fault sample, as it does a tool outside the characterised measurement volume.
+So does a pose record that passed every check of the link but carries a number no pose can
+have — NaN or infinity in the position, the quaternion or the RMS error (BX's float32 can say
+so; TX's fixed-width digits cannot), or a position beyond :data:`MAX_POSITION_MM` — the frame
+is well formed, its frame number and status still count, but that tool's reading is a fault
+(``state == "invalid"``, :attr:`ToolReport.defect` says which number), never a pose.
 
 Timing: every frame carries the host receive time (``received_at``: ``time.monotonic()`` when
 its last byte arrived) and the command-to-reply latency (``latency_s``), but neither says when
@@ -113,6 +118,7 @@ import struct
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from types import TracebackType
 from typing import Literal, NamedTuple
@@ -122,6 +128,7 @@ import serial
 
 from hexcal.acquisition import TrackerSample
 from hexcal.drivers.crc import crc16, crc16_hex
+from hexcal.drivers.limits import check_duration
 
 try:  # a hung-up tty makes tcflush raise termios.error, which is not an OSError
     import termios
@@ -250,6 +257,11 @@ BX_VALID, BX_MISSING, BX_DISABLED = 0x01, 0x02, 0x04
 #: A reported quaternion whose norm is further than this from 1 is not a rotation: the reply
 #: is refused. The text format's rounding (1e-4 per component) moves the norm by < 2e-4.
 QUATERNION_NORM_TOLERANCE = 1e-3
+
+#: The largest position coordinate (mm) a pose may report. No NDI tracker measures beyond a few
+#: metres and TX's fields stop at +-9999.99 mm; a larger (finite) BX float is garbage that
+#: passed the CRC (100 m leaves room for any tracker and any tracker frame origin).
+MAX_POSITION_MM = 1e5
 
 BX_START = b"\xc4\xa5"
 
@@ -409,20 +421,23 @@ def build_command(command: str) -> bytes:
 class ToolReport:
     """One port handle in one tracker frame.
 
-    ``state`` is ``"ok"`` (pose present), ``"missing"`` (the tracker does not see the tool) or
-    ``"disabled"``. ``position`` (3,) mm and ``quaternion`` (4,) unit, scalar first, are None
-    unless ``ok``; ``rms_mm`` is the tracker's RMS marker fit error (mm, NaN unless ``ok``).
+    ``state`` is ``"ok"`` (pose present), ``"missing"`` (the tracker does not see the tool),
+    ``"disabled"``, or ``"invalid"`` (the tracker sent a pose record with a number no pose can
+    have: ``defect`` says which, e.g. "non-finite position (x = nan)"). ``position`` (3,) mm
+    and ``quaternion`` (4,) unit, scalar first, are None unless ``ok`` (then every number is
+    finite); ``rms_mm`` is the tracker's RMS marker fit error (mm, NaN unless ``ok``).
     ``port_status`` is the bit field of :data:`PORT_STATUS_BITS`; ``frame_number`` the
     tracker's frame counter (None when not reported).
     """
 
     handle: int
-    state: Literal["ok", "missing", "disabled"]
+    state: Literal["ok", "missing", "disabled", "invalid"]
     position: np.ndarray | None = None
     quaternion: np.ndarray | None = None
     rms_mm: float = math.nan
     port_status: int = 0
     frame_number: int | None = None
+    defect: str = ""
 
     @property
     def visible(self) -> bool:
@@ -449,6 +464,14 @@ class ToolReport:
             )
         if self.state == "disabled":
             return f"tool {self.handle:02X} is DISABLED on {where}: run setup_tools() to enable it"
+        if self.state == "invalid":
+            frame = "" if self.frame_number is None else f"tracker frame {self.frame_number}: "
+            return (
+                f"{frame}{self.defect} of tool {self.handle:02X} from {where}: a number no pose "
+                "can have, in a reply that passed its CRC, so that reading was discarded. An "
+                "occasional one is a tracker glitch; if it repeats, power-cycle the tracker and "
+                "check its firmware"
+            )
         if not accept_out_of_volume and (self.out_of_volume or self.partially_out_of_volume):
             part = "partly " if not self.out_of_volume else ""
             return (
@@ -541,6 +564,63 @@ class TrackerFrame:
         )
 
 
+def _nonfinite(v: float) -> bool:
+    return not math.isfinite(v)
+
+
+def _values(names: str, values: tuple[float, ...], bad: Callable[[float], bool]) -> str:
+    """``"x = nan, z = inf"``: the named values for which ``bad`` holds."""
+    return ", ".join(f"{n} = {v:.6g}" for n, v in zip(names.split(), values, strict=True) if bad(v))
+
+
+def pose_defect(
+    position: tuple[float, float, float],
+    quaternion: tuple[float, float, float, float],
+    rms_mm: float,
+) -> str | None:
+    """What makes a reported pose record unusable as numbers, or None: NaN or infinity in the
+    ``position`` (mm), the ``quaternion`` or the ``rms_mm``, or a position coordinate beyond
+    :data:`MAX_POSITION_MM`. (A finite quaternion of the wrong norm is a format error,
+    :func:`parse_tx_reply`.)"""
+    defects = []
+    if not all(map(math.isfinite, position)):
+        defects.append(f"non-finite position ({_values('x y z', position, _nonfinite)})")
+    elif max(map(abs, position)) > MAX_POSITION_MM:
+        far = _values("x y z", position, lambda v: abs(v) > MAX_POSITION_MM)
+        defects.append(f"implausible position ({far} mm, beyond +-{MAX_POSITION_MM:g} mm)")
+    if not all(map(math.isfinite, quaternion)):
+        defects.append(f"non-finite quaternion ({_values('q0 qx qy qz', quaternion, _nonfinite)})")
+    if not math.isfinite(rms_mm):
+        defects.append(f"non-finite RMS error ({rms_mm})")
+    return "; ".join(defects) or None
+
+
+def _pose_report(
+    handle: int,
+    q: tuple[float, float, float, float],
+    p: tuple[float, float, float],
+    rms_mm: float,
+    status: int,
+    frame: int,
+    port: str,
+    command: str,
+    reply: bytes,
+) -> ToolReport:
+    """The report of one pose record: ``ok``, or ``invalid`` when a number is unusable."""
+    defect = pose_defect(p, q, rms_mm)
+    if defect is not None:
+        return ToolReport(handle, "invalid", port_status=status, frame_number=frame, defect=defect)
+    return ToolReport(
+        handle,
+        "ok",
+        np.array(p, float),
+        _unit_quaternion(q, port, command, reply),
+        float(rms_mm),
+        status,
+        frame,
+    )
+
+
 def _unit_quaternion(q: tuple[float, float, float, float], port: str, command: str, reply: bytes):
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
@@ -579,21 +659,17 @@ def parse_tx_reply(
         m = _TX_POSE.fullmatch(rec)
         if m is not None:
             h, q0, qx, qy, qz, x, y, z, err, status, frame = m.groups()
-            q = _unit_quaternion(
-                (int(q0) * 1e-4, int(qx) * 1e-4, int(qy) * 1e-4, int(qz) * 1e-4),
-                port,
-                command,
-                reply,
-            )
             tools.append(
-                ToolReport(
+                _pose_report(
                     int(h, 16),
-                    "ok",
-                    np.array((int(x) * 0.01, int(y) * 0.01, int(z) * 0.01)),
-                    q,
+                    (int(q0) * 1e-4, int(qx) * 1e-4, int(qy) * 1e-4, int(qz) * 1e-4),
+                    (int(x) * 0.01, int(y) * 0.01, int(z) * 0.01),
                     int(err) * 1e-4,
                     int(status, 16),
                     int(frame, 16),
+                    port,
+                    command,
+                    reply,
                 )
             )
             continue
@@ -674,8 +750,19 @@ def parse_bx_reply(
                 pos += 32
                 status, frame = struct.unpack_from("<II", body, pos)
                 pos += 8
-                q = _unit_quaternion((q0, qx, qy, qz), port, command, reply)
-                tools.append(ToolReport(handle, "ok", np.array((x, y, z)), q, err, status, frame))
+                tools.append(
+                    _pose_report(
+                        handle,
+                        (q0, qx, qy, qz),
+                        (x, y, z),
+                        err,
+                        status,
+                        frame,
+                        port,
+                        command,
+                        reply,
+                    )
+                )
             elif state == BX_MISSING:
                 status, frame = struct.unpack_from("<II", body, pos)
                 pos += 8
@@ -1109,10 +1196,13 @@ class NDITracker:
     a pty, ``ndimock://``...).
 
     ``baudrate`` is the working rate set by COMM after the reset at 9600; ``timeout`` (s) bounds
-    each ordinary reply. ``reset``: ``"break"`` (a serial BREAK: real RS-232 and USB ports),
-    ``"command"`` (``RESET:0``: ports that cannot carry a BREAK, such as ptys and TCP bridges),
-    ``"auto"`` (BREAK, then the command if no answer in ``reset_timeout_s``). ``settle_s`` is the
-    pause after COMM and INIT that ndicapi also makes; ``tool_mode`` the PENA tracking priority.
+    each ordinary reply. Every duration (s) must be finite and at most
+    :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S` (timeouts also > 0): ValueError naming the
+    parameter otherwise, never a wait without end. ``reset``: ``"break"`` (a serial BREAK: real
+    RS-232 and USB ports), ``"command"`` (``RESET:0``: ports that cannot carry a BREAK, such as
+    ptys and TCP bridges), ``"auto"`` (BREAK, then the command if no answer in
+    ``reset_timeout_s``). ``settle_s`` is the pause after COMM and INIT that ndicapi also makes;
+    ``tool_mode`` the PENA tracking priority.
     ``pose_handle`` selects the tool :meth:`sample` reports (default: the first enabled one).
 
     Timing (see :class:`FrameClock` and the module docstring): ``frame_rate_hz`` is the
@@ -1166,22 +1256,19 @@ class NDITracker:
             )
         if reset not in ("auto", "break", "command"):
             raise ValueError(f"reset must be 'auto', 'break' or 'command', not {reset!r}")
-        if command_delay_s is not None and not command_delay_s >= 0:
-            raise ValueError(f"command_delay_s must be >= 0 s or None, not {command_delay_s}")
-        if not command_delay_spread_s >= 0:
-            raise ValueError(f"command_delay_spread_s must be >= 0 s, not {command_delay_spread_s}")
         self.url = url
         self.baudrate = baudrate
-        self.timeout = float(timeout)
+        # Bounded waits only: inf reached pyserial's write_timeout and crashed it.
+        self.timeout = check_duration("timeout", timeout)
         self.reset = reset
-        self.reset_timeout_s = float(reset_timeout_s)
-        self.break_duration_s = float(break_duration_s)
-        self.settle_s = float(settle_s)
+        self.reset_timeout_s = check_duration("reset_timeout_s", reset_timeout_s)
+        self.break_duration_s = check_duration("break_duration_s", break_duration_s)
+        self.settle_s = check_duration("settle_s", settle_s, allow_zero=True)
         self.tool_mode = tool_mode
         self.pose_handle = pose_handle
         self.accept_out_of_volume = accept_out_of_volume
-        self.max_jitter_s = float(max_jitter_s)
-        self.resync_s = float(resync_s)
+        self.max_jitter_s = check_duration("max_jitter_s", max_jitter_s)
+        self.resync_s = check_duration("resync_s", resync_s, allow_zero=True)
         self.port: serial.SerialBase | None = None
         self.handles: tuple[int, ...] = ()
         self.tracking = False
@@ -1194,9 +1281,15 @@ class NDITracker:
         self._resync = False  # a reply timed out: it may still arrive late
         self._latencies: deque[float] = deque(maxlen=50)
         self._last_sample_frame: int | None = None
-        self.command_delay_s = None if command_delay_s is None else float(command_delay_s)
-        self.command_delay_spread_s = float(command_delay_spread_s)
-        self.frame_latency_s = float(frame_latency_s)
+        self.command_delay_s = (
+            None
+            if command_delay_s is None
+            else check_duration("command_delay_s", command_delay_s, allow_zero=True)
+        )
+        self.command_delay_spread_s = check_duration(
+            "command_delay_spread_s", command_delay_spread_s, allow_zero=True
+        )
+        self.frame_latency_s = check_duration("frame_latency_s", frame_latency_s, allow_zero=True)
         #: Maps frame numbers to host times (see :meth:`clock_stats`).
         self.frame_clock = FrameClock(frame_rate_hz, fit_rate=fit_frame_rate, name=url)
         self._clock_suspect = False  # an exchange failed: the next reply may be a stale one
@@ -1463,8 +1556,9 @@ class NDITracker:
     def command(self, command: str, timeout: float | None = None) -> bytes:
         """Send an ASCII command; return its checked payload (CRC removed). Raises
         :class:`TrackerReplyError` for ``ERRORxx`` and the link errors."""
+        timeout = self.timeout if timeout is None else check_duration("timeout", timeout)
         with self._lock:
-            raw = self._exchange(command, self.timeout if timeout is None else timeout).raw
+            raw = self._exchange(command, timeout).raw
             payload = checked_payload(raw, self.url, command)
             if payload[:7] == b"WARNING":
                 log.warning(

@@ -12,8 +12,11 @@ exercise:
 
 Faults, injectable while running: :meth:`silence` (a node's heartbeat and frames stop: cable cut),
 :meth:`drop_next` (a TPDO lost), :meth:`error_frames`, :meth:`bus_off` / :meth:`recover`,
-:meth:`reboot` (a node resets), and ``jitter_s`` (each TPDO delayed by a uniform random time in
-[0, jitter_s] s). The virtual bus has no physical layer, so bus-off is emulated the way a
+:meth:`reboot` (a node resets), ``jitter_s`` (each TPDO delayed by a uniform random time in
+[0, jitter_s] s), and the bus clock's faults (they need the wire times below):
+:meth:`stamp_next` (one TPDO stamped off the clock: a corrupt timestamp) and :meth:`step_clock`
+(every frame from now on stamped off by a constant: the interface's clock was reset or the
+system time stepped). The virtual bus has no physical layer, so bus-off is emulated the way a
 SocketCAN controller reports it: an error frame with the CAN_ERR_BUSOFF class, then silence.
 
 Timing as on a real bus: a CiA 406 encoder latches its position in hardware at the SYNC and
@@ -108,6 +111,8 @@ class MockEncoderNodes:
         self.states: dict[int, int] = dict.fromkeys(range(1, 7), BOOTUP)
         self._silent = dict.fromkeys(range(1, 7), False)
         self._drop = dict.fromkeys(range(1, 7), 0)
+        self._skew_next: dict[int, float] = {}  # leg -> s added to its next TPDO's stamp
+        self._clock_step_s = 0.0  # s added to every stamp (the interface's clock jumped)
         self._bus_off = False
         self._scheduled: list[tuple[float, int, can.Message]] = []
         self._seq = itertools.count()
@@ -207,6 +212,28 @@ class MockEncoderNodes:
             with self._lock:
                 self._bus_off = False
 
+    def stamp_next(self, leg: int, offset_s: float) -> None:
+        """Stamp leg ``leg``'s next TPDO ``offset_s`` s off the bus clock (one corrupt
+        timestamp). Needs wire times (a virtual bus this object opened)."""
+        self._need_wire_times("stamp_next")
+        with self._lock:
+            self._skew_next[leg] = self._skew_next.get(leg, 0.0) + offset_s
+
+    def step_clock(self, offset_s: float) -> None:
+        """Step the bus clock by ``offset_s`` s: every frame from now on is stamped that much off
+        (negative: the clock was reset back). Needs wire times (a virtual bus this object
+        opened)."""
+        self._need_wire_times("step_clock")
+        with self._send_lock:  # frames after the step only
+            self._clock_step_s += offset_s
+
+    def _need_wire_times(self, what: str) -> None:
+        if not self._wire_times:
+            raise RuntimeError(
+                f"{what}() needs the mock to stamp its frames (python-can's virtual bus opened by "
+                "MockEncoderNodes with preserve_timestamps): on a real bus the interface stamps them"
+            )
+
     def reboot(self, leg: int) -> None:
         """Leg ``leg``'s node resets: boot-up message, then PRE-OPERATIONAL (no TPDOs)."""
         with self._lock:
@@ -221,8 +248,8 @@ class MockEncoderNodes:
         with self._send_lock:
             if self._bus_off and not msg.is_error_frame:
                 return  # decided before bus_off(), sent after: a bus-off controller sends nothing
-            if self._wire_times and not msg.timestamp:
-                msg.timestamp = time.time()
+            if self._wire_times:
+                msg.timestamp = (msg.timestamp or time.time()) + self._clock_step_s
             try:
                 bus.send(msg)
             except can.CanError as exc:  # a mock must not die on a full queue: log and go on
@@ -313,12 +340,13 @@ class MockEncoderNodes:
                     continue
                 counts = min(max(cfg.mm_to_counts(float(readings[leg - 1])), _INT32[0]), _INT32[1])
                 delay = float(self._rng.uniform(0.0, self.jitter_s)) if self.jitter_s > 0 else 0.0
+                skew = self._skew_next.pop(leg, 0.0)
                 frame = can.Message(
                     arbitration_id=cfg.tpdo1_cob_id,
                     data=counts.to_bytes(4, "little", signed=True),
                     is_extended_id=False,
                     # Never later than now (+ its delay): a wire time is never in the future.
-                    timestamp=min(t_bus + self.latency_s, time.time()) + delay
+                    timestamp=min(t_bus + self.latency_s, time.time()) + delay + skew
                     if self._wire_times
                     else 0.0,
                 )

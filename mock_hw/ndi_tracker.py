@@ -32,13 +32,20 @@ Transports (one at a time per device):
 - a pseudo-terminal, :class:`hexcal.mock_hw.pty_tracker.PtyTracker`.
 
 URL options (all optional): ``seed`` (int, default device only), ``frame_rate`` (Hz), the fault
-rates ``drop``, ``garble``, ``crc``, ``truncate`` (probability per tracking reply) and
+rates ``drop``, ``garble``, ``crc``, ``truncate``, ``nan`` (probability per tracking reply) and
 ``delay_ms``, ``jitter_ms``. They update the device's :class:`FaultSettings` when the URL opens.
 
 Faults (on TX/BX replies; :meth:`MockNDITracker.inject` queues one-shot faults for the next
 ones, the rates draw them at random): ``drop`` (no reply: the host times out), ``garble`` (a few
 payload bytes replaced: CRC error), ``crc`` (payload intact, CRC field wrong), ``truncate`` (only
-the first half of the reply, no CR). ``delay_s`` + uniform(0, ``jitter_s``) delays every reply.
+the first half of the reply, no CR). The number faults of :data:`NONFINITE_FAULTS` spoil a
+*frame*, not a reply: the next frame measured (every poll of it, as a tracker serves one
+measurement per frame) carries a non-finite number in its pose record, in replies that stay well
+formed with valid CRCs — a firmware glitch no link check can catch: ``nan`` (position x is
+NaN), ``inf`` (position z is +inf), ``nan_quaternion`` (qx is NaN), ``inf_rms`` (the RMS error
+is +inf); the ``nan`` rate draws per frame. BX carries them as float32; TX's fixed-width digit
+fields cannot, so there the field is spelled as C's printf would (``+   nan``), which no longer
+follows the format. ``delay_s`` + uniform(0, ``jitter_s``) delays every reply.
 The link itself: a wrong host baud rate makes the device drop what it receives (framing errors),
 and :meth:`MockNDITracker.unplug` / :meth:`replug` pull and reinsert the URL transport's cable.
 """
@@ -62,7 +69,17 @@ from hexcal.drivers.crc import crc16, crc16_hex
 from hexcal.mock_hw.robot import MockRobot
 
 URL_SCHEME = "ndimock"
-FAULT_KINDS = ("drop", "garble", "crc", "truncate")
+#: Faults of the reply's bytes (the link).
+LINK_FAULTS = ("drop", "garble", "crc", "truncate")
+#: Faults of the numbers: a well-formed, CRC-valid reply whose pose record carries NaN or inf:
+#: kind -> (field, index in it, value).
+NONFINITE_FAULTS: dict[str, tuple[str, int, float]] = {
+    "nan": ("position", 0, math.nan),
+    "inf": ("position", 2, math.inf),
+    "nan_quaternion": ("quaternion", 1, math.nan),
+    "inf_rms": ("rms", 0, math.inf),
+}
+FAULT_KINDS = (*LINK_FAULTS, *NONFINITE_FAULTS)
 
 #: COMM's baud digit -> baud rate.
 COMM_BAUD = {
@@ -97,7 +114,11 @@ def with_crc(payload: bytes) -> bytes:
 
 
 def _signed(value: float, resolution: float, digits: int) -> str:
-    """Sign + ``digits`` digits of ``value / resolution``; saturates as a fixed field must."""
+    """Sign + ``digits`` digits of ``value / resolution``; saturates as a fixed field must. A
+    non-finite value has no digits: it is spelled as C's printf would, right-aligned in the
+    field (``+   nan``), as a glitching firmware might send it."""
+    if not math.isfinite(value):
+        return ("-" if value < 0 else "+") + str(abs(value)).rjust(digits)
     n = round(value / resolution)
     limit = 10**digits - 1
     n = max(-limit, min(limit, n))
@@ -166,6 +187,7 @@ class FaultSettings:
     garble: float = 0.0
     crc: float = 0.0
     truncate: float = 0.0
+    nan: float = 0.0  #: per frame: its pose record's position x is NaN (replies CRC-valid)
     delay_s: float = 0.0
     jitter_s: float = 0.0
 
@@ -211,7 +233,8 @@ class MockNDITracker:
         self._pending: deque[tuple[float, bytes]] = deque()  # (release time, bytes) in flight
         self._ready = bytearray()  # arrived at the host, not read yet
         self._inbuf = bytearray()
-        self._once: deque[str] = deque()
+        self._once: deque[str] = deque()  # link faults for the next replies
+        self._spoil_frames: deque[str] = deque()  # number faults for the next frames
         self._t0 = clock()
         #: Every command line received (text), most recent last.
         self.commands: deque[str] = deque(maxlen=500)
@@ -253,14 +276,16 @@ class MockNDITracker:
         return self._t0 + (frame - 1) / self.frame_rate_hz
 
     def inject(self, fault: str, count: int = 1) -> None:
-        """Apply ``fault`` (one of :data:`FAULT_KINDS`) to the next ``count`` tracking replies."""
+        """Apply ``fault`` (one of :data:`FAULT_KINDS`) to the next ``count`` tracking replies
+        (a link fault) or frames measured (a number fault, :data:`NONFINITE_FAULTS`)."""
         if fault not in FAULT_KINDS:
             raise ValueError(f"unknown fault {fault!r}; choose from {', '.join(FAULT_KINDS)}")
         with self._cond:
-            self._once.extend([fault] * count)
+            queue = self._spoil_frames if fault in NONFINITE_FAULTS else self._once
+            queue.extend([fault] * count)
 
     def configure(self, **settings: float) -> None:
-        """Update :attr:`faults` (drop, garble, crc, truncate, delay_s, jitter_s)."""
+        """Update :attr:`faults` (drop, garble, crc, truncate, nan, delay_s, jitter_s)."""
         known = {f.name for f in fields(FaultSettings)}
         for key, value in settings.items():
             if key not in known:
@@ -404,17 +429,17 @@ class MockNDITracker:
             self._ready += self._pending.popleft()[1]
 
     # -- replies and faults ---------------------------------------------------------------------------
-    def _emit(self, data: bytes, tracking: bool = False) -> None:
-        fault = None
-        if tracking:
-            if self._once:
-                fault = self._once.popleft()
-            else:
-                for kind in FAULT_KINDS:
-                    rate = getattr(self.faults, kind)
-                    if rate > 0.0 and self._rng.random() < rate:
-                        fault = kind
-                        break
+    def _draw_fault(self) -> str | None:
+        """The fault of the next tracking reply: a queued one-shot, else one drawn by the rates."""
+        if self._once:
+            return self._once.popleft()
+        for kind in LINK_FAULTS:
+            rate = getattr(self.faults, kind)
+            if rate > 0.0 and self._rng.random() < rate:
+                return kind
+        return None
+
+    def _emit(self, data: bytes, fault: str | None = None) -> None:
         if fault == "drop":
             return
         if fault == "garble":
@@ -459,10 +484,10 @@ class MockNDITracker:
         crc = int(data[-5:-1], 16)
         return data[:-5] + b"%04X" % (crc ^ 0x5A5A) + b"\r"
 
-    def _reply(self, payload: bytes | str, tracking: bool = False) -> None:
+    def _reply(self, payload: bytes | str) -> None:
         if isinstance(payload, str):
             payload = payload.encode("ascii")
-        self._emit(with_crc(payload), tracking)
+        self._emit(with_crc(payload))
 
     def _error(self, code: int) -> None:
         self._reply(f"ERROR{code:02X}")
@@ -572,7 +597,8 @@ class MockNDITracker:
         if self._cached is None or self._cached[0] != frame:  # one measurement per frame
             measured = self.frame_time(frame)
             self.frame_times.append((frame, measured))
-            self._cached = (frame, self.robot.tracker_sample(at=self._robot_time(measured, now)))
+            measurement = self.robot.tracker_sample(at=self._robot_time(measured, now))
+            self._cached = (frame, self._spoil(measurement))
         sample = self._cached[1]
         states = []
         for handle, status in sorted(self.ports.items()):
@@ -614,11 +640,34 @@ class MockNDITracker:
 
     def _cmd_TX(self, params: str) -> None:
         if self._tracking_mode(params):
-            self._emit(format_tx_reply(self._tool_states(), self.system_status), tracking=True)
+            self._emit(format_tx_reply(self._tool_states(), self.system_status), self._draw_fault())
 
     def _cmd_BX(self, params: str) -> None:
         if self._tracking_mode(params):
-            self._emit(format_bx_reply(self._tool_states(), self.system_status), tracking=True)
+            self._emit(format_bx_reply(self._tool_states(), self.system_status), self._draw_fault())
+
+    def _spoil(self, sample: Sample | None) -> Sample | None:
+        """A new frame's measurement, with a number fault if one is due (queued or drawn)."""
+        if self._spoil_frames:
+            kind = self._spoil_frames.popleft()
+        elif self.faults.nan > 0.0 and self._rng.random() < self.faults.nan:
+            kind = "nan"
+        else:
+            return sample
+        return None if sample is None else _spoiled(sample, *NONFINITE_FAULTS[kind])
+
+
+def _spoiled(sample: Sample, part: str, index: int, value: float) -> Sample:
+    """``sample`` with ``value`` (NaN, inf) put into its ``part`` ("position", "quaternion" or
+    "rms") at ``index``."""
+    p, q, rms = np.array(sample[0], float), np.array(sample[1], float), sample[2]
+    if part == "position":
+        p[index] = value
+    elif part == "quaternion":
+        q[index] = value
+    else:
+        rms = value
+    return p, q, rms
 
 
 # ------------------------------------------------------------------------------------------------
@@ -633,6 +682,7 @@ _URL_FAULTS = {
     "garble": ("garble", 1.0),
     "crc": ("crc", 1.0),
     "truncate": ("truncate", 1.0),
+    "nan": ("nan", 1.0),
     "delay_ms": ("delay_s", 1e-3),
     "jitter_ms": ("jitter_s", 1e-3),
 }

@@ -178,3 +178,64 @@ def test_threaded_acquisition_against_the_mock_robot():
         robot.tool_visible = False
         with pytest.raises(PoseRefused, match="MISSING"):
             acq.record()
+
+
+# -- numbers no pose can have (defence in depth behind the drivers) --------------------------------
+@pytest.mark.parametrize(
+    "position, quaternion, said",
+    [
+        ([np.nan, 2.0, 200.0], None, r"non-finite position \[ *nan"),
+        ([1.0, 2.0, np.inf], None, r"non-finite position"),
+        (None, [1.0, np.nan, 0.0, 0.0], r"non-finite quaternion"),
+        (None, [0.0, 0.0, 0.0, 0.0], r"quaternion of norm 0, not a rotation"),
+        ([1.0, 2.0], None, r"malformed position \(not 3 numbers\)"),
+    ],
+)
+def test_a_sample_with_numbers_no_pose_can_have_is_a_fault(position, quaternion, said):
+    """NaN compares false: unchecked, it passes every drift check. A tracker sample whose pose
+    is not finite (or not a pose at all) is a fault of that sample even when the device did not
+    say so; the pose is refused by default, and where glitches are allowed it is left out and
+    its raw copy carries no pose, so the session file can hold it."""
+    ts, ls = _samples()
+    good = ts[7]
+    ts[7] = TrackerSample(
+        good.t,
+        good.position if position is None else np.array(position),
+        good.quaternion if quaternion is None else np.array(quaternion),
+        0.01,
+    )
+    with pytest.raises(
+        PoseRefused,
+        match=rf"1 of 20 tracker samples flagged\): tracker sample "
+        rf"at t = 0\.175 s: {said}",
+    ):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+    pose = record_pose(ts, ls, TOLERANT, t_end=0.5)
+    assert len(pose.good_tracker_samples) == 19 and any(
+        "non" in n or "not" in n for n in pose.notes
+    )
+    raw = pose.tracker_samples[7]
+    assert raw.position is None and raw.quaternion is None and raw.fault
+    for s in pose.tracker_samples:
+        assert s.position is None or np.all(np.isfinite(s.position))
+    assert np.all(np.isfinite(pose.position)) and np.all(np.isfinite(pose.quaternion))
+
+
+def test_a_reading_set_with_a_non_finite_reading_is_named():
+    ts, ls = _samples()
+    ls[4] = LegSample(ls[4].t, np.r_[np.full(2, 60.0), np.inf, np.full(3, 60.0)])
+    with pytest.raises(
+        PoseRefused,
+        match=r"1 of 20 leg reading sets flagged\): leg reading set at t = 0\.101 s: no finite "
+        r"reading from leg 3",
+    ):
+        record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+def test_a_window_whose_average_is_not_finite_is_refused():
+    """Finite samples can still average to infinity (1e308 + 1e308 overflows): the last guard
+    refuses the window rather than record an inf the session cannot hold."""
+    ts, ls = _samples(sigma_mm=0.0)
+    ts = [TrackerSample(s.t, np.array([1e308, 2.0, 200.0]), s.quaternion, 0.01) for s in ts]
+    with pytest.raises(PoseRefused, match=r"averaged position is not a finite number"):
+        record_pose(ts, ls, WINDOW, t_end=0.5)

@@ -104,3 +104,29 @@ def test_devices_check_fails_when_many_sets_are_flagged():
     text = "\n".join(lines)
     assert not ok
     assert "arrived" in text and "after SYNC" in text and "sets are flagged" in text
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ('[tracker]\nurl = "x"\ntimeout_s = inf\n', r"field tracker\.timeout_s: Infinity"),
+        ('[tracker]\nurl = "x"\ntimeout_s = 61\n', r"field tracker\.timeout_s: .* 60 \(got 61\)"),
+        ('[tracker]\nurl = "x"\n[still]\nmax_fault_share = nan\n', r"still\.max_fault_share: NaN"),
+        ('[tracker]\nurl = "x"\n[still]\nmin_leg_samples = 1e9\n', r"still\.min_leg_samples"),
+        (
+            '[tracker]\nurl = "x"\n[can]\nlegs = [\n'
+            + ",\n".join(
+                f"{{leg = {k}, node_id = {32 + k}, counts_per_mm = {1e12 if k == 3 else 1000.0}}}"
+                for k in range(1, 7)
+            )
+            + "]\n",
+            r"field can: leg 3's counts_per_mm is 1e\+12; give at most 1e\+09",
+        ),
+    ],
+)
+def test_every_number_is_finite_and_in_range(tmp_path, text, match):
+    p = tmp_path / "rig.toml"
+    p.write_text(text)
+    with pytest.raises(DevicesConfigError, match=match) as err:
+        load_devices_config(p)
+    assert "errors.pydantic.dev" not in str(err.value)

@@ -13,7 +13,10 @@ skipped for the real channel.
 from __future__ import annotations
 
 import itertools
+import logging
+import math
 import os
+import re
 import threading
 import time
 import uuid
@@ -441,6 +444,110 @@ def test_another_sync_producer_is_flagged(driver, config, target):
         other.send(can.Message(arbitration_id=0x80, data=[], is_extended_id=False))
     _, bad = read_until(driver, lambda s: any("another SYNC producer" in f for f in s.faults))
     assert not bad.complete and driver.status()["foreign_syncs"] == 1
+
+
+#: The jumps as the driver tells them, to the ms (a frame's own latency moves the last digits).
+HOUR, THOUSAND = r"3(599|600)\.\d{3}", r"(999|1000)\.\d{3}"
+#: Sets after a bus clock fault that may be flagged before attribution is right again: the
+#: fault's own SYNC, the ones the driver takes to confirm a jump (two periods), the re-anchoring.
+RECOVERY_SETS = 6
+
+
+@pytest.mark.parametrize(
+    "inject, said, jumps",
+    [
+        (lambda nodes: nodes.stamp_next(4, 3600.0), rf"1 frame\(s\) stamped \+{HOUR} s off", 0),
+        (lambda nodes: nodes.step_clock(3600.0), rf"clock of .* jumped \+{HOUR} s", 1),
+        (lambda nodes: nodes.step_clock(-1000.0), rf"clock of .* jumped -{THOUSAND} s", 1),
+    ],
+    ids=["one frame stamped an hour ahead", "clock steps an hour ahead", "clock reset back"],
+)
+def test_a_bus_clock_jump_costs_a_few_sets_then_sets_are_complete_again(
+    robot, target, inject, said, jumps, caplog
+):
+    """One frame stamped an hour off, or the interface's clock stepping for good (forward, or
+    reset back): the driver flags the sets it cannot place positions in, re-anchors within a
+    few SYNC periods, says so once in the log naming the bus, and every later set is complete."""
+    need_virtual(target)
+    cfg = make_config("virtual", unique_channel())
+    with (
+        caplog.at_level(logging.INFO, logger="hexcal.drivers.can_encoders"),
+        MockEncoderNodes(robot, cfg) as nodes,
+        LegEncoders(cfg) as drv,
+    ):
+        read_complete(drv, 3)
+        inject(nodes)
+        sets = read_sets(drv, RECOVERY_SETS + 40)
+        status = drv.status()
+    assert_contiguous(sets)
+    later = sets[RECOVERY_SETS:]
+    assert sum(s.complete for s in later) >= 35, [s.faults for s in later if not s.complete]
+    assert all(s.complete or only_timing(s) for s in later)
+    hit = [s for s in sets[:RECOVERY_SETS] if not s.complete]
+    assert any("off the clock of" in f or "jumped" in f for s in hit for f in s.faults)
+    told = [r for r in caplog.records if re.search(said, r.getMessage())]
+    assert len(told) == 1 and told[0].levelno == logging.WARNING
+    assert cfg.channel in told[0].getMessage()
+    assert status["clock_jumps"] == jumps
+
+
+def test_a_non_finite_reading_is_a_fault_of_its_set(robot, target):
+    """Counts that the leg's scaling turns into no finite number (a counts_per_mm of 1e-320
+    typed by mistake) flag the set, naming the leg; no NaN or inf becomes a reading."""
+    need_virtual(target)
+    cfg = make_config("virtual", unique_channel())
+    legs = [
+        leg.model_copy(update={"counts_per_mm": 1e-320}) if leg.leg == 2 else leg
+        for leg in cfg.legs
+    ]
+    mock_cfg = cfg  # the nodes send sane counts; only the driver's scaling is wrong
+    drv_cfg = cfg.model_copy(update={"legs": legs})
+    with MockEncoderNodes(robot, mock_cfg), LegEncoders(drv_cfg) as drv:
+        sets = read_sets(drv, 5)
+    for s in sets:
+        assert not s.complete and np.isnan(s.readings_mm[1])
+        assert np.all(np.isfinite(s.readings_mm) | np.isnan(s.readings_mm))
+        assert any(
+            "leg 2 encoder (node 0x22) sent" in f and "no finite reading" in f for f in s.faults
+        )
+    dec = TpdoDecoder(drv_cfg)
+    msg = can.Message(
+        arbitration_id=0x1A2, data=(123456).to_bytes(4, "little"), is_extended_id=False
+    )
+    with pytest.raises(EncoderError, match="no finite reading"):
+        dec.decode(msg)
+    legs_b, mm_b = dec.decode_batch(np.array([0x1A2]), np.frombuffer(msg.data, np.uint8)[None])
+    assert legs_b[0] == 2 and np.isnan(mm_b[0])
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"heartbeat_timeout_s": math.inf}, "heartbeat_timeout_s"),
+        ({"heartbeat_timeout_s": 3600.0}, "heartbeat_timeout_s"),
+        ({"sync_period_s": 61.0}, "sync_period_s"),
+    ],
+)
+def test_config_durations_are_bounded(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        make_config("virtual", "x", **kwargs)
+    # A config built past validation is caught by the driver itself.
+    cfg = make_config("virtual", "x").model_copy(update=kwargs)
+    with pytest.raises(ValueError, match=rf"{name} must be a finite number of seconds"):
+        LegEncoders(cfg)
+
+
+@pytest.mark.parametrize("bad", [math.inf, math.nan, -1.0, 61.0, 1e300])
+def test_driver_timeouts_are_bounded(bad):
+    cfg = make_config("virtual", unique_channel())
+    with pytest.raises(ValueError, match="clock_jump_s must be a finite number of seconds"):
+        LegEncoders(cfg, clock_jump_s=bad)
+    drv = LegEncoders(cfg)
+    with pytest.raises(ValueError, match="timeout must be a finite number of seconds"):
+        drv.start(timeout=bad)
+    with pytest.raises(ValueError, match="timeout must be a finite number of seconds"):
+        drv.read_set(timeout=bad)
+    assert not drv.status()["running"]
 
 
 def test_start_names_a_node_that_never_answers(robot, config, target):

@@ -157,3 +157,9 @@ def test_line_tracker_bad_port():
         TrackerDisconnected, match="cannot open the tracker port /nonexistent/ttyLINE"
     ):
         LineTracker("/nonexistent/ttyLINE").open()
+
+
+@pytest.mark.parametrize("bad", [math.inf, math.nan, 0.0, -1.0, 61.0])
+def test_line_tracker_timeout_is_bounded(bad):
+    with pytest.raises(ValueError, match=r"^timeout must be a finite number of seconds"):
+        LineTracker("loop://", timeout=bad)

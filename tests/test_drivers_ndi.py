@@ -13,6 +13,7 @@ import itertools
 import logging
 import math
 import os
+import re
 import struct
 import time
 from collections.abc import Iterator
@@ -200,6 +201,41 @@ def test_parse_bx_reply_and_its_checks():
         parse_bx_reply(odd, port=PORT)
 
 
+def _bx_pose(position, quaternion, rms, frame=1234) -> bytes:
+    """A BX reply, CRCs valid, carrying exactly these float32 numbers for handle 01."""
+    body = bytes([1, 1, 1]) + struct.pack("<8f", *quaternion, *position, rms)
+    body += struct.pack("<IIH", 0x31, frame, 0)
+    header = struct.pack("<HH", 0xA5C4, len(body))
+    return header + struct.pack("<H", crc16(header)) + body + struct.pack("<H", crc16(body))
+
+
+@pytest.mark.parametrize(
+    "position, quaternion, rms, defect",
+    [
+        ((math.nan, 2.0, 3.0), (1, 0, 0, 0), 0.01, r"non-finite position \(x = nan\)"),
+        ((1.0, 2.0, -math.inf), (1, 0, 0, 0), 0.01, r"non-finite position \(z = -inf\)"),
+        ((1.0, 2.0, 3.0), (1, 0, math.nan, 0), 0.01, r"non-finite quaternion \(qy = nan\)"),
+        ((1.0, 2.0, 3.0), (math.inf, 0, 0, 0), 0.01, r"non-finite quaternion \(q0 = inf\)"),
+        ((1.0, 2.0, 3.0), (1, 0, 0, 0), math.nan, r"non-finite RMS error \(nan\)"),
+        ((3e38, 2.0, 3.0), (1, 0, 0, 0), 0.01, r"implausible position \(x = 3e\+38 mm"),
+    ],
+)
+def test_a_crc_valid_frame_with_a_non_finite_number_is_a_fault_of_its_sample(
+    position, quaternion, rms, defect
+):
+    """NaN compares false and would pass every still-window check: a BX pose record carrying
+    NaN or inf (or a position no tracker measures) is a fault of that sample, named with its
+    frame number, never a pose. The frame itself stays valid (its number feeds the clock)."""
+    frame = parse_bx_reply(_bx_pose(position, quaternion, rms), 2.0, port=PORT)
+    tool = frame.tool()
+    assert tool.state == "invalid" and not tool.visible and frame.frame_number == 1234
+    assert tool.position is None and tool.quaternion is None and math.isnan(tool.rms_mm)
+    s = frame.to_sample()
+    assert s.position is None and s.quaternion is None
+    assert re.match(rf"tracker frame 1234: {defect}", s.fault), s.fault
+    assert PORT in s.fault and "discarded" in s.fault
+
+
 def test_phsr_and_command_building():
     assert parse_phsr_reply(b"0201031A2001") == [(0x01, 0x031), (0xA2, 0x001)]
     assert parse_phsr_reply(b"00") == []
@@ -215,6 +251,20 @@ def test_bad_constructor_arguments():
         NDITracker(PORT, baudrate=12345)
     with pytest.raises(ValueError, match="reset"):
         NDITracker(PORT, reset="kick")
+
+
+@pytest.mark.parametrize(
+    "name", ["timeout", "reset_timeout_s", "break_duration_s", "resync_s", "settle_s"]
+)
+@pytest.mark.parametrize("bad", [math.inf, math.nan, -1.0, 61.0, "soon"])
+def test_every_wait_is_bounded(name, bad):
+    """A timeout of inf once reached pyserial's write_timeout and crashed it: every duration is
+    checked where the driver is built, naming the parameter."""
+    with pytest.raises(ValueError, match=rf"^{name} must be a finite number of seconds"):
+        NDITracker(PORT, **{name: bad})
+    with pytest.raises(ValueError, match=r"^timeout must be a finite number of seconds"):
+        NDITracker(PORT).command("TX:0001", timeout=bad)
+    assert NDITracker(PORT, **{name: 60.0}).port is None  # the maximum itself is fine
 
 
 # -- the driver against the mock, over both transports -------------------------------------------------
@@ -432,6 +482,34 @@ def test_fault_tool_missing(tracking):
     link.robot.tool_visible = True
     time.sleep(0.003)  # the frame measured while it was hidden stays MISSING, as on a real tracker
     assert trk.sample().fault is None
+
+
+@pytest.mark.parametrize(
+    "kind, defect",
+    [
+        ("nan", "non-finite position (x = nan)"),
+        ("inf", "non-finite position (z = inf)"),
+        ("nan_quaternion", "non-finite quaternion (qx = nan)"),
+        ("inf_rms", "non-finite RMS error (inf)"),
+    ],
+)
+def test_fault_non_finite_number_in_a_crc_valid_frame(tracking, kind, defect):
+    """The mock spoils one frame's measurement: over BX (float32) its sample is a fault naming
+    the frame and the number; over TX the text field cannot hold it and the reply is refused as
+    malformed. The next frame is fine."""
+    link, trk = tracking
+    link.device.inject(kind)
+    s = trk.sample(binary=True)  # the first new frame is the spoiled one
+    assert s.position is None and s.quaternion is None
+    assert re.match(rf"tracker frame \d+: {re.escape(defect)} of tool 01", s.fault), s.fault
+    assert link.url in s.fault
+    link.device.inject(kind)
+    time.sleep(0.002)  # a new frame (1 kHz): the spoiled one
+    with pytest.raises(TrackerFormatError, match="is not a pose"):
+        trk.poll()
+    time.sleep(0.002)  # the next frame is measured afresh
+    good = trk.sample(binary=True)
+    assert good.fault is None and np.all(np.isfinite(good.position))
 
 
 def test_fault_out_of_volume(tracking):

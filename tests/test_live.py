@@ -125,6 +125,33 @@ FAULTS = {
         r"reconnects by itself",
         settle_s=0.05,
     ),
+    # A frame whose CRC is valid but whose position is NaN: NaN compares false, so it once
+    # passed the still-window checks, became a pose saved as null, and the file would not load.
+    "NaN coordinate in a CRC-valid frame": Fault(
+        lambda rig: rig.tracker.inject("nan"),
+        _nothing,
+        r"1 of \d+ tracker samples flagged\): tracker frame \d+: non-finite position \(x = nan\) "
+        r"of tool 01 from the tracker on ndimock://\S+: .*discarded",
+        mid_window=True,
+    ),
+    "NaN in every frame": Fault(
+        _configure(nan=1.0),
+        _configure(nan=0.0),
+        r"(\d+) of \1 tracker samples flagged\): tracker frame \d+: non-finite position",
+    ),
+    "a CAN frame stamped an hour ahead": Fault(
+        lambda rig: rig.nodes.stamp_next(4, 3600.0),
+        _nothing,
+        r"1 of \d+ leg reading sets flagged\): leg 4 encoder \(node 0x24\) sent a position "
+        r"stamped \+3(599|600)\.\d{3} s off the clock of CAN virtual channel",
+        mid_window=True,
+    ),
+    "CAN interface clock reset back": Fault(
+        lambda rig: rig.nodes.step_clock(-1000.0),
+        _nothing,
+        r"leg reading sets flagged\):.*(stamped|jumped) -(999|1000)\.\d{3} s",
+        mid_window=True,
+    ),
     "CAN clock jitter beyond the deadline": Fault(
         _set_jitter(0.02),
         _set_jitter(0.0),

@@ -271,6 +271,52 @@ def test_injected_faults(dev):
         dev.inject("smoke")
 
 
+@pytest.mark.parametrize(
+    "kind, field, value",
+    [
+        ("nan", 4 + 0, "nan"),
+        ("inf", 4 + 2, "inf"),
+        ("nan_quaternion", 1, "nan"),
+        ("inf_rms", 7, "inf"),
+    ],
+)
+def test_number_faults_spoil_one_frame_in_crc_valid_replies(robot, kind, field, value):
+    """A number fault spoils the next frame measured, in every reply to it: BX carries the
+    float32 NaN / inf with valid CRCs; TX's digit fields cannot, so it spells it as printf
+    would. The frame after is clean."""
+    clock = FakeClock()
+    dev = tracking(MockNDITracker(robot, seed=5, frame_rate_hz=1000.0, clock=clock))
+
+    def numbers() -> tuple[float, ...]:  # q0 qx qy qz x y z rms of a BX reply, CRCs checked
+        bx = ask(dev, "BX:0001")
+        assert crc16(bx[:4]) == struct.unpack_from("<H", bx, 4)[0]
+        assert crc16(bx[6:-2]) == struct.unpack("<H", bx[-2:])[0]
+        return struct.unpack_from("<8f", bx, 6 + 3)
+
+    assert all(np.isfinite(numbers()))
+    dev.inject(kind)
+    assert all(np.isfinite(numbers()))  # the same frame as before: measured already
+    clock.t += 0.002  # the next frame: the spoiled one
+    spoiled = numbers()
+    assert str(spoiled[field]) == value
+    assert all(np.isfinite(v) for i, v in enumerate(spoiled) if i != field)
+    assert numbers() == spoiled or np.isnan(spoiled[field])  # every poll of it (nan != nan)
+    tx = ask(dev, "TX:0001")
+    assert ok_crc(tx) and re.search(rb"\+ +" + value.encode(), tx) and not TX_POSE.fullmatch(tx)
+    clock.t += 0.002
+    assert all(np.isfinite(numbers()))
+    with pytest.raises(ValueError, match="unknown fault"):
+        dev.inject("nan_everything")
+
+
+def test_nan_rate_from_the_url():
+    dev = device_for_url("ndimock://?seed=12&nan=1")
+    try:
+        assert dev.faults.nan == 1.0
+    finally:
+        dev.configure(nan=0.0)
+
+
 def test_faults_touch_only_tracking_replies(dev):
     dev.configure(drop=1.0)
     assert ok_crc(ask(dev, "INIT:"))

@@ -4,6 +4,7 @@ back wherever a robot is read, predicting exactly what the fit predicted."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,3 +120,20 @@ def test_a_calibrated_model_given_as_robot_brings_its_effects(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["model_name"] == "Model 42 + gain"
     assert out["rms_mm"] == pytest.approx(result.calibration.rms_mm, rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("version", "match"),
+    [
+        ('"1"', r"field calibration\.format_version: '1' is not a format version"),
+        ("0", r"field calibration\.format_version: 0 is not a format version"),
+        ("true", r"field calibration\.format_version: true is not a format version"),
+        ("1" + "0" * 30, r"format version 1000000000000000000000000000000; .*upgrade hexcal"),
+    ],
+)
+def test_a_format_version_that_is_not_one_is_named(tmp_path, version, match):
+    text = (Path(__file__).parent / "data" / "calibrated.json").read_text()
+    path = tmp_path / "calibrated.json"
+    path.write_text(text.replace('"format_version": 1', f'"format_version": {version}'))
+    with pytest.raises(RobotFileError, match=match):
+        load_model(path)

@@ -134,3 +134,34 @@ def test_a_lab_procedure_needs_no_code():
     assert [s.name for s in proc.expand()] == ["leg1-length", "leg2-length"]
     with pytest.raises(ProcedureError, match="no such procedure file"):
         load_procedure("/nonexistent/lab.toml")
+
+
+def test_dots_and_brackets_inside_strings_and_comments_are_not_nesting():
+    """The depth scan before tomllib skips strings and comments: a long instruction full of
+    dots, brackets and quotes loads."""
+    head = (
+        "name = 'x'  # a.b.c.d.e.f.g.h.i.j.k.l.m.n.o.p.q.r.s.t.u.v.w.x.y.z.a.b.c.d.e.f.g.h\n"
+        "model = 42\n"
+        f'description = """\n{"[[{{ a.b. " * 200}\\"""\n"""\n'
+        f'reference = "{"a.b." * 100}\\" ]]] "\n'
+    )
+    instruction = "'" + "1.2.3.[4]." * 50 + "' # [[[[ " + "x." * 40
+    text = head + GOOD_STEP.replace('"Clamp leg {leg}."', instruction)
+    proc = parse_procedure(text, "dots.toml")
+    assert proc.steps[0].instruction.startswith("1.2.3.[4].")
+    assert proc.reference.startswith("a.b.a.b.")
+
+
+@pytest.mark.parametrize(
+    ("line", "match"),
+    [
+        ("tolerance_mm = inf", r"field steps\.0\.tolerance_mm: Infinity is not a finite number"),
+        ("tolerance_mm = 11.0", r"field tolerance_mm: Input should be less than or equal to 10"),
+        ("x" + ".x" * 40 + " = 1", r"line \d+: a dotted key has more than 32 parts"),
+    ],
+)
+def test_numbers_and_keys_are_bounded(tmp_path, line, match):
+    p = tmp_path / "lab.toml"
+    p.write_text("name = 'x'\nmodel = 42\n" + GOOD_STEP + line + "\n")
+    with pytest.raises(ProcedureError, match=match):
+        load_procedure(p)

@@ -153,11 +153,138 @@ def test_a_kill_while_recording_leaves_the_session_intact_and_resumable(tmp_path
     time.sleep(delay_s)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
+    # a kill mid-write leaves at most its one temporary file, never a damaged session
+    left = [q for q in tmp_path.iterdir() if q.name.endswith(".tmp")]
+    assert len(left) <= 1
     sf = SessionFile.resume(path)
     n = len(sf.session.poses)
     assert n >= 1 and [p.pose_id for p in sf.session.poses] == list(range(1, n + 1))
+    # resuming removes it, and says so
+    assert [q for q in tmp_path.iterdir() if q.name.endswith(".tmp")] == []
+    assert len(sf.notices) == len(left)
     rng = np.random.default_rng(5)
     sf.add_pose(sf.session.pose_record(recorded_pose(rng), "free", 0, "free", t=1.0))
     assert len(load_session(path).poses) == n + 1
-    # a kill mid-write leaves at most its one temporary file, never a damaged session
-    assert len([q for q in tmp_path.iterdir() if q.name.endswith(".tmp")]) <= 1
+
+
+# -- numbers: finite on the way in, null poses of older files set aside on load -------------------
+
+NULL_POSE = Path(__file__).parent / "data" / "session-null-pose.json"
+
+
+def test_a_session_with_a_null_pose_from_an_older_hexcal_loads_with_it_set_aside(tmp_path):
+    """An older hexcal saved NaN as null: the file loads, the pose moves to set_aside whole,
+    with a reason naming the pose and the fields; nothing else changes."""
+    path = tmp_path / "old.json"
+    path.write_bytes(NULL_POSE.read_bytes())
+    before = json.loads(NULL_POSE.read_text())
+    sf = SessionFile.resume(path)
+    s = sf.session
+    assert [p.pose_id for p in s.poses] == [1]
+    assert s.poses[0].model_dump(mode="json") == before["poses"][0]
+    assert len(s.set_aside) == 1
+    aside = s.set_aside[0]
+    assert aside.pose is None and aside.unreadable_pose == before["poses"][1]
+    assert aside.reason == (
+        "pose 2: position.0, readings.5 were not numbers (saved by an older hexcal); "
+        "set aside on load"
+    )
+    assert sf.notices == [f"{path}: {aside.reason}"]
+    assert s.robot.model_dump(mode="json") == before["robot"]
+    assert s.next_pose_id() == 3  # the set-aside pose's id is never reused
+    # Saved again, the pose stays aside as it was, and the file loads cleanly.
+    sf.save()
+    again = load_session(path)
+    assert again.set_aside[0].unreadable_pose == before["poses"][1]
+    assert [p.pose_id for p in again.poses] == [1]
+
+
+def test_a_set_aside_pose_with_nulls_is_kept_whole(tmp_path):
+    data = json.loads(NULL_POSE.read_text())
+    pose = data["poses"].pop()
+    data["set_aside"] = [{"step": pose["step"], "reason": "undone", "pose": pose}]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(data))
+    s = load_session(path)
+    assert s.set_aside[0].pose is None and s.set_aside[0].unreadable_pose == pose
+    assert s.set_aside[0].reason.startswith("undone — pose 2: position.0, readings.5")
+
+
+@pytest.mark.parametrize("field", ["position", "quaternion", "readings"])
+def test_a_pose_holding_nan_or_inf_is_refused_not_saved(tmp_path, design, field):
+    rng = np.random.default_rng(2)
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    pose = recorded_pose(rng)
+    getattr(pose, field)[1] = np.inf if field == "readings" else np.nan
+    with pytest.raises(SessionFileError, match=rf"field {field}\.1: .*finite number") as err:
+        sf.session.pose_record(pose, "free", 0, "free", t=0.0)
+    assert "record the pose again" in str(err.value)
+    assert "errors.pydantic.dev" not in str(err.value)
+    assert load_session(sf.path).poses == []
+
+
+def test_a_raw_sample_with_a_non_number_is_saved_as_none_and_flagged():
+    from hexcal.session import RawLegSample, RawTrackerSample
+
+    s = RawTrackerSample.of(TrackerSample(1.0, np.array([1.0, np.nan, 0]), np.ones(4) / 2, 0.1))
+    assert s.position is None and s.quaternion == [0.5] * 4
+    assert s.fault == "the tracker's position was not a number"
+    legs = RawLegSample.of(LegSample(1.0, np.array([1.0, np.inf, 2e6, 4, 5, 6])))
+    assert legs.readings == [1.0, None, None, 4.0, 5.0, 6.0]
+    assert legs.faults == ["leg 2, 3: the reading was not a number"]
+
+
+def test_pose_ids_are_bounded(design):
+    from pydantic import ValidationError
+
+    from hexcal.session import PoseRecord
+
+    row = dict(
+        t=0.0,
+        step="free",
+        leg=0,
+        constraint="free",
+        position=[0, 0, 0],
+        quaternion=[1, 0, 0, 0],
+        readings=[0] * 6,
+    )
+    assert PoseRecord(pose_id=2**53 - 1, **row).pose_id == 2**53 - 1
+    for bad in (0, 2**53, 10**30):
+        with pytest.raises(ValidationError):
+            PoseRecord(pose_id=bad, **row)
+
+
+# -- temporary files an interrupted save left ---------------------------------------------------
+
+
+def test_resume_removes_the_orphan_temporary_files_of_that_session_only(tmp_path, design):
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    ours = [tmp_path / ".s.json.a1b2_c3d.tmp", tmp_path / ".s.json.zzzzzzzz.tmp"]
+    for p in ours:
+        p.write_bytes(b"x" * 100)
+    others = [
+        tmp_path / ".other.json.a1b2c3d4.tmp",  # another file's
+        tmp_path / "s.json.tmp",  # not hexcal's naming
+        tmp_path / ".s.json.short.tmp",  # not 8 random characters
+        tmp_path / ".s.json.ABCDEFGH.tmp",  # mkstemp's characters are lower case
+        tmp_path / ".s.json.a1b2c3d4.tmp.bak",
+    ]
+    for p in others:
+        p.write_text("keep")
+    (tmp_path / ".s.json.dirdirdi.tmp").mkdir()  # not a regular file
+    resumed = SessionFile.resume(sf.path)
+    assert not any(p.exists() for p in ours)
+    assert all(p.exists() for p in others) and (tmp_path / ".s.json.dirdirdi.tmp").is_dir()
+    assert len(resumed.notices) == 2
+    assert all("100 bytes" in n and "interrupted save" in n for n in resumed.notices)
+    assert SessionFile.resume(sf.path).notices == []
+
+
+def test_a_session_that_does_not_load_keeps_its_temporary_files(tmp_path):
+    path = tmp_path / "s.json"
+    path.write_text('{"schema_version": 2, "robot": ')
+    tmp = tmp_path / ".s.json.abcdefgh.tmp"
+    tmp.write_text("perhaps the newer state")
+    with pytest.raises(SessionFileError, match="not valid JSON"):
+        SessionFile.resume(path)
+    assert tmp.read_text() == "perhaps the newer state"

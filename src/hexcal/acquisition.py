@@ -14,6 +14,14 @@ and then may allow a share of flagged samples (``max_fault_share``): those are l
 average and named in the pose's ``notes``. The pose is also refused when the platform or a leg
 moved during the window, or when a stream delivered too few good samples.
 
+Numbers no pose can have are faults too. The drivers flag a NaN or an infinity a device sent
+(``tracker frame 1234: non-finite position ...``); behind them, :func:`record_pose` checks every
+sample again — a tracker sample whose position or quaternion is not finite (or not of shape
+(3,) / (4,)) becomes a fault sample without a pose, a reading set with a non-finite reading is
+flagged — and refuses a window whose averages come out non-finite. Comparisons with NaN are
+false, so without this a NaN would pass every still-window check, and a session file cannot
+hold it.
+
 Motion is judged by *drift*: how far the mean of the window's second half lies from the mean of
 its first half. Its noise is 2σ/√n, so the thresholds hold whatever the instruments' noise (a
 max − min spread grows with the noise and with the number of samples, and refused still poses
@@ -27,6 +35,7 @@ and CAN encoder drivers implement them, and so do test doubles.
 
 from __future__ import annotations
 
+import math
 import re
 import threading
 import time
@@ -62,7 +71,9 @@ class LegSample:
 
     @property
     def complete(self) -> bool:
-        return not self.faults and bool(np.all(np.isfinite(self.readings)))
+        """Six finite readings and no fault."""
+        r = _array(self.readings, 6)
+        return not self.faults and r is not None and bool(np.all(np.isfinite(r)))
 
 
 class PoseSource(Protocol):
@@ -123,6 +134,10 @@ class RecordedPose:
 
 _NUMBER = re.compile(r"\d+(?:\.\d+)?")
 
+#: How far from 1 a sample's quaternion norm may be (the drivers send unit quaternions; the
+#: rounding of a text format moves the norm by < 1e-3): beyond it the sample is no rotation.
+UNIT_QUATERNION_TOLERANCE = 1e-2
+
 
 class PoseRefused(Exception):
     """The pose was not recorded; the message says why and what to do."""
@@ -146,17 +161,63 @@ def _by_count(faults: list[str]) -> list[str]:
     return [latest[key] for key, _ in count.most_common()]
 
 
+def _array(value: object, n: int) -> np.ndarray | None:
+    """``value`` as a float array of shape (n,), or None when it is not one."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return arr if arr.shape == (n,) else None
+
+
+def checked_tracker_sample(s: TrackerSample) -> TrackerSample:
+    """``s`` when its pose is usable (or it has none); otherwise a fault sample without a pose in
+    its place, naming what is wrong: a position or quaternion that is missing while the other is
+    there, not of shape (3,) / (4,), not finite, or a quaternion far from unit norm.
+
+    Defence in depth behind the drivers (which flag the non-finite numbers a device sends): no
+    NaN may reach a recorded pose, nor its raw samples, which the session file keeps."""
+    if s.position is None and s.quaternion is None:
+        return s
+    problems = []
+    for name, value, n in (("position", s.position, 3), ("quaternion", s.quaternion, 4)):
+        arr = None if value is None else _array(value, n)
+        if value is None:
+            problems.append(f"no {name}")
+        elif arr is None:
+            problems.append(f"malformed {name} (not {n} numbers)")
+        elif not np.all(np.isfinite(arr)):
+            problems.append(f"non-finite {name} {np.array2string(arr, precision=4)}")
+        elif n == 4 and abs(float(np.linalg.norm(arr)) - 1.0) > UNIT_QUATERNION_TOLERANCE:
+            problems.append(f"quaternion of norm {np.linalg.norm(arr):.4g}, not a rotation")
+    if not problems:
+        return s
+    fault = f"tracker sample at t = {s.t:.3f} s: {', '.join(problems)}, discarded"
+    return TrackerSample(s.t, None, None, s.rms_mm, f"{s.fault}; {fault}" if s.fault else fault)
+
+
+def _leg_faults(s: LegSample) -> tuple[str, ...]:
+    """Why a reading set is not complete (its own faults, else what is wrong with it)."""
+    if s.faults:
+        return s.faults
+    r = _array(s.readings, 6)
+    if r is None:
+        return (f"leg reading set at t = {s.t:.3f} s: not six readings",)
+    legs = ", ".join(str(k + 1) for k in np.flatnonzero(~np.isfinite(r)))
+    return (f"leg reading set at t = {s.t:.3f} s: no finite reading from leg {legs}",)
+
+
 def record_pose(
     tracker: list[TrackerSample], legs: list[LegSample], window: StillWindow, t_end: float
 ) -> RecordedPose:
     """The recorded pose from the samples in ``[t_end − duration, t_end]``, or PoseRefused."""
     t0 = t_end - window.duration_s
-    ts_all = [s for s in tracker if t0 <= s.t <= t_end]
+    ts_all = [checked_tracker_sample(s) for s in tracker if t0 <= s.t <= t_end]
     ls_all = [s for s in legs if t0 <= s.t <= t_end]
     ts = [s for s in ts_all if not s.fault and s.position is not None]
     ls = [s for s in ls_all if s.complete]
     t_faults = [s.fault or "no pose" for s in ts_all if s.fault or s.position is None]
-    l_faults = [f for s in ls_all if not s.complete for f in (s.faults or ("set incomplete",))]
+    l_faults = [f for s in ls_all if not s.complete for f in _leg_faults(s)]
     for name, bad, n_all, faults in (
         ("tracker samples", len(ts_all) - len(ts), len(ts_all), t_faults),
         ("leg reading sets", len(ls_all) - len(ls), len(ls_all), l_faults),
@@ -186,34 +247,51 @@ def record_pose(
     P = np.array([s.position for s in ts])
     rot = Rotation.from_quat(np.array([s.quaternion for s in ts]), scalar_first=True)
     mean_rot = rot.mean()
-    angle = (
-        float(np.rad2deg((rot * mean_rot.inv()).magnitude().max())) * 2
-    )  # spread ≈ 2 × max deviation
-    pos_spread = float(np.ptp(P, axis=0).max())
     rho = np.array([s.readings for s in ls])
-    rho_spread = float(np.ptp(rho, axis=0).max())
-    # Drift: second half's mean against the first half's (samples are in time order).
-    h_t, h_l = len(ts) // 2, len(ls) // 2
-    pos_drift = float(np.abs(P[h_t:].mean(axis=0) - P[:h_t].mean(axis=0)).max())
-    ang_drift = float(np.rad2deg((rot[h_t:].mean() * rot[:h_t].mean().inv()).magnitude()))
-    leg_drift = np.abs(rho[h_l:].mean(axis=0) - rho[:h_l].mean(axis=0))
-    if pos_drift > window.max_position_drift_mm or ang_drift > window.max_angle_drift_deg:
+    # Overflow (finite samples near 1e308) is caught by the guard below, not warned about.
+    with np.errstate(over="ignore", invalid="ignore"):
+        position = P.mean(axis=0)
+        readings = rho.mean(axis=0)
+        quaternion = mean_rot.as_quat(canonical=True, scalar_first=True)  # qw ≥ 0: readable
+        # Every sample was checked above; this is the last guard, before the drift checks: NaN
+        # compares false, so a non-finite average would pass them, and a session cannot hold it.
+        averages = {"position": position, "quaternion": quaternion, "readings": readings}
+        spoiled = [name for name, v in averages.items() if not np.all(np.isfinite(v))]
+        if spoiled or not math.isfinite(t_end):
+            raise PoseRefused(
+                f"the pose's averaged {', '.join(spoiled) or 'time'} is not a finite number: a "
+                "device delivered numbers no pose can have — check the tracker and the encoders, "
+                "then record again"
+            )
+        angle = (
+            float(np.rad2deg((rot * mean_rot.inv()).magnitude().max())) * 2
+        )  # spread ≈ 2 × max deviation
+        pos_spread = float(np.ptp(P, axis=0).max())
+        rho_spread = float(np.ptp(rho, axis=0).max())
+        # Drift: second half's mean against the first half's (samples are in time order).
+        h_t, h_l = len(ts) // 2, len(ls) // 2
+        pos_drift = float(np.abs(P[h_t:].mean(axis=0) - P[:h_t].mean(axis=0)).max())
+        ang_drift = float(np.rad2deg((rot[h_t:].mean() * rot[:h_t].mean().inv()).magnitude()))
+        leg_drift = np.abs(rho[h_l:].mean(axis=0) - rho[:h_l].mean(axis=0))
+    # "not <=" rather than ">": a drift that is not a number is no proof of stillness.
+    if not (pos_drift <= window.max_position_drift_mm and ang_drift <= window.max_angle_drift_deg):
         raise PoseRefused(
             f"the platform moved during the pose (drifted {pos_drift:.3f} mm, {ang_drift:.4f} deg "
             f"within the window; allowed {window.max_position_drift_mm} mm, "
             f"{window.max_angle_drift_deg} deg): hold it still and record again"
         )
-    if leg_drift.max() > window.max_reading_drift_mm:
-        leg = int(np.argmax(leg_drift)) + 1
+    if not np.all(leg_drift <= window.max_reading_drift_mm):
+        leg = int(np.argmax(np.where(np.isnan(leg_drift), np.inf, leg_drift))) + 1
         raise PoseRefused(
-            f"leg {leg} moved during the pose (drifted {leg_drift.max():.4f} mm within the window, "
-            f"allowed {window.max_reading_drift_mm} mm): wait for the legs to settle and record again"
+            f"leg {leg} moved during the pose (drifted {leg_drift[leg - 1]:.4f} mm within the "
+            f"window, allowed {window.max_reading_drift_mm} mm): wait for the legs to settle and "
+            "record again"
         )
     return RecordedPose(
         t=t_end,
-        position=P.mean(axis=0),
-        quaternion=mean_rot.as_quat(canonical=True, scalar_first=True),  # qw ≥ 0: readable
-        readings=rho.mean(axis=0),
+        position=position,
+        quaternion=quaternion,
+        readings=readings,
         tracker_samples=ts_all,
         leg_samples=ls_all,
         position_spread_mm=pos_spread,

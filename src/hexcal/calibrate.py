@@ -19,7 +19,7 @@ from hexcal.instruments import Instruments
 from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
 from hexcal.predict import LegModel
-from hexcal.refine import Refinement, refine
+from hexcal.refine import FitStalled, Refinement, refine
 from hexcal.robot import Robot
 from hexcal.solvers.whole_robot import Form, LinearCalibration, calibrate_linear
 
@@ -188,11 +188,24 @@ def refine_from_seeds(P, R, rho, lin_a, lin_b, lin_off, design: Robot, fit_offse
     so in its notes) only when its χ² is clearly lower (:data:`RETRY_GAIN`).
 
     P (M, 3) mm, R (M, 3, 3), rho (M, 6) mm; seeds (6, 3), (6, 3), (6,) mm."""
-    ref = refine(P, R, rho, lin_a, lin_b, lin_off, fit_offsets, sig)
+    try:
+        ref = refine(P, R, rho, lin_a, lin_b, lin_off, fit_offsets, sig)
+    except FitStalled as stalled:
+        # A linear seed far off (or thrown off by a bad pose) may not converge: the design's
+        # geometry is the other start; if that stalls too, the stall is the answer.
+        alt = refine(P, R, rho, design.a, design.b, design.offsets, fit_offsets, sig)
+        alt.notes.append(
+            f"the fit from the linear seed did not converge ({stalled}); started from the "
+            "design's geometry it did: that fit is kept"
+        )
+        return alt
     first = ref.chi2 / max(ref.dof, 1)
     if np.isfinite(first) and first <= RETRY_CHI2_PER_DOF:
         return ref
-    alt = refine(P, R, rho, design.a, design.b, design.offsets, fit_offsets, sig)
+    try:
+        alt = refine(P, R, rho, design.a, design.b, design.offsets, fit_offsets, sig)
+    except FitStalled:
+        return ref
     # Kept only when it escaped a local minimum: a model that misses an effect has a high
     # χ² from any start, and both starts then reach the same optimum (to rounding).
     if not alt.chi2 >= RETRY_GAIN * ref.chi2:  # NaN from the linear seed counts as failed too

@@ -13,6 +13,41 @@ from pathlib import Path
 
 EXIT_INPUT = 2  # bad input: a file, a field or a pose set the user must fix
 EXIT_REFUSED = 3  # the data cannot calibrate the robot: more or other poses are needed
+EXIT_DRAWING = 4  # the calibration fits but does not match the drawing (swapped legs, …)
+EXIT_INTERNAL = 1  # a fault of hexcal's own: the message says how to report it
+
+
+# -- option types: every number that enters is finite and in range ---------------------------
+def _number(kind: type, lo: float | None = None, hi: float | None = None, lo_open: bool = False):
+    """An argparse type: ``kind`` (int or float), finite, within [lo, hi] (lo excluded when
+    ``lo_open``), with a message naming the allowed range."""
+    import math
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not {'an integer' if kind is int else 'a number'}"
+            ) from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{text!r} is not finite")
+        below = lo is not None and (v <= lo if lo_open else v < lo)
+        if below or (hi is not None and v > hi):
+            left = "(" if lo_open else "["
+            raise argparse.ArgumentTypeError(f"{text} is outside {left}{lo:g}, {hi:g}]")
+        return v
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+COUNT = _number(int, 0, 100_000)  # poses or trials
+POSITIVE_COUNT = _number(int, 1, 100_000)
+SEED = _number(int, 0, 2**32 - 1)
+SIGMA = _number(float, 0.0, 1000.0)
+SECONDS = _number(float, 0.0, 60.0, lo_open=True)
+POSE_ID = _number(int, 0, 2**53)
 
 
 def _read_inputs(args: argparse.Namespace):
@@ -21,6 +56,10 @@ def _read_inputs(args: argparse.Namespace):
     from hexcal.workflow import read_inputs
 
     inp = read_inputs(args.measurements, args.robot, args.instruments)
+    for text in inp.notices:
+        print(f"hexcal: {text}", file=sys.stderr)
+    if getattr(args, "exclude_poses", None):
+        inp = inp.without(args.exclude_poses)
     if inp.model_effects and not getattr(args, "json", False):
         print(
             f"hexcal: {args.robot} is a calibrated model: its effects "
@@ -65,7 +104,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         do_refine=not args.no_refine,
     )
     cal = result.calibration
-    if args.out:
+    mismatch = _drawing_mismatch(args, inp, cal)
+    if args.out and not mismatch:
         save_result(result, args.out, inp, args.force)
     if args.json:
         out = json.loads(calibration_json(cal, str(args.measurements), inp.noise_source))
@@ -79,9 +119,32 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             "\npose accuracy (the pose the model computes from the readings, against the tracker):"
         )
         print(accuracy_table(result.accuracy))
-        if args.out:
+        if args.out and not mismatch:
             print(f"\ncalibrated model ({result.name}) written to {args.out}")
-    return 0
+    return _report_mismatch(mismatch, args)
+
+
+def _drawing_mismatch(args: argparse.Namespace, inp, cal) -> list[str]:
+    """The calibration against the drawing (none with --no-drawing-check)."""
+    from hexcal.workflow import check_drawing
+
+    if args.no_drawing_check:
+        return []
+    return check_drawing(inp, cal, args.drawing_tolerance)
+
+
+def _report_mismatch(mismatch: list[str], args: argparse.Namespace) -> int:
+    if not mismatch:
+        return 0
+    lines = "\n".join(f"  {m}" for m in mismatch)
+    unwritten = f"; {args.out} was not written" if getattr(args, "out", None) else ""
+    print(
+        f"hexcal: the calibration fits the data but does not match the drawing{unwritten}:\n"
+        f"{lines}\nfix the cause and calibrate again; if the drawing itself is wrong, "
+        "--drawing-tolerance or --no-drawing-check",
+        file=sys.stderr,
+    )
+    return EXIT_DRAWING
 
 
 def _jsonable(o):
@@ -106,7 +169,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         refuse_overwrite(args.out, inp, args.force)
     steps = diagnose_chain(inp, args.model, add=tuple(args.add or ()), auto=args.auto)
     result = model_of(inp, steps, args.model) if args.out else None
-    if result is not None:
+    mismatch = []
+    if not args.no_drawing_check:
+        from hexcal.sanity import check_against_drawing
+
+        ref = steps[0].fit.refinement
+        found = check_against_drawing(ref.a, ref.b, inp.design, args.drawing_tolerance)
+        mismatch = [f.text for f in found]
+    if result is not None and not mismatch:
         save_result(result, args.out, inp, args.force)
     if args.plots:
         from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
@@ -152,9 +222,19 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"plots written to {args.plots}/")
         if args.report:
             print(f"report written to {args.report}")
-        if result is not None:
+        if result is not None and not mismatch:
             print(f"calibrated model ({result.name}) written to {args.out}")
-    return 0
+    return _report_mismatch(mismatch, args)
+
+
+def _refuse_existing(directory: Path, names: list[str], force: bool) -> None:
+    """An output directory whose files would be replaced needs --force."""
+    there = [n for n in names if (Path(directory) / n).exists()]
+    if there and not force:
+        raise ValueError(
+            f"{directory}: already holds {', '.join(there)}; pass --force to replace them, or "
+            "choose another --out"
+        )
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
@@ -186,6 +266,21 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from hexcal.log_import import import_log
+    from hexcal.measurements import write_measurements
+
+    out = Path(args.out)
+    if out.resolve() in (Path(args.log).resolve(), Path(args.map).resolve()):
+        raise ValueError(f"{out}: this is an input; write the table to another file")
+    if out.exists() and not args.force:
+        raise ValueError(f"{out}: the file exists; pass --force to replace it")
+    meas = import_log(args.log, args.map)
+    write_measurements(meas, out)
+    print(f"{len(meas)} poses from {args.log} written to {out} (mapping {args.map})")
+    return 0
+
+
 def _cmd_predict(args: argparse.Namespace) -> int:
     from hexcal.fileio import write_text_atomic
     from hexcal.model_file import leg_model_of, load_model
@@ -199,6 +294,8 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     if args.out:
         if Path(args.out).resolve() in (Path(args.table).resolve(), Path(args.model).resolve()):
             raise ValueError(f"{args.out}: this is an input; write the output to another file")
+        if Path(args.out).exists() and not args.force:
+            raise ValueError(f"{args.out}: the file exists; pass --force to replace it")
         write_text_atomic(args.out, text)
         print(f"{len(values)} {'poses' if to == 'pose' else 'readings'} written to {args.out}")
     else:
@@ -248,6 +345,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
         seed=args.seed,
         ranges=PoseRanges(stroke_mm=args.stroke_mm, tilt_deg=args.tilt_deg, cone_deg=args.cone_deg),
     )
+    _refuse_existing(Path(args.out), ["study.csv", "study.json"], args.force)
     t0 = time.perf_counter()
     result = run_study(cfg)
     elapsed = time.perf_counter() - t0
@@ -290,6 +388,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ValueError(
             "--effect compliance needs the platform mass: pass --mass-kg (or a robot.json with platform_mass_kg)"
         )
+    names = ["robot.json", "measurements.csv", "instruments.json", "truth.json"]
+    _refuse_existing(args.out, names, args.force)
+    if args.robot and Path(args.robot).resolve() == (Path(args.out) / "robot.json").resolve():
+        raise ValueError(f"{args.robot}: this is the robot input; choose another --out")
     out = write_session_dir(
         args.out, design, args.seed, plan, args.effect, args.effect_scale, args.pose_seed
     )
@@ -374,9 +476,18 @@ def _cmd_session(args: argparse.Namespace) -> int:
     from hexcal.session import Session, SessionFile, export_session, load_session
 
     if args.session_command == "export":
+        names = ["measurements.csv", "robot.json", "instruments.json", "calibrated.json"]
+        if any((Path(args.out) / n).resolve() == Path(args.session).resolve() for n in names):
+            raise ValueError(
+                f"{args.session}: the export would replace the session; choose another --out"
+            )
+        _refuse_existing(args.out, names, args.force)
         written = export_session(load_session(args.session), args.out)
         print(f"exported {args.session} to {Path(args.out)}/: {', '.join(written)}")
         return 0
+    inputs = {Path(args.measurements).resolve(), Path(args.robot).resolve()}
+    if Path(args.out).resolve() in inputs:
+        raise ValueError(f"{args.out}: this is an input; write the session to another file")
     meas = read_measurements(args.measurements)
     sf = SessionFile.create(args.out, Session.from_measurements(meas, load_robot(args.robot)))
     print(f"session {sf.path} created with {len(meas)} poses from {args.measurements}")
@@ -428,6 +539,26 @@ def build_parser() -> argparse.ArgumentParser:
         "it, plus every effect with its parameters; docs/formats.md)",
     )
     c.add_argument("--force", action="store_true", help="replace an existing --out file")
+    c.add_argument(
+        "--exclude-poses",
+        nargs="+",
+        type=POSE_ID,
+        metavar="ID",
+        help="leave these pose ids out (e.g. the gross outliers hexcal names)",
+    )
+    c.add_argument(
+        "--drawing-tolerance",
+        type=_number(float, 0.0, 10.0, lo_open=True),
+        default=0.10,
+        help="how far a fitted point may lie from its design point, as a fraction of the "
+        "design radius (default 0.10); a leg beyond it, or nearer another leg's design, stops "
+        "with exit status 4",
+    )
+    c.add_argument(
+        "--no-drawing-check",
+        action="store_true",
+        help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
+    )
     c.set_defaults(func=_cmd_calibrate)
 
     d = sub.add_parser(
@@ -461,6 +592,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the last step's calibrated model here (calibrated.json, with its effects)",
     )
     d.add_argument("--force", action="store_true", help="replace an existing --out file")
+    d.add_argument(
+        "--exclude-poses",
+        nargs="+",
+        type=POSE_ID,
+        metavar="ID",
+        help="leave these pose ids out (e.g. the gross outliers hexcal names)",
+    )
+    d.add_argument(
+        "--drawing-tolerance",
+        type=_number(float, 0.0, 10.0, lo_open=True),
+        default=0.10,
+        help="how far a fitted point may lie from its design point, as a fraction of the "
+        "design radius (default 0.10); a leg beyond it, or nearer another leg's design, stops "
+        "with exit status 4",
+    )
+    d.add_argument(
+        "--no-drawing-check",
+        action="store_true",
+        help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
+    )
     d.set_defaults(func=_cmd_diagnose)
 
     v = sub.add_parser(
@@ -482,6 +633,20 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=_cmd_validate, robot=None)
 
+    ip = sub.add_parser(
+        "import", help="a lab's own log → measurements.csv, by a mapping file of its columns"
+    )
+    ip.add_argument("log", type=Path, help="the log, CSV with a header row")
+    ip.add_argument(
+        "--map",
+        type=Path,
+        required=True,
+        help="TOML naming the log's columns, units and conventions (docs/formats.md)",
+    )
+    ip.add_argument("--out", type=Path, required=True, help="measurements.csv to write")
+    ip.add_argument("--force", action="store_true", help="replace an existing --out file")
+    ip.set_defaults(func=_cmd_import)
+
     pr = sub.add_parser(
         "predict",
         help="readings → poses, or poses → readings (the compensation), with the model's effects",
@@ -496,8 +661,13 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument(
         "--to", choices=("pose", "readings"), help="what to compute (when the table has both)"
     )
-    pr.add_argument("--temperature", type=float, help="structure temperature for every row, degC")
+    pr.add_argument(
+        "--temperature",
+        type=_number(float, -273.15, 1000.0),
+        help="structure temperature for every row, degC",
+    )
     pr.add_argument("--out", type=Path, help="CSV to write (default: standard output)")
+    pr.add_argument("--force", action="store_true", help="replace an existing --out file")
     pr.set_defaults(func=_cmd_predict)
 
     dv = sub.add_parser("devices", help="the rig's devices")
@@ -514,54 +684,70 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser(
         "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"
     )
-    s.add_argument("--trials", type=int, default=1000)
+    s.add_argument("--trials", type=POSITIVE_COUNT, default=1000)
     s.add_argument(
         "--err-p-mm",
-        type=float,
+        type=SIGMA,
         default=0.1,
         help="position noise (uniform half-width or sigma), mm",
     )
-    s.add_argument("--err-a-deg", type=float, default=0.01, help="orientation noise, deg")
-    s.add_argument("--err-l-mm", type=float, default=0.1, help="reading noise, mm")
+    s.add_argument("--err-a-deg", type=SIGMA, default=0.01, help="orientation noise, deg")
+    s.add_argument("--err-l-mm", type=SIGMA, default=0.1, help="reading noise, mm")
     s.add_argument("--noise", choices=("uniform", "gaussian"), default="uniform")
     s.add_argument(
-        "--stroke-mm", type=float, default=30.0, help="Type I length range, ± mm about home"
+        "--stroke-mm",
+        type=_number(float, 0.0, 10_000.0, lo_open=True),
+        default=30.0,
+        help="Type I length range, ± mm about home",
     )
     s.add_argument(
-        "--tilt-deg", type=float, default=30.0, help="platform rotations, ± deg per axis"
+        "--tilt-deg",
+        type=_number(float, 0.0, 90.0),
+        default=30.0,
+        help="platform rotations, ± deg per axis",
     )
     s.add_argument(
-        "--cone-deg", type=float, default=30.0, help="Type III leg-direction cone half-angle, deg"
+        "--cone-deg",
+        type=_number(float, 0.0, 90.0),
+        default=30.0,
+        help="Type III leg-direction cone half-angle, deg",
     )
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=SEED, default=0)
     s.add_argument(
         "--out", default="study-out", help="directory for study.csv, study.json and the PNGs"
     )
-    s.add_argument("--no-plots", action="store_true")
+    s.add_argument("--no-plots", action="store_true", help="write the tables only")
+    s.add_argument("--force", action="store_true", help="replace the files of an earlier run")
     s.add_argument("--json", action="store_true", help="print the JSON on stdout too")
     s.set_defaults(func=_cmd_study)
 
     m = sub.add_parser(
         "simulate", help="write a simulated session (robot, measurements, instruments, truth)"
     )
-    m.add_argument("--out", type=Path, required=True)
+    m.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="directory for robot.json, measurements.csv, instruments.json, truth.json",
+    )
+    m.add_argument("--force", action="store_true", help="replace those files if they exist")
     m.add_argument("--robot", type=Path, help="design robot.json (default: the paper's Left Hand)")
     m.add_argument(
-        "--seed", type=int, default=1, help="draws the robot: its true geometry and hidden effect"
+        "--seed", type=SEED, default=1, help="draws the robot: its true geometry and hidden effect"
     )
     m.add_argument(
         "--pose-seed",
-        type=int,
+        type=SEED,
         help="draws the poses and the noise (default: --seed); another value with the same "
         "--seed is a second session of the same robot, to validate a calibration on",
     )
-    m.add_argument("--n-type-i", type=int, default=8)
-    m.add_argument("--n-type-ii", type=int, default=8)
-    m.add_argument("--n-type-iii", type=int, default=8)
-    m.add_argument("--n-free", type=int, default=40)
-    m.add_argument("--sigma-p-mm", type=float, default=0.01)
-    m.add_argument("--sigma-a-deg", type=float, default=0.002)
-    m.add_argument("--sigma-l-mm", type=float, default=0.002)
+    m.add_argument("--n-type-i", type=COUNT, default=8)
+    m.add_argument("--n-type-ii", type=COUNT, default=8)
+    m.add_argument("--n-type-iii", type=COUNT, default=8)
+    m.add_argument("--n-free", type=COUNT, default=40)
+    m.add_argument("--sigma-p-mm", type=SIGMA, default=0.01)
+    m.add_argument("--sigma-a-deg", type=SIGMA, default=0.002)
+    m.add_argument("--sigma-l-mm", type=SIGMA, default=0.002)
     m.add_argument(
         "--effect",
         choices=("offset", "gain", "backlash", "thermal", "compliance", "leadscrew"),
@@ -569,16 +755,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     m.add_argument(
         "--effect-scale",
-        type=float,
+        type=_number(float, 0.0, 100.0),
         default=1.0,
         help="multiply the effect's size (0.3: near detection)",
     )
     m.add_argument(
-        "--mass-kg", type=float, help="platform mass written to robot.json (compliance needs it)"
+        "--mass-kg",
+        type=_number(float, 0.0, 1e6, lo_open=True),
+        help="platform mass written to robot.json (compliance needs it)",
     )
     m.add_argument(
         "--temperature-rise-k",
-        type=float,
+        type=_number(float, -100.0, 100.0),
         default=1.5,
         help="structure temperature rise over the session, K",
     )
@@ -591,10 +779,10 @@ def build_parser() -> argparse.ArgumentParser:
         "demo",
         help="a whole calibration on mock hardware, headless, with a scripted operator",
     )
-    dm.add_argument("--seed", type=int, default=1, help="the simulated robot and its effect")
+    dm.add_argument("--seed", type=SEED, default=1, help="the simulated robot and its effect")
     dm.add_argument(
         "--rig-seed",
-        type=int,
+        type=SEED,
         help="the rig's noise and motion (default: --seed); another value with the same --seed "
         "and --effect records a second session of the same robot, to validate on",
     )
@@ -604,9 +792,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="the effect the robot hides (default: drawn by the seed)",
     )
     dm.add_argument("--procedure", default="model42-direction-length", help="name or TOML file")
-    dm.add_argument("--poses-per-step", type=int, help="instead of the procedure's counts")
-    dm.add_argument("--free-poses", type=int, help="instead of the procedure's count")
-    dm.add_argument("--window-s", type=float, default=0.25, help="still window per pose, s")
+    dm.add_argument(
+        "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"
+    )
+    dm.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
+    dm.add_argument("--window-s", type=SECONDS, default=0.25, help="still window per pose, s")
     dm.add_argument("--session", type=Path, help="session file to write (must not exist)")
     dm.add_argument("--json", action="store_true", help="print one JSON object")
     dm.set_defaults(func=_cmd_demo)
@@ -624,15 +814,17 @@ def build_parser() -> argparse.ArgumentParser:
         default="model42-direction-length",
         choices=["model42-direction-length", "model36-direction", "free-validation"],
     )
-    rn.add_argument("--poses-per-step", type=int, help="instead of the procedure's counts")
-    rn.add_argument("--free-poses", type=int, help="instead of the procedure's count")
-    rn.add_argument("--seed", type=int, default=1, help="--mock: the simulated robot")
+    rn.add_argument(
+        "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"
+    )
+    rn.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
+    rn.add_argument("--seed", type=SEED, default=1, help="--mock: the simulated robot")
     rn.add_argument(
         "--effect",
         choices=["gain", "backlash", "leadscrew"],
         help="--mock: the effect the robot hides (default: drawn by the seed)",
     )
-    rn.add_argument("--window-s", type=float, default=0.25, help="--mock: still window, s")
+    rn.add_argument("--window-s", type=SECONDS, default=0.25, help="--mock: still window, s")
     rn.set_defaults(func=_cmd_run)
 
     se = sub.add_parser("session", help="export a session file, or make one from a CSV")
@@ -640,6 +832,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex = se_sub.add_parser("export", help="measurements.csv, robot.json, calibrated.json")
     ex.add_argument("session", type=Path)
     ex.add_argument("--out", type=Path, required=True, help="directory to write")
+    ex.add_argument("--force", action="store_true", help="replace the files of an earlier export")
     ex.set_defaults(func=_cmd_session)
     im = se_sub.add_parser("import", help="a session file from an interchange table")
     im.add_argument("measurements", type=Path)
@@ -650,25 +843,61 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    import os
+
     # The problems here are small (a few hundred poses): BLAS threads cost more than they give
     # (measured: diagnose 0.81 s with one thread, 0.91 s with two), and they oversubscribe the
     # cores when several hexcal processes run. The user's own setting wins.
-    import os
-
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     args = build_parser().parse_args(argv)
-    from hexcal.acquisition import PoseRefused
-    from hexcal.solvers.whole_robot import CalibrationRefused
-
     try:
         return args.func(args)
-    except (CalibrationRefused, PoseRefused) as exc:
-        print(f"hexcal: {exc}", file=sys.stderr)
-        return EXIT_REFUSED
-    except (ValueError, OSError) as exc:
-        print(f"hexcal: {exc}", file=sys.stderr)
-        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("hexcal: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # one error path: a message and an exit status, no traceback
+        code, message = error_message(exc)
+        print(f"hexcal: {message}", file=sys.stderr)
+        if code == EXIT_INTERNAL and os.environ.get("HEXCAL_DEBUG"):
+            raise
+        return code
+
+
+def error_message(exc: BaseException) -> tuple[int, str]:
+    """(exit status, message) for an exception reaching the command line. hexcal's own errors
+    name the file, line, field or device already; library errors are put in words here, so no
+    raw library text reaches the user."""
+    import numpy as np
+
+    from hexcal.acquisition import PoseRefused
+    from hexcal.solvers.whole_robot import CalibrationRefused
+    from hexcal.workflow import FitFailed
+
+    if isinstance(exc, (CalibrationRefused, PoseRefused, FitFailed)):
+        return EXIT_REFUSED, str(exc)
+    if isinstance(exc, np.linalg.LinAlgError):
+        return EXIT_REFUSED, (
+            "the poses do not determine the geometry (the system to solve is singular); record "
+            "poses that move every leg over its stroke and change its direction, or check the "
+            "table for repeated or constant columns"
+        )
+    if isinstance(exc, (RecursionError, MemoryError)):
+        return EXIT_INPUT, (
+            f"an input is too large or too deeply nested to read ({type(exc).__name__}); check "
+            "the files given"
+        )
+    if isinstance(exc, UnicodeDecodeError):
+        return EXIT_INPUT, f"an input is not UTF-8 text (byte {exc.start}); save it as UTF-8"
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        return EXIT_INPUT, f"{where}{exc.strerror or exc}"
+    if isinstance(exc, ValueError):
+        return EXIT_INPUT, str(exc)
+    return EXIT_INTERNAL, (
+        f"internal error ({type(exc).__name__}: {exc}); this is a fault in hexcal, not in your "
+        "data: please report it with the command line (HEXCAL_DEBUG=1 shows the traceback)"
+    )
 
 
 if __name__ == "__main__":

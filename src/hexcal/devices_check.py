@@ -60,7 +60,9 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
                     else:
                         ok = False
                         lines.append(
-                            f"  tool {tool.handle:02X}: {tool.state.upper()} — is the tool in the tracker's view?"
+                            f"  {tool.problem(cfg.tracker.url)}"
+                            if tool.problem(cfg.tracker.url)
+                            else f"  tool {tool.handle:02X}: {tool.state.upper()}"
                         )
                 lines.append(f"  system status 0x{frame.system_status:04X}")
         except TrackerError as exc:

@@ -11,15 +11,23 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from hexcal.fileio import write_text_atomic
+from hexcal.safe_read import read_json
+from hexcal.validation import format_validation_error
+
+#: Largest σ accepted, mm (1 m) and deg (half a turn): beyond them the noise is no longer a
+#: small perturbation, and squaring σ (the weights) must stay far from overflow.
+MAX_SIGMA_MM = 1e3
+MAX_SIGMA_DEG = 180.0
 
 # strict: a JSON string "0.01" or a boolean is a mistake in the file, not a number to coerce.
 # allow_inf_nan=False: json.loads accepts NaN/Infinity, which would poison every weight.
-Sigma = Annotated[float, Field(gt=0, strict=True, allow_inf_nan=False)]
+SigmaMm = Annotated[float, Field(gt=0, le=MAX_SIGMA_MM, strict=True, allow_inf_nan=False)]
+SigmaDeg = Annotated[float, Field(gt=0, le=MAX_SIGMA_DEG, strict=True, allow_inf_nan=False)]
 
 
 class InstrumentsError(ValueError):
@@ -34,15 +42,15 @@ class TrackerNoise(BaseModel):
     """Tracker noise, one standard deviation: position mm (per axis), orientation deg."""
 
     model_config = ConfigDict(extra="allow")
-    position_sigma_mm: Sigma
-    orientation_sigma_deg: Sigma
+    position_sigma_mm: SigmaMm
+    orientation_sigma_deg: SigmaDeg
 
 
 class EncoderNoise(BaseModel):
     """Encoder noise, one standard deviation of a reading, mm."""
 
     model_config = ConfigDict(extra="allow")
-    reading_sigma_mm: Sigma
+    reading_sigma_mm: SigmaMm
 
 
 class Instruments(BaseModel):
@@ -69,45 +77,27 @@ class Instruments(BaseModel):
 
     def to_json(self) -> str:
         """instruments.json text (indent 2), unknown keys included."""
-        return json.dumps(self.model_dump(), indent=2) + "\n"
+        return json.dumps(self.model_dump(), indent=2, allow_nan=False) + "\n"
 
 
-def _hint(field: str) -> str:
+def _hint(loc: tuple[Any, ...], kind: str) -> str:
+    field = str(loc[-1]) if loc else ""
     if field.endswith("_deg"):
-        return "give one standard deviation in degrees, > 0"
+        return f"give one standard deviation in degrees, > 0 and ≤ {MAX_SIGMA_DEG:g}"
     if field.endswith("_mm"):
-        return "give one standard deviation in millimetres, > 0"
+        return f"give one standard deviation in millimetres, > 0 and ≤ {MAX_SIGMA_MM:g}"
     return 'see docs/formats.md: {"tracker": {...}, "encoders": {...}}'
 
 
 def load_instruments(path: str | Path) -> Instruments:
     """Read instruments.json; errors (:class:`InstrumentsError`) name the file and the field."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InstrumentsError(
-            f"{path}: no such file; check the path to the instruments' noise", path
-        ) from None
-    except UnicodeDecodeError:
-        raise InstrumentsError(f"{path}: not UTF-8 text; save the file as UTF-8", path) from None
-    except OSError as exc:
-        raise InstrumentsError(f"{path}: cannot be read ({exc.strerror})", path) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InstrumentsError(
-            f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})", path
-        ) from None
+    data = read_json(path, "instruments", lambda message: InstrumentsError(message, path))
     try:
         return Instruments.model_validate(data)
     except ValidationError as exc:
-        lines = []
-        for err in exc.errors(include_url=False):
-            field = ".".join(str(p) for p in err["loc"]) or "(top level)"
-            got = "" if err["type"] == "missing" else f" (got {err['input']!r})"
-            lines.append(f"{path}: field {field}: {err['msg']}{got}; {_hint(field)}")
-        raise InstrumentsError("\n".join(lines), path) from None
+        text = format_validation_error(exc, str(path), data, hint=_hint)
+        raise InstrumentsError(text, path) from None
 
 
 def save_instruments(inst: Instruments, path: str | Path) -> None:

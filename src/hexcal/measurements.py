@@ -5,8 +5,13 @@ pose) and the constraint applied, the platform pose from the tracker (position m
 quaternion scalar first) and the six encoder readings (mm), optionally the structure temperature
 (degC). Extra columns are carried through untouched.
 
-Reading validates every row with :class:`MeasurementRow` (pydantic v2) and reports *all* bad rows
-in one :class:`MeasurementError` naming the file, the line and the column. Writing is lossless:
+Reading streams the file row by row into typed arrays, so memory stays about the file's size
+(a 200 MB table reads in well under 1 GB); rows are checked a block at a time against the rules
+of :class:`MeasurementRow` (pydantic v2), which validates every row of a block that breaks one,
+so that *all* bad rows are reported in one :class:`MeasurementError` naming the file, the line
+and the column. Values are held to the ranges of :mod:`hexcal.safe_read` (positions and
+readings ±1 km, times ±1e9 s, temperatures −273.15..1000 degC, pose ids 1 .. 2**53 − 1).
+Writing is lossless:
 floats are written with ``repr`` (shortest round-trip form), the column order is kept, and
 ``read_measurements(p)`` after ``write_measurements(m, p)`` equals ``m`` exactly.
 """
@@ -17,6 +22,7 @@ import codecs
 import csv
 import io
 import math
+import operator
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -37,6 +43,14 @@ from pydantic_core import PydanticCustomError
 from scipy.spatial.transform import Rotation
 
 from hexcal.fileio import write_text_atomic
+from hexcal.safe_read import (
+    MAX_COORDINATE_MM,
+    MAX_POSE_ID,
+    MAX_TEMPERATURE_C,
+    MAX_TIME_S,
+    MIN_TEMPERATURE_C,
+    open_binary,
+)
 
 #: Type I, Type II, Type III, and no constraint.
 CONSTRAINTS = ("direction", "direction+length", "length", "free")
@@ -150,6 +164,7 @@ _OWN_ERRORS = frozenset(
         "unknown_constraint",
         "leg_constraint",
         "quaternion_norm",
+        "out_of_range",
     }
 )
 _INTEGER_RE = re.compile(r"[+-]?[0-9]+(?:\.0*)?")
@@ -233,14 +248,49 @@ def _check_constraint(text: str) -> str:
     return text
 
 
+def _check_range(x: float, low: float, high: float, unit: str) -> float:
+    if not low <= x <= high:
+        raise PydanticCustomError(
+            "out_of_range", f"{x!r} {unit} is outside {low:g}..{high:g} {unit}; {_ROW_HINT}"
+        )
+    return x
+
+
+def _within(low: float, high: float, unit: str) -> AfterValidator:
+    """An after-validator refusing values outside [low, high] ``unit``."""
+    return AfterValidator(lambda x: _check_range(x, low, high, unit))
+
+
+def _check_pose_id(pose_id: int) -> int:
+    if not 1 <= pose_id <= MAX_POSE_ID:
+        raise PydanticCustomError(
+            "out_of_range",
+            f"pose_id {pose_id} is outside 1..{MAX_POSE_ID} (2**53 - 1); renumber the poses from 1",
+        )
+    return pose_id
+
+
 Number = Annotated[float, BeforeValidator(_parse_number)]
+#: A position or reading, mm, within ±MAX_COORDINATE_MM.
+Millimetres = Annotated[
+    float, BeforeValidator(_parse_number), _within(-MAX_COORDINATE_MM, MAX_COORDINATE_MM, "mm")
+]
+#: A time, s, within ±MAX_TIME_S.
+Seconds = Annotated[float, BeforeValidator(_parse_number), _within(-MAX_TIME_S, MAX_TIME_S, "s")]
 Integer = Annotated[int, BeforeValidator(_parse_integer)]
+PoseId = Annotated[int, BeforeValidator(_parse_integer), AfterValidator(_check_pose_id)]
 Text = Annotated[str, BeforeValidator(_parse_text)]
 Leg = Annotated[int, BeforeValidator(_parse_integer), AfterValidator(_check_leg)]
 Constraint = Annotated[str, BeforeValidator(_parse_text), AfterValidator(_check_constraint)]
 # Not ``Number | None``: a union would report a bad value once per member, with a mangled location.
-OptionalNumber = Annotated[
-    float | None, BeforeValidator(lambda v: None if v is None else _parse_number(v))
+OptionalCelsius = Annotated[
+    float | None,
+    BeforeValidator(lambda v: None if v is None else _parse_number(v)),
+    AfterValidator(
+        lambda v: (
+            None if v is None else _check_range(v, MIN_TEMPERATURE_C, MAX_TEMPERATURE_C, "degC")
+        )
+    ),
 ]
 
 
@@ -250,30 +300,31 @@ class MeasurementRow(BaseModel):
     Units: ``t`` s; ``x, y, z`` mm (platform origin in the measurement frame); ``qw..qz`` unit
     quaternion, scalar first (norm within :data:`QUATERNION_TOLERANCE` of 1); ``rho1..rho6`` mm;
     ``temperature`` degC or None when the file has no such column. Fields accept the raw CSV
-    strings; whitespace around them is ignored.
+    strings; whitespace around them is ignored. Ranges: ``pose_id`` 1 .. 2**53 − 1; ``t``
+    ±1e9 s; positions and readings ±1e6 mm; temperature −273.15..1000 degC.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    pose_id: Integer
-    t: Number
+    pose_id: PoseId
+    t: Seconds
     step: Text
     leg: Leg
     constraint: Constraint
-    x: Number
-    y: Number
-    z: Number
+    x: Millimetres
+    y: Millimetres
+    z: Millimetres
     qw: Number
     qx: Number
     qy: Number
     qz: Number
-    rho1: Number
-    rho2: Number
-    rho3: Number
-    rho4: Number
-    rho5: Number
-    rho6: Number
-    temperature: OptionalNumber = None
+    rho1: Millimetres
+    rho2: Millimetres
+    rho3: Millimetres
+    rho4: Millimetres
+    rho5: Millimetres
+    rho6: Millimetres
+    temperature: OptionalCelsius = None
 
     # Field validators rather than one model validator: a row that breaks both rules reports
     # both, and each is pinned to a column. ``leg`` precedes ``constraint`` and ``qw..qy``
@@ -357,7 +408,10 @@ def _text_array(name: str, value: Any, n: int) -> np.ndarray:
     a = np.asarray(value, dtype=object)
     if a.shape != (n,):
         raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    return _object_array([_to_text(v) for v in a.tolist()])
+    values = a.tolist()
+    if all(type(v) is str for v in values):  # the common case, e.g. a table just read
+        return _object_array(values)
+    return _object_array([_to_text(v) for v in values])
 
 
 def _float_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -369,20 +423,47 @@ def _float_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     return a
 
 
+def _as_int(v: Any) -> int:
+    if isinstance(v, (bool, np.bool_)):
+        raise TypeError("a boolean is not an integer")
+    if isinstance(v, (float, np.floating)):
+        if not (math.isfinite(v) and v == int(v)):
+            raise ValueError("not an integer")
+        return int(v)
+    return operator.index(v)
+
+
 def _int_array(name: str, value: Any, n: int) -> np.ndarray:
     a = np.asarray(value)
     if a.size == 0:
         a = a.reshape(0).astype(np.int64)
     if a.shape != (n,):
         raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    if a.dtype.kind in "iu":
+    bounds = f"{name} must hold integers within ±2**63"
+    if a.dtype.kind == "i":
         return a.astype(np.int64)
+    if a.dtype.kind == "u":
+        if a.size and int(a.max()) > np.iinfo(np.int64).max:
+            raise ValueError(bounds)
+        return a.astype(np.int64)
+    if a.dtype.kind == "O":
+        # Python ints beyond int64 would wrap silently in astype: convert one by one, checked.
+        try:
+            ints = [_as_int(v) for v in a.tolist()]
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must hold integers") from None
+        try:
+            return np.array(ints, dtype=np.int64).reshape(n)
+        except OverflowError:
+            raise ValueError(bounds) from None
     try:
         f = a.astype(float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} must hold integers") from None
     if not (np.all(np.isfinite(f)) and np.all(f == np.round(f))):
         raise ValueError(f"{name} must hold integers")
+    if np.any(np.abs(f) >= 2.0**63):
+        raise ValueError(bounds)
     return f.astype(np.int64)
 
 
@@ -394,14 +475,32 @@ def _value_issues(m: Measurements) -> list[Issue]:
         for i in np.flatnonzero(rows)[:MAX_MESSAGES]:
             issues.append(Issue(message(int(i)), row=int(i), column=column))
 
-    numeric = [("t", m.t)]
-    numeric += [(c, m.position[:, j]) for j, c in enumerate(POSITION_COLUMNS)]
-    numeric += [(c, m.quaternion[:, j]) for j, c in enumerate(QUATERNION_COLUMNS)]
-    numeric += [(c, m.readings[:, j]) for j, c in enumerate(READING_COLUMNS)]
+    add(
+        (m.pose_id < 1) | (m.pose_id > MAX_POSE_ID),
+        "pose_id",
+        lambda i: f"pose_id {int(m.pose_id[i])} is outside 1..{MAX_POSE_ID} (2**53 - 1)",
+    )
+    # (column, values, lowest, highest, unit)
+    numeric = [("t", m.t, -MAX_TIME_S, MAX_TIME_S, "s")]
+    coordinate = (-MAX_COORDINATE_MM, MAX_COORDINATE_MM, "mm")
+    numeric += [(c, m.position[:, j], *coordinate) for j, c in enumerate(POSITION_COLUMNS)]
+    numeric += [(c, m.quaternion[:, j], -2.0, 2.0, "") for j, c in enumerate(QUATERNION_COLUMNS)]
+    numeric += [(c, m.readings[:, j], *coordinate) for j, c in enumerate(READING_COLUMNS)]
     if m.temperature is not None:
-        numeric.append(("temperature", m.temperature))
-    for column, values in numeric:
-        add(~np.isfinite(values), column, lambda i, v=values: f"{v[i]!r} is not finite")
+        numeric.append(("temperature", m.temperature, MIN_TEMPERATURE_C, MAX_TEMPERATURE_C, "degC"))
+    for column, values, low, high, unit in numeric:
+        finite = np.isfinite(values)
+        # float(): a numpy scalar's repr is 'np.float64(nan)', not what a file would say.
+        add(~finite, column, lambda i, v=values: f"{float(v[i])!r} is not finite")
+        with np.errstate(invalid="ignore"):
+            outside = finite & ((values < low) | (values > high))
+        add(
+            outside,
+            column,
+            lambda i, v=values, lo=low, hi=high, u=unit: (
+                f"{float(v[i])!r} {u} is outside {lo:g}..{hi:g} {u}".replace("  ", " ")
+            ),
+        )
     with np.errstate(invalid="ignore"):
         norm = np.linalg.norm(m.quaternion, axis=1)
         add(
@@ -668,55 +767,66 @@ class Measurements:
 # --------------------------------------------------------------------------------------------
 # Reading
 
-
-def _decode(raw: bytes, path: Path) -> str:
-    """UTF-8 text of the file; a leading byte-order mark (spreadsheet exports) is dropped."""
-    skip = len(codecs.BOM_UTF8) if raw.startswith(codecs.BOM_UTF8) else 0
-    try:
-        return raw[skip:].decode("utf-8")
-    except UnicodeDecodeError as exc:
-        at = exc.start + skip
-        line = raw.count(b"\n", 0, at) + 1
-        raise MeasurementError.single(
-            path,
-            line,
-            _column_at(raw, at, line),
-            f"byte 0x{raw[at]:02x} is not UTF-8; save the file as UTF-8 (e.g. 'CSV UTF-8')",
-        ) from None
+#: Rows checked together: enough for numpy to pay off, few enough that a block's text (about
+#: 50 bytes a field as Python strings) stays a few MB.
+_BLOCK_ROWS = 4096
 
 
-def _column_at(raw: bytes, at: int, line: int) -> str | None:
-    """Best effort: the header name of the field holding byte ``at``, None on the header."""
-    if line == 1:
-        return None
-    try:
-        header_bytes = raw.split(b"\n", 1)[0]
-        header = next(csv.reader([header_bytes.decode("utf-8", "replace").strip()]))
-        start = raw.rfind(b"\n", 0, at) + 1
-        before = raw[start:at].decode("utf-8", "replace")
-        index = max(len(next(csv.reader([before]), [])) - 1, 0)
-        return header[index].strip().lstrip("\ufeff") if index < len(header) else None
-    except (csv.Error, StopIteration, IndexError):
-        return None
+#: Bytes read at a time when looking for an undecodable byte.
+_DECODE_BLOCK = 1 << 20
 
 
-def _csv_rows(text: str, path: Path) -> list[tuple[int, list[str]]]:
-    """Non-blank CSV records with the 1-based line each starts on, fields stripped."""
-    reader = csv.reader(io.StringIO(text, newline=""))
-    rows = []
-    start = 1
-    try:
-        for fields in reader:
-            line, start = start, reader.line_num + 1
-            fields = [f.strip() for f in fields]
-            # Blank lines and the all-comma rows spreadsheets append hold no data at all.
-            if any(fields):
-                rows.append((line, fields))
-    except csv.Error as exc:
-        raise MeasurementError.single(
-            path, reader.line_num, None, f"not valid CSV ({exc}); fix the line or remove it"
-        ) from None
-    return rows
+class _Slow(Exception):
+    """A block breaks a rule: validate it row by row for the messages."""
+
+
+def _undecodable(path: Path) -> MeasurementError:
+    """The error for the file's first byte that is not UTF-8: its offset, line and column.
+
+    Called only once decoding failed, so reading pays nothing for it: the file is read again
+    in binary, a block at a time, through an incremental decoder."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    offset = lines = 0  # bytes and line ends before the block
+    tail = b""  # the current line's bytes before the block (its last MB at most)
+    first_line: bytes | None = None
+    with path.open("rb") as fh:
+        while True:
+            block = fh.read(_DECODE_BLOCK)
+            buffered = len(decoder.getstate()[0])  # an incomplete character's first bytes
+            try:
+                decoder.decode(block, final=not block)
+            except UnicodeDecodeError as exc:
+                at = offset - buffered + exc.start  # in the file
+                break
+            if not block:  # pragma: no cover - the text reader found a bad byte
+                return MeasurementError.single(path, None, None, "is not UTF-8 text")
+            data = tail + block
+            if first_line is None and b"\n" in data:
+                first_line = data.split(b"\n", 1)[0]
+            lines += block.count(b"\n")
+            tail = data[data.rfind(b"\n") + 1 :][-_DECODE_BLOCK:]
+            offset += len(block)
+    data = tail + block
+    i = at - (offset - len(tail))  # the bad byte in data
+    line = lines + data.count(b"\n", 0, i) + 1
+    if first_line is None:
+        first_line = data.split(b"\n", 1)[0]
+    column = None
+    if line > 1:  # best effort: the header name of the field holding the byte
+        before = data[data.rfind(b"\n", 0, i) + 1 : i].decode("utf-8", "replace")
+        try:
+            header = next(csv.reader([first_line.decode("utf-8", "replace").strip()]), [])
+            index = max(len(next(csv.reader([before]), [])) - 1, 0)
+        except csv.Error:
+            header, index = [], 0
+        if index < len(header):
+            column = header[index].strip().lstrip("\ufeff")
+    return MeasurementError.single(
+        path,
+        line,
+        column,
+        f"byte {at} (0x{data[i]:02x}) is not UTF-8 text; save the file as UTF-8 (e.g. 'CSV UTF-8')",
+    )
 
 
 def _header_issues(header: list[str], line: int) -> list[Issue]:
@@ -778,93 +888,313 @@ def _count_issue(fields: list[str], header: list[str], line: int) -> Issue:
     )
 
 
+@dataclass
+class _Block:
+    """Consecutive valid rows of the file, typed (units as in :class:`Measurements`)."""
+
+    line: np.ndarray  #: (k,) the line each row starts on
+    pose_id: np.ndarray
+    t: np.ndarray
+    step: list[str]
+    leg: np.ndarray
+    constraint: list[str]
+    position: np.ndarray
+    quaternion: np.ndarray
+    readings: np.ndarray
+    temperature: np.ndarray | None
+    extra: list[list[str]]  #: per extra column, in header order
+
+
+class _TableReader:
+    """Turns the file's data rows into typed arrays a block at a time.
+
+    A block that keeps every rule is converted with numpy (the common case, and what keeps a
+    200 MB file fast); a block that breaks one is validated row by row with
+    :class:`MeasurementRow`, whose messages the error reports. Once a row is bad the values
+    are no longer kept (the read will fail), only the ids and lines that duplicates are checked
+    against."""
+
+    def __init__(self, header: list[str], path: Path):
+        self.header = header
+        self.path = path
+        self.at = {c: k for k, c in enumerate(header)}
+        self.fields = [c for c in header if c in _KNOWN_COLUMNS]
+        self.extra_names = [c for c in header if c not in _KNOWN_COLUMNS]
+        self.has_temperature = "temperature" in self.at
+        self.blocks: list[_Block] = []
+        self.ids: list[np.ndarray] = []
+        self.lines: list[np.ndarray] = []
+        self.issues: list[Issue] = []  # the first MAX_MESSAGES row problems
+        self.problems = 0  # all of them
+        self.rows = 0
+        self.texts: dict[str, str] = {}  # one str object per distinct step/constraint
+
+    def flush(self, rows: list[tuple[int, list[str]]]) -> None:
+        """Take a block of data rows: (line, fields as read, not stripped)."""
+        if not rows:
+            return
+        self.rows += len(rows)
+        try:
+            block = self._fast(rows)
+        except _Slow:
+            block = self._slow(rows)
+        self.ids.append(block.pose_id)
+        self.lines.append(block.line)
+        if self.problems:
+            self.blocks.clear()
+        else:
+            self.blocks.append(block)
+
+    # -- the fast path: a block with no problem, checked by columns --------------------------
+
+    def _column(self, cols: list[tuple[str, ...]], name: str) -> tuple[str, ...]:
+        col = cols[self.at[name]]
+        joined = "".join(col)
+        # As _parse_number/_parse_integer: no empty field, ASCII only, no digit separators
+        # (float() and int() would take '1_000' and non-ASCII digits).
+        if "" in col or "_" in joined or not joined.isascii():
+            raise _Slow
+        return col
+
+    def _floats(self, cols: list[tuple[str, ...]], names: Sequence[str]) -> np.ndarray:
+        try:
+            out = np.array([list(map(float, self._column(cols, c))) for c in names]).T
+        except ValueError:
+            raise _Slow from None
+        return out
+
+    def _ints(self, cols: list[tuple[str, ...]], name: str, low: int, high: int) -> np.ndarray:
+        try:
+            values = np.array(list(map(int, self._column(cols, name))), dtype=np.int64)
+        except (ValueError, OverflowError):  # '3.0' is valid: the slow path reads it
+            raise _Slow from None
+        if not np.all((values >= low) & (values <= high)):
+            raise _Slow
+        return values
+
+    def _within(self, values: np.ndarray, low: float, high: float) -> np.ndarray:
+        if not np.all((values >= low) & (values <= high)):  # False for NaN too
+            raise _Slow
+        return values
+
+    def _texts(self, col: Sequence[str]) -> list[str]:
+        """Stripped text, one str object per distinct value (a step name is shared by many
+        rows: memory)."""
+        col = list(map(str.strip, col))
+        cache = self.texts
+        if len(cache) > 10_000:  # steps are a few dozen names; do not hoard unique ones
+            return col
+        return [cache.setdefault(v, v) for v in col]
+
+    def _fast(self, rows: list[tuple[int, list[str]]]) -> _Block:
+        ncol = len(self.header)
+        if any(len(fields) != ncol for _, fields in rows):
+            raise _Slow
+        cols = list(zip(*(fields for _, fields in rows), strict=True))
+        pose_id = self._ints(cols, "pose_id", 1, MAX_POSE_ID)
+        leg = self._ints(cols, "leg", 0, 6)
+        t = self._within(self._floats(cols, ["t"])[:, 0], -MAX_TIME_S, MAX_TIME_S)
+        position = self._floats(cols, POSITION_COLUMNS)
+        readings = self._floats(cols, READING_COLUMNS)
+        self._within(position, -MAX_COORDINATE_MM, MAX_COORDINATE_MM)
+        self._within(readings, -MAX_COORDINATE_MM, MAX_COORDINATE_MM)
+        quaternion = self._floats(cols, QUATERNION_COLUMNS)
+        with np.errstate(over="ignore", invalid="ignore"):
+            norm = np.sqrt(np.sum(quaternion * quaternion, axis=1))
+        # A hair inside the tolerance: a row at its very edge goes to MeasurementRow, whose
+        # sum (in another order) has the last word.
+        edge = QUATERNION_TOLERANCE * (1 - 1e-9)
+        self._within(norm, 1.0 - edge, 1.0 + edge)
+        temperature = None
+        if self.has_temperature:
+            temperature = self._floats(cols, ["temperature"])[:, 0]
+            self._within(temperature, MIN_TEMPERATURE_C, MAX_TEMPERATURE_C)
+        # Text may hold any character ('leg1_direction', 'Bein 1'): stripped, never empty.
+        step = self._texts(cols[self.at["step"]])
+        constraint = self._texts(cols[self.at["constraint"]])
+        if "" in step or not set(constraint) <= set(CONSTRAINTS):
+            raise _Slow
+        free = np.array([c == "free" for c in constraint], dtype=bool)
+        if np.any(free != (leg == 0)):
+            raise _Slow
+        return _Block(
+            line=np.array([line for line, _ in rows], dtype=np.int64),
+            pose_id=pose_id,
+            t=t,
+            step=step,
+            leg=leg,
+            constraint=constraint,
+            position=position,
+            quaternion=quaternion,
+            readings=readings,
+            temperature=temperature,
+            extra=[list(map(str.strip, cols[self.at[c]])) for c in self.extra_names],
+        )
+
+    # -- the slow path: row by row, every problem named ----------------------------------------
+
+    def _issue(self, issue: Issue) -> None:
+        self.problems += 1
+        if len(self.issues) < MAX_MESSAGES:
+            self.issues.append(issue)
+
+    def _slow(self, rows: list[tuple[int, list[str]]]) -> _Block:
+        header, order = self.header, self.at
+        valid: list[tuple[int, MeasurementRow, list[str]]] = []
+        for line, fields in rows:
+            values = [f.strip() for f in fields]
+            if len(values) != len(header):
+                self._issue(_count_issue(values, header, line))
+                continue
+            by_name = dict(zip(header, values, strict=True))
+            try:
+                row = MeasurementRow.model_validate({c: by_name[c] for c in self.fields})
+            except ValidationError as exc:
+                found = _row_issues(exc, line, by_name)
+                for issue in sorted(found, key=lambda i: order.get(i.column or "", len(order))):
+                    self._issue(issue)
+                continue
+            valid.append((line, row, [by_name[c] for c in self.extra_names]))
+        rs = [r for _, r, _ in valid]
+        return _Block(
+            line=np.array([line for line, _, _ in valid], dtype=np.int64),
+            pose_id=np.array([r.pose_id for r in rs], dtype=np.int64),
+            t=np.array([r.t for r in rs], dtype=float),
+            step=self._texts([r.step for r in rs]),
+            leg=np.array([r.leg for r in rs], dtype=np.int64),
+            constraint=self._texts([r.constraint for r in rs]),
+            position=np.array([[r.x, r.y, r.z] for r in rs], dtype=float).reshape(-1, 3),
+            quaternion=np.array([[r.qw, r.qx, r.qy, r.qz] for r in rs], dtype=float).reshape(-1, 4),
+            readings=np.array(
+                [[r.rho1, r.rho2, r.rho3, r.rho4, r.rho5, r.rho6] for r in rs], dtype=float
+            ).reshape(-1, 6),
+            temperature=(
+                np.array([r.temperature for r in rs], dtype=float) if self.has_temperature else None
+            ),
+            extra=[[e[k] for _, _, e in valid] for k in range(len(self.extra_names))],
+        )
+
+    # -- the table ------------------------------------------------------------------------------
+
+    def finish(self) -> Measurements:
+        ids = np.concatenate(self.ids) if self.ids else np.zeros(0, np.int64)
+        lines = np.concatenate(self.lines) if self.lines else np.zeros(0, np.int64)
+        duplicates, repeated = _repeated_ids(ids, lines)
+        if self.problems or repeated:
+            # Both lists are in line order and hold the first MAX_MESSAGES of their kind, so
+            # the first MAX_MESSAGES of the merge are the file's first problems.
+            issues = sorted(self.issues + duplicates, key=lambda i: i.line or 0)[:MAX_MESSAGES]
+            total = self.problems + repeated
+            raise MeasurementError(issues, self.path, omitted=total - len(issues))
+        b = self.blocks
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(x, name) for x in b])
+
+        def texts(values: list[str]) -> np.ndarray:
+            return _object_array(values)
+
+        return Measurements(
+            pose_id=ids,
+            t=cat("t"),
+            step=texts([s for x in b for s in x.step]),
+            leg=cat("leg"),
+            constraint=texts([s for x in b for s in x.constraint]),
+            position=cat("position"),
+            quaternion=cat("quaternion"),
+            readings=cat("readings"),
+            temperature=cat("temperature") if self.has_temperature else None,
+            extra={
+                c: texts([s for x in b for s in x.extra[k]]) for k, c in enumerate(self.extra_names)
+            },
+            columns=tuple(self.header),
+            source=str(self.path),
+        )
+
+
+def _repeated_ids(ids: np.ndarray, lines: np.ndarray) -> tuple[list[Issue], int]:
+    """The rows whose pose_id an earlier row already has (the first MAX_MESSAGES, in line
+    order), and how many there are; ``ids`` and ``lines`` in file order."""
+    if len(ids) < 2:
+        return [], 0
+    _, first, group = np.unique(ids, return_index=True, return_inverse=True)
+    group = group.reshape(-1)
+    repeats = np.flatnonzero(first[group] != np.arange(len(ids)))
+    issues = [
+        Issue(
+            f"pose_id {int(ids[i])} was already used on line {int(lines[first[group[i]]])}; "
+            "pose ids must be unique: renumber or remove the row",
+            line=int(lines[i]),
+            column="pose_id",
+        )
+        for i in repeats[:MAX_MESSAGES]
+    ]
+    return issues, len(repeats)
+
+
 def read_measurements(path: str | Path) -> Measurements:
     """Read and validate measurements.csv (docs/formats.md).
 
     Raises :class:`MeasurementError` listing every bad row (up to :data:`MAX_MESSAGES`), each
-    with file, line (header = line 1) and column; also for a missing, unreadable, non-UTF-8 or
-    empty file. Floats keep the exact value written; extra columns keep their text.
+    with file, line (header = line 1) and column; also for a missing, unreadable, non-UTF-8,
+    empty or too large (:data:`hexcal.safe_read.KINDS`) file. Floats keep the exact value
+    written; extra columns keep their text. The file is streamed: memory stays about its size.
     """
     path = Path(path)
+
+    def error(message: str) -> MeasurementError:
+        return MeasurementError.single(path, None, None, message.removeprefix(f"{path}: "))
+
+    with open_binary(path, "measurements", error) as fh:
+        # utf-8-sig drops a leading byte-order mark (spreadsheet exports); newline="" keeps
+        # line ends as they are, as the csv module wants.
+        stream = io.TextIOWrapper(fh, encoding="utf-8-sig", newline="")
+        try:
+            return _read_table(stream, path)
+        except UnicodeDecodeError:
+            raise _undecodable(path) from None
+        except OSError as exc:
+            raise error(f"cannot be read ({exc.strerror or exc})") from None
+
+
+def _read_table(stream: io.TextIOWrapper, path: Path) -> Measurements:
+    reader = csv.reader(stream)
+    table: _TableReader | None = None
+    pending: list[tuple[int, list[str]]] = []
+    header_line = 1
+    start = 1
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
+        for fields in reader:
+            line, start = start, reader.line_num + 1
+            # Blank lines and the all-comma rows spreadsheets append hold no data at all.
+            # (Fields are stripped where they are used: the fast path leaves numbers as they
+            # are, since float() and int() ignore the same spaces str.strip() removes.)
+            if not fields or (not fields[0].strip() and not "".join(fields).strip()):
+                continue
+            if table is not None:
+                pending.append((line, fields))
+                if len(pending) >= _BLOCK_ROWS:
+                    table.flush(pending)
+                    pending = []
+                continue
+            header_line = line
+            header = [f.strip() for f in fields]
+            _raise_issues(_header_issues(header, line), path)
+            table = _TableReader(header, path)
+    except csv.Error as exc:
         raise MeasurementError.single(
-            path, None, None, "no such file; check the path to the measurement table"
+            path, reader.line_num, None, f"not valid CSV ({exc}); fix the line or remove it"
         ) from None
-    except IsADirectoryError:
-        raise MeasurementError.single(
-            path, None, None, "is a directory; pass the measurement table (a .csv file)"
-        ) from None
-    except OSError as exc:
-        raise MeasurementError.single(
-            path, None, None, f"cannot be read ({exc.strerror}); check its permissions"
-        ) from None
-    rows = _csv_rows(_decode(raw, path), path)
-    if not rows:
+    if table is None:
         raise MeasurementError.single(
             path, 1, None, f"the file is empty; it needs the header {','.join(REQUIRED_COLUMNS)}"
         )
-    header_line, header = rows[0]
-    _raise_issues(_header_issues(header, header_line), path)
-    data = rows[1:]
-    if not data:
+    table.flush(pending)
+    if table.rows == 0:
         raise MeasurementError.single(
             path, header_line + 1, None, "no data rows after the header; record at least one pose"
         )
-
-    fields = [c for c in header if c in _KNOWN_COLUMNS]
-    extra_names = [c for c in header if c not in _KNOWN_COLUMNS]
-    order = {c: k for k, c in enumerate(header)}
-    valid: list[tuple[MeasurementRow, list[str]]] = []
-    issues: list[Issue] = []
-    first_line: dict[int, int] = {}
-    for line, values in data:
-        if len(values) != len(header):
-            issues.append(_count_issue(values, header, line))
-            continue
-        by_name = dict(zip(header, values, strict=True))
-        try:
-            row = MeasurementRow.model_validate({c: by_name[c] for c in fields})
-        except ValidationError as exc:
-            found = _row_issues(exc, line, by_name)
-            issues.extend(sorted(found, key=lambda i: order.get(i.column or "", len(order))))
-            continue
-        if row.pose_id in first_line:
-            issues.append(
-                Issue(
-                    f"pose_id {row.pose_id} was already used on line {first_line[row.pose_id]}; "
-                    "pose ids must be unique: renumber or remove the row",
-                    line=line,
-                    column="pose_id",
-                )
-            )
-            continue
-        first_line[row.pose_id] = line
-        valid.append((row, [by_name[c] for c in extra_names]))
-    _raise_issues(issues, path)
-
-    rows_ = [r for r, _ in valid]
-    return Measurements(
-        pose_id=np.array([r.pose_id for r in rows_], dtype=np.int64),
-        t=np.array([r.t for r in rows_], dtype=float),
-        step=_object_array([r.step for r in rows_]),
-        leg=np.array([r.leg for r in rows_], dtype=np.int64),
-        constraint=_object_array([r.constraint for r in rows_]),
-        position=np.array([[r.x, r.y, r.z] for r in rows_], dtype=float),
-        quaternion=np.array([[r.qw, r.qx, r.qy, r.qz] for r in rows_], dtype=float),
-        readings=np.array(
-            [[r.rho1, r.rho2, r.rho3, r.rho4, r.rho5, r.rho6] for r in rows_], dtype=float
-        ),
-        temperature=(
-            np.array([r.temperature for r in rows_], dtype=float)
-            if "temperature" in header
-            else None
-        ),
-        extra={c: _object_array([e[k] for _, e in valid]) for k, c in enumerate(extra_names)},
-        columns=tuple(header),
-        source=str(path),
-    )
+    return table.finish()
 
 
 # --------------------------------------------------------------------------------------------

@@ -15,10 +15,9 @@ drawing), so ``hexcal validate`` and ``hexcal predict`` take both.
 from __future__ import annotations
 
 import hashlib
-import json
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -28,8 +27,14 @@ from hexcal.effects import get_effect
 from hexcal.fileio import write_text_atomic
 from hexcal.instruments import Instruments
 from hexcal.predict import LegModel
-from hexcal.robot import Robot, RobotFileError, read_robot_json
-from hexcal.validation import format_validation_error
+from hexcal.robot import Robot, RobotFileError, json_text, read_robot_json
+from hexcal.safe_read import Count
+from hexcal.validation import format_validation_error, shown_value
+
+#: Largest magnitude of a fitted parameter or its σ, in its unit (ppm, mm, µm/N...).
+MAX_PARAMETER = 1e12
+#: A fit or accuracy statistic (RMS, percentile, χ²/dof...): finite, ≥ 0.
+Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False)]
 
 FORMAT = "hexcal-calibrated-model"
 FORMAT_VERSION = 1
@@ -40,8 +45,8 @@ class ParameterValue(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     name: str
-    value: float
-    sigma: float | None = None
+    value: float = Field(ge=-MAX_PARAMETER, le=MAX_PARAMETER, allow_inf_nan=False)
+    sigma: float | None = Field(None, ge=0, le=MAX_PARAMETER, allow_inf_nan=False)
     unit: str
 
 
@@ -58,13 +63,15 @@ class FitRecord(BaseModel):
     """How the model fits the poses it was calibrated on (leg lengths, mm)."""
 
     model_config = ConfigDict(extra="forbid")
-    poses: int = Field(ge=0)
-    chi2_per_dof: float | None = None
-    rms_mm: float | None = Field(None, description="leg-length residual RMS on the fitted poses")
-    heldout_rms_mm: float | None = Field(
+    poses: Count
+    chi2_per_dof: Statistic | None = None
+    rms_mm: Statistic | None = Field(
+        None, description="leg-length residual RMS on the fitted poses"
+    )
+    heldout_rms_mm: Statistic | None = Field(
         None, description="leg-length residual RMS on held-out poses (5 random folds)"
     )
-    noise_floor_mm: float | None = Field(
+    noise_floor_mm: Statistic | None = Field(
         None, description="the leg-length RMS the instruments' noise alone gives"
     )
     clamps: str | None = Field(None, description="whether the clamps' constraints were used")
@@ -77,19 +84,19 @@ class AccuracyRecord(BaseModel):
     model_config = ConfigDict(extra="forbid")
     model: str = Field(description="e.g. 'design', 'Model 42', 'Model 42 + gain'")
     heldout: bool = Field(description="each pose predicted by a fit that did not see it")
-    poses: int = Field(ge=0)
-    position_rms_mm: float | None = None
-    position_p95_mm: float | None = None
-    position_max_mm: float | None = None
-    orientation_rms_deg: float | None = None
-    orientation_p95_deg: float | None = None
-    orientation_max_deg: float | None = None
-    leg_rms_mm: float | None = None
-    floor_position_rms_mm: float | None = Field(
+    poses: Count
+    position_rms_mm: Statistic | None = None
+    position_p95_mm: Statistic | None = None
+    position_max_mm: Statistic | None = None
+    orientation_rms_deg: Statistic | None = None
+    orientation_p95_deg: Statistic | None = None
+    orientation_max_deg: Statistic | None = None
+    leg_rms_mm: Statistic | None = None
+    floor_position_rms_mm: Statistic | None = Field(
         None, description="position RMS the instruments' noise alone gives"
     )
-    floor_orientation_rms_deg: float | None = None
-    failed: int = Field(0, ge=0, description="poses whose readings no pose closes")
+    floor_orientation_rms_deg: Statistic | None = None
+    failed: Count = Field(0, description="poses whose readings no pose closes")
 
 
 class InputRecord(BaseModel):
@@ -103,7 +110,7 @@ class Provenance(BaseModel):
     model_config = ConfigDict(extra="forbid")
     hexcal_version: str = __version__
     created: datetime = Field(default_factory=lambda: datetime.now(timezone.utc))
-    poses: int = Field(ge=0)
+    poses: Count
     inputs: list[InputRecord] = Field(default_factory=list)
 
 
@@ -112,7 +119,7 @@ class CalibrationBlock(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     format: Literal["hexcal-calibrated-model"] = FORMAT
-    format_version: int = FORMAT_VERSION
+    format_version: int = Field(FORMAT_VERSION, ge=1, le=FORMAT_VERSION)
     model: str = Field(description="e.g. 'Model 42 + gain + backlash'")
     kind: Literal[36, 42]
     effects: list[EffectRecord] = Field(default_factory=list)
@@ -142,7 +149,8 @@ class CalibratedRobot(Robot):
         return Robot.model_validate(self.model_dump(exclude={"calibration"}, exclude_none=True))
 
     def to_json(self) -> str:
-        return json.dumps(self.model_dump(mode="json", exclude_none=True), indent=2) + "\n"
+        """calibrated.json text (indent 2); NaN or infinity anywhere is refused, not written."""
+        return json_text(self.model_dump(mode="json", exclude_none=True))
 
 
 def effect_records(model: LegModel, sigmas: dict[str, float] | None = None) -> list[EffectRecord]:
@@ -192,12 +200,17 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
         if block.get("format") != FORMAT:
             raise RobotFileError(
                 f"{where}: field calibration.format: expected {FORMAT!r}, got "
-                f"{block.get('format')!r}; this is not a hexcal calibrated model"
+                f"{shown_value(block.get('format'))}; this is not a hexcal calibrated model"
             )
         version = block.get("format_version")
-        if not isinstance(version, int) or version > FORMAT_VERSION:
+        if isinstance(version, bool) or not isinstance(version, int) or version < 1:
             raise RobotFileError(
-                f"{where}: calibrated model format version {version!r}; this hexcal "
+                f"{where}: field calibration.format_version: {shown_value(version)} is not a "
+                f"format version (an integer from 1; this hexcal writes {FORMAT_VERSION})"
+            )
+        if version > FORMAT_VERSION:
+            raise RobotFileError(
+                f"{where}: calibrated model format version {shown_value(version)}; this hexcal "
                 f"{__version__} reads version {FORMAT_VERSION}: upgrade hexcal to read it"
             )
         cls: type[Robot] = CalibratedRobot
@@ -206,10 +219,12 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
     try:
         robot = cls.model_validate(data)
     except ValidationError as exc:
-        raise RobotFileError(format_validation_error(exc, where)) from None
+        raise RobotFileError(format_validation_error(exc, where, data)) from None
     if isinstance(robot, CalibratedRobot):
         try:
             robot.leg_model()
+        except ValidationError as exc:
+            raise RobotFileError(format_validation_error(exc, where)) from None
         except ValueError as exc:
             raise RobotFileError(f"{where}: field calibration.effects: {exc}") from None
     return robot

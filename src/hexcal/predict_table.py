@@ -18,9 +18,24 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.predict import LegModel
+from hexcal.safe_read import (
+    MAX_COORDINATE_MM,
+    MAX_TEMPERATURE_C,
+    MAX_TIME_S,
+    MIN_TEMPERATURE_C,
+    read_text,
+)
+from hexcal.validation import shown_value
 
 READINGS = tuple(f"rho{k}" for k in range(1, 7))
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
+#: The range of each column's values (unit): as in measurements.csv (docs/formats.md).
+_RANGES = {
+    **{c: (-MAX_COORDINATE_MM, MAX_COORDINATE_MM, "mm") for c in (*READINGS, "x", "y", "z")},
+    **{c: (-2.0, 2.0, "") for c in ("qw", "qx", "qy", "qz")},
+    "t": (-MAX_TIME_S, MAX_TIME_S, "s"),
+    "temperature": (MIN_TEMPERATURE_C, MAX_TEMPERATURE_C, "degC"),
+}
 
 
 class TableError(ValueError):
@@ -29,9 +44,13 @@ class TableError(ValueError):
 
 @dataclass
 class Table:
+    """A CSV table as text: its header, its rows (blank ones left out) and the line each row
+    starts on (header = line 1)."""
+
     path: str
     header: list[str]
     rows: list[list[str]]
+    lines: list[int]
 
     def column(self, name: str, required: bool = True) -> np.ndarray | None:
         if name not in self.header:
@@ -39,19 +58,19 @@ class Table:
                 raise TableError(f"{self.path}: line 1: no column {name!r} in the header")
             return None
         j = self.header.index(name)
+        low, high, unit = _RANGES.get(name, (-np.inf, np.inf, ""))
         out = np.empty(len(self.rows))
         for i, row in enumerate(self.rows):
+            cell = row[j] if j < len(row) else ""
+            where = f"{self.path}: line {self.lines[i]}, column {name!r}: {shown_value(cell)}"
             try:
-                v = float(row[j])
-            except (ValueError, IndexError):
-                cell = row[j] if j < len(row) else ""
-                raise TableError(
-                    f"{self.path}: line {i + 2}, column {name!r}: {cell!r} is not a number"
-                ) from None
+                v = float(cell)
+            except ValueError:
+                raise TableError(f"{where} is not a number") from None
             if not np.isfinite(v):
-                raise TableError(
-                    f"{self.path}: line {i + 2}, column {name!r}: {row[j]!r} is not a finite number"
-                )
+                raise TableError(f"{where} is not a finite number")
+            if not low <= v <= high:
+                raise TableError(f"{where} is outside {low:g}..{high:g} {unit}".rstrip())
             out[i] = v
         return out
 
@@ -60,27 +79,35 @@ class Table:
 
 
 def read_table(path: Path) -> Table:
+    """Read a prediction table (UTF-8 CSV with a header, at most 64 MB: every cell is kept as
+    text to be written back). Errors name the file and the line."""
+    path = Path(path)
+    text = read_text(path, "table", TableError)
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows, lines = [], []
+    start = 1
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise TableError(f"{path}: no such file") from None
-    except UnicodeDecodeError as exc:
+        for r in reader:
+            line, start = start, reader.line_num + 1
+            if r and any(c.strip() for c in r):
+                rows.append(r)
+                lines.append(line)
+    except csv.Error as exc:
         raise TableError(
-            f"{path}: not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV"
+            f"{path}: line {reader.line_num}: not valid CSV ({exc}); fix the line or remove it"
         ) from None
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
     if not rows:
         raise TableError(f"{path}: empty; expected a header row and one row per pose")
     header = [h.strip() for h in rows[0]]
     body = rows[1:]
-    for i, r in enumerate(body):
+    for r, line in zip(body, lines[1:], strict=True):
         if len(r) != len(header):
             raise TableError(
-                f"{path}: line {i + 2}: {len(r)} cells where the header has {len(header)}"
+                f"{path}: line {line}: {len(r)} cells where the header has {len(header)}"
             )
     if not body:
         raise TableError(f"{path}: no rows after the header")
-    return Table(str(path), header, body)
+    return Table(str(path), header, body, lines[1:])
 
 
 def direction(table: Table, to: str | None) -> str:
@@ -121,8 +148,8 @@ def predict_table(
     bad = np.where(np.abs(norm - 1.0) > 1e-3)[0]
     if len(bad):
         raise TableError(
-            f"{table.path}: line {bad[0] + 2}: quaternion norm {norm[bad[0]]:.6f}, expected 1 "
-            "(scalar first: qw, qx, qy, qz)"
+            f"{table.path}: line {table.lines[bad[0]]}: quaternion norm {norm[bad[0]]:.6f}, "
+            "expected 1 (scalar first: qw, qx, qy, qz)"
         )
     rot = Rotation.from_quat(q, scalar_first=True).as_matrix()
     position = np.column_stack([cols["x"], cols["y"], cols["z"]])

@@ -42,6 +42,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hexcal.recording import Step
+from hexcal.safe_read import KINDS, FileKind, parse_toml, read_text
+from hexcal.validation import format_validation_error
 
 #: The procedures shipped with hexcal, by short name.
 BUILTIN = {
@@ -52,6 +54,12 @@ BUILTIN = {
 
 Check = Literal["clamp-length", "step-fit"]
 
+#: Limits on a step's numbers: a clamp's tolerance and a step's target σ, mm; poses per step.
+MAX_TOLERANCE_MM = 10.0
+MAX_POSES_PER_STEP = 10_000
+#: The longest step id or procedure name, characters (instructions may be longer).
+MAX_ID_CHARS = 200
+
 
 class ProcedureError(ValueError):
     """A procedure file cannot be used; the message names the file, the step and the field."""
@@ -61,14 +69,14 @@ class ProcedureStep(BaseModel):
     """One step of a procedure file (see the module docstring)."""
 
     model_config = ConfigDict(extra="forbid")
-    id: str = Field(min_length=1)
-    legs: list[int] | None = None
+    id: str = Field(min_length=1, max_length=MAX_ID_CHARS)
+    legs: list[int] | None = Field(None, max_length=6)
     constraint: Literal["direction", "direction+length", "length", "free"]
     instruction: str = Field(min_length=1)
-    tolerance_mm: float = Field(0.02, gt=0, allow_inf_nan=False)
-    min_poses: int = Field(ge=1)
-    recommended_poses: int = Field(ge=1)
-    target_sigma_mm: float | None = Field(None, gt=0, allow_inf_nan=False)
+    tolerance_mm: float = Field(0.02, gt=0, le=MAX_TOLERANCE_MM, allow_inf_nan=False)
+    min_poses: int = Field(ge=1, le=MAX_POSES_PER_STEP)
+    recommended_poses: int = Field(ge=1, le=MAX_POSES_PER_STEP)
+    target_sigma_mm: float | None = Field(None, gt=0, le=MAX_TOLERANCE_MM, allow_inf_nan=False)
     checks: list[Check] = Field(default_factory=list)
     at_home: bool = False
 
@@ -110,7 +118,7 @@ class Procedure(BaseModel):
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
     schema_version: Literal[1] = Field(1, alias="schema")
-    name: str = Field(min_length=1)
+    name: str = Field(min_length=1, max_length=MAX_ID_CHARS)
     model: Literal[36, 42]
     reference: str = ""
     description: str = ""
@@ -167,30 +175,34 @@ def _where(loc: tuple[Any, ...], data: Any) -> str:
         steps = data.get("steps") if isinstance(data, dict) else None
         if isinstance(steps, list) and i < len(steps) and isinstance(steps[i], dict):
             sid = steps[i].get("id")
-        head = f"step {i + 1}" + (f" (id {sid!r})" if sid else "")
+        shown = repr(sid) if isinstance(sid, str) and len(sid) <= MAX_ID_CHARS else None
+        head = f"step {i + 1}" + (f" (id {shown})" if shown and sid else "")
         rest = ".".join(str(p) for p in loc[2:])
         return f"{head}, field {rest}" if rest else head
     return "field " + (".".join(str(p) for p in loc) or "(top level)")
 
 
+def _procedure_error(message: str) -> ProcedureError:
+    return ProcedureError(message)
+
+
 def parse_procedure(text: str, source: str = "<procedure>") -> Procedure:
     """A procedure from TOML text; errors name ``source``, the step and the field."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ProcedureError(f"{source}: not valid TOML: {exc}") from None
+    data = parse_toml(text, source, _procedure_error)
     try:
         return Procedure.model_validate(data)
     except ValidationError as exc:
-        lines = [
-            f"{source}: {_where(tuple(e['loc']), data)}: {e['msg'].removeprefix('Value error, ')}"
-            for e in exc.errors()
-        ]
-        raise ProcedureError("\n".join(lines)) from None
+        raise ProcedureError(
+            format_validation_error(exc, source, data, locate=lambda loc: _where(loc, data))
+        ) from None
+
+
+#: Procedure files, with what to do when one is missing.
+_KIND = FileKind(
+    KINDS["procedure"].what,
+    KINDS["procedure"].max_bytes,
+    f"no such procedure file; the shipped ones are {', '.join(BUILTIN)}",
+)
 
 
 def load_procedure(name_or_path: str | Path) -> Procedure:
@@ -200,10 +212,4 @@ def load_procedure(name_or_path: str | Path) -> Procedure:
         text = resources.files("hexcal.procedures").joinpath(BUILTIN[key]).read_text("utf-8")
         return parse_procedure(text, f"hexcal procedure {key!r}")
     path = Path(name_or_path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProcedureError(
-            f"{path}: no such procedure file; the shipped ones are {', '.join(BUILTIN)}"
-        ) from None
-    return parse_procedure(text, str(path))
+    return parse_procedure(read_text(path, _KIND, _procedure_error), str(path))

@@ -395,7 +395,13 @@ def window_instruments(poses: Sequence[RecordedPose]) -> Instruments | None:
     if not poses or not all(p.tracker_samples and p.leg_samples for p in poses):
         return None
     lv = per_pose_noise(poses)
-    if not np.isfinite([lv.position_mm, lv.orientation_deg, lv.reading_mm]).all():
+    levels = [lv.position_mm, lv.orientation_deg, lv.reading_mm]
+    # Beyond instruments.json's bounds (1000 mm, 180°) the windows held no still pose at all.
+    if not (
+        np.isfinite(levels).all()
+        and max(lv.position_mm, lv.reading_mm) <= 1000.0
+        and lv.orientation_deg <= 180.0
+    ):
         return None
     return Instruments(
         tracker=TrackerNoise(

@@ -22,6 +22,31 @@ from scipy.optimize import least_squares
 from hexcal.clamp_rows import ClampModel, ClampSteps, Nuisance
 from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 
+#: Function evaluations one least-squares pass may take (a converging fit takes about 10): a
+#: fit that needs more is pulled somewhere by poses that do not belong (:class:`FitStalled`).
+MAX_NFEV = 200
+
+
+class FitStalled(ValueError):
+    """The refinement did not converge within :data:`MAX_NFEV` evaluations, or its residual is
+    not finite. ``rows`` (0-based) are the poses with the largest whitened residual there: the
+    ones pulling the fit."""
+
+    def __init__(self, rows: list[int], why: str):
+        self.rows = rows
+        super().__init__(why)
+
+
+def _stalled(x, P, R, rho, fixed, fit_offsets, basis, what: str) -> FitStalled:
+    """The stall, naming the rows with the largest residual at ``x`` (the geometry part)."""
+    with np.errstate(all="ignore"):
+        res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
+    norm = np.linalg.norm(res, axis=1)
+    norm = np.where(np.isfinite(norm), norm, np.inf)
+    rows = [int(i) for i in np.argsort(-norm)[:3]]
+    return FitStalled(rows, what)
+
+
 #: Relative eigenvalue of the scaled normal matrix below which a direction is not determined.
 NULL_TOL = 1e-10
 #: Variance inflation (σ against σ if it were the only unknown, squared) beyond which a
@@ -202,9 +227,18 @@ def refine(
             _, j = _model(xx, P, R, rho, fixed, fit_offsets, basis)
             return (W @ j).reshape(-1, len(xx))
 
-        sol = least_squares(
-            fun, x, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac"
-        )
+        sol = _solve(fun, x, jac)
+        if sol.status == 0 or not np.all(np.isfinite(sol.fun)):
+            raise _stalled(
+                sol.x,
+                P,
+                R,
+                rho,
+                fixed,
+                fit_offsets,
+                basis,
+                f"no convergence in {sol.nfev} evaluations",
+            )
         x, nfev = sol.x, nfev + sol.nfev
     res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
     jw = jac(x)
@@ -214,6 +248,30 @@ def refine(
     out.whitened_residual = sol.fun
     out.whiteners = W
     return out
+
+
+def _solve(fun, x0, jac):
+    """One least-squares pass; a residual that is not finite at the start (a geometry that puts
+    a leg at zero length, a non-finite input) is reported as a stalled fit, not as scipy's own
+    message."""
+    try:
+        return least_squares(
+            fun,
+            x0,
+            jac=jac,
+            method="lm",
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+            x_scale="jac",
+            max_nfev=MAX_NFEV,
+        )
+    except ValueError:  # scipy: "Residuals are not finite in the initial point"
+        raise FitStalled(
+            [],
+            "the fit cannot start: the residual is not finite at the starting geometry (a "
+            "non-finite value in the table, or a leg of zero length)",
+        ) from None
 
 
 def _refine_with_clamps(
@@ -245,9 +303,18 @@ def _refine_with_clamps(
             _, j, _ = model.evaluate(xx, want_jz=False)
             return (W @ j)[mask]
 
-        sol = least_squares(
-            fun, xf, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12, x_scale="jac"
-        )
+        sol = _solve(fun, xf, jac)
+        if sol.status == 0 or not np.all(np.isfinite(sol.fun)):
+            raise _stalled(
+                sol.x[:p0],
+                P,
+                R,
+                rho,
+                fixed,
+                fit_offsets,
+                basis if q else None,
+                f"no convergence in {sol.nfev} evaluations (with the clamp rows)",
+            )
         nfev += sol.nfev
         x, nu = sol.x[:p0], model.nuisance_values(sol.x)
     res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis if q else None)

@@ -9,15 +9,20 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from hexcal.fileio import write_text_atomic
+from hexcal.safe_read import Millimetres, QuaternionPart, read_json
 from hexcal.validation import format_validation_error
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+#: A point or vector in mm, each coordinate finite and within ±MAX_COORDINATE_MM (1 km).
+Vec3 = Annotated[list[Millimetres], Field(min_length=3, max_length=3)]
+#: Largest leadscrew pitch, mm, and platform mass, kg, robot.json may state.
+MAX_PITCH_MM = 1e3
+MAX_MASS_KG = 1e6
 
 
 class RobotFileError(ValueError):
@@ -29,7 +34,12 @@ class Home(BaseModel):
 
     model_config = ConfigDict(extra="allow")
     position: Vec3 = [0.0, 0.0, 0.0]
-    quaternion: Annotated[list[float], Field(min_length=4, max_length=4)] = [1.0, 0.0, 0.0, 0.0]
+    quaternion: Annotated[list[QuaternionPart], Field(min_length=4, max_length=4)] = [
+        1.0,
+        0.0,
+        0.0,
+        0.0,
+    ]
 
     @field_validator("quaternion")
     @classmethod
@@ -50,13 +60,18 @@ class Robot(BaseModel):
     units: str = "mm"
     base_points: Annotated[list[Vec3], Field(min_length=6, max_length=6)]
     platform_points: Annotated[list[Vec3], Field(min_length=6, max_length=6)]
-    leg_offsets: Annotated[list[float], Field(min_length=6, max_length=6)] = [0.0] * 6
+    leg_offsets: Annotated[list[Millimetres], Field(min_length=6, max_length=6)] = [0.0] * 6
     home: Home = Home()
-    leadscrew_pitch_mm: float | None = None
-    platform_mass_kg: float | None = None
-    leg_range_mm: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None
+    #: Lead of the legs' screws, mm per turn.
+    leadscrew_pitch_mm: float | None = Field(None, gt=0, le=MAX_PITCH_MM, allow_inf_nan=False)
+    #: Moving mass carried by the legs, kg.
+    platform_mass_kg: float | None = Field(None, gt=0, le=MAX_MASS_KG, allow_inf_nan=False)
+    #: Where the weight acts, mm, platform frame (default: the platform origin).
+    platform_com_mm: Vec3 | None = None
+    #: The stroke as limits on the encoder readings, [min, max] mm.
+    leg_range_mm: Annotated[list[Millimetres], Field(min_length=2, max_length=2)] | None = None
     #: Half-angle of each joint's cone about the leg's direction at home, deg (both ends).
-    joint_limit_deg: float | None = Field(None, gt=0, le=180)
+    joint_limit_deg: float | None = Field(None, gt=0, le=180, allow_inf_nan=False)
 
     @field_validator("units")
     @classmethod
@@ -64,6 +79,13 @@ class Robot(BaseModel):
         if u != "mm":
             raise ValueError(f"units must be 'mm' (got {u!r}); convert the file to millimetres")
         return u
+
+    @field_validator("leg_range_mm")
+    @classmethod
+    def _ordered(cls, r: list[float] | None) -> list[float] | None:
+        if r is not None and not r[0] < r[1]:
+            raise ValueError(f"leg_range_mm is [min, max] with min < max (got {r})")
+        return r
 
     @property
     def a(self) -> np.ndarray:
@@ -90,33 +112,31 @@ class Robot(BaseModel):
         if offsets is not None:
             data["leg_offsets"] = np.asarray(offsets, float).tolist()
         data.update(extra)
-        return Robot.model_validate(data)
+        try:
+            return Robot.model_validate(data)
+        except ValidationError as exc:  # e.g. a fit that diverged to NaN or beyond 1 km
+            raise ValueError(format_validation_error(exc, "robot geometry", data)) from None
 
     def to_json(self) -> str:
-        """robot.json text (indent 2); absent optional keys stay absent."""
-        return json.dumps(self.model_dump(exclude_none=True), indent=2) + "\n"
+        """robot.json text (indent 2); absent optional keys stay absent. An unknown key
+        holding NaN or infinity (set in code) is refused: JSON has no such numbers."""
+        return json_text(self.model_dump(exclude_none=True))
+
+
+def json_text(data: Any) -> str:
+    """JSON text (indent 2) of a robot file's content; NaN or infinity is refused."""
+    try:
+        return json.dumps(data, indent=2, allow_nan=False) + "\n"
+    except ValueError:
+        raise RobotFileError(
+            "the robot holds a NaN or infinite number (in an unknown key); it is not written"
+        ) from None
 
 
 def read_robot_json(path: str | Path) -> object:
-    """The JSON object of a robot file (robot.json or calibrated.json); errors name the file,
-    line and column."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RobotFileError(
-            f"{path}: no such file; pass the robot description with --robot"
-        ) from None
-    except UnicodeDecodeError as exc:
-        raise RobotFileError(
-            f"{path}: not a JSON text file (byte {exc.start} is not UTF-8)"
-        ) from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RobotFileError(
-            f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})"
-        ) from None
+    """The JSON object of a robot file (robot.json or calibrated.json), within the limits of
+    :mod:`hexcal.safe_read`; errors name the file and the line or field."""
+    return read_json(path, "robot", RobotFileError)
 
 
 def load_robot(path: str | Path) -> Robot:
@@ -133,7 +153,7 @@ def load_robot(path: str | Path) -> Robot:
     try:
         return Robot.model_validate(data)
     except ValidationError as exc:
-        raise RobotFileError(format_validation_error(exc, str(path))) from None
+        raise RobotFileError(format_validation_error(exc, str(path), data)) from None
 
 
 def save_robot(robot: Robot, path: str | Path) -> None:

@@ -12,6 +12,13 @@ file or the new one. A file that is not valid JSON, not a session, or written by
 (higher ``schema_version``) is refused with a message naming it, and is never overwritten:
 :class:`SessionFile` only writes to a path it created or loaded cleanly itself.
 
+Numbers: every number in a session is finite and within the limits of :mod:`hexcal.safe_read`
+(positions and readings ±1 km, times ±1e9 s, pose ids 1 .. 2**53 − 1). A pose holding NaN or
+infinity is refused on construction (:class:`SessionFileError`), never saved. A file from an
+older hexcal, which saved such values as ``null``, still loads: each pose with a ``null`` where a
+number belongs is moved to ``set_aside`` whole (``unreadable_pose``), with a reason naming the pose
+and the field; nothing else changes.
+
 Times: ``t`` of a pose is seconds since the session started (the interchange table's ``t``);
 raw sample times are the host's monotonic clock (s) of the recording run they came from, so
 only differences within one run are meaningful; ``recorded_at`` is wall-clock UTC.
@@ -20,6 +27,7 @@ only differences within one run are meaningful; ``recorded_at`` is wall-clock UT
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections.abc import Sequence
 from datetime import datetime, timezone
@@ -32,12 +40,27 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from hexcal import __version__
 from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.devices import DevicesConfig
-from hexcal.fileio import write_text_atomic
+from hexcal.fileio import remove_orphan_temp_files, write_text_atomic
 from hexcal.instruments import Instruments
 from hexcal.measurements import REQUIRED_COLUMNS, Measurements
 from hexcal.model_file import CalibratedRobot, save_model
 from hexcal.robot import Robot
-from hexcal.validation import format_validation_error
+from hexcal.safe_read import (
+    MAX_COORDINATE_MM,
+    Celsius,
+    Count,
+    Millimetres,
+    PoseId,
+    QuaternionPart,
+    Seconds,
+    read_json,
+)
+from hexcal.validation import format_validation_error, shown_value
+
+log = logging.getLogger(__name__)
+# The notices are returned to the interface; logging is for an application that configures it
+# (without a handler, Python would print the warnings over the text UI's screen).
+log.addHandler(logging.NullHandler())
 
 SCHEMA_VERSION = 2
 
@@ -46,8 +69,14 @@ def _now() -> datetime:
     return datetime.now(timezone.utc)
 
 
+def _usable(v: float) -> bool:
+    return math.isfinite(v) and abs(v) <= MAX_COORDINATE_MM
+
+
 def _nan_to_none(values: Sequence[float]) -> list[float | None]:
-    return [None if not math.isfinite(float(v)) else float(v) for v in values]
+    """Values as saved in a raw sample: None where the device gave no number (NaN, infinity,
+    or beyond the ±1 km of :data:`~hexcal.safe_read.MAX_COORDINATE_MM`)."""
+    return [float(v) if _usable(float(v)) else None for v in values]
 
 
 def _none_to_nan(values: Sequence[float | None]) -> np.ndarray:
@@ -63,21 +92,34 @@ class RawTrackerSample(BaseModel):
     first, None when the device gave no pose; ``rms_mm``; ``fault`` sentence or None."""
 
     model_config = ConfigDict(extra="forbid")
-    t: float
-    position: list[float] | None = Field(None, min_length=3, max_length=3)
-    quaternion: list[float] | None = Field(None, min_length=4, max_length=4)
-    rms_mm: float | None = None
+    t: Seconds
+    position: list[Millimetres] | None = Field(None, min_length=3, max_length=3)
+    quaternion: list[QuaternionPart] | None = Field(None, min_length=4, max_length=4)
+    rms_mm: float | None = Field(None, ge=0, le=MAX_COORDINATE_MM, allow_inf_nan=False)
     fault: str | None = None
 
     @classmethod
     def of(cls, s: TrackerSample) -> RawTrackerSample:
-        rms = float(s.rms_mm) if math.isfinite(float(s.rms_mm)) else None
+        """The sample as saved. A position or quaternion holding a non-number (a device fault
+        the driver did not flag) is saved as None, and the sample flagged with a fault, so
+        the file never holds NaN and the sample is never taken for a good one."""
+        rms = float(s.rms_mm) if _usable(float(s.rms_mm)) and s.rms_mm >= 0 else None
+        position, quaternion, fault = s.position, s.quaternion, s.fault
+        bad = []
+        if position is not None and not all(_usable(float(v)) for v in position):
+            position, bad = None, [*bad, "position"]
+        if quaternion is not None and not all(
+            math.isfinite(float(v)) and abs(float(v)) <= 2 for v in quaternion
+        ):
+            quaternion, bad = None, [*bad, "quaternion"]
+        if bad and not fault:
+            fault = f"the tracker's {' and '.join(bad)} was not a number"
         return cls(
             t=s.t,
-            position=None if s.position is None else [float(v) for v in s.position],
-            quaternion=None if s.quaternion is None else [float(v) for v in s.quaternion],
+            position=None if position is None else [float(v) for v in position],
+            quaternion=None if quaternion is None else [float(v) for v in quaternion],
             rms_mm=rms,
-            fault=s.fault,
+            fault=fault,
         )
 
 
@@ -86,31 +128,42 @@ class RawLegSample(BaseModel):
     a leg gave none; the faults the bus reported for it."""
 
     model_config = ConfigDict(extra="forbid")
-    t: float
-    readings: list[float | None] = Field(min_length=6, max_length=6)
+    t: Seconds
+    readings: list[Millimetres | None] = Field(min_length=6, max_length=6)
     faults: list[str] = Field(default_factory=list)
 
     @classmethod
     def of(cls, s: LegSample) -> RawLegSample:
-        return cls(t=s.t, readings=_nan_to_none(s.readings), faults=list(s.faults))
+        """The set as saved: a reading that is not a number in range is saved as None, and,
+        when the bus reported no fault for the set, the set is flagged with one."""
+        readings = _nan_to_none(s.readings)
+        faults = list(s.faults)
+        missing = [str(k + 1) for k, r in enumerate(readings) if r is None]
+        if missing and not faults:
+            faults.append(f"leg {', '.join(missing)}: the reading was not a number")
+        return cls(t=s.t, readings=readings, faults=faults)
 
 
 class PoseRecord(BaseModel):
     """One recorded pose: the row of the interchange table plus its raw samples.
 
     ``quaternion`` is kept exactly as recorded or imported (not renormalised); ``extra`` holds
-    an imported table's extra columns as text, so export gives the table back unchanged."""
+    an imported table's extra columns as text, so export gives the table back unchanged.
+
+    Units: ``t`` s since the session started; position mm; readings mm; temperature degC.
+    Every number is finite and in range (:mod:`hexcal.safe_read`): a NaN or infinity is
+    refused on construction."""
 
     model_config = ConfigDict(extra="forbid")
-    pose_id: int = Field(ge=1)
-    t: float
+    pose_id: PoseId
+    t: Seconds
     step: str
     leg: int = Field(ge=0, le=6)
     constraint: Literal["direction", "direction+length", "length", "free"]
-    position: list[float] = Field(min_length=3, max_length=3)
-    quaternion: list[float] = Field(min_length=4, max_length=4)
-    readings: list[float] = Field(min_length=6, max_length=6)
-    temperature: float | None = None
+    position: list[Millimetres] = Field(min_length=3, max_length=3)
+    quaternion: list[QuaternionPart] = Field(min_length=4, max_length=4)
+    readings: list[Millimetres] = Field(min_length=6, max_length=6)
+    temperature: Celsius | None = None
     recorded_at: datetime | None = None
     notes: list[str] = Field(default_factory=list)
     extra: dict[str, str] = Field(default_factory=dict)
@@ -120,13 +173,16 @@ class PoseRecord(BaseModel):
 
 class SetAside(BaseModel):
     """A pose refused at recording (``pose`` None) or recorded and then set aside because its
-    step failed a check; ``reason`` is the message the operator saw."""
+    step failed a check; ``reason`` is the message the operator saw. ``unreadable_pose`` keeps,
+    exactly as it was in the file, a pose an older hexcal saved with ``null`` values (no valid
+    :class:`PoseRecord` can hold it): set aside on load, nothing of it lost."""
 
     model_config = ConfigDict(extra="forbid")
     step: str
     reason: str
     at: datetime = Field(default_factory=_now)
     pose: PoseRecord | None = None
+    unreadable_pose: dict[str, Any] | None = None
 
 
 class OperatorNote(BaseModel):
@@ -142,7 +198,7 @@ class StepProgress(BaseModel):
     model_config = ConfigDict(extra="forbid")
     step: str
     status: Literal["done", "skipped"]
-    poses: int = Field(0, ge=0)
+    poses: Count = 0
     at: datetime = Field(default_factory=_now)
     check: str = Field("", description="the end-of-step check, in words")
 
@@ -156,7 +212,7 @@ class ResultRecord(BaseModel):
     at: datetime = Field(default_factory=_now)
     model: Literal[36, 42]
     effects: list[str] = Field(default_factory=list)
-    pose_ids: list[int] = Field(default_factory=list, description="the poses it used")
+    pose_ids: list[PoseId] = Field(default_factory=list, description="the poses it used")
     robot: Robot | None = None
     calibrated: CalibratedRobot | None = Field(
         None, description="the whole model: geometry and effects (calibrated.json's content)"
@@ -244,7 +300,8 @@ class Session(BaseModel):
         used = [r.pose_id for r in self.poses] + [
             s.pose.pose_id for s in self.set_aside if s.pose is not None
         ]
-        return max(used, default=0) + 1
+        used += [_unreadable_id(s.unreadable_pose) for s in self.set_aside]
+        return max((u for u in used if u is not None), default=0) + 1
 
     def pose_record(
         self,
@@ -255,26 +312,110 @@ class Session(BaseModel):
         t: float,
         temperature: float | None = None,
     ) -> PoseRecord:
-        """A :class:`PoseRecord` of a recorded pose, numbered after every pose so far."""
-        return PoseRecord(
-            pose_id=self.next_pose_id(),
-            t=t,
-            step=step,
-            leg=leg,
-            constraint=constraint,
-            position=[float(v) for v in pose.position],
-            quaternion=[float(v) for v in pose.quaternion],
-            readings=[float(v) for v in pose.readings],
-            temperature=pose.temperature if temperature is None else temperature,
-            recorded_at=_now(),
-            notes=list(pose.notes),
-            tracker_samples=[RawTrackerSample.of(s) for s in pose.tracker_samples],
-            leg_samples=[RawLegSample.of(s) for s in pose.leg_samples],
-        )
+        """A :class:`PoseRecord` of a recorded pose, numbered after every pose so far.
+
+        Raises :class:`SessionFileError` when the pose holds a NaN, an infinity or a value out
+        of range: the last line of defence, so that no such pose is ever saved (the drivers
+        flag the samples that would give one)."""
+        try:
+            return PoseRecord(
+                pose_id=self.next_pose_id(),
+                t=t,
+                step=step,
+                leg=leg,
+                constraint=constraint,
+                position=[float(v) for v in pose.position],
+                quaternion=[float(v) for v in pose.quaternion],
+                readings=[float(v) for v in pose.readings],
+                temperature=pose.temperature if temperature is None else temperature,
+                recorded_at=_now(),
+                notes=list(pose.notes),
+                tracker_samples=[RawTrackerSample.of(s) for s in pose.tracker_samples],
+                leg_samples=[RawLegSample.of(s) for s in pose.leg_samples],
+            )
+        except ValidationError as exc:
+            raise SessionFileError(
+                format_validation_error(exc, f"pose of step {step!r} not saved")
+                + "\na pose must hold finite numbers in range: check the devices (a fault "
+                "their drivers did not flag), then record the pose again"
+            ) from None
 
 
 def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(float(v)) else None
+
+
+def _unreadable_id(pose: dict[str, Any] | None) -> int | None:
+    pid = None if pose is None else pose.get("pose_id")
+    return pid if isinstance(pid, int) and not isinstance(pid, bool) and pid >= 1 else None
+
+
+#: The numbers of a pose an older hexcal may have saved as null (NaN, infinity): the table row's
+#: and each raw sample's time. (A raw sample's own position, quaternion and readings may be null.)
+_POSE_NUMBERS = ("t", "position", "quaternion", "readings")
+
+
+def _null_fields(pose: dict[str, Any]) -> list[str]:
+    """The fields of a saved pose that hold null where a number belongs."""
+    found = []
+    for key in _POSE_NUMBERS:
+        if key not in pose:
+            continue
+        v = pose[key]
+        if v is None:
+            found.append(key)
+        elif isinstance(v, list):
+            found += [f"{key}.{j}" for j, x in enumerate(v) if x is None]
+    for group in ("tracker_samples", "leg_samples"):
+        samples = pose.get(group)
+        if isinstance(samples, list):
+            found += [
+                f"{group}.{j}.t"
+                for j, smp in enumerate(samples)
+                if isinstance(smp, dict) and "t" in smp and smp["t"] is None
+            ]
+    return found
+
+
+def _null_reason(pose: dict[str, Any], fields: list[str]) -> str:
+    pid = pose.get("pose_id")
+    name = f"pose {pid}" if isinstance(pid, int) else "a pose"
+    listed = ", ".join(fields[:3]) + (f" and {len(fields) - 3} more" if len(fields) > 3 else "")
+    verb = "was not a number" if len(fields) == 1 else "were not numbers"
+    return f"{name}: {listed} {verb} (saved by an older hexcal); set aside on load"
+
+
+def set_aside_null_poses(data: dict[str, Any]) -> list[str]:
+    """Move every pose of a parsed session file that holds null where a number belongs (as an
+    older hexcal saved NaN) to ``set_aside``, kept whole as ``unreadable_pose``; the same for a
+    set-aside pose. The reasons, one per pose moved; everything else is left as it was."""
+    reasons: list[str] = []
+    poses, aside = data.get("poses"), data.get("set_aside", [])
+    if not isinstance(aside, list):
+        return reasons  # validation names the field
+    if isinstance(poses, list):
+        kept = []
+        for p in poses:
+            fields = _null_fields(p) if isinstance(p, dict) else []
+            if not fields:
+                kept.append(p)
+                continue
+            reason = _null_reason(p, fields)
+            step = p.get("step") if isinstance(p.get("step"), str) else "?"
+            aside.append({"step": step, "reason": reason, "unreadable_pose": p})
+            reasons.append(reason)
+        data["poses"] = kept
+    for item in aside:
+        pose = item.get("pose") if isinstance(item, dict) else None
+        fields = _null_fields(pose) if isinstance(pose, dict) else []
+        if fields:
+            reason = _null_reason(pose, fields)
+            item["unreadable_pose"] = item.pop("pose")
+            if isinstance(item.get("reason"), str):
+                item["reason"] += f" — {reason}"
+            reasons.append(reason)
+    data["set_aside"] = aside
+    return reasons
 
 
 def session_json_schema() -> str:
@@ -282,44 +423,43 @@ def session_json_schema() -> str:
     return json.dumps(Session.model_json_schema(), indent=2) + "\n"
 
 
-def load_session(path: str | Path) -> Session:
+def _error(message: str) -> SessionFileError:
+    return SessionFileError(message)
+
+
+def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
     """Read a session file. Refuses — naming the file and saying what to do — a missing file,
-    one that is not JSON or not a session, and one written by a newer hexcal."""
+    one that is not JSON or not a session, one beyond the limits of :mod:`hexcal.safe_read`
+    (512 MB, nesting, non-finite numbers), and one written by a newer hexcal.
+
+    Poses an older hexcal saved with ``null`` values are set aside (see the module docstring);
+    each one's reason is appended to ``notices`` when given, and logged."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SessionFileError(f"{path}: no such session file") from None
-    except UnicodeDecodeError as exc:
-        raise SessionFileError(
-            f"{path}: not a session file (byte {exc.start} is not UTF-8 text); it is left as it is"
-        ) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise SessionFileError(
-            f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg}) — the "
-            "file is damaged; it is left untouched. Restore it from a backup, or start a new "
-            "session under another name"
-        ) from None
+    data = read_json(path, "session", _error)
     if not isinstance(data, dict) or "schema_version" not in data:
         raise SessionFileError(
             f"{path}: not a hexcal session file (no schema_version); it is left untouched"
         )
     version = data["schema_version"]
-    if isinstance(version, int) and version > SCHEMA_VERSION:
+    if isinstance(version, int) and not isinstance(version, bool) and version > SCHEMA_VERSION:
         raise SessionFileError(
-            f"{path}: written by a newer hexcal (session schema {version}; this hexcal "
-            f"{__version__} reads schema {SCHEMA_VERSION}) — upgrade hexcal to open it; the file "
-            "is left untouched"
+            f"{path}: written by a newer hexcal (session schema {shown_value(version)}; this "
+            f"hexcal {__version__} reads schema {SCHEMA_VERSION}) — upgrade hexcal to open it; "
+            "the file is left untouched"
         )
+    moved = set_aside_null_poses(data)
     try:
-        return Session.model_validate(data)
+        session = Session.model_validate(data)
     except ValidationError as exc:
         raise SessionFileError(
-            format_validation_error(exc, str(path))
+            format_validation_error(exc, str(path), data)
             + "\nthe file is left untouched; fix the field or start a new session"
         ) from None
+    for reason in moved:
+        log.warning("%s: %s", path, reason)
+    if notices is not None:
+        notices += [f"{path}: {reason}" for reason in moved]
+    return session
 
 
 def session_to_text(session: Session) -> str:
@@ -346,9 +486,12 @@ class SessionFile:
     Use :meth:`create` for a new file (refused if the path exists: an existing session is
     resumed, never replaced) and :meth:`resume` for an existing one (refused if damaged)."""
 
-    def __init__(self, path: Path, session: Session):
+    def __init__(self, path: Path, session: Session, notices: Sequence[str] = ()):
         self.path = path
         self.session = session
+        #: What opening the file did, in words (orphan temporary files removed, poses set
+        #: aside on load), for the interface to show; also logged.
+        self.notices: list[str] = list(notices)
 
     @classmethod
     def create(cls, path: str | Path, session: Session) -> SessionFile:
@@ -363,8 +506,21 @@ class SessionFile:
 
     @classmethod
     def resume(cls, path: str | Path) -> SessionFile:
+        """Open an existing session to go on with it. Once it has loaded, the temporary files
+        an interrupted save left next to it (named as :func:`hexcal.fileio.write_text_atomic`
+        names them, for this file only) are removed and said so in :attr:`notices`; a file
+        that does not load is refused with everything next to it left as it is."""
         path = Path(path)
-        return cls(path, load_session(path))
+        notices: list[str] = []
+        session = load_session(path, notices)
+        for tmp, size in remove_orphan_temp_files(path):
+            text = (
+                f"{tmp}: removed, a temporary file ({size} bytes) an interrupted save left; "
+                f"{path.name} holds the last complete save"
+            )
+            log.warning("%s", text)
+            notices.append(text)
+        return cls(path, session, notices)
 
     def save(self) -> None:
         # A schema 1 file is upgraded when hexcal writes it (schema 2 only adds fields).
@@ -422,9 +578,16 @@ class SessionFile:
         def sink(kind: str, step, pose: RecordedPose | None, reason: str) -> None:
             rec = None
             if pose is not None:
-                rec = self.session.pose_record(
-                    pose, step.name, step.leg, step.constraint, t=round(pose.t + offset, 6)
-                )
+                try:
+                    rec = self.session.pose_record(
+                        pose, step.name, step.leg, step.constraint, t=round(pose.t + offset, 6)
+                    )
+                except SessionFileError as exc:
+                    if kind != "refused":
+                        raise
+                    # A refused pose is kept for the record; one with a non-number keeps its
+                    # reason only, since no valid record can hold it.
+                    reason = f"{reason} (its values are not kept: {exc})"
             if kind == "pose":
                 ids[id(pose)] = rec.pose_id
                 self.add_pose(rec)

@@ -38,6 +38,7 @@ from hexcal.model_file import (
     save_model,
 )
 from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas
+from hexcal.refine import FitStalled
 from hexcal.robot import Robot
 
 #: The most effects ``diagnose --auto`` adds before it stops.
@@ -58,10 +59,73 @@ class Inputs:
     label: str
     files: dict[str, Path] = field(default_factory=dict)
     model_effects: tuple[str, ...] = ()
+    #: What reading did that the user must hear (poses set aside on load, …)
+    notices: list[str] = field(default_factory=list)
 
     @property
     def sigmas(self) -> NoiseSigmas | None:
         return None if self.instruments is None else NoiseSigmas.from_instruments(self.instruments)
+
+    def without(self, pose_ids: Sequence[int]) -> Inputs:
+        """The same inputs with the poses ``pose_ids`` left out (an unknown id is refused)."""
+        ids = {int(i) for i in pose_ids}
+        known = set(self.meas.pose_id.tolist())
+        unknown = sorted(ids - known)
+        if unknown:
+            raise ValueError(
+                f"{self.label}: no pose with id {', '.join(map(str, unknown))} to exclude"
+            )
+        keep = ~np.isin(self.meas.pose_id, sorted(ids))
+        meas = self.meas.subset(keep)
+        label = f"{self.label.rsplit(' (', 1)[0]} ({len(meas)} poses; {len(ids)} excluded)"
+        return replace(self, meas=meas, label=label)
+
+
+class FitFailed(ValueError):
+    """The refinement did not converge: the message names the poses pulling it."""
+
+
+def pose_names(meas: Measurements, rows: Sequence[int]) -> str:
+    """'pose 40 (step leg2-length, t 536.3 s), …' for 0-based rows."""
+    return ", ".join(
+        f"pose {int(meas.pose_id[i])} (step {meas.step[i]}, t {float(meas.t[i]):g} s)" for i in rows
+    )
+
+
+def screen_outliers(inp: Inputs) -> None:
+    """Refuse gross outlier poses before any fit (:func:`hexcal.sanity.gross_outliers`): a typo
+    or a pose taken mid-move would otherwise pull the geometry off by metres."""
+    from hexcal.sanity import gross_outliers, outlier_message
+
+    found = gross_outliers(inp.meas, inp.design)
+    if found:
+        raise ValueError(outlier_message(found, inp.label))
+
+
+def _stall_message(inp: Inputs, exc: Exception) -> FitFailed:
+    rows = getattr(exc, "rows", [])
+    pulling = f"; the poses pulling it: {pose_names(inp.meas, rows)}" if rows else ""
+    return FitFailed(
+        f"{inp.label}: the calibration did not converge ({exc}){pulling}. Check those poses "
+        "(a typo, a pose taken mid-move, a swapped column), leave them out with "
+        "--exclude-poses, or check the robot description"
+    )
+
+
+def check_drawing(inp: Inputs, cal: Calibration, tolerance: float | None = None) -> list[str]:
+    """The calibration against the drawing (:func:`hexcal.sanity.check_against_drawing`): one
+    line per leg that does not match, with the poses that pull it most; empty when it does."""
+    from hexcal.sanity import DRAWING_TOLERANCE, check_against_drawing
+
+    tol = DRAWING_TOLERANCE if tolerance is None else tolerance
+    found = check_against_drawing(cal.robot.a, cal.robot.b, inp.design, tol)
+    lines = []
+    for f in found:
+        worst = np.argsort(-np.abs(cal.residuals[:, f.legs[0] - 1]))[:3]
+        lines.append(
+            f"{f.text}; the poses that pull leg {f.legs[0]} most: {pose_names(inp.meas, worst)}"
+        )
+    return lines
 
 
 def read_inputs(
@@ -87,8 +151,9 @@ def read_inputs(
     if instruments is not None:
         files["instruments"] = Path(instruments)
         inst, source = load_instruments(instruments), f"stated in {instruments}"
+    notices: list[str] = []
     if looks_like_session(measurements):
-        session = load_session(measurements)
+        session = load_session(measurements, notices)
         meas = session.measurements()
         design = design or session.robot
         if inst is None and session.instruments is not None:
@@ -103,7 +168,7 @@ def read_inputs(
             )
         meas = read_measurements(measurements)
     label = f"{measurements} ({len(meas)} poses)"
-    return Inputs(meas, design, inst, source, label, files, effects)
+    return Inputs(meas, design, inst, source, label, files, effects, notices)
 
 
 def session_instruments(session: Any) -> Instruments | None:
@@ -178,6 +243,8 @@ def _noise_record(inp: Inputs, cal: Calibration) -> tuple[Instruments | None, st
     if r is None:
         return None, "not known (linear methods only)"
     sig = _floor_sigmas(inp, r.chi2 / r.dof)
+    if not (sig.position_mm <= 1000.0 and np.degrees(sig.orientation_rad) <= 180.0):
+        return None, "estimated from the residual, beyond any instrument's noise: not recorded"
     inst = Instruments(
         tracker=TrackerNoise(
             position_sigma_mm=sig.position_mm,
@@ -253,23 +320,35 @@ def calibrate_model(
     )
 
     effects = tuple(dict.fromkeys((*inp.model_effects, *effects)))
-    cal = calibrate(
-        inp.meas,
-        inp.design,
-        model=model,
-        instruments=inp.instruments,
-        form=form,  # type: ignore[arg-type]
-        do_refine=do_refine,
-        effects=effects,
-        clamps=clamps,
-    )
+    screen_outliers(inp)
+    try:
+        cal = calibrate(
+            inp.meas,
+            inp.design,
+            model=model,
+            instruments=inp.instruments,
+            form=form,  # type: ignore[arg-type]
+            do_refine=do_refine,
+            effects=effects,
+            clamps=clamps,
+        )
+    except FitStalled as exc:
+        raise _stall_message(inp, exc) from None
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
     base = ("offset",) if model == 42 else ()
     chain = [base] if not cal.effects else [base, (*base, *cal.effects)]
-    fits = [fit_model(problem, c) for c in chain]
+    try:
+        fits = [fit_model(problem, c) for c in chain]
+    except FitStalled as exc:
+        raise _stall_message(inp, exc) from None
     r = cal.refinement
     sig = _floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
-    accuracy = [design_accuracy(problem, sig)] + [heldout_accuracy(problem, f, sig) for f in fits]
+    # Without stated noise the only level is the fit's own residual: a floor from it would put
+    # every model at its floor by construction, so none is shown.
+    floor_sig = sig if inp.sigmas is not None else None
+    accuracy = [design_accuracy(problem, floor_sig)] + [
+        heldout_accuracy(problem, f, floor_sig) for f in fits
+    ]
     floor = None
     if inp.sigmas is not None:
         floor = float(np.sqrt(np.mean(noise_floor(problem, fits[-1]) ** 2)))

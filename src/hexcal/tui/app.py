@@ -105,6 +105,8 @@ class StartScreen(Screen):
             self._say(f"[red]{exc}[/red]")
             return
         self._say(f"resuming {path} ({len(sf.session.poses)} poses)… opening the devices…")
+        # What loading did (poses set aside, orphan temporary files removed) goes to the log.
+        app.notices = list(sf.notices)
         app.begin(sf, proc)
 
 
@@ -156,6 +158,7 @@ class HexcalApp(App):
         self.rig: Rig | None = None
         self.guided: GuidedSession | None = None
         self.procedure: Procedure | None = None
+        self.notices: list[str] = []
         self.sub_title = backend.label
 
     def post(self, fn: Callable[..., object], *args: object) -> None:
@@ -224,6 +227,9 @@ class HexcalApp(App):
         from hexcal.tui.record import RecordScreen
 
         self.switch_screen(RecordScreen())
+        for text in self.notices:
+            self.call_later(self.device_message, text)
+        self.notices = []
 
     def on_unmount(self) -> None:
         self._log.removeHandler(self._handler)

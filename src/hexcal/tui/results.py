@@ -58,7 +58,7 @@ class ResultScreen(Screen):
     def _calibrate(self) -> None:
         from hexcal.accuracy import accuracy_table
         from hexcal.report_text import calibration_text
-        from hexcal.workflow import calibrate_model, store
+        from hexcal.workflow import calibrate_model, check_drawing, store
 
         guided, proc, rig = _app_state(self)
         try:
@@ -71,6 +71,15 @@ class ResultScreen(Screen):
             return
         cal = result.calibration
         text = escape(calibration_text(cal, inp.label, inp.noise_source))
+        mismatch = check_drawing(inp, cal)
+        if mismatch:
+            # Not a success, however well it fits: say so first.
+            text = (
+                "[red b]the calibration does not match the drawing:[/red b]\n"
+                + escape("\n".join(mismatch))
+                + "\n[red]fix the cause (cables, node ids, columns) before using it[/red]\n\n"
+                + text
+            )
         text += (
             "\n\n[b]pose accuracy[/b] (the pose computed from the readings, against the tracker):\n"
         )
