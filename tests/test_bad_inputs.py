@@ -152,3 +152,42 @@ def test_a_csv_field_beyond_the_csv_limit(tmp_path: Path) -> None:
     path.write_text(f"{header}\n1,0,{'s' * 200_000},0,free,0,0,0,1,0,0,0,1,1,1,1,1,1\n")
     assert "line 2: not valid CSV (field larger than field limit" in _refused(path, "measurements")
     assert "line 2: not valid CSV" in _refused(path, "table")
+
+
+# -- through the command line, as a user meets them -------------------------------------------
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "left-hand-sim"
+
+
+def _cli_args(name: str, path: Path) -> list[str]:
+    """The hexcal command that reads ``path`` in the role its name says."""
+    robot, meas, inst = (
+        EXAMPLE / n for n in ("robot.json", "measurements.csv", "instruments.json")
+    )
+    kind = name.split("-", 1)[0]
+    if kind in ("robot", "calibrated"):
+        return ["calibrate", str(meas), "--robot", str(path)]
+    if kind == "instruments":
+        return ["calibrate", str(meas), "--robot", str(robot), "--instruments", str(path)]
+    if kind == "measurements":
+        return ["calibrate", str(path), "--robot", str(robot), "--instruments", str(inst)]
+    if kind == "session":
+        return ["calibrate", str(path)]
+    if kind == "table":
+        return ["predict", str(robot), str(path)]
+    if kind == "procedure":
+        return ["demo", "--procedure", str(path), "--poses-per-step", "3"]
+    return ["devices", "check", "--config", str(path)]
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in BAD.iterdir()))
+def test_the_command_line_refuses_each_bad_input_cleanly(name: str, capsys) -> None:
+    """Each corpus file through the command that reads it (``main``, the console script's entry
+    point, which owns the one error path): exit 2, the file named, no traceback and no library
+    text."""
+    from hexcal.cli import main
+
+    assert main(_cli_args(name, BAD / name)) == 2
+    err = capsys.readouterr().err
+    assert name in err
+    for raw in ("Traceback", "errors.pydantic.dev", "np.float64", "codec can't decode"):
+        assert raw not in err
