@@ -109,3 +109,35 @@ def test_a_calibration_validated_on_a_second_session_reaches_the_floor(
     design = validate(fit_dir / "robot.json")
     assert design["position_rms_mm"] > 5 * v["position_rms_mm"]
     assert design["verdict"] != "none"
+
+
+def test_validate_names_a_moved_zero_and_rehomes(tmp_path, capsys):
+    """Another day's session after power-up: legs 3 and 5 read 0.75 and 1.7 mm short (their
+    encoders homed elsewhere), every other leg at its noise. validate says it is a constant
+    shift of those two legs; --rehome re-estimates the offsets alone and the pose error is back
+    at the floor."""
+    import dataclasses
+
+    from hexcal.measurements import read_measurements, write_measurements
+
+    fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
+    write_session_dir(fit_dir, left_hand(), SEED, PLAN, "gain")
+    write_session_dir(val_dir, left_hand(), SEED, PLAN, "gain", pose_seed=SEED + 2000)
+    cal = tmp_path / "cal.json"
+    args = ["calibrate", str(fit_dir / "measurements.csv"), "--robot", str(fit_dir / "robot.json")]
+    inst = ["--instruments", str(fit_dir / "instruments.json")]
+    assert main([*args, *inst, "--add", "gain", "--out", str(cal)]) == 0
+    meas = read_measurements(val_dir / "measurements.csv")
+    rho = meas.readings.copy()
+    rho[:, 2] -= 0.75
+    rho[:, 4] -= 1.7
+    table = tmp_path / "rehomed.csv"
+    write_measurements(dataclasses.replace(meas, readings=rho), table)
+    capsys.readouterr()
+    assert main(["validate", str(cal), str(table), *inst, "--rehome", "--json"]) == 0
+    v = json.loads(capsys.readouterr().out)
+    assert v["shifted_legs"] == [3, 5] and v["verdict"] == "offset"
+    assert v["position_rms_mm"] > 20 * v["position_floor_mm"]
+    r = v["rehomed"]
+    assert np.allclose(r["offset_shift_mm"], [0, 0, 0.75, 0, 1.7, 0], atol=0.01)
+    assert r["verdict"] == "none" and r["position_rms_mm"] < 1.15 * r["position_floor_mm"]

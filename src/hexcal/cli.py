@@ -167,6 +167,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             refuse_overwrite(Path(out_path), inp, force=True)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)
+    from hexcal.diagnosis.limits import at_limits
+
+    sigma = None if inp.instruments is None else inp.instruments.sigma_reading_mm
+    limits = at_limits(inp.meas, inp.design, sigma)
+    limit_lines = limits.lines(inp.meas)
+    limits_json = limits.to_dict(inp.meas)
+    if args.exclude_at_limits and limits.rows:
+        inp = inp.without([int(inp.meas.pose_id[r]) for r in limits.rows])
     steps = diagnose_chain(inp, args.model, add=tuple(args.add or ()), auto=args.auto)
     result = model_of(inp, steps, args.model) if args.out else None
     mismatch = []
@@ -194,7 +202,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.report:
         from hexcal.diagnosis.report import write_report
 
-        write_report(steps, Path(args.report), dict(inp.files))
+        write_report(steps, Path(args.report), dict(inp.files), limits=limit_lines)
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
@@ -210,10 +218,22 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 }
                 for d in steps
             ]
+        out["at_limits"] = limits_json
+        out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
         if result is not None:
             out["written"] = {"path": str(args.out), "model": result.name}
         print(json.dumps(out, indent=2, default=_jsonable))
     else:
+        if limit_lines:
+            left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""
+            print(f"poses at the end of a leg's stroke or a joint's limit{left}:")
+            print("\n".join(f"  {line}" for line in limit_lines))
+            if not args.exclude_at_limits:
+                print(
+                    "  a leg against its end stop does not follow the model: give leg_range_mm in "
+                    "robot.json, or leave these poses out with --exclude-at-limits"
+                )
+            print()
         for d in steps:
             print(diagnosis_text(d, inp.label))
             print()
@@ -259,6 +279,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             sig = NoiseSigmas.from_instruments(noise)
             source = f"the model's own ({args.model}: {loaded.calibration.noise_source})"
     v = validate_model(model, model_label(loaded), inp.meas, sig, source)
+    if args.rehome:
+        from hexcal.model_validation import estimated_noise, rehome
+
+        sig_r = sig if sig is not None else estimated_noise(model, inp.meas)[0]
+        moved, shift = rehome(model, inp.meas, sig_r)
+        v.rehomed = validate_model(moved, f"{v.model} re-homed", inp.meas, sig_r, source)
+        v.offset_shift_mm = shift
     if args.json:
         print(json.dumps(v.to_dict(), indent=2, default=_jsonable))
     else:
@@ -593,6 +620,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--force", action="store_true", help="replace an existing --out file")
     d.add_argument(
+        "--exclude-at-limits",
+        action="store_true",
+        help="leave out the poses with a leg at the end of its stroke or a joint at its limit",
+    )
+    d.add_argument(
         "--exclude-poses",
         nargs="+",
         type=POSE_ID,
@@ -631,6 +663,12 @@ def build_parser() -> argparse.ArgumentParser:
         "the model's, else estimated from the poses and said so)",
     )
     v.add_argument("--json", action="store_true", help="print one JSON object")
+    v.add_argument(
+        "--rehome",
+        action="store_true",
+        help="also re-estimate the six offsets alone on these poses (after the encoders were "
+        "homed again) and report that beside the plain figure",
+    )
     v.set_defaults(func=_cmd_validate, robot=None)
 
     ip = sub.add_parser(

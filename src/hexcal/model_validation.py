@@ -47,6 +47,11 @@ class Validation:
     accuracy: PoseAccuracy
     explained: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: Legs (1-based) whose residual here is mostly a constant shift: their zero moved
+    shifted_legs: list[int] = field(default_factory=list)
+    #: With ``rehome``: the same validation after re-estimating the offsets on these poses
+    rehomed: Validation | None = None
+    offset_shift_mm: np.ndarray | None = None  #: (6,) the re-estimated offsets − the model's
 
     def to_dict(self) -> dict:
         a = self.accuracy
@@ -71,8 +76,15 @@ class Validation:
             "excess_significant": self.excess_significant,
             "verdict": self.verdict,
             "explained_fraction": self.explained,
+            "shifted_legs": self.shifted_legs,
             "notes": self.notes,
+            "rehomed": self._rehomed_dict(),
         }
+
+    def _rehomed_dict(self) -> dict | None:
+        if self.rehomed is None or self.offset_shift_mm is None:
+            return None
+        return self.rehomed.to_dict() | {"offset_shift_mm": self.offset_shift_mm.tolist()}
 
     def text(self, source: str) -> str:
         a = self.accuracy
@@ -108,6 +120,19 @@ class Validation:
                 f"{100 * share:.0f} % of the excess over the noise floor"
             )
         lines += [f"note: {n}" for n in self.notes]
+        if self.rehomed is not None and self.offset_shift_mm is not None:
+            r = self.rehomed
+            shift = " ".join(f"{v:+.3f}" for v in self.offset_shift_mm)
+            lines += [
+                "",
+                "after re-homing (the six offsets re-estimated on these poses, everything else "
+                "as calibrated):",
+                f"  offset shifts mm: {shift}",
+                f"  pose error: position {r.accuracy.position_rms_mm:.4f} mm RMS (95 % "
+                f"{r.accuracy.position_p95_mm:.4f} mm), orientation "
+                f"{r.accuracy.orientation_rms_deg:.4f}° RMS",
+                f"  leg lengths: RMS {1000 * r.leg_rms_mm:.2f} µm; verdict {r.verdict}",
+            ]
         return "\n".join(lines)
 
 
@@ -127,7 +152,7 @@ def validate_model(
     level is estimated from a Model 42 refit of these poses, and said so."""
     notes = []
     if sig is None:
-        sig, how = _estimated_noise(model, meas)
+        sig, how = estimated_noise(model, meas)
         noise_source = how
         notes.append(
             "the noise floor is estimated, not stated: pass --instruments for a firmer verdict"
@@ -172,14 +197,19 @@ def validate_model(
         if best is not None:
             verdict = best
     per_leg_mean = res.mean(axis=0)
-    shifted = np.abs(per_leg_mean) > 3 * np.sqrt(
-        np.mean(res**2, axis=0) - per_leg_mean**2
-    ) / np.sqrt(len(res))
-    if excess and shifted.any():
-        legs = ", ".join(
-            f"leg {k + 1} {1000 * per_leg_mean[k]:+.1f} µm" for k in np.where(shifted)[0]
+    spread = np.sqrt(np.maximum(np.mean(res**2, axis=0) - per_leg_mean**2, 0.0))
+    # A leg's zero moved (re-homing after power-up) when its residual is mostly a constant:
+    # the mean is significant (5 standard errors) and carries at least half the leg's power.
+    shifted = (np.abs(per_leg_mean) > 5 * spread / np.sqrt(len(res))) & (
+        per_leg_mean**2 >= 0.5 * np.mean(res**2, axis=0)
+    )
+    shifted_legs = [int(k) + 1 for k in np.where(shifted)[0]] if excess else []
+    if shifted_legs:
+        legs = ", ".join(f"leg {k} {per_leg_mean[k - 1]:+.3f} mm" for k in shifted_legs)
+        notes.append(
+            f"a constant shift: {legs} on these poses — the encoder's zero moved (re-homed "
+            "after power-up?); --rehome re-estimates the offsets alone on these poses"
         )
-        notes.append(f"mean residual per leg departs from 0: {legs}")
     return Validation(
         label,
         len(meas),
@@ -194,10 +224,24 @@ def validate_model(
         acc,
         explained,
         notes,
+        shifted_legs,
     )
 
 
-def _estimated_noise(model: LegModel, meas) -> tuple[NoiseSigmas, str]:
+def rehome(model: LegModel, meas, sig: NoiseSigmas) -> tuple[LegModel, np.ndarray]:
+    """The model with its six offsets re-estimated on the table ``meas`` (weighted least
+    squares with the poses' 6×6 covariance; everything else held): what a lab does after the
+    encoders were homed again. Returns (model, offset shifts (6,) mm)."""
+    w, r = _whitened(model, meas, sig)
+    basis = np.broadcast_to(np.eye(6), (len(meas), 6, 6))
+    bw = np.einsum("mij,mjp->mip", w, basis).reshape(-1, 6)
+    coef, *_ = np.linalg.lstsq(bw, r, rcond=None)
+    shift = -coef  # residual = lengths(offsets) − geometric: take its constant out
+    robot = model.robot.with_geometry(model.robot.a, model.robot.b, model.robot.offsets + shift)
+    return LegModel(robot, model.effects, model.values), shift
+
+
+def estimated_noise(model: LegModel, meas) -> tuple[NoiseSigmas, str]:
     """The noise level of these poses from a Model 42 refit with the model's effects (the
     typical tracker and encoder scaled to its χ²/dof)."""
     from hexcal.calibrate import calibrate

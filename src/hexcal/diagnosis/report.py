@@ -635,7 +635,10 @@ def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
 
 
 def render_report(
-    diags: Sequence[Diagnosis], inputs: Mapping[str, Path], plots: bool = True
+    diags: Sequence[Diagnosis],
+    inputs: Mapping[str, Path],
+    plots: bool = True,
+    limits: Sequence[str] = (),
 ) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     if not diags:
@@ -650,6 +653,14 @@ def render_report(
         _nav(diags),
         _provenance(diags, inputs),
     ]
+    if limits:
+        items = "".join(f"<li>{_e(line)}</li>" for line in limits)
+        parts.append(
+            "<section id=\"limits\"><h2>Poses at a stroke's end or a joint's limit</h2>"
+            f'<ul>{items}</ul><p class="muted">A leg against its end stop does not follow the '
+            "model: give leg_range_mm in robot.json, or leave these poses out with "
+            "--exclude-at-limits.</p></section>"
+        )
     with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
         tmp = Path(t) if plots else None
         parts.append(_accuracy(diags, tmp))
@@ -666,7 +677,11 @@ def render_report(
 
 
 def write_report(
-    diags: Sequence[Diagnosis], path: Path, inputs: Mapping[str, Path], plots: bool = True
+    diags: Sequence[Diagnosis],
+    path: Path,
+    inputs: Mapping[str, Path],
+    plots: bool = True,
+    limits: Sequence[str] = (),
 ) -> Path:
     """Write ONE self-contained HTML report of a diagnosis sequence to ``path`` (atomically).
 
@@ -676,5 +691,5 @@ def write_report(
     tables-only page). Returns ``path``.
     """
     path = Path(path)
-    write_text_atomic(path, render_report(diags, inputs, plots))
+    write_text_atomic(path, render_report(diags, inputs, plots, limits))
     return path

@@ -1,0 +1,96 @@
+"""A lab's own log into the measurement table (the Jugglebot's, real data, MIT; see
+tests/data/jugglebot/README.md), and what the diagnosis says of it: the stroke ends."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from hexcal.cli import EXIT_INPUT, main
+from hexcal.diagnosis.limits import at_limits
+from hexcal.log_import import LogImportError, import_log, load_map
+from hexcal.measurements import read_measurements
+from hexcal.robot import load_robot
+
+ROOT = Path(__file__).resolve().parents[1]
+LOG = ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv"
+DESIGN = ROOT / "tests" / "data" / "jugglebot" / "design-robot.json"
+MAP = ROOT / "examples" / "jugglebot" / "map.toml"
+MM_PER_REV = [75.6920, 71.1967, 72.3416, 70.8009, 70.6211, 71.2628]
+
+
+def test_the_jugglebot_log_imports_with_its_mapping(tmp_path, capsys):
+    out = tmp_path / "measurements.csv"
+    assert main(["import", str(LOG), "--map", str(MAP), "--out", str(out)]) == 0
+    meas = read_measurements(out)
+    raw = np.array([[float(v) for v in row] for row in list(csv.reader(LOG.open()))[1:]])
+    assert len(meas) == 108 and set(meas.constraint) == {"free"}
+    assert np.allclose(meas.readings, raw[:, :6] * MM_PER_REV)
+    assert np.allclose(meas.position, raw[:, 6:9])
+    # Scalar last in the log, scalar first in the table: the same rotations.
+    same = Rotation.from_quat(raw[:, 9:13]).inv() * meas.rotations
+    assert np.abs(same.magnitude()).max() < 1e-9
+    assert list(meas.pose_id) == list(range(1, 109))
+
+
+def test_errors_name_the_file_line_and_column(tmp_path):
+    rows = list(csv.reader(LOG.open()))
+    rows[5][2] = "n/a"
+    bad = tmp_path / "log.csv"
+    with bad.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    with pytest.raises(LogImportError, match=r"log\.csv: line 6, column 'leg_length_3': 'n/a'"):
+        import_log(bad, MAP)
+    wrong = tmp_path / "map.toml"
+    wrong.write_text(
+        MAP.read_text().replace('quaternion_order = "xyzw"', 'quaternion_order = "wxzy"')
+    )
+    with pytest.raises(LogImportError, match=r"map\.toml.*quaternion_order 'wxzy'"):
+        load_map(wrong)
+    wrong.write_text(MAP.read_text().replace("mm_per_unit", "#"))
+    with pytest.raises(LogImportError, match=r"unit 'rev' needs mm_per_unit"):
+        load_map(wrong)
+    wrong.write_text(MAP.read_text().replace('"position_x"', '"pos_x"'))
+    with pytest.raises(LogImportError, match=r"line 1: no column 'pos_x'"):
+        import_log(LOG, wrong)
+
+
+def test_the_legs_at_the_end_of_their_stroke_are_flagged(tmp_path, capsys):
+    """The Jugglebot's legs run into their upper end stop (readings pile up at 280 mm) in 45
+    of the 108 poses; diagnose names them and can leave them out."""
+    meas = import_log(LOG, MAP)
+    limits = at_limits(meas, load_robot(DESIGN))
+    assert [(e.leg, e.end) for e in limits.legs] == [(k, "upper") for k in range(1, 7)]
+    assert all(279.9 < e.reading_mm < 280.2 for e in limits.legs)
+    assert len(limits.rows) == 45
+    table = tmp_path / "m.csv"
+    assert main(["import", str(LOG), "--map", str(MAP), "--out", str(table)]) == 0
+    capsys.readouterr()
+    assert main(["diagnose", str(table), "--robot", str(DESIGN), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["at_limits"]["pose_ids"]) == 45 and not out["at_limits"]["excluded"]
+    assert main(["diagnose", str(table), "--robot", str(DESIGN), "--exclude-at-limits"]) == 0
+    assert "left out (--exclude-at-limits)" in capsys.readouterr().out
+    # A simulated session has no pile-up: nothing flagged.
+    sim = read_measurements(ROOT / "examples" / "left-hand-sim" / "measurements.csv")
+    assert at_limits(sim, load_robot(ROOT / "examples" / "left-hand-sim" / "robot.json")).rows == []
+
+
+def test_leg_range_in_robot_json_sets_the_ends(tmp_path):
+    meas = import_log(LOG, MAP)
+    design = load_robot(DESIGN).model_copy(update={"leg_range_mm": [0.0, 280.0]})
+    limits = at_limits(meas, design)
+    assert {e.source for e in limits.legs} == {"leg_range_mm"}
+    assert len(limits.rows) == 45
+
+
+def test_an_existing_output_needs_force(tmp_path, capsys):
+    out = tmp_path / "m.csv"
+    out.write_text("x")
+    assert main(["import", str(LOG), "--map", str(MAP), "--out", str(out)]) == EXIT_INPUT
+    assert "pass --force" in capsys.readouterr().err
