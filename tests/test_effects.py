@@ -33,6 +33,8 @@ def test_contract(name, design):
     assert specs and all(
         isinstance(s, ParamSpec) and s.plausible[0] < s.plausible[1] for s in specs
     )
+    # Identifiability is judged on its own scale, not on the (user-settable) plausible range.
+    assert all(s.resolution is not None and s.resolution > 0 for s in specs)
     prefix = "offset" if name == "offset" else f"{name}."
     assert all(s.name.startswith(prefix) for s in specs)
 

@@ -27,7 +27,12 @@ def _session(tmp_path, effect: str):
     return read_inputs(out / "measurements.csv", out / "robot.json", out / "instruments.json")
 
 
-@pytest.mark.parametrize("effect", sorted(e for e in CATALOGUE if e != "offset"))
+ROBOT_EFFECTS = sorted(
+    e for e, eff in CATALOGUE.items() if e != "offset" and not eff.of_the_session
+)
+
+
+@pytest.mark.parametrize("effect", ROBOT_EFFECTS)
 def test_the_file_predicts_exactly_what_the_fit_predicted(tmp_path, effect):
     """For every catalogue effect: Model 42 + the effect, with the clamp rows, written to
     calibrated.json and read back, gives the fit's own residuals to 1e-9 mm — the effects that
@@ -137,3 +142,13 @@ def test_a_format_version_that_is_not_one_is_named(tmp_path, version, match):
     path.write_text(text.replace('"format_version": 1', f'"format_version": {version}'))
     with pytest.raises(RobotFileError, match=match):
         load_model(path)
+
+
+def test_an_effect_of_the_session_is_fitted_but_not_shipped(tmp_path):
+    """A drifting tracker is fitted with the geometry, but it belongs to that session: the
+    calibrated model leaves it out and says so."""
+    inp = _session(tmp_path, "drift")
+    result = calibrate_model(inp, 42, effects=("drift",))
+    assert result.calibration.effects == ("drift",)
+    assert result.file.calibration.effects == []
+    assert "fitted with drift: the session's, left out" in result.file.calibration.model

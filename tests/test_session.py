@@ -190,7 +190,10 @@ def test_a_session_with_a_null_pose_from_an_older_hexcal_loads_with_it_set_aside
         "set aside on load"
     )
     assert sf.notices == [f"{path}: {aside.reason}"]
-    assert s.robot.model_dump(mode="json") == before["robot"]
+    # The robot as it was (keys added to robot.json since that hexcal default to null).
+    assert s.robot.model_dump(mode="json", exclude_none=True) == {
+        k: v for k, v in before["robot"].items() if v is not None
+    }
     assert s.next_pose_id() == 3  # the set-aside pose's id is never reused
     # Saved again, the pose stays aside as it was, and the file loads cleanly.
     sf.save()

@@ -51,12 +51,30 @@ class Calibration:
         return f"Model {self.model}" + "".join(f" + {e}" for e in self.effects)
 
     def leg_model(self) -> LegModel:
-        """The calibrated model as a predictor: the geometry with the fitted effects."""
+        """The calibrated model as a predictor: the geometry with the fitted effects, less
+        those that belong to the session (a drifting tracker) rather than to the robot."""
         if self.refinement is None or not self.effects:
             return LegModel(self.robot)
+        from hexcal.effects import get_effect
+
         r = self.refinement
-        p0 = 42 if self.model == 42 else 36
-        return LegModel(self.robot, self.effects, r.x[p0:])
+        i = 42 if self.model == 42 else 36
+        keep, values = [], []
+        for e in self.effects:
+            eff = get_effect(e)
+            n = len(eff.params(self.robot))
+            if not eff.of_the_session:
+                keep.append(e)
+                values.extend(r.x[i : i + n])
+            i += n
+        return LegModel(self.robot, tuple(keep), np.array(values))
+
+    @property
+    def session_effects(self) -> tuple[str, ...]:
+        """Effects fitted as properties of the session, left out of :meth:`leg_model`."""
+        from hexcal.effects import get_effect
+
+        return tuple(e for e in self.effects if get_effect(e).of_the_session)
 
     def sigmas(self) -> dict[str, float]:
         """Standard deviation of every fitted parameter, by name (empty without refinement)."""
@@ -287,7 +305,7 @@ def _calibrate_with_effects(meas, design, model, instruments, effects, clamps) -
         # the calibrated model predicts exactly what this fit did.
         if ref is not fit.refinement and any(get_effect(e).uses_geometry for e in effects):
             for _ in range(GEOMETRY_PASSES):
-                new, _ = problem.stack(full, fitted_robot(design, ref))
+                new, _ = problem.stack(full, fitted_robot(problem.design, ref))
                 change = np.max(np.abs(new - basis)) / max(np.max(np.abs(new)), 1e-300)
                 if change < GEOMETRY_TOL:
                     break
@@ -296,7 +314,9 @@ def _calibrate_with_effects(meas, design, model, instruments, effects, clamps) -
                     meas, fit.refinement, model == 42, sig, design.offsets, basis
                 )
     lin = problem.linear42 if model == 42 else problem.linear36
-    robot = design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
+    # problem.design: the design with the backlash dead band the fit used (from the stated
+    # noise), so the calibrated model evaluates backlash as the fit did.
+    robot = problem.design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))
     cal = Calibration(
         model, robot, lin, ref, ref.residuals, leg_residuals(lin.a, lin.b, lin.offsets, meas)
     )

@@ -12,7 +12,14 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
 
 from hexcal.fileio import write_text_atomic
 from hexcal.safe_read import Millimetres, QuaternionPart, read_json
@@ -23,6 +30,15 @@ Vec3 = Annotated[list[Millimetres], Field(min_length=3, max_length=3)]
 #: Largest leadscrew pitch, mm, and platform mass, kg, robot.json may state.
 MAX_PITCH_MM = 1e3
 MAX_MASS_KG = 1e6
+#: Largest backlash dead band robot.json may state, mm.
+MAX_DEADBAND_MM = 1e3
+#: Largest bound of a plausible range, in the parameter's unit (as calibrated.json's values).
+MAX_PRIOR = 1e12
+#: A plausible range [lo, hi] in a parameter's unit.
+Range = Annotated[
+    list[Annotated[float, Field(ge=-MAX_PRIOR, le=MAX_PRIOR, allow_inf_nan=False)]],
+    Field(min_length=2, max_length=2),
+]
 
 
 class RobotFileError(ValueError):
@@ -72,6 +88,12 @@ class Robot(BaseModel):
     leg_range_mm: Annotated[list[Millimetres], Field(min_length=2, max_length=2)] | None = None
     #: Half-angle of each joint's cone about the leg's direction at home, deg (both ends).
     joint_limit_deg: float | None = Field(None, gt=0, le=180, allow_inf_nan=False)
+    #: Plausible ranges replacing the catalogue's: by effect (``gain``) or by parameter's full
+    #: name (``gain.g1``, which wins), in the parameter's unit; offsets relative to the design.
+    plausible: dict[str, Range] | None = None
+    #: The smallest change of a leg's reading that counts as a move for backlash, mm (default:
+    #: 4·√2·σ of the stated encoder noise, set by the fit; 0.02 mm when the noise is unknown).
+    backlash_deadband_mm: float | None = Field(None, gt=0, le=MAX_DEADBAND_MM, allow_inf_nan=False)
 
     @field_validator("units")
     @classmethod
@@ -86,6 +108,31 @@ class Robot(BaseModel):
         if r is not None and not r[0] < r[1]:
             raise ValueError(f"leg_range_mm is [min, max] with min < max (got {r})")
         return r
+
+    @field_validator("plausible")
+    @classmethod
+    def _priors(
+        cls, table: dict[str, list[float]] | None, info: ValidationInfo
+    ) -> dict[str, list[float]] | None:
+        if not table:
+            return table
+        for key, (lo, hi) in table.items():
+            if not lo < hi:
+                raise ValueError(f"{key} is [low, high] with low < high (got [{lo:g}, {hi:g}])")
+        # The names depend on the robot (compliance.c with a platform mass, compliance.cm
+        # without): judged on the keys validated so far, all declared above this one.
+        stub = Robot.model_construct(**info.data)
+        known = prior_names(stub)
+        unknown = [k for k in table if k not in known]
+        if unknown:
+            hint = ""
+            if "compliance.c" in unknown and not stub.platform_mass_kg:
+                hint = " (without platform_mass_kg the compliance parameter is compliance.cm, c·m)"
+            raise ValueError(
+                f"unknown effect or parameter {', '.join(map(repr, unknown))}; known: "
+                f"{known_text(stub)}{hint}"
+            )
+        return table
 
     @property
     def a(self) -> np.ndarray:
@@ -121,6 +168,30 @@ class Robot(BaseModel):
         """robot.json text (indent 2); absent optional keys stay absent. An unknown key
         holding NaN or infinity (set in code) is refused: JSON has no such numbers."""
         return json_text(self.model_dump(exclude_none=True))
+
+
+def prior_names(robot: Robot) -> set[str]:
+    """The keys robot.json's ``plausible`` may use for this robot: every catalogue effect and
+    every parameter's full name (``compliance.c`` with ``platform_mass_kg``, else
+    ``compliance.cm``)."""
+    from hexcal.effects import CATALOGUE
+
+    names = set(CATALOGUE)
+    for eff in CATALOGUE.values():
+        names.update(s.name for s in eff.params(robot))
+    return names
+
+
+def known_text(robot: Robot) -> str:
+    """The known ``plausible`` keys, one group per effect: ``gain (gain.g1 … gain.g6)``."""
+    from hexcal.effects import CATALOGUE
+
+    parts = []
+    for name in sorted(CATALOGUE):
+        specs = [s.name for s in CATALOGUE[name].params(robot)]
+        inner = " … ".join([specs[0], specs[-1]]) if len(specs) > 2 else ", ".join(specs)
+        parts.append(f"{name} ({inner})" if inner else name)
+    return ", ".join(parts)
 
 
 def json_text(data: Any) -> str:

@@ -267,8 +267,12 @@ def build_file(
     r = cal.refinement
     model = cal.leg_model()
     noise, source = _noise_record(inp, cal)
+    name = cal.model_name
+    if cal.session_effects:
+        shipped = f"Model {cal.model}" + model.name
+        name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
     block = CalibrationBlock(
-        model=cal.model_name,
+        model=name,
         kind=cal.model,
         effects=effect_records(model, cal.sigmas()),
         noise=noise,
@@ -373,16 +377,21 @@ def diagnose_chain(
 
     added = list(dict.fromkeys((*inp.model_effects, *add)))
     problem = None if previous is None else previous.problem
+    if previous is None:
+        screen_outliers(inp)
     steps = []
     while True:
-        d = diagnose(
-            inp.meas,
-            inp.design,
-            model,
-            add=list(added),
-            instruments=inp.instruments,
-            problem=problem,
-        )
+        try:
+            d = diagnose(
+                inp.meas,
+                inp.design,
+                model,
+                add=list(added),
+                instruments=inp.instruments,
+                problem=problem,
+            )
+        except FitStalled as exc:
+            raise _stall_message(inp, exc) from None
         problem = d.problem
         steps.append(d)
         if on_step is not None:
@@ -400,14 +409,20 @@ def model_of(
     folds, after the drawing's."""
     last = chain[-1]
     effects = tuple(e for e in last.effects if e != "offset")
-    cal = calibrate(
-        inp.meas,
-        inp.design,
-        model=model,
-        instruments=inp.instruments,
-        effects=effects,
-        clamps=clamps,
-    )
+    outliers = getattr(last, "outlier_ids", [])
+    if outliers:  # the diagnosis set them aside: the model is calibrated without them too
+        inp = inp.without(outliers)
+    try:
+        cal = calibrate(
+            inp.meas,
+            inp.design,
+            model=model,
+            instruments=inp.instruments,
+            effects=effects,
+            clamps=clamps,
+        )
+    except FitStalled as exc:
+        raise _stall_message(inp, exc) from None
     accuracy = [last.design_accuracy] + [d.accuracy for d in chain]
     floor = last.noise_floor_mm if last.problem.sigmas is not None else None
     file = build_file(inp, cal, accuracy, last.fit.cv_rms_mm, floor)

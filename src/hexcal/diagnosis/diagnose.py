@@ -12,6 +12,16 @@
 4. Verdict: the best identifiable effect with ΔBIC < −10 that — when the excess over the floor
    is significant — explains at least half of it; else ``unexplained`` when the excess is
    significant (with where it concentrates); else ``none``.
+
+Before all this, gross outliers — poses the richest identifiable model cannot explain
+(:mod:`hexcal.diagnosis.outliers`) — are set aside, and everything above (the fit, the
+cross-validation, the held-out RMS and pose accuracy, the candidates) is computed without
+them. The verdict is then ``outliers`` when they are the whole story (without them the model is
+at the noise floor), or what the rest of the poses say, with the outliers listed. Once the
+outliers are acknowledged (``"outliers"`` among the added effects, as ``--add outliers`` or
+``diagnose --auto`` after an ``outliers`` verdict) they are still set aside and listed, but no
+longer a verdict: a session with a hidden backlash and three outliers reads ``backlash``
+(outliers listed), then ``outliers`` once backlash is added, then ``none``.
 """
 
 from __future__ import annotations
@@ -30,6 +40,15 @@ from hexcal.diagnosis.model import (
     heldout_accuracy,
     heldout_pose_errors,
     noise_floor,
+)
+from hexcal.diagnosis.outliers import (
+    OUTLIER_ALPHA,
+    Outlier,
+    Subset,
+    find_outliers,
+    pose_chi2,
+    pose_residuals,
+    session_problem,
 )
 from hexcal.diagnosis.where import concentrations
 from hexcal.effects import CATALOGUE, get_effect
@@ -54,6 +73,9 @@ RESOLVE = 0.1
 EXCESS_Z = 4.0
 #: How many leaders are refitted.
 N_LEADERS = 3
+#: The verdict when gross outliers are the whole story, and the name that, among the added
+#: effects, acknowledges them (they stay set aside, no longer a verdict).
+OUTLIERS = "outliers"
 
 
 @dataclass
@@ -100,29 +122,79 @@ class Diagnosis:
     #: Per pose: the held-out pose errors of this model, and the drawing's
     pose_errors: PoseErrors | None = None
     design_pose_errors: PoseErrors | None = None
+    #: Gross outliers set aside (rows of the session's table): the fit, the cross-validation,
+    #: the pose accuracy and ``problem`` are on the other poses
+    outliers: list[Outlier] = field(default_factory=list)
+    #: χ² over a pose's six legs (over the noise level) beyond which it is an outlier
+    outlier_threshold: float = float("nan")
+    #: The outliers were acknowledged (``"outliers"`` among the added effects)
+    outliers_acknowledged: bool = False
+    #: s²: the noise level the floor is relative to (1 with the stated noise; without it, the
+    #: richest model's χ²/dof against a typical tracker and encoder)
+    noise_level: float = 1.0
 
     @property
     def effects(self) -> tuple[str, ...]:
         return self.fit.effects
 
+    @property
+    def model_name(self) -> str:
+        """The fit's model name, with the outliers said when they were acknowledged and set
+        aside (``Model 42 + backlash, 3 outliers set aside``)."""
+        name = self.fit.model_name
+        if self.outliers and self.outliers_acknowledged:
+            name += f", {len(self.outliers)} outlier{'s' * (len(self.outliers) > 1)} set aside"
+        return name
+
+    @property
+    def session_problem(self) -> Problem:
+        """The problem over every pose of the session (``problem`` holds the poses kept)."""
+        return session_problem(self.problem)
+
+    @property
+    def outlier_ids(self) -> list[int]:
+        """The pose ids set aside as gross outliers."""
+        return [o.pose_id for o in self.outliers]
+
     def candidate(self, name: str) -> Candidate | None:
         return next((c for c in self.candidates if c.effect == name), None)
 
     def residual_table(self) -> str:
-        """CSV text: for every pose and leg, the measured and predicted reading (mm), the
-        residual, the held-out residual (random folds) and the noise floor, µm."""
-        m = self.problem.meas
+        """CSV text: for every pose of the session and leg, the measured and predicted reading
+        (mm), the residual, the held-out residual (random folds) and the noise floor, µm; and
+        whether the pose was set aside as an outlier (1: not fitted, so its residual is
+        held-out too)."""
         f = self.fit
-        rows = [
-            "pose_id,step,leg,measured_mm,predicted_mm,residual_um,heldout_residual_um,floor_um"
+        session = self.session_problem
+        m = session.meas
+        res, held, floor = f.residuals, f.cv_residuals, self.floor_per_residual
+        aside = np.zeros(len(m), bool)
+        if self.outliers:
+            rows = np.array([o.index for o in self.outliers])
+            aside[rows] = True
+            res, held, floor = (np.zeros((len(m), 6)) for _ in range(3))
+            kept = ~aside
+            res[kept], held[kept], floor[kept] = (
+                f.residuals,
+                f.cv_residuals,
+                self.floor_per_residual,
+            )
+            res[rows] = held[rows] = pose_residuals(session, f)[rows]
+            r = f.refinement
+            sig = session.sigmas if session.sigmas is not None else DEFAULT_SIGMAS
+            cov = leg_covariance(r.a, r.b, m.position[rows], session.R[rows], sig)
+            floor[rows] = np.sqrt(self.noise_level * np.einsum("mkk->mk", cov))
+        lines = [
+            "pose_id,step,leg,measured_mm,predicted_mm,residual_um,heldout_residual_um,floor_um,"
+            "set_aside"
         ]
         for i in range(len(m)):
             for k in range(6):
-                rows.append(
-                    f"{m.pose_id[i]},{m.step[i]},{k + 1},{float(m.readings[i, k])!r},{float(m.readings[i, k] - f.residuals[i, k])!r},"
-                    f"{1000 * f.residuals[i, k]:.4f},{1000 * f.cv_residuals[i, k]:.4f},{1000 * self.floor_per_residual[i, k]:.4f}"
+                lines.append(
+                    f"{m.pose_id[i]},{m.step[i]},{k + 1},{float(m.readings[i, k])!r},{float(m.readings[i, k] - res[i, k])!r},"
+                    f"{1000 * res[i, k]:.4f},{1000 * held[i, k]:.4f},{1000 * floor[i, k]:.4f},{int(aside[i])}"
                 )
-        return "\n".join(rows) + "\n"
+        return "\n".join(lines) + "\n"
 
     def to_dict(self) -> dict:
         """The JSON contract of ``hexcal diagnose --json``."""
@@ -155,6 +227,7 @@ class Diagnosis:
                     "absorbed_by": c.absorbed_by,
                     "separating_motion": c.separating_motion,
                     "nonphysical": [p.name for p in c.refit.nonphysical()] if c.refit else [],
+                    "of_the_session": _of_the_session(c.effect),
                 }
                 for c in self.candidates
             ],
@@ -171,12 +244,22 @@ class Diagnosis:
                 }
                 for p in f.params
             ],
+            "outliers": [o.to_dict() for o in self.outliers],
+            "outlier_threshold_chi2": _nan_none(self.outlier_threshold),
+            "outliers_acknowledged": self.outliers_acknowledged,
+            "poses_used": len(self.problem.meas),
             "pose_accuracy": None if self.accuracy is None else self.accuracy.to_dict(),
             "design_pose_accuracy": (
                 None if self.design_accuracy is None else self.design_accuracy.to_dict()
             ),
             "notes": self.notes + f.notes,
         }
+
+
+def _of_the_session(name: str) -> bool:
+    """A property of the session (the tracker drifting), not of the robot: such an effect is
+    fitted to calibrate from this session but not carried into the calibrated model."""
+    return bool(getattr(get_effect(name), "of_the_session", False))
 
 
 def _nan_none(v: float) -> float | None:
@@ -189,8 +272,17 @@ def _orthonormal(a: np.ndarray) -> np.ndarray:
     return q[:, keep]
 
 
-def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
-    """Score test and identifiability of one effect at the current fit."""
+def jacobian_basis(fit: ModelFit) -> np.ndarray:
+    """Orthonormal basis of the fit's whitened Jacobian (what :func:`score_candidate` projects
+    out); computed once per fit when several candidates are scored."""
+    return _orthonormal(fit.refinement.whitened_jacobian)
+
+
+def score_candidate(
+    problem: Problem, fit: ModelFit, name: str, q: np.ndarray | None = None
+) -> Candidate:
+    """Score test and identifiability of one effect at the current fit (``q``: the fit's
+    :func:`jacobian_basis`, when already computed)."""
     eff = get_effect(name)
     why = problem.missing(name)
     if why:
@@ -204,7 +296,7 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
     basis = problem.basis(name)
     bw = np.einsum("mij,mjp->mip", W, -basis).reshape(-1, basis.shape[-1])
     jw = ref.whitened_jacobian
-    q = _orthonormal(jw)
+    q = _orthonormal(jw) if q is None else q
     b_perp = bw - q @ (q.T @ bw)
     norms = np.linalg.norm(bw, axis=0)
     sines = np.linalg.norm(b_perp, axis=0) / np.where(norms > 0, norms, 1.0)
@@ -212,7 +304,14 @@ def score_candidate(problem: Problem, fit: ModelFit, name: str) -> Candidate:
     with np.errstate(divide="ignore", invalid="ignore"):
         se = np.sqrt(np.diag(np.linalg.pinv(b_perp.T @ b_perp)))
     half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
-    unresolved = (sines < MIN_SINE) | ~(se < RESOLVE * half)
+    # What the data must resolve: the spec's own resolution, else a tenth of the half-width.
+    need = np.array(
+        [
+            r if (r := getattr(sp, "resolution", None)) is not None else RESOLVE * h
+            for sp, h in zip(specs, half, strict=True)
+        ]
+    )
+    unresolved = (sines < MIN_SINE) | ~(se < need)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
     r = ref.whitened_residual
     qb = _orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(r), 0))
@@ -254,10 +353,12 @@ def _closes_excess(
     ref = c.refit
     if ref.chi2 / (ref.dof * expected_per_dof) <= band:
         return True, ""
+    q = None
     for other in candidates:
         if other.effect == c.effect or not (other.available and other.identifiable):
             continue
-        second = score_candidate(problem, ref, other.effect)
+        q = jacobian_basis(ref) if q is None else q
+        second = score_candidate(problem, ref, other.effect, q)
         if not second.identifiable:
             continue
         n_extra = len(get_effect(other.effect).params(problem.design))
@@ -281,17 +382,135 @@ def diagnose(
     add: list[str] | tuple[str, ...] = (),
     instruments: Instruments | None = None,
     problem: Problem | None = None,
+    *,
+    set_aside_outliers: bool = True,
 ) -> Diagnosis:
-    """Fit Model ``model`` plus the effects in ``add`` and diagnose what is missing."""
+    """Fit Model ``model`` plus the effects in ``add`` and diagnose what is missing.
+
+    Gross outliers are set aside first (``set_aside_outliers``; see the module docstring):
+    the returned diagnosis is computed on the other poses, and lists them. ``"outliers"`` in
+    ``add`` acknowledges them: still set aside, no longer the verdict. ``problem``: an earlier
+    diagnosis' (its session's precomputed arrays are reused, and its outliers tested first).
+    """
     sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
-    problem = problem or Problem.build(meas, design, sig)
+    given = problem
+    problem = session_problem(problem) if problem is not None else Problem.build(meas, design, sig)
+    acknowledged = OUTLIERS in add
+    add = [e for e in add if e != OUTLIERS]
     effects = (("offset",) if model == 42 else ()) + tuple(
         e for e in add if not (e == "offset" and model == 42)
     )
-    fit = fit_model(problem, effects)
     notes: list[str] = []
+    outliers: list[Outlier] = []
+    threshold = float("nan")
+    work = problem
+    if set_aside_outliers:
+        start = None
+        if isinstance(given, Subset):
+            start = np.setdiff1d(np.arange(len(problem.meas)), given.rows)
+        search = find_outliers(problem, effects, start)
+        outliers, threshold, work = search.outliers, search.threshold, search.problem
+        notes += search.notes
+        if (
+            isinstance(given, Subset)
+            and isinstance(work, Subset)
+            and np.array_equal(given.rows, work.rows)
+        ):
+            work = given  # the same poses: keep its cached bases and the drawing's accuracy
+    verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof = _verdict(
+        work, effects, sig, notes
+    )
+    if outliers:
+        story = ""
+        if verdict == "none":
+            story = "without them the model is at the noise floor"
+            if acknowledged:
+                story += " (they were acknowledged: set aside, no longer a verdict)"
+            elif _outliers_make_an_excess(problem, fit, outliers, s2):
+                verdict = OUTLIERS
+                story += ", with them far above it: they are the whole story"
+            else:
+                story += ", and with them it would still be: too few and too small to be a verdict"
+        else:
+            story = f"the verdict ({verdict}) is what the other poses say"
+        notes.insert(0, _outlier_note(outliers, threshold, len(problem.meas), story))
+    session_effects = [e for e in effects if _of_the_session(e)]
+    if verdict in CATALOGUE and _of_the_session(verdict):
+        session_effects.append(verdict)
+    for e in session_effects:
+        notes.append(
+            f"{e} is a property of this session, not of the robot: it is fitted to calibrate from "
+            "these poses, but a calibrated model does not carry it (another session drifts "
+            "otherwise); let the tracker warm up, fix its stand, and record the session again to "
+            "check"
+        )
+    where = concentrations(work, fit, floor)
+    floor_sig = sig if sig is not None else _scaled(DEFAULT_SIGMAS, float(np.sqrt(s2)))
+    errors = heldout_pose_errors(work, fit)
+    accuracy = heldout_accuracy(work, fit, floor_sig, errors)
+    if work.design_pose_accuracy is None:
+        work.design_pose_accuracy = design_accuracy(work, floor_sig)
+    candidates.sort(
+        key=lambda c: (np.isnan(c.delta_bic), c.delta_bic if np.isfinite(c.delta_bic) else -c.score)
+    )
+    floor_mm = float(np.sqrt(np.mean(floor**2)))
+    return Diagnosis(
+        fit,
+        floor_mm,
+        floor_source,
+        float(chi2_per_dof),
+        bool(excess),
+        verdict,
+        candidates,
+        where,
+        floor,
+        work,
+        notes,
+        accuracy,
+        work.design_pose_accuracy,
+        errors,
+        design_pose_errors(work),
+        outliers=outliers,
+        outlier_threshold=threshold,
+        outliers_acknowledged=acknowledged,
+        noise_level=float(s2),
+    )
 
-    candidates = [score_candidate(problem, fit, n) for n in CATALOGUE if n not in effects]
+
+def _outlier_note(outliers: list[Outlier], threshold: float, m: int, story: str) -> str:
+    shown = "; ".join(o.text() for o in outliers[:10])
+    more = f"; … and {len(outliers) - 10} more" if len(outliers) > 10 else ""
+    ids = " ".join(str(o.pose_id) for o in outliers)
+    return (
+        f"{len(outliers)} of {m} poses are outliers, inconsistent with every model the "
+        f"catalogue allows (χ² of their six legs beyond {threshold:.1f}, the "
+        f"{100 * OUTLIER_ALPHA:g} % threshold over the session): {shown}{more}. They are set "
+        f"aside — the fit, the held-out RMS and the pose accuracy are computed without them; the "
+        f"table keeps them — and {story}. A bumped tracker or a pose taken mid-move: check, "
+        f"re-measure, or leave them out with --exclude-poses {ids}"
+    )
+
+
+def _outliers_make_an_excess(
+    session: Problem, fit: ModelFit, outliers: list[Outlier], s2: float
+) -> bool:
+    """Would the model fitted without the outliers exceed the noise floor (the same 4σ test)
+    with their χ² at that fit counted in? Only then are they a verdict: one pose at the edge
+    of a backlash dead band, a few σ out, is set aside and listed but is no story."""
+    rows = [o.index for o in outliers]
+    chi2 = fit.chi2 + float(pose_chi2(session, fit)[rows].sum())
+    dof = fit.dof + 6 * len(rows)
+    return chi2 / (dof * s2) > 1.0 + EXCESS_Z * np.sqrt(2.0 / dof)
+
+
+def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None, notes: list):
+    """Fit, score, refit the leaders and decide, on ``problem``'s poses: (verdict, fit,
+    candidates, floor (M, 6), floor source, s² (noise level, 1 when stated), excess
+    significant, χ²/dof over the floor). Notes are appended to ``notes``."""
+    fit = fit_model(problem, effects)
+
+    q = jacobian_basis(fit)
+    candidates = [score_candidate(problem, fit, n, q) for n in CATALOGUE if n not in effects]
     ranked = sorted(candidates, key=lambda c: (not (c.available and c.identifiable), -c.score))
     for c in ranked[:N_LEADERS]:
         if not (c.available and c.identifiable):
@@ -335,7 +554,6 @@ def diagnose(
         if c.refit is not None and fit.chi2 > expected:
             c.explained = float((fit.chi2 - c.refit.chi2) / (fit.chi2 - expected))
 
-    floor_mm = float(np.sqrt(np.mean(floor**2)))
     # "Explains most of the excess" only means something when there is a significant excess to
     # explain; below it, the excess is mostly noise and strong evidence (ΔBIC) decides alone.
     band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
@@ -351,8 +569,10 @@ def diagnose(
         and c.delta_bic < BIC_STRONG
         and (not excess or (c.explained >= MOST and c.closes))
     ]
-    if winners:
-        best = min(winners, key=lambda c: c.delta_bic)
+    best = min(winners, key=lambda c: c.delta_bic) if winners else None
+    if best is not None and _of_the_session(best.effect):
+        best = _robot_before_session(best, candidates, winners, excess, notes)
+    if best is not None:
         verdict = best.effect
         if best.with_effect:
             notes.append(
@@ -374,32 +594,44 @@ def diagnose(
             )
     else:
         verdict = "none"
-    where = concentrations(problem, fit, floor)
-    floor_sig = sig if sig is not None else _scaled(DEFAULT_SIGMAS, float(np.sqrt(s2)))
-    errors = heldout_pose_errors(problem, fit)
-    accuracy = heldout_accuracy(problem, fit, floor_sig, errors)
-    if problem.design_pose_accuracy is None:
-        problem.design_pose_accuracy = design_accuracy(problem, floor_sig)
-    candidates.sort(
-        key=lambda c: (np.isnan(c.delta_bic), c.delta_bic if np.isfinite(c.delta_bic) else -c.score)
+    return verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof
+
+
+def _robot_before_session(
+    best: Candidate, candidates: list[Candidate], winners: list[Candidate], excess: bool, notes
+) -> Candidate | None:
+    """A property of the session (drift) is named only when the evidence prefers it to every
+    effect of the robot that also brings the residual to the floor. A steady temperature rise
+    follows the clock, and a uniform expansion of the legs lifts the platform like a vertical
+    drift of the tracker: when the robot's own effect explains the residual as well, it is not
+    blamed on the session (``best`` yields to the best winner of the robot, or to none)."""
+    rivals = [
+        c
+        for c in candidates
+        if c.refit is not None
+        and not _of_the_session(c.effect)
+        and c.delta_bic < BIC_STRONG
+        and (c.closes or not excess)
+        and c.delta_bic <= best.delta_bic
+    ]
+    if not rivals:
+        return best
+    rival = min(rivals, key=lambda c: c.delta_bic)
+    of_robot = [c for c in winners if not _of_the_session(c.effect)]
+    fallback = min(of_robot, key=lambda c: c.delta_bic) if of_robot else None
+    notes.append(
+        f"{best.effect} and {rival.effect} both bring the residual to the noise floor, and the "
+        f"evidence prefers {rival.effect} (ΔBIC {rival.delta_bic:.0f} against "
+        f"{best.delta_bic:.0f}), which explains only {100 * rival.explained:.0f} % of the "
+        f"excess: with the temperature rising steadily over the session the two are hard to "
+        f"tell apart, so {best.effect} is not named"
+        + (
+            f"; the verdict is {fallback.effect}, the robot's best effect that explains most of it"
+            if fallback is not None
+            else "; a session whose temperature changes unevenly (or holds) separates them"
+        )
     )
-    return Diagnosis(
-        fit,
-        floor_mm,
-        floor_source,
-        float(chi2_per_dof),
-        bool(excess),
-        verdict,
-        candidates,
-        where,
-        floor,
-        problem,
-        notes,
-        accuracy,
-        problem.design_pose_accuracy,
-        errors,
-        design_pose_errors(problem),
-    )
+    return fallback
 
 
 def _scaled(sig: NoiseSigmas, s: float) -> NoiseSigmas:

@@ -9,6 +9,7 @@ import numpy as np
 
 from hexcal.accuracy import PoseAccuracy, PoseErrors, pose_errors, pose_floor
 from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
+from hexcal.effects.backlash import deadband_for_noise
 from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas, leg_covariance
 from hexcal.predict import LegModel
@@ -22,7 +23,11 @@ K_FOLDS = 5
 
 @dataclass(frozen=True)
 class ParamRow:
-    """A fitted parameter in its spec unit: value, standard deviation, 95 % half-width."""
+    """A fitted parameter in its spec unit: value, standard deviation, 95 % half-width.
+
+    ``physical`` says whether the value lies within its plausible range (the robot's prior,
+    robot.json ``plausible``, else the catalogue's): a value outside is flagged with what it
+    means (the fit's notes), never a verdict."""
 
     name: str
     value: float
@@ -139,6 +144,11 @@ class Problem:
 
     @classmethod
     def build(cls, meas: Measurements, design: Robot, sigmas: NoiseSigmas | None) -> Problem:
+        """The problem of a session. With the encoders' noise stated and no
+        ``backlash_deadband_mm`` in the design, the design gets the dead band of that noise
+        (:func:`~hexcal.effects.backlash.deadband_for_noise`): every model fitted here, and the
+        calibrated model built from ``problem.design``, then evaluates backlash alike."""
+        design = with_deadband(design, sigmas)
         R = meas.rotations.as_matrix()
         args = (meas.position, R, meas.readings, meas.leg, meas.constraint)
         lin36 = calibrate_linear(*args, 36, design.offsets)
@@ -179,6 +189,14 @@ class Problem:
             )
         m = len(self.meas)
         return (np.concatenate(cols, axis=-1) if cols else np.zeros((m, 6, 0))), specs
+
+
+def with_deadband(design: Robot, sigmas: NoiseSigmas | None) -> Robot:
+    """``design`` with ``backlash_deadband_mm`` set from the stated encoder noise, unless it
+    states one itself or the noise is unknown (then the effect's fallback applies)."""
+    if design.backlash_deadband_mm or sigmas is None or not sigmas.reading_mm > 0:
+        return design
+    return design.model_copy(update={"backlash_deadband_mm": deadband_for_noise(sigmas.reading_mm)})
 
 
 def _specs(effects: tuple[str, ...], robot: Robot) -> list[ParamSpec]:
@@ -246,15 +264,30 @@ def fit_model(
     fit.basis = basis
     if cross_validate:
         cross_validation(problem, fit, basis)
-    notes = []
-    for p in fit.nonphysical():
-        lo, hi = p.plausible
-        notes.append(
-            f"{p.name} = {p.value:.4g} {p.unit} is outside its plausible range [{lo:g}, {hi:g}] {p.unit}: "
-            "non-physical — it is absorbing something else the model lacks"
-        )
-    fit.notes = notes + ref.notes
+    fit.notes = [out_of_range_note(p, problem.design) for p in fit.nonphysical()] + ref.notes
     return fit
+
+
+def out_of_range_note(p: ParamRow, design: Robot) -> str:
+    """The note of a value outside its plausible range: what the value means physically and
+    what to check (the effect's :meth:`~hexcal.effects.base.Effect.meaning`), or that the range
+    can be widened — a flag for the user, not a verdict."""
+    lo, hi = p.plausible
+    effect = "offset" if p.name.startswith("offset") else p.name.split(".")[0]
+    meaning = get_effect(effect).meaning(p.name, p.value, design)
+    return (
+        f"{p.name} = {_num(p.value)} {p.unit} is outside its plausible range "
+        f"[{_num(lo)}, {_num(hi)}] {p.unit}: {meaning}, or set plausible in robot.json if this "
+        "hardware allows it"
+    )
+
+
+def _num(v: float) -> str:
+    """A value to 3 significant digits from 1000 up, thousands separated (−54,700), else to 4
+    (609.8), with a true minus sign."""
+    v = float(f"{v:.3g}") if abs(v) >= 1000 else v
+    text = f"{v:,.0f}" if abs(v) >= 1000 else f"{v:.4g}"
+    return text.replace("-", "−")
 
 
 def _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names):
@@ -287,14 +320,15 @@ def _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names):
 def _param_rows(ref: Refinement, specs: list[ParamSpec], design: Robot) -> list[ParamRow]:
     """Effect parameters in their spec units; offsets judged by their departure from design."""
     by_name = {s.name: s for s in specs}
-    off_lo, off_hi = get_effect("offset").params(design)[0].plausible
+    offsets = {s.name: s.plausible for s in get_effect("offset").params(design)}
     rows = []
     for i, name in enumerate(ref.names):
         spec = by_name.get(name)
         if spec is not None:
             unit, plausible = spec.unit, spec.plausible
-        elif name.startswith("offset"):
+        elif name in offsets:
             d = design.offsets[int(name[6:]) - 1]
+            off_lo, off_hi = offsets[name]
             unit, plausible = "mm", (d + off_lo, d + off_hi)
         else:
             unit, plausible = "mm", None

@@ -30,7 +30,7 @@ from matplotlib.ticker import NullFormatter
 from scipy.signal import lombscargle
 from scipy.stats import norm
 
-from hexcal.effects.backlash import motion_state
+from hexcal.effects.backlash import deadband_mm, motion_state
 from hexcal.effects.compliance import leg_forces
 
 if TYPE_CHECKING:
@@ -219,7 +219,7 @@ def _plot_reading(view: _View, outdir: Path, name: str) -> Path:
 
 def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
     """Residual by the direction each leg last moved: backlash is a step between −1 and +1."""
-    state = motion_state(view.meas.readings)
+    state = motion_state(view.meas.readings, deadband_mm(view.diag.problem.data))
     fig, axes = _leg_grid()
     rng = np.random.default_rng(0)  # fixed jitter: the same data give the same picture
     for k, ax in enumerate(axes):
@@ -643,7 +643,7 @@ def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
     if effect in ("backlash", "offset"):
         # Categorical: per leg, one strip per motion state (backlash) or one strip (offset).
         if effect == "backlash":
-            state = motion_state(meas.readings)
+            state = motion_state(meas.readings, deadband_mm(diag.problem.data))
             shifts = {-1: -0.27, 0: 0.0, 1: 0.27}
             markers = {-1: "v", 0: "o", 1: "^"}
         else:
@@ -761,21 +761,27 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
     panels.append((first.fit.model_name, first.pose_errors, "held-out"))
     if len(diags) > 1:
         panels.append((last.fit.model_name, last.pose_errors, "held-out"))
-    panels = [p for p in panels if p[1] is not None]
-    meas = first.problem.meas
-    x, y = meas.position[:, 0], meas.position[:, 1]
+    # Each step's errors are over the poses it kept (gross outliers set aside), so each panel
+    # places its own poses.
+    where = [first.problem.meas, first.problem.meas]
+    if len(diags) > 1:
+        where.append(last.problem.meas)
+    keep = [i for i, p in enumerate(panels) if p[1] is not None]
+    panels = [panels[i] for i in keep]
+    where = [where[i] for i in keep]
     values = np.concatenate([e.position_mm[e.closed] for _, e, _ in panels]) * UM
     lo = max(float(np.min(values[values > 0])), 1e-3)
     norm_ = LogNorm(vmin=lo, vmax=max(float(values.max()), 10 * lo))
     fig = Figure(figsize=(4.0 * len(panels) + 1.0, 4.8), layout="constrained")
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
     art = None
-    for ax, (title, e, where) in zip(axes, panels, strict=True):
+    for ax, (title, e, kind), meas in zip(axes, panels, where, strict=True):
+        x, y = meas.position[:, 0], meas.position[:, 1]
         err = np.where(e.closed, e.position_mm, np.nan) * UM
         order = np.argsort(err)  # the worst drawn last, on top
         art = ax.scatter(x[order], y[order], c=err[order], s=16, cmap="viridis", norm=norm_)
         rms = float(np.sqrt(np.nanmean(err**2)))
-        ax.set_title(f"{title}\nposition RMS {rms:.1f} µm ({where})", fontsize=10)
+        ax.set_title(f"{title}\nposition RMS {rms:.1f} µm ({kind})", fontsize=10)
         ax.set_xlabel("x (mm)")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.25)

@@ -227,6 +227,12 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
             f"floor {floor}, χ²/dof {d.chi2_per_dof:.2f}) that no catalogue effect explains; "
             f"{d.where.get('summary', '')}."
         )
+    if d.verdict == "outliers":
+        return (
+            f"{len(d.outliers)} poses are gross outliers no model explains; without them "
+            f"{fit.model_name} is at the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, floor "
+            f"{floor})."
+        )
     c = d.candidate(d.verdict)
     if c is None or c.refit is None:
         return f"{fit.model_name} is missing {d.verdict}."
@@ -431,7 +437,7 @@ def _candidate_table(d: Diagnosis, sid: str) -> str:
         if c.refit is not None and c.refit.nonphysical():
             why = (
                 (why + "; " if why else "")
-                + "non-physical: "
+                + "outside its plausible range: "
                 + ", ".join(p.name for p in c.refit.nonphysical())
             )
         ident = "yes" if c.identifiable else ("no (data lack it)" if not c.available else "no")
@@ -508,7 +514,7 @@ def _param_rows(params: Sequence[ParamRow], notes: Sequence[str]) -> str:
         rng = f"[{_num(p.plausible[0], 'g')}, {_num(p.plausible[1], 'g')}]" if p.plausible else "—"
         flag = []
         if not p.physical:
-            flag.append("non-physical")
+            flag.append("outside its plausible range")
         if p.status != "ok":
             flag.append(p.status)
         out.append(

@@ -53,6 +53,12 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         lines.append(f"  {c.effect:<12}{c.score:11.1f}{bic}{expl}{after:>16}  {ident}")
         if c.available and not c.identifiable:
             lines.append(f"      {c.reason}")
+    if getattr(d, "outliers", None):
+        lines.append("")
+        lines.append(
+            f"set aside as gross outliers ({len(d.outliers)}; the fit above is on the other poses): "
+            + ", ".join(f"#{o.pose_id} ({o.step}, t {o.t:g} s)" for o in d.outliers[:10])
+        )
     lines.append("")
     v = d.verdict
     if v == "none":
@@ -64,6 +70,12 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             "verdict: unexplained — the residual is above the noise floor but no catalogue effect explains most of it"
         )
         lines.append(f"  look at: {d.where['summary']}")
+    elif v == "outliers":
+        lines.append(
+            f"verdict: outliers — {len(d.outliers)} poses no model explains (a bumped tracker, a "
+            "pose taken mid-move); without them the model is at the noise floor. They stay in the "
+            "session, set aside: --add outliers acknowledges them"
+        )
     else:
         c = d.candidate(v)
         lines.append(
@@ -81,7 +93,10 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         lines.append("notes:")
         lines += [f"  - {n}" for n in notes]
     if bad:
-        lines.append("  (non-physical values mean the model is absorbing something it lacks)")
+        lines.append(
+            "  (a value outside its plausible range is a flag, not a verdict: the note says what "
+            "it means; set plausible in robot.json if this hardware allows it)"
+        )
     return "\n".join(lines)
 
 
@@ -130,8 +145,9 @@ def before_after_text(steps: list[Diagnosis]) -> str:
             if acc is not None
             else f"{'':>28}"
         )
+        name = getattr(d, "model_name", f.model_name)
         lines.append(
-            f"{f.model_name:<34}{_um(f.cv_rms_mm):>10}{_um(f.cv_blocked_rms_mm):>10}{_um(d.noise_floor_mm):>8}"
+            f"{name:<34}{_um(f.cv_rms_mm):>10}{_um(f.cv_blocked_rms_mm):>10}{_um(d.noise_floor_mm):>8}"
             + pose
             + "   "
             + " ".join(f"{1000 * v:5.1f}" for v in f.cv_rms_per_leg)

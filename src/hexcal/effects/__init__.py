@@ -7,7 +7,15 @@ and the motion that separates it from the geometry. Importing this package regis
 catalogue; adding an effect is one new module and one import line below.
 """
 
-from hexcal.effects import backlash, compliance, gain, leadscrew, offset, thermal  # noqa: F401
+from hexcal.effects import (  # noqa: F401
+    backlash,
+    compliance,
+    drift,
+    gain,
+    leadscrew,
+    offset,
+    thermal,
+)
 from hexcal.effects.base import CATALOGUE, Effect, EffectData, ParamSpec, get_effect, register
 
 __all__ = ["CATALOGUE", "Effect", "EffectData", "ParamSpec", "get_effect", "register"]

@@ -2,12 +2,53 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from hexcal.effects.base import Effect, EffectData, ParamSpec, diagonal, per_leg, register
+from hexcal.effects.base import (
+    Effect,
+    EffectData,
+    ParamSpec,
+    diagonal,
+    leg_of,
+    per_leg,
+    register,
+    with_priors,
+)
 
-#: A reading change smaller than this is not a motion (mm): a clamped leg's readings only jitter.
+#: The dead band when the encoders' noise is unknown, mm: a reading change smaller than this is
+#: not a motion (a clamped leg's readings only jitter).
 DEADBAND_MM = 0.02
+#: With the encoders' noise σ known, a move is real when the change of a leg's reading exceeds
+#: this many standard deviations of that change. The change is the difference of two readings,
+#: so its σ is √2·σ_reading and the dead band is 4·√2·σ_reading (5.7 µm for 1 µm encoders): a
+#: still leg takes a false move with odds 6e-5 per pose (the two-sided normal tail at 4σ), and a
+#: move of twice the dead band is missed with the same odds. 3σ would give a false move every
+#: few hundred leg-poses — too many for a session's clamped legs; 5σ would miss moves that
+#: still reverse a few µm of play.
+DEADBAND_SIGMAS = 4.0
+#: Plausible play, mm: 0 … 0.5. A worn or hobby lead screw, a belt or a string drive has a few
+#: tenths of a millimetre; a precision ball screw or a direct-drive leg a few µm.
+PLAUSIBLE_MM = (0.0, 0.5)
+#: Identifiability: the play must be resolved to 10 µm.
+RESOLUTION_MM = 0.01
+
+
+def deadband_for_noise(reading_sigma_mm: float | None) -> float:
+    """The dead band (mm) for encoders of reading noise σ (mm): 4·√2·σ; the fallback
+    :data:`DEADBAND_MM` when σ is unknown (None or 0)."""
+    if not reading_sigma_mm or not math.isfinite(reading_sigma_mm):
+        return DEADBAND_MM
+    return DEADBAND_SIGMAS * math.sqrt(2.0) * float(reading_sigma_mm)
+
+
+def deadband_mm(data: EffectData) -> float:
+    """The dead band these data are evaluated with: the robot's ``backlash_deadband_mm``
+    (stated in robot.json, or set by the fit from the stated encoder noise and carried by the
+    calibrated model), else :data:`DEADBAND_MM`."""
+    stated = getattr(data.robot, "backlash_deadband_mm", None)
+    return float(stated) if stated else DEADBAND_MM
 
 
 def motion_state(readings: np.ndarray, deadband: float = DEADBAND_MM) -> np.ndarray:
@@ -36,14 +77,27 @@ class Backlash(Effect):
     separating_motion = "each pose approached alternately from longer and from shorter leg lengths"
 
     def params(self, robot) -> list[ParamSpec]:
-        return per_leg("backlash", "beta", "mm", (0.0, 0.2))
+        specs = per_leg("backlash", "beta", "mm", PLAUSIBLE_MM, 1.0, RESOLUTION_MM)
+        return with_priors(self.name, specs, robot)
 
     def basis(self, data: EffectData) -> np.ndarray:
         # A leg extending reads ahead of its length by β/2 when the nut lags: length = reading − β/2.
-        return diagonal(-0.5 * motion_state(data.readings))
+        return diagonal(-0.5 * motion_state(data.readings, deadband_mm(data)))
 
     def missing(self, data: EffectData) -> str | None:
-        state = motion_state(data.readings)
+        state = motion_state(data.readings, deadband_mm(data))
         if not ((state > 0).any(axis=0) & (state < 0).any(axis=0)).any():
-            return "no leg moved in both directions"
+            return (
+                f"no leg moved in both directions (by more than the dead band, "
+                f"{1000 * deadband_mm(data):.3g} µm)"
+            )
         return None
+
+    def meaning(self, name: str, value: float, robot) -> str:
+        k = leg_of(name)
+        if value < 0:
+            return (
+                f"a negative play in leg {k} is not physical — the direction-dependent residual "
+                "has another cause, or the poses are not in recording order"
+            )
+        return f"{1000 * value:.3g} µm of play in leg {k}'s drive — check its nut, belt and joints"

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -14,12 +14,21 @@ from hexcal.robot import Robot
 @dataclass(frozen=True)
 class ParamSpec:
     """One parameter: prefixed name (``gain.g3``), unit, plausible range in that unit, and the
-    factor from the unit to the model's internal value (e.g. ppm → 1e-6)."""
+    factor from the unit to the model's internal value (e.g. ppm → 1e-6).
+
+    ``plausible`` is a prior: the range real hardware of this kind stays within. The catalogue's
+    defaults can be replaced per robot (robot.json ``plausible``, see :func:`with_priors`); a
+    fitted value outside it is flagged with what it means, never taken as a verdict.
+    ``resolution`` (in the unit) is the standard error at which the data resolve the parameter:
+    identifiability is judged against it, so that widening a prior for loose hardware does not
+    loosen what counts as separable. None: a tenth of the plausible half-width.
+    """
 
     name: str
     unit: str
     plausible: tuple[float, float]
     scale: float = 1.0
+    resolution: float | None = None
 
 
 @dataclass(frozen=True)
@@ -103,6 +112,9 @@ class Effect(ABC):
     #: fit evaluates it at the fitted geometry and a calibrated model at its own: both then
     #: predict the same lengths.
     uses_geometry: bool = False
+    #: A property of the session (a tracker drifting), not of the robot: fitted with the
+    #: geometry, but left out of the calibrated model that is shipped and predicts.
+    of_the_session: bool = False
 
     @abstractmethod
     def params(self, robot: Robot) -> list[ParamSpec]:
@@ -124,6 +136,12 @@ class Effect(ABC):
     def contribution(self, data: EffectData, values: np.ndarray) -> np.ndarray:
         """(M, 6) mm extra length for parameter values in their spec units."""
         return self.basis(data) @ np.asarray(values, float)
+
+    def meaning(self, name: str, value: float, robot: Robot) -> str:
+        """What a value of parameter ``name`` outside its plausible range means physically and
+        what to check (one clause, no final stop). ``value`` is in the spec's unit (offsets:
+        the fitted offset itself, not its departure from the design)."""
+        return "a value this hardware should not have — check the data and the robot description"
 
 
 CATALOGUE: dict[str, Effect] = {}
@@ -149,10 +167,37 @@ def get_effect(name: str) -> Effect:
 
 
 def per_leg(
-    prefix: str, symbol: str, unit: str, plausible: tuple[float, float], scale: float = 1.0
+    prefix: str,
+    symbol: str,
+    unit: str,
+    plausible: tuple[float, float],
+    scale: float = 1.0,
+    resolution: float | None = None,
 ) -> list[ParamSpec]:
     """Six parameters ``prefix.symbol1`` … ``prefix.symbol6``."""
-    return [ParamSpec(f"{prefix}.{symbol}{k}", unit, plausible, scale) for k in range(1, 7)]
+    return [
+        ParamSpec(f"{prefix}.{symbol}{k}", unit, plausible, scale, resolution) for k in range(1, 7)
+    ]
+
+
+def with_priors(effect: str, specs: list[ParamSpec], robot: Robot | None) -> list[ParamSpec]:
+    """``specs`` with the plausible ranges robot.json states (key ``plausible``): a parameter's
+    own entry (its full name, e.g. ``gain.g1``) wins over its effect's (``gain``), which wins
+    over the catalogue's default. Every effect's :meth:`Effect.params` passes its specs through
+    this, so the fit's flags and everything else that reads a spec see the robot's priors."""
+    table = getattr(robot, "plausible", None) or {}
+    if not table:
+        return specs
+    out = []
+    for s in specs:
+        rng = table.get(s.name, table.get(effect))
+        out.append(s if rng is None else replace(s, plausible=(float(rng[0]), float(rng[1]))))
+    return out
+
+
+def leg_of(name: str) -> int:
+    """The leg (1..6) a per-leg parameter belongs to, by its name's last digit."""
+    return int(name[-1])
 
 
 def diagonal(values: np.ndarray) -> np.ndarray:

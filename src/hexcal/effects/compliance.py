@@ -1,12 +1,30 @@
-"""``compliance``: axial deflection of the legs under the platform's weight."""
+"""``compliance``: axial deflection of the legs under the platform's weight.
+
+With ``platform_mass_kg`` in robot.json the parameter is the legs' compliance ``c`` (µm/N).
+Without it the data still tell the product ``c·m``: the leg forces' pattern over the poses is set
+by the geometry and the mass only scales it, so the basis is the leg forces of a 1 kg platform
+(N/kg) and the parameter ``compliance.cm`` is in µm·kg/N (the legs' shortening, µm, per N/kg of
+leg force per kg of platform). Divide it by the mass, once known, for ``c``.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from hexcal.effects.base import Effect, EffectData, ParamSpec, register
+from hexcal.effects.base import Effect, EffectData, ParamSpec, register, with_priors
 
 G = 9.80665  # m/s²
+
+#: Plausible compliance, µm/N: 0 … 20, legs no softer than 50 N/mm. A ball-screw leg is about
+#: 1 µm/N (1000 N/mm); belt- and string-driven legs and printed joints are softer.
+PLAUSIBLE_C = (0.0, 20.0)
+#: Identifiability: c must be resolved to 0.25 µm/N.
+RESOLUTION_C = 0.25
+#: Plausible c·m, µm·kg/N: 0 … 400, the legs sagging at most about 0.65 mm under the platform's
+#: own weight (c·m·g/6 per leg at home): 20 µm/N with a 20 kg platform, 4 µm/N with 100 kg.
+PLAUSIBLE_CM = (0.0, 400.0)
+#: Identifiability: c·m must be resolved to 5 µm·kg/N (0.25 µm/N on a 20 kg platform).
+RESOLUTION_CM = 5.0
 
 
 def leg_forces(data: EffectData, mass_kg: float, com: np.ndarray | None = None) -> np.ndarray:
@@ -27,29 +45,51 @@ def leg_forces(data: EffectData, mass_kg: float, com: np.ndarray | None = None) 
     return np.linalg.solve(jt, -w[..., None])[..., 0]
 
 
+def with_mass(robot) -> bool:
+    """Whether the robot states its platform mass (then the parameter is ``c``, else ``c·m``)."""
+    return bool(getattr(robot, "platform_mass_kg", None))
+
+
 @register
 class Compliance(Effect):
     name = "compliance"
     physics = "Each leg shortens under its axial load like a spring: ΔL = −c·f, the forces from the platform's weight by statics."
-    needs = ("platform mass (robot.json platform_mass_kg)",)
+    needs = ("platform_mass_kg in robot.json for c itself (without it, c·m is fitted)",)
     uses_geometry = True
     separating_motion = (
         "poses that shift the load between legs: the platform far off-centre and tilted"
     )
 
     def params(self, robot) -> list[ParamSpec]:
-        return [ParamSpec("compliance.c", "µm/N", (0.0, 5.0), 1e-3)]
+        if with_mass(robot):
+            spec = ParamSpec("compliance.c", "µm/N", PLAUSIBLE_C, 1e-3, RESOLUTION_C)
+        else:
+            spec = ParamSpec("compliance.cm", "µm·kg/N", PLAUSIBLE_CM, 1e-3, RESOLUTION_CM)
+        return with_priors(self.name, [spec], robot)
 
     def basis(self, data: EffectData) -> np.ndarray:
-        mass = data.robot.platform_mass_kg
+        # Without the mass, the forces of a 1 kg platform: the parameter is then c·m.
+        mass = data.robot.platform_mass_kg if with_mass(data.robot) else 1.0
         com = getattr(data.robot, "platform_com_mm", None)
         f = leg_forces(data, mass, None if com is None else np.asarray(com, float))
         return (-f * 1e-3)[..., None]
 
-    def missing(self, data: EffectData) -> str | None:
-        if not data.robot.platform_mass_kg:
-            return "robot.json has no platform_mass_kg, so the leg forces are unknown"
-        return None
-
-    def cannot_predict(self, data: EffectData) -> str | None:
-        return self.missing(data)
+    def meaning(self, name: str, value: float, robot) -> str:
+        if value < 0:
+            return (
+                "legs that lengthen under load are not physical — check that the tracker's z "
+                "axis points up (gravity along −z) and platform_com_mm"
+            )
+        if value == 0:
+            return "no compliance at all — check the range set in robot.json"
+        if name == "compliance.c":
+            return (
+                f"legs of {1000 / value:.3g} N/mm — check the joints and mounts, and "
+                "platform_mass_kg"
+            )
+        sag = value * G / 6  # µm per leg at home, the weight shared evenly
+        size = f"{sag:.3g} µm" if sag < 1000 else f"{sag / 1000:.3g} mm"
+        return (
+            f"legs sagging about {size} under the platform's weight at home — check the joints "
+            "and mounts, and that the tracker's z axis points up"
+        )

@@ -4,7 +4,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexcal.effects.base import Effect, EffectData, ParamSpec, diagonal, per_leg, register
+from hexcal.effects.base import (
+    Effect,
+    EffectData,
+    ParamSpec,
+    diagonal,
+    leg_of,
+    per_leg,
+    register,
+    with_priors,
+)
+
+#: Plausible scale error, ppm: ± 10 %. Belt-, string- and screw-driven legs whose mm per count
+#: (or per revolution) was measured by hand are off by several per cent (the first real robot
+#: hexcal met: 5.5 %; its builders allowed ± 10 %); a factory-calibrated linear encoder is
+#: within ± 5000 ppm (set ``"plausible": {"gain": [-5000, 5000]}`` for one).
+PLAUSIBLE_PPM = (-100_000.0, 100_000.0)
+#: Identifiability: the scale error must be resolved to 500 ppm (0.05 %).
+RESOLUTION_PPM = 500.0
 
 
 @register
@@ -16,7 +33,14 @@ class Gain(Effect):
     )
 
     def params(self, robot) -> list[ParamSpec]:
-        return per_leg("gain", "g", "ppm", (-5000.0, 5000.0), 1e-6)
+        specs = per_leg("gain", "g", "ppm", PLAUSIBLE_PPM, 1e-6, RESOLUTION_PPM)
+        return with_priors(self.name, specs, robot)
 
     def basis(self, data: EffectData) -> np.ndarray:
         return diagonal(data.readings * 1e-6)
+
+    def meaning(self, name: str, value: float, robot) -> str:
+        return (
+            f"a {abs(value) / 1e4:.2g} % scale error of leg {leg_of(name)} — check the leg's "
+            "mm-per-count"
+        )

@@ -12,6 +12,10 @@ from hexcal.effects.base import EffectData, get_effect
 from hexcal.robot import Robot
 from hexcal.simulate import LengthEffect, PoseContext
 
+#: Length of a typical simulated session, h (:class:`hexcal.session_sim.SessionPlan`: 184 poses
+#: 8 to 20 s apart), over which a realistic drift is sized.
+TYPICAL_SESSION_H = 184 * 14.0 / 3600.0
+
 
 def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
     """A simulator hook adding effect ``name`` with ``values`` (spec units) to the true robot."""
@@ -52,4 +56,10 @@ def realistic_values(
         amp = scale * rng.uniform(0.005, 0.015, 6)
         phase = rng.uniform(0, 2 * np.pi, 6)
         return np.column_stack([amp * np.cos(phase), amp * np.sin(phase)]).ravel()
+    if name == "drift":
+        # 100–200 µm over a typical simulated session (184 poses, 8–20 s apart: about 43 min),
+        # in a random direction: a tracker warming up, or its stand settling.
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        return scale * rng.uniform(100.0, 200.0) / TYPICAL_SESSION_H * direction  # µm/h
     raise ValueError(f"no realistic size for effect {name!r}")

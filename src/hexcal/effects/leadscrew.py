@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexcal.effects.base import Effect, EffectData, ParamSpec, register
+from hexcal.effects.base import Effect, EffectData, ParamSpec, leg_of, register, with_priors
+
+#: Plausible amplitude of each of the sine and cosine terms, mm: ± 0.1. A rolled trapezoidal
+#: screw wobbles by tens of µm per turn; a ground ball screw by a few µm.
+PLAUSIBLE_MM = (-0.1, 0.1)
+#: Identifiability: each term must be resolved to 5 µm.
+RESOLUTION_MM = 0.005
 
 
 @register
@@ -22,9 +28,11 @@ class Leadscrew(Effect):
     def params(self, robot) -> list[ParamSpec]:
         specs = []
         for k in range(1, 7):
-            specs.append(ParamSpec(f"leadscrew.s{k}", "mm", (-0.05, 0.05)))
-            specs.append(ParamSpec(f"leadscrew.c{k}", "mm", (-0.05, 0.05)))
-        return specs
+            for term in ("s", "c"):
+                specs.append(
+                    ParamSpec(f"leadscrew.{term}{k}", "mm", PLAUSIBLE_MM, 1.0, RESOLUTION_MM)
+                )
+        return with_priors(self.name, specs, robot)
 
     def basis(self, data: EffectData) -> np.ndarray:
         phase = 2 * np.pi * data.readings / float(data.robot.leadscrew_pitch_mm)
@@ -41,3 +49,9 @@ class Leadscrew(Effect):
 
     def cannot_predict(self, data: EffectData) -> str | None:
         return self.missing(data)
+
+    def meaning(self, name: str, value: float, robot) -> str:
+        return (
+            f"a periodic error of {1000 * abs(value):.3g} µm per screw turn in leg {leg_of(name)} "
+            "— check leadscrew_pitch_mm"
+        )
