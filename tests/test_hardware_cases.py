@@ -9,20 +9,17 @@ import math
 import numpy as np
 import pytest
 from conftest import instruments
-from scipy.spatial.transform import Rotation
 
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.model import Problem
 from hexcal.effects import EffectData, get_effect
 from hexcal.effects.backlash import DEADBAND_MM, deadband_for_noise, deadband_mm, motion_state
 from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
 from hexcal.predict import LegModel
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.simulate import NoiseModel, PoseContext, PoseRanges, Simulator
-from hexcal.study import left_hand
+from hexcal.sim_robots import PRECISE_INSTRUMENTS, precise_design, precise_session
+from hexcal.simulate import Simulator
 
 MASS_KG = 20.0
 
@@ -79,12 +76,7 @@ def test_hidden_compliance_with_no_platform_mass_is_named_compliance(design, see
 
 
 # -- backlash on a precision hexapod ----------------------------------------------------------
-#: 1 µm on every reading and on the tracker's position, 0.0002° on its orientation.
-PRECISE_NOISE = NoiseModel(0.001, 0.0002, 0.001)
-PRECISE_INST = Instruments(
-    tracker=TrackerNoise(position_sigma_mm=0.001, orientation_sigma_deg=0.0002),
-    encoders=EncoderNoise(reading_sigma_mm=0.001),
-)
+PRECISE_INST = PRECISE_INSTRUMENTS
 
 
 def test_dead_band_from_the_noise():
@@ -113,69 +105,13 @@ def test_the_fit_sets_the_dead_band_from_the_stated_noise_and_the_model_keeps_it
     assert Problem.build(meas, stated, sig).design.backlash_deadband_mm == 0.05
 
 
-def precise_design():
-    """The Left Hand at half size: legs about 106 mm, home 100 mm above the base."""
-    lh = left_hand()
-    home = lh.home.model_copy(update={"position": [0.0, 0.0, 100.0]})
-    return lh.with_geometry(0.5 * lh.a, 0.5 * lh.b, 0.5 * lh.offsets).model_copy(
-        update={"home": home}
-    )
-
-
-def _move_legs(robot, P, R, dl):
-    """The pose near (P, R) whose legs are ``dl`` (6,) mm longer (Newton on the leg lengths)."""
-
-    def legs(P, R):
-        return P + robot.b @ R.T - robot.a  # (6, 3)
-
-    target = np.linalg.norm(legs(P, R), axis=1) + dl
-    for _ in range(4):
-        v = legs(P, R)
-        length = np.linalg.norm(v, axis=1)
-        n = v / length[:, None]
-        jac = np.concatenate([n, np.cross(robot.b @ R.T, n)], axis=1)
-        dx = np.linalg.solve(jac, target - length)
-        P, R = P + dx[:3], Rotation.from_rotvec(dx[3:]).as_matrix() @ R
-    return P, R
-
-
-def precise_session(seed: int, clusters: int = 40, steps: int = 3):
-    """A precision hexapod's session: ``clusters`` poses spread over the workspace (leg
-    strokes about ± 8 mm), each followed by ``steps`` small moves where each leg moves by
-    12–40 µm either way or (one time in four) stays still. Backlash 2–5 µm per leg; noise
-    1 µm. Returns (measurements, design, true β (6,) mm)."""
-    design = precise_design()
-    rng = np.random.default_rng(seed)
-    truth = perturbed_truth(design, rng, SessionPlan(point_sigma_mm=0.05, offset_halfwidth_mm=0.2))
-    # The truth's play acts on every real move, however small.
-    truth = truth.model_copy(update={"backlash_deadband_mm": 1e-4})
-    beta = rng.uniform(0.002, 0.005, 6)
-    sim = Simulator(
-        truth,
-        ranges=PoseRanges(box_mm=(6.0, 6.0, 6.0), tilt_deg=3.0),
-        noise=PRECISE_NOISE,
-        effects=[effect_hook("backlash", beta, truth)],
-    )
-    starts = sim.free((clusters,), rng)
-    Ps, Rs = [], []
-    for P, R in zip(*starts, strict=True):
-        Ps.append(P), Rs.append(R)
-        for _ in range(steps):
-            size = rng.uniform(0.012, 0.040, 6) * rng.choice([-1.0, 1.0], 6)
-            P, R = _move_legs(truth, P, R, size * (rng.random(6) < 0.75))
-            Ps.append(P), Rs.append(R)
-    P, R = np.array(Ps), np.array(Rs)
-    t = np.cumsum(rng.uniform(5.0, 10.0, len(P)))
-    Pm, Rm, rho = sim.measure(rng, P, R, PoseContext(P, R, t, np.full(len(P), 20.0)))
-    return Measurements.from_arrays(Pm, Rotation.from_matrix(Rm), rho, t=t), design, beta
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_precision_hexapod_backlash_of_a_few_um_is_named_and_falls_to_the_floor(seed):
     """A precision hexapod (strokes ± 8 mm, noise 1 µm) with 2–5 µm of backlash is named
     `backlash` and falls to within 15 % of the floor. The dead band is 4·√2·1 µm = 5.7 µm; the
     fixed 0.02 mm would take the 12–40 µm moves for jitter."""
-    meas, design, beta = precise_session(seed)
+    sess = precise_session(seed)
+    meas, design, beta = sess.meas, sess.design, sess.beta
     strokes = np.ptp(meas.readings, axis=0)
     assert (strokes > 10.0).all() and (strokes < 20.0).all()
     before = diagnose(meas, design, 42, instruments=PRECISE_INST)
@@ -198,7 +134,7 @@ def test_the_calibrated_model_file_keeps_the_dead_band_it_was_fitted_with():
     from hexcal.calibrate import calibrate
     from hexcal.model_file import CalibratedRobot, parse_model
 
-    meas, design, _ = precise_session(0, clusters=30)
+    meas, design = precise_session(0, clusters=30).meas, precise_design()
     cal = calibrate(meas, design, 42, instruments=PRECISE_INST, effects=("backlash",), clamps=False)
     model = cal.leg_model()
     assert model.robot.backlash_deadband_mm == pytest.approx(0.004 * math.sqrt(2))

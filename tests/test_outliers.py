@@ -23,9 +23,8 @@ from hexcal.diagnosis.outliers import (
     pose_residuals,
 )
 from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.measurements import Measurements
 from hexcal.noise import NoiseSigmas
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
 from hexcal.workflow import Inputs, diagnose_chain
 
 INST = instruments()
@@ -40,32 +39,7 @@ def _session(design, seed: int, effect: str | None = None, n_bumped: int = 3):
     truth = perturbed_truth(design, rng, PLAN)
     hooks = [effect_hook(effect, realistic_values(effect, rng, truth), truth)] if effect else []
     meas, _ = simulate_session(design, seed, PLAN, effects=hooks, truth=truth)
-    return (*bumped(meas, rng, n_bumped), design)
-
-
-def bumped(meas: Measurements, rng: np.random.Generator, n: int, size_mm: float = 0.5):
-    """``meas`` with the measured position of ``n`` random poses displaced by ``size_mm`` in a
-    random direction (a bumped tracker): (measurements, the rows displaced, sorted)."""
-    rows = np.sort(rng.choice(len(meas), n, replace=False))
-    d = rng.normal(size=(n, 3))
-    position = meas.position.copy()
-    position[rows] += size_mm * d / np.linalg.norm(d, axis=1, keepdims=True)
-    return (
-        Measurements(
-            pose_id=meas.pose_id,
-            t=meas.t,
-            step=meas.step,
-            leg=meas.leg,
-            constraint=meas.constraint,
-            position=position,
-            quaternion=meas.quaternion,
-            readings=meas.readings,
-            temperature=meas.temperature,
-            extra=meas.extra,
-            columns=meas.columns,
-        ),
-        rows,
-    )
+    return (*bump_poses(meas, rng, n_bumped), design)
 
 
 def _inputs(meas, design, inst=INST) -> Inputs:

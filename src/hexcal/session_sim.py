@@ -7,6 +7,7 @@ report, in the order an operator records it.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -102,6 +103,19 @@ def simulate_session(
         temperature=temperature,
     )
     return meas, truth
+
+
+def bump_poses(
+    meas: Measurements, rng: np.random.Generator, n: int, size_mm: float = 0.5
+) -> tuple[Measurements, np.ndarray]:
+    """``meas`` with the measured position of ``n`` random poses displaced by ``size_mm`` in a
+    random direction (a bumped tracker, a pose taken mid-move): (measurements, the rows
+    displaced (n,), sorted)."""
+    rows = np.sort(rng.choice(len(meas), n, replace=False))
+    d = rng.normal(size=(n, 3))
+    position = meas.position.copy()
+    position[rows] += size_mm * d / np.linalg.norm(d, axis=1, keepdims=True)
+    return dataclasses.replace(meas, position=position), rows
 
 
 def truth_json(

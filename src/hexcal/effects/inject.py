@@ -17,6 +17,10 @@ from hexcal.simulate import LengthEffect, PoseContext
 TYPICAL_SESSION_H = 184 * 14.0 / 3600.0
 
 
+#: mm: the hidden backlash's dead band on the simulator's noise-free readings.
+TRUE_PLAY_DEADBAND_MM = 1e-4
+
+
 def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
     """A simulator hook adding effect ``name`` with ``values`` (spec units) to the true robot."""
     eff = get_effect(name)
@@ -26,6 +30,11 @@ def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
         raise ValueError(
             f"effect {name!r} takes {n} values ({[s.name for s in eff.params(truth)]}), got {values.shape}"
         )
+
+    if name == "backlash" and truth.backlash_deadband_mm is None:
+        # The simulator hands the hook noise-free readings: every real move, however small,
+        # takes up the play. The dead band is the fit's defence against noise, not physics.
+        truth = truth.model_copy(update={"backlash_deadband_mm": TRUE_PLAY_DEADBAND_MM})
 
     def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
         data = EffectData(
