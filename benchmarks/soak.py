@@ -16,7 +16,7 @@ every ``--record-period-s`` the soak does what an operator does: stop moving, le
 
 Measured (printed as one JSON document, also written to ``--json``):
 
-- CAN: SYNCs expected, sent (driver) and seen (mock); TPDO1 frames sent by the mock and received
+- CAN: SYNCs expected, sent (driver) and seen (mock); position TPDO frames sent by the mock and received
   by the driver (the difference, less what was still queued at stop, is frames dropped); reading
   sets produced and read; sets with a position missing when they closed versus sets flagged only
   for lateness, told apart by the fault texts of ``drivers/can_encoders.py``; every position
@@ -765,11 +765,11 @@ def run_soak(cfg: SoakConfig, log: Callable[[str], None] | None = None) -> dict[
         max_tpdo_delay_s=None if cfg.max_tpdo_delay_ms is None else cfg.max_tpdo_delay_ms / 1e3,
     )
     nodes = MockEncoderNodes(robot, can_cfg)
-    # Count what the mock puts on the bus (TPDO1 of the six nodes), wrapping its _send: the
+    # Count what the mock puts on the bus (the position TPDO of the six nodes), wrapping its _send: the
     # TPDOs sent while the driver's receive queue is on the channel (python-can's virtual bus
     # copies each frame into every queue on the channel), and those sent after it left (the
     # mock answering SYNCs it had not yet handled when the driver stopped: nobody to receive).
-    tpdo_ids = {leg.tpdo1_cob_id for leg in can_cfg.legs}
+    tpdo_ids = {leg.tpdo_cob_id(can_cfg.tpdo) for leg in can_cfg.legs}
     mock_sent = {"tpdo": 0, "tpdo_while_driver_closing": 0, "tpdo_after_driver_closed": 0}
     mock_sent["other"] = 0
     # The channel's receive queues: the mock's, and the driver's from its start to its stop.

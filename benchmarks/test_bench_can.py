@@ -17,7 +17,7 @@ from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
 from hexcal.drivers.can_encoders import LegEncoders, TpdoDecoder, decode_tpdo
 
 SATURATED_BUS_FRAMES_PER_S = 8_000
-N_SYNC = 10_000  # 60,000 TPDO1 frames per round
+N_SYNC = 10_000  # 60,000 position TPDO frames per round
 
 CONFIG = CanBusConfig(
     channel="bench",
@@ -46,7 +46,7 @@ def counts() -> np.ndarray:
 def tpdo_frames(counts) -> list[can.Message]:
     return [
         can.Message(
-            arbitration_id=0x1A0 + k + 1,
+            arbitration_id=0x2A0 + k + 1,
             data=int(c).to_bytes(4, "little", signed=True),
             is_extended_id=False,
         )
@@ -70,7 +70,7 @@ def test_bench_decode_tpdo(benchmark, tpdo_frames):
 def test_bench_decode_batch(benchmark, counts):
     """TpdoDecoder.decode_batch on arrays (log analysis, replays)."""
     dec = TpdoDecoder(CONFIG)
-    ids = np.tile(np.arange(0x1A1, 0x1A7), N_SYNC)
+    ids = np.tile(np.arange(0x2A1, 0x2A7), N_SYNC)
     payload = np.zeros((ids.size, 8), np.uint8)
     payload[:, :4] = counts.reshape(-1).astype("<i4").view(np.uint8).reshape(-1, 4)
     legs, mm = benchmark(dec.decode_batch, ids, payload)

@@ -1,7 +1,9 @@
 """Configuration of the CAN leg encoders: the bus and, per leg, the CANopen node and its scaling.
 
-Six CiA 406 encoder nodes, one per leg. Each sends its position (object 0x6004, INTEGER32,
-counts) in TPDO1 on every SYNC; the driver turns counts into a reading in mm:
+Six CiA 406 encoder nodes, one per leg. hexcal sets each up over SDO at start
+(:mod:`hexcal.drivers.can_nodes`) to send its position (object 0x6004, counts) in TPDO ``tpdo``
+(2 by default: the synchronous TPDO of CiA 406) on every SYNC; the driver turns counts into a
+reading in mm:
 
     reading_mm = sign × counts / counts_per_mm + zero_mm
 
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -26,7 +28,14 @@ from hexcal.validation import format_validation_error
 NMT_COB_ID = 0x000
 SYNC_COB_ID = 0x080
 TPDO1_BASE = 0x180
+EMCY_BASE = 0x080
 HEARTBEAT_BASE = 0x700
+
+
+def tpdo_cob_id(n: int, node_id: int) -> int:
+    """The predefined COB-ID of TPDO ``n`` (1..4) of node ``node_id``: 0x180 + 0x100·(n − 1)."""
+    return TPDO1_BASE + 0x100 * (n - 1) + node_id
+
 
 _Finite = Annotated[float, Field(allow_inf_nan=False)]
 
@@ -49,6 +58,8 @@ class LegEncoderConfig(BaseModel):
     counts_per_mm: float = Field(gt=0, allow_inf_nan=False)
     sign: int = Field(default=1, strict=True)
     zero_mm: _Finite = 0.0
+    #: This node's EDS when it differs from the bus's (a path; relative to the rig file).
+    eds: str | None = None
 
     @field_validator("sign")
     @classmethod
@@ -61,6 +72,14 @@ class LegEncoderConfig(BaseModel):
     @property
     def tpdo1_cob_id(self) -> int:
         return TPDO1_BASE + self.node_id
+
+    def tpdo_cob_id(self, n: int) -> int:
+        """TPDO ``n``'s COB-ID for this node (predefined connection set)."""
+        return tpdo_cob_id(n, self.node_id)
+
+    @property
+    def emcy_cob_id(self) -> int:
+        return EMCY_BASE + self.node_id
 
     @property
     def heartbeat_cob_id(self) -> int:
@@ -114,6 +133,26 @@ class CanBusConfig(BaseModel):
         default=None, gt=0, le=MAX_TIMEOUT_S, allow_inf_nan=False
     )
     legs: list[LegEncoderConfig] = Field(default_factory=default_legs)
+    #: Set the nodes up over SDO at start (module :mod:`hexcal.drivers.can_nodes`); False for
+    #: nodes configured by other means (the driver then only NMT-starts them).
+    configure: bool = True
+    #: The EDS of the encoders (a path, relative to the rig file); None: hexcal's generic
+    #: CiA 406 EDS.
+    eds: str | None = None
+    #: The TPDO (1..4) hexcal maps 0x6004 into and sets to transmit on every SYNC. CiA 406
+    #: makes TPDO2 the synchronous one and TPDO1 cyclic.
+    tpdo: int = Field(default=2, ge=1, le=4)
+    #: The encoders' other TPDOs: "disable" them (their cyclic frames only load the bus) or
+    #: "keep" them as they are (another master uses them).
+    other_tpdos: Literal["disable", "keep"] = "disable"
+    #: The heartbeat producer time written to each node (0x1017), ms; None: a quarter of
+    #: heartbeat_timeout_s.
+    heartbeat_ms: int | None = Field(default=None, ge=1, le=65535)
+    #: The SYNC counter overflow (0x1019) written to each node: 0 = SYNC without a counter,
+    #: 2..240 = with one. None: read it from the nodes and send SYNC as they expect.
+    sync_counter: int | None = Field(default=None, ge=0, le=240)
+    #: How long to wait for an SDO answer, s.
+    sdo_timeout_s: float = Field(default=0.3, gt=0, le=MAX_TIMEOUT_S, allow_inf_nan=False)
 
     @field_validator("legs")
     @classmethod
@@ -135,6 +174,31 @@ class CanBusConfig(BaseModel):
             owners[cfg.node_id] = cfg.leg
         # Legs are 1..6 and distinct, so sorting puts leg k at index k − 1 everywhere.
         return sorted(legs, key=lambda c: c.leg)
+
+    @field_validator("sync_counter")
+    @classmethod
+    def _sync_counter_allowed(cls, v: int | None) -> int | None:
+        if v == 1:
+            raise ValueError(
+                "sync_counter 1 is not allowed by CiA 301: give 0 (SYNC without a counter) or 2..240"
+            )
+        return v
+
+    @model_validator(mode="after")
+    def _heartbeat_within_supervision(self) -> CanBusConfig:
+        if self.heartbeat_ms is not None and self.heartbeat_ms / 1000 >= self.heartbeat_timeout_s:
+            raise ValueError(
+                f"heartbeat_ms ({self.heartbeat_ms} ms) must be shorter than heartbeat_timeout_s "
+                f"({self.heartbeat_timeout_s:g} s), or every node is reported silent"
+            )
+        return self
+
+    @property
+    def heartbeat_period_ms(self) -> int:
+        """The heartbeat producer time hexcal writes to each node, ms."""
+        if self.heartbeat_ms is not None:
+            return self.heartbeat_ms
+        return max(1, min(65535, round(self.heartbeat_timeout_s * 1000 / 4)))
 
     @model_validator(mode="after")
     def _delay_below_period(self) -> CanBusConfig:
@@ -161,6 +225,18 @@ class CanBusConfig(BaseModel):
         if self.max_tpdo_delay_s is not None:
             return self.max_tpdo_delay_s
         return 0.5 * self.sync_period_s if self.sync_period_s > 0 else 0.005
+
+    def relative_to(self, base: Path) -> CanBusConfig:
+        """This configuration with its EDS paths taken relative to ``base`` (the rig file's
+        folder) made absolute."""
+
+        def resolve(p: str | None) -> str | None:
+            if p is None or Path(p).is_absolute():
+                return p
+            return str(base / p)
+
+        legs = [leg.model_copy(update={"eds": resolve(leg.eds)}) for leg in self.legs]
+        return self.model_copy(update={"eds": resolve(self.eds), "legs": legs})
 
     def leg(self, k: int) -> LegEncoderConfig:
         """Leg k's encoder (k in 1..6)."""
@@ -201,12 +277,13 @@ def load_can_config(path: str | Path) -> CanBusConfig:
             f"{path}: not valid {path.suffix or 'TOML'} (nested too deeply to be a configuration)"
         ) from None
     try:
-        return CanBusConfig.model_validate(data)
+        return CanBusConfig.model_validate(data).relative_to(path.parent)
     except ValidationError as exc:
         raise CanConfigError(format_validation_error(exc, str(path))) from None
 
 
 __all__ = [
+    "EMCY_BASE",
     "HEARTBEAT_BASE",
     "NMT_COB_ID",
     "SYNC_COB_ID",
@@ -218,4 +295,5 @@ __all__ = [
     "default_legs",
     "format_validation_error",
     "load_can_config",
+    "tpdo_cob_id",
 ]

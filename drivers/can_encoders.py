@@ -2,15 +2,26 @@
 
 On the wire (CiA 301 predefined connection set):
 
-- NMT start ``0x000 [0x01, node]`` puts each node in OPERATIONAL;
-- the driver (or another master) sends SYNC ``0x080 [counter]``; every encoder latches its
-  position and answers with TPDO1 ``0x180 + node``, bytes 0..3 = object 0x6004 (INTEGER32 counts,
-  little endian);
-- every node sends a heartbeat ``0x700 + node [state]`` at its producer period (object 0x1017).
+- at start, each node is put in PRE-OPERATIONAL (NMT ``0x000 [0x80, node]``) and set up over SDO
+  (:mod:`hexcal.drivers.can_nodes`: device type and identity checked, 0x6004 mapped into TPDO
+  ``tpdo`` — 2 by default, CiA 406's synchronous one — on every SYNC, the heartbeat producer
+  time written, the SYNC counter as the nodes expect); then NMT start ``[0x01, node]``;
+- the driver (or another master) sends SYNC ``0x080`` (with a counter byte only when the nodes'
+  0x1019 asks for one); every encoder latches its position and answers with its TPDO
+  ``0x280 + node``, bytes 0..3 = object 0x6004 (INTEGER32 or UNSIGNED32 counts as the object
+  dictionary says, little endian; an UNSIGNED32 position wraps at the total measuring range
+  0x6002 and is unwrapped here);
+- every node sends a heartbeat ``0x700 + node [state]`` at its producer period (0x1017),
+  received through ``canopen``'s NMT master;
+- an encoder in trouble sends EMCY ``0x080 + node``: it flags the set it falls in (by bus time)
+  and every set while the node's error register stays non-zero, with the code's meaning.
 
-The nodes must already be configured for this (TPDO1 transmission type 1 = every SYNC, 0x6004
-mapped first, a heartbeat producer time shorter than ``heartbeat_timeout_s``); the driver does
-not write their object dictionaries.
+With ``configure = false`` the nodes are taken as set up already and only NMT-started.
+
+Why positions are not received through ``canopen``'s PDO callbacks: attribution to a SYNC needs
+each frame's bus time *and* its arrival on the host, taken before anything else handles it
+(below); canopen's callbacks give the first but not the second. The PDO itself is configured
+through canopen's PDO maps and decoded with the data type its object dictionary gives.
 
 A *reading set* is the six positions answering one SYNC. Every frame carries the time the bus
 interface stamped it (``msg.timestamp``: the kernel's receive time on SocketCAN, the send time
@@ -79,6 +90,8 @@ from hexcal.drivers.can_config import (
     CanBusConfig,
     LegEncoderConfig,
 )
+from hexcal.drivers.can_emcy import Emergency
+from hexcal.drivers.can_nodes import EncoderConfigError, NodeInfo, configure_node, eds_for
 from hexcal.drivers.limits import check_duration
 
 log = logging.getLogger(__name__)
@@ -87,6 +100,7 @@ NMT_OPERATIONAL = 0x05
 NMT_PRE_OPERATIONAL = 0x7F
 NMT_BOOTUP = 0x00
 NMT_CMD_START = 0x01
+NMT_CMD_PRE_OPERATIONAL = 0x80
 
 #: CiA 301: a SYNC counter runs 1..overflow; 240 is the largest overflow value allowed.
 SYNC_COUNTER_MAX = 240
@@ -153,18 +167,37 @@ class BusError(EncoderError):
 
 # -- decoding --------------------------------------------------------------------------------------
 class TpdoDecoder:
-    """TPDO1 → (leg, mm) for one configuration, precompiled so decoding a frame is one dict
-    lookup and one integer conversion.
+    """The position TPDO → (leg, mm) for one configuration, precompiled so decoding a frame is
+    one dict lookup and one integer conversion.
 
-    ``table`` maps a TPDO1 COB-ID to (leg 1..6, sign, counts_per_mm, zero_mm).
+    ``table`` maps the TPDO's COB-ID (TPDO ``config.tpdo`` of each node) to (leg 1..6, sign,
+    counts_per_mm, zero_mm). ``signed`` (6,) says how each node's 0x6004 is decoded (INTEGER32
+    by default; :meth:`set_nodes` takes it from the nodes' object dictionaries) and ``ranges``
+    (6,) its total measuring range in counts (None: no wrap-around). With a range, a position
+    is unwrapped against the leg's previous one (:meth:`counts`): the first position is taken
+    as the node reports it, and moves across the wrap point continue from there.
     """
 
-    __slots__ = ("_cpm", "_leg_of", "_sign", "_zero", "config", "table")
+    __slots__ = (
+        "_cpm",
+        "_last",
+        "_leg_of",
+        "_sign",
+        "_zero",
+        "config",
+        "ranges",
+        "signed",
+        "table",
+    )
 
     def __init__(self, config: CanBusConfig):
         self.config = config
+        self.signed = [True] * 6
+        self.ranges: list[int | None] = [None] * 6
+        self._last: list[tuple[int, int] | None] = [None] * 6  # (raw, unwrapped) counts
         self.table: dict[int, tuple[int, int, float, float]] = {
-            c.tpdo1_cob_id: (c.leg, c.sign, c.counts_per_mm, c.zero_mm) for c in config.legs
+            c.tpdo_cob_id(config.tpdo): (c.leg, c.sign, c.counts_per_mm, c.zero_mm)
+            for c in config.legs
         }
         # Lookup arrays over the whole 11-bit id space for the batch path (leg 0 = not a TPDO1).
         self._leg_of = np.zeros(0x800, np.int64)
@@ -172,7 +205,7 @@ class TpdoDecoder:
         self._cpm = np.ones(0x800)
         self._zero = np.zeros(0x800)
         for c in config.legs:
-            i = c.tpdo1_cob_id
+            i = c.tpdo_cob_id(config.tpdo)
             self._leg_of[i], self._sign[i], self._cpm[i], self._zero[i] = (
                 c.leg,
                 c.sign,
@@ -180,11 +213,33 @@ class TpdoDecoder:
                 c.zero_mm,
             )
 
-    def decode(self, msg: can.Message) -> tuple[int, float] | None:
-        """(leg 1..6, reading mm, finite) of a TPDO1 from a configured node; None for any other
-        frame.
+    def set_nodes(self, nodes: list[NodeInfo]) -> None:
+        """Decode as the nodes' object dictionaries say (data type of 0x6004, range 0x6002)."""
+        for info in nodes:
+            self.signed[info.leg - 1] = info.position_type == "INTEGER32"
+            self.ranges[info.leg - 1] = info.total_range or None
+        self._last = [None] * 6
 
-        Raises :class:`EncoderError` for a TPDO1 too short to hold 0x6004, and for counts the
+    def counts(self, k: int, data: bytes | bytearray) -> int:
+        """Leg ``k`` (0..5)'s position in counts from the TPDO's first four bytes, unwrapped at
+        the total measuring range when the node has one."""
+        raw = int.from_bytes(data[:4], "little", signed=self.signed[k])
+        span = self.ranges[k]
+        if span is None:
+            return raw
+        last = self._last[k]
+        value = raw
+        if last is not None:
+            step = (raw - last[0] + span // 2) % span - span // 2
+            value = last[1] + step
+        self._last[k] = (raw, value)
+        return value
+
+    def decode(self, msg: can.Message) -> tuple[int, float] | None:
+        """(leg 1..6, reading mm, finite) of the position TPDO of a configured node; None for
+        any other frame.
+
+        Raises :class:`EncoderError` for a TPDO too short to hold 0x6004, and for counts the
         leg's scaling cannot turn into a finite reading."""
         entry = self.table.get(msg.arbitration_id)
         if entry is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
@@ -195,7 +250,7 @@ class TpdoDecoder:
                 _short_tpdo_message(self.config.leg(entry[0]), len(data), self.config)
             )
         leg, sign, cpm, zero = entry
-        counts = int.from_bytes(data[:4], "little", signed=True)
+        counts = self.counts(leg - 1, data)
         mm = sign * counts / cpm + zero
         if not math.isfinite(mm):
             raise EncoderError(_nonfinite_message(self.config.leg(leg), counts, self.config))
@@ -204,11 +259,13 @@ class TpdoDecoder:
     def decode_batch(
         self, cob_ids: np.ndarray, payload: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised decode of N standard data frames.
+        """Vectorised decode of N standard data frames (INTEGER32 or UNSIGNED32 per leg as
+        ``signed`` says; no unwrapping, which needs the frames one by one).
 
         ``cob_ids`` (N,) int; ``payload`` (N, ≥4) uint8 (the frames' data bytes). Returns legs
-        (N,) int (0 where the frame is not a configured TPDO1) and readings (N,) mm (NaN there,
-        and where the leg's scaling gives no finite reading: :meth:`decode` raises there).
+        (N,) int (0 where the frame is not a configured position TPDO) and readings (N,) mm
+        (NaN there, and where the leg's scaling gives no finite reading: :meth:`decode` raises
+        there).
         """
         ids = np.asarray(cob_ids, np.int64)
         legs = np.zeros(ids.shape, np.int64)
@@ -216,6 +273,8 @@ class TpdoDecoder:
         legs[inside] = self._leg_of[ids[inside]]
         raw = np.ascontiguousarray(np.asarray(payload, np.uint8)[:, :4])
         counts = raw.view("<i4")[:, 0].astype(float)
+        unsigned = np.array([not s for s in self.signed] + [False])[np.maximum(legs, 1) - 1]
+        counts = np.where(unsigned & (counts < 0), counts + 2.0**32, counts)
         idx = np.where(legs > 0, ids, 0)
         with np.errstate(over="ignore", invalid="ignore"):  # flagged just below, not warned
             mm = self._sign[idx] * counts / self._cpm[idx] + self._zero[idx]
@@ -224,8 +283,8 @@ class TpdoDecoder:
 
 
 def decode_tpdo(msg: can.Message, config: CanBusConfig | TpdoDecoder) -> tuple[int, float] | None:
-    """(leg 1..6, reading mm) of one TPDO1 frame, or None when the frame is not the TPDO1 of a
-    configured node. ``reading_mm = sign × counts / counts_per_mm + zero_mm``.
+    """(leg 1..6, reading mm) of one position TPDO, or None when the frame is not the position
+    TPDO of a configured node. ``reading_mm = sign × counts / counts_per_mm + zero_mm``.
 
     Pass a :class:`TpdoDecoder` (built once from the config) on a hot path; a
     :class:`CanBusConfig` works too but compiles the lookup on every call.
@@ -257,8 +316,9 @@ def _nonfinite_message(leg: LegEncoderConfig, counts: int, config: CanBusConfig)
 
 def _short_tpdo_message(leg: LegEncoderConfig, n: int, config: CanBusConfig) -> str:
     return (
-        f"{leg.name} sent a {n}-byte TPDO1 on {config.bus_name}; expected at least 4 bytes "
-        "(0x6004 INTEGER32 mapped first) — check that node's TPDO1 mapping"
+        f"{leg.name} sent a {n}-byte TPDO{config.tpdo} on {config.bus_name}; expected at least 4 "
+        f"bytes (0x6004 mapped first) — check that node's TPDO{config.tpdo} mapping (hexcal sets "
+        "it when can.configure is true)"
     )
 
 
@@ -451,7 +511,16 @@ class LegEncoders:
         )
         # A new clock offset is believed once frames have shown it for this long (s).
         self._jump_confirm_s = 2 * max(config.sync_period_s, self._deadline)
-        self._leg_of_hb = {c.heartbeat_cob_id: c.leg - 1 for c in config.legs}
+        self._leg_of_emcy = {c.emcy_cob_id: c.leg - 1 for c in config.legs}
+        #: What the configuration step read from and set on each node (empty until start, and
+        #: when ``config.configure`` is false or in listen-only mode).
+        self.nodes: list[NodeInfo] = []
+        # Legs (0..5) being set up over SDO: their PRE-OPERATIONAL heartbeat is expected then.
+        self._configuring: set[int] = set()
+        # 0: SYNC without a counter byte; 2..240: with a counter running 1..this (0x1019).
+        self._sync_overflow = (
+            SYNC_COUNTER_MAX if config.sync_counter is None else config.sync_counter
+        )
         self._names = [c.name for c in config.legs]
         self._bus_name = config.bus_name
 
@@ -491,6 +560,8 @@ class LegEncoders:
         self._untrusted_stamps = 0
         self._warned_stamp = False
         self._sync_counter = 0
+        self._emergencies: list[Emergency | None] = [None] * 6  # the active error per node
+        self._emcy_count = 0
         self._sync_sent = 0
         self._foreign_syncs = 0
         self._t_start = time.monotonic()
@@ -526,8 +597,11 @@ class LegEncoders:
         cfg = self.config
         self._recorder = _Recorder(self.log_path) if self.log_path else None
         net = _Network(self._bus_in, self._recorder)
-        for leg in cfg.legs:
-            net.add_node(leg.node_id)  # canopen RemoteNode: NMT master side, SDO client if needed
+        for k, leg in enumerate(cfg.legs):
+            # canopen RemoteNode with the node's object dictionary: NMT master side, heartbeat
+            # consumer, SDO client for the configuration step.
+            node = net.add_node(leg.node_id, str(eds_for(cfg, leg)))
+            node.nmt.add_heartbeat_callback(lambda state, k=k: self._on_heartbeat(k, state))
         net.listeners.append(self._listener)
         try:
             if self._bus_in is None:
@@ -549,15 +623,58 @@ class LegEncoders:
         self._running = True
         try:
             if not self.listen_only:
+                if cfg.configure:
+                    self._configure(net)
                 for k in range(6):
                     self._nmt_start(k)
                 self._wait_operational(2 * cfg.heartbeat_timeout_s if timeout is None else timeout)
+        except EncoderConfigError as exc:
+            self.stop()
+            raise EncoderError(str(exc)) from exc
         except BaseException:
             self.stop()
             raise
         self._worker = threading.Thread(target=self._run, name="hexcal-can-encoders", daemon=True)
         self._worker.start()
         return self
+
+    def _configure(self, net: _Network) -> None:
+        """PRE-OPERATIONAL, then each node set up over SDO (:func:`configure_node`); the SYNC
+        counter as the nodes expect. Raises :class:`EncoderConfigError`."""
+        cfg = self.config
+        self._configuring = set(range(6))
+        try:
+            for leg in cfg.legs:
+                net[leg.node_id].nmt.send_command(NMT_CMD_PRE_OPERATIONAL)
+            nodes, silent = [], []
+            for leg in cfg.legs:
+                try:
+                    nodes.append(configure_node(net, leg, cfg))
+                except EncoderConfigError as exc:
+                    if not exc.silent:
+                        raise
+                    silent.append(exc)  # go on: name every node that does not answer
+        finally:
+            self._configuring = set()
+        if silent:
+            raise EncoderSilent(
+                "; ".join(str(e) for e in silent),
+                tuple(e.leg for e in silent),
+                tuple(e.node_id for e in silent),
+            )
+        overflows = {n.sync_overflow for n in nodes}
+        if len(overflows) > 1:
+            listed = ", ".join(f"node 0x{n.node_id:02X}: {n.sync_overflow}" for n in nodes)
+            raise EncoderConfigError(
+                f"the encoders on {self._bus_name} expect different SYNC counters (0x1019: "
+                f"{listed}) and one SYNC cannot suit them all — set sync_counter in the rig "
+                "file's [can] table (0 = no counter) and hexcal writes it to every node"
+            )
+        self.nodes = nodes
+        self._sync_overflow = overflows.pop()
+        self.decoder.set_nodes(nodes)
+        for n in nodes:
+            log.info("%s: %s", self._names[n.leg - 1], n.identity)
 
     def stop(self) -> None:
         """Stop SYNC and supervision, wait briefly for the last SYNC's positions, close the set
@@ -655,10 +772,13 @@ class LegEncoders:
         ``late_discarded`` (positions that came after their set had closed),
         ``skipped_syncs`` (SYNCs the producer skipped after a stall of its thread),
         ``clock_jumps`` (times the bus clock jumped and attribution re-anchored),
-        ``untrusted_stamps`` (frames whose bus time was not trusted), ``queued``,
+        ``untrusted_stamps`` (frames whose bus time was not trusted), ``emergencies`` (EMCY
+        frames received), ``sync_counter`` (0x1019: 0 = SYNC without counter), ``queued``,
         ``discarded``, and ``legs``: six dicts with ``leg``, ``node_id``, ``alive``,
         ``heartbeat_age_s`` (s, None if never heard), ``nmt_state`` (name, None if never heard),
-        ``tpdo_frames``, ``missing`` (sets without this leg's position).
+        ``tpdo_frames``, ``missing`` (sets without this leg's position), ``emergency`` (the
+        node's active EMCY in words, None) and ``node`` (what the configuration step read, see
+        :class:`~hexcal.drivers.can_nodes.NodeInfo`; None when not configured).
         """
         now = time.monotonic()
         with self._lock:
@@ -675,6 +795,10 @@ class LegEncoders:
                         "nmt_state": None if st is None else NMT_STATES.get(st, f"0x{st:02X}"),
                         "tpdo_frames": self._frames[k],
                         "missing": self._missing[k],
+                        "emergency": None
+                        if self._emergencies[k] is None
+                        else self._emergencies[k].describe(self._names[k]),  # type: ignore[union-attr]
+                        "node": None if not self.nodes else self.nodes[k].to_dict(),
                     }
                 )
             return {
@@ -694,6 +818,8 @@ class LegEncoders:
                 "skipped_syncs": self._skipped_syncs,
                 "clock_jumps": self._clock_jumps,
                 "untrusted_stamps": self._untrusted_stamps,
+                "emergencies": self._emcy_count,
+                "sync_counter": self._sync_overflow,
                 "queued": len(self._queue),
                 "discarded": self._discarded,
                 "legs": legs,
@@ -834,6 +960,9 @@ class LegEncoders:
     # -- assembling sets (lock held) --------------------------------------------------------------
     def _open_set(self, t: float, t_bus: float, counter: int) -> None:
         faults, self._pending_faults = self._pending_faults, {}
+        for k, em in enumerate(self._emergencies):
+            if em is not None:  # the node still reports an error: its readings are suspect
+                faults[f"emcy{k}"] = em.describe(self._names[k])
         self._open.append(_Pending(self._index, counter, t, t_bus, faults))
         self._index += 1
 
@@ -937,8 +1066,8 @@ class LegEncoders:
                 self._on_unplaced_tpdo(entry[0] - 1, t - ts)
         elif cid == SYNC_COB_ID:
             self._on_bus_sync(msg, t, ts if trusted else None)
-        elif cid in self._leg_of_hb:
-            self._on_heartbeat(self._leg_of_hb[cid], msg.data, t)
+        elif cid in self._leg_of_emcy:
+            self._on_emcy(self._leg_of_emcy[cid], msg.data, ts if trusted else None)
         if trusted:  # an untrusted bus time must not close sets
             with self._lock:
                 self._close_until(ts)
@@ -963,7 +1092,7 @@ class LegEncoders:
                     f"short{k}", _short_tpdo_message(self.config.legs[k], len(data), self.config)
                 )
                 return
-            counts = int.from_bytes(data[:4], "little", signed=True)
+            counts = self.decoder.counts(k, data)
             mm = sign * counts / cpm + zero
             s = next((o for o in reversed(self._open) if o.t_bus <= ts), None)
             if not math.isfinite(mm):  # a fault of that set, never a reading
@@ -981,15 +1110,16 @@ class LegEncoders:
                 self._note(
                     f"orphan{k}",
                     f"{self._names[k]} sent a position ({mm:.4f} mm) outside any SYNC window on "
-                    f"{self._bus_name} (very late, or TPDO1 not synchronous) — discarded; check its "
-                    "TPDO1 transmission type is 1 (every SYNC)",
+                    f"{self._bus_name} (very late, or TPDO{self.config.tpdo} not synchronous) — "
+                    f"discarded; check its TPDO{self.config.tpdo} transmission type is 1 (every "
+                    "SYNC: hexcal sets it when can.configure is true)",
                 )
                 return
             if s.arrival[k] == s.arrival[k]:
                 s.faults[f"twice{k}"] = (
                     f"{self._names[k]} sent two positions for SYNC {s.counter} on {self._bus_name} (a "
-                    "late frame from the previous SYNC?) — set flagged, the later one kept; check its "
-                    "TPDO1 transmission type is 1 (every SYNC)"
+                    "late frame from the previous SYNC, or a cyclic TPDO?) — set flagged, the later "
+                    f"one kept; check its TPDO{self.config.tpdo} transmission type is 1 (every SYNC)"
                 )
             else:
                 s.n += 1
@@ -1040,8 +1170,35 @@ class LegEncoders:
                 return
             self._open_set(ts + min(self._offset_min), ts, counter)
 
-    def _on_heartbeat(self, k: int, data: bytearray, t: float) -> None:
-        state = data[0] & 0x7F if len(data) >= 1 else None
+    def _on_emcy(self, k: int, data: bytearray, ts: float | None) -> None:
+        """An EMCY of leg ``k + 1``'s node at bus time ``ts`` (None: not trusted): it flags the
+        set it falls in, and the sets after it while the node's error register is non-zero."""
+        em = Emergency.from_frame(self.config.legs[k].node_id, bytes(data))
+        with self._lock:
+            self._emcy_count += 1
+            if em.is_reset:
+                if self._emergencies[k] is not None:
+                    log.info("%s: error reset (EMCY 0x0000)", self._names[k])
+                self._emergencies[k] = None
+                return
+            text = em.describe(self._names[k])
+            log.warning("%s on %s", text, self._bus_name)
+            self._emergencies[k] = em if em.register else None
+            s = (
+                next((o for o in reversed(self._open) if o.t_bus <= ts), None)
+                if ts is not None
+                else None
+            )
+            target = (
+                s.faults
+                if s is not None
+                else (self._open[-1].faults if self._open else self._pending_faults)
+            )
+            target[f"emcy{k}"] = text
+
+    def _on_heartbeat(self, k: int, state: int) -> None:
+        """A heartbeat of leg ``k + 1``'s node (through canopen's NMT master), NMT ``state``."""
+        t = time.monotonic()
         restart = False
         with self._lock:
             self._last_hb[k] = t
@@ -1053,19 +1210,49 @@ class LegEncoders:
                 self._note(
                     f"bootup{k}",
                     f"{self._names[k]} rebooted (boot-up message on {self._bus_name}) — "
-                    + ("hexcal starts it again; " if not self.listen_only else "")
+                    + ("hexcal sets it up and starts it again; " if not self.listen_only else "")
                     + "check its supply if this repeats",
                 )
+            reboot = state == NMT_BOOTUP and self.config.configure
             if (
                 self._running
                 and not self.listen_only
+                and k not in self._configuring
                 and state in (NMT_BOOTUP, NMT_PRE_OPERATIONAL)
-                and t - self._last_nmt[k] > self.config.heartbeat_timeout_s / 5
+                and (reboot or t - self._last_nmt[k] > self.config.heartbeat_timeout_s / 5)
             ):
                 restart = True
+                if reboot:
+                    self._configuring.add(k)
             self._cond.notify_all()
-        if restart:  # outside the lock: sending may block
+        if not restart:
+            return
+        if reboot:
+            # A rebooted node is back at its factory settings (no heartbeat, no synchronous
+            # position). SDO answers come through this very thread, so set it up from another.
+            threading.Thread(
+                target=self._reconfigure, args=(k,), name="hexcal-can-reconfigure", daemon=True
+            ).start()
+        else:  # outside the lock: sending may block
             self._nmt_start(k)
+
+    def _reconfigure(self, k: int) -> None:
+        """Set leg ``k + 1``'s node up again after a reboot, then NMT-start it."""
+        net = self._network
+        try:
+            if net is None:
+                return
+            info = configure_node(net, self.config.legs[k], self.config)
+            with self._lock:
+                if self.nodes:
+                    self.nodes[k] = info
+            self._nmt_start(k)
+        except EncoderConfigError as exc:
+            with self._lock:
+                self._note(f"reconfigure{k}", str(exc))
+        finally:
+            with self._lock:
+                self._configuring.discard(k)
 
     def _on_error_frame(self, msg: can.Message, t: float) -> None:
         cls = msg.arbitration_id & 0x1FFFFFFF
@@ -1122,13 +1309,15 @@ class LegEncoders:
     def _send_sync_locked(self) -> None:
         net = self._network
         assert net is not None
-        self._sync_counter = self._sync_counter % SYNC_COUNTER_MAX + 1
+        overflow = self._sync_overflow
+        self._sync_counter = self._sync_counter % overflow + 1 if overflow else 0
         with self._lock:
             # Open the set before sending: the answers may arrive before send() returns.
             t = time.monotonic()
             self._open_set(t, self._to_bus(t), self._sync_counter)
         try:
-            net.sync.transmit(self._sync_counter)
+            # No counter byte for nodes whose 0x1019 is 0: they answer one with EMCY 0x8240.
+            net.sync.transmit(self._sync_counter or None)
         except (can.CanError, OSError) as exc:
             with self._lock:
                 self._bus_state, self._bus_detail = BUS_ERROR, f"sending SYNC failed: {exc}"

@@ -1,23 +1,29 @@
-"""Six mock CANopen (CiA 406) leg-encoder nodes on a python-can bus, fed by a :class:`MockRobot`.
+"""Six mock CiA 406 leg encoders on a python-can bus, fed by a :class:`MockRobot`: each is a
+``canopen.LocalNode`` built from the same EDS the driver reads (hexcal's generic CiA 406 one
+unless the configuration names another), and each **starts at its factory settings**:
 
-They speak the wire protocol the real encoders do, so the real driver is what the tests
-exercise:
+- boot-up ``0x700 + node [0x00]`` at start, then PRE-OPERATIONAL; NMT commands (node 0 = all):
+  start, stop, pre-operational, reset node (every object back to its factory value) and reset
+  communication (0x1000–0x1FFF back);
+- heartbeat producer 0x1017 = 0: **no heartbeat** until a master writes a period;
+- TPDO1 ``0x180 + node``: 0x6004, transmission type 0xFE — sent **cyclically** every 0x6200 ms
+  (100 ms) while OPERATIONAL, not latched at SYNC; TPDO2 ``0x280 + node``: 0x6004 on every
+  SYNC; TPDO3/4 invalid;
+- SYNC counter overflow 0x1019 = 0: a SYNC must be empty. A SYNC whose length does not match
+  (a counter byte when 0x1019 is 0, none when it is 2..240) is answered, as CiA 301 asks, with
+  EMCY 0x8240 (unexpected SYNC data length), once, and an error reset when SYNCs match again;
+- SDO server (canopen's) over the object dictionary, with the device's rules: the PDO
+  communication and mapping objects and 0x1019 are written only in PRE-OPERATIONAL (abort
+  0x08000022 otherwise), a mapping only while its PDO is invalid and its count is 0, and only
+  objects the EDS marks mappable (abort 0x06040041);
+- LSS slave (CiA 305) on 0x7E5/0x7E4: switch state global and selective (vendor, product,
+  revision, serial), inquire identity and node id, configure node id and bit timing, store;
+  a new node id takes effect at the next NMT reset (node or communication).
 
-- boot-up ``0x700 + node [0x00]`` at start, then PRE-OPERATIONAL;
-- NMT ``0x000 [cs, node]`` (node 0 = all): start, stop, pre-operational, reset;
-- heartbeat ``0x700 + node [state]`` every ``heartbeat_period_s`` and on each state change;
-- on SYNC ``0x080``, every OPERATIONAL node latches the robot's encoder readings and sends TPDO1
-  ``0x180 + node`` with 0x6004 = round((reading_mm − zero_mm) × counts_per_mm × sign) as INTEGER32
-  little endian — the inverse of the driver's conversion, so signs, zeros and scales are tested.
-
-Faults, injectable while running: :meth:`silence` (a node's heartbeat and frames stop: cable cut),
-:meth:`drop_next` (a TPDO lost), :meth:`error_frames`, :meth:`bus_off` / :meth:`recover`,
-:meth:`reboot` (a node resets), ``jitter_s`` (each TPDO delayed by a uniform random time in
-[0, jitter_s] s), and the bus clock's faults (they need the wire times below):
-:meth:`stamp_next` (one TPDO stamped off the clock: a corrupt timestamp) and :meth:`step_clock`
-(every frame from now on stamped off by a constant: the interface's clock was reset or the
-system time stepped). The virtual bus has no physical layer, so bus-off is emulated the way a
-SocketCAN controller reports it: an error frame with the CAN_ERR_BUSOFF class, then silence.
+So the driver reads positions from them only by configuring them: TPDO2 on SYNC, the heartbeat
+period, an empty SYNC. The position a node sends (in its synchronous TPDO) is latched at the
+SYNC: round((reading_mm − zero_mm) × counts_per_mm × sign) — the inverse of the driver's
+conversion, so signs, zeros and scales are tested — encoded as the EDS types 0x6004.
 
 Timing as on a real bus: a CiA 406 encoder latches its position in hardware at the SYNC and
 answers within microseconds; a Python thread may handle the SYNC milliseconds later. So each node
@@ -25,10 +31,19 @@ latches the robot's readings at the SYNC's bus time (:meth:`MockRobot.encoder_re
 ``at``), and, on a virtual bus this object opens, stamps its TPDO with the time it would have
 been on the wire: the SYNC's bus time + ``latency_s`` + its jitter delay, as a CAN controller's
 receive timestamp would read (python-can's ``preserve_timestamps``). Everything else it sends
-is stamped when sent. The driver's attribution of positions to SYNCs is therefore tested against
-the device's timing, not against the mock thread's scheduling.
+is stamped when sent.
 
-One thread does all the nodes' work; start/stop it with :meth:`start`/:meth:`stop` or ``with``.
+Faults, injectable while running: :meth:`silence` (a node stops: cable cut), :meth:`drop_next`
+(a TPDO lost), :meth:`error_frames`, :meth:`bus_off` / :meth:`recover`, :meth:`reboot` (a node
+resets: its factory settings again), :meth:`emergency` (an encoder alarm: EMCY), ``jitter_s``,
+:meth:`stamp_next` / :meth:`step_clock` (the bus clock's faults), and at construction
+``device_types`` (a node that is not a 406 encoder), ``sdo_aborts`` (a node refusing a write)
+and ``sdo_deaf`` (nodes that do not answer SDO). The virtual bus has no physical layer, so
+bus-off is emulated the way a SocketCAN controller reports it: an error frame with the
+CAN_ERR_BUSOFF class, then silence.
+
+``factory_node_ids`` {leg: node id} starts a node at another node id than the configuration's
+(as out of its box): LSS (``hexcal devices can-setup``) sets it.
 """
 
 from __future__ import annotations
@@ -39,10 +54,15 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 from types import TracebackType
+from typing import Any
 
 import can
+import canopen
 import numpy as np
+from canopen.objectdictionary import ODVariable
+from canopen.sdo import SdoAbortedError
 
 from hexcal.drivers.can_config import (
     HEARTBEAT_BASE,
@@ -50,13 +70,13 @@ from hexcal.drivers.can_config import (
     SYNC_COB_ID,
     CanBusConfig,
 )
+from hexcal.drivers.can_nodes import eds_for
 from hexcal.mock_hw.robot import MockRobot
 
 log = logging.getLogger(__name__)
 
 BOOTUP, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
-# NMT command specifier -> state entered (resets pass through boot-up, see _nmt).
-_NMT_COMMANDS = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL}
+_STATE_CODES = {"INITIALISING": BOOTUP, "STOPPED": STOPPED, "OPERATIONAL": OPERATIONAL}
 _NMT_RESETS = (0x81, 0x82)
 
 # SocketCAN error classes the emulated faults use (linux/can/error.h).
@@ -65,18 +85,175 @@ CAN_ERR_BUSOFF = 0x040
 CAN_ERR_BUSERROR = 0x080
 CAN_ERR_RESTARTED = 0x100
 
-_INT32 = (-(2**31), 2**31 - 1)
+#: SDO abort codes (CiA 301 table 22) the nodes answer with.
+ABORT_DEVICE_STATE = 0x08000022
+ABORT_NOT_MAPPABLE = 0x06040041
+#: EMCY: unexpected SYNC data length; error register bits 0 (generic) and 4 (communication).
+EMCY_SYNC_LENGTH = 0x8240
+REGISTER_COMMUNICATION = 0x11
+
+LSS_MASTER_COB_ID, LSS_SLAVE_COB_ID = 0x7E5, 0x7E4
+#: LSS bit-timing table index → bit/s (CiA 305).
+LSS_BIT_TIMING = {
+    0: 1_000_000,
+    1: 800_000,
+    2: 500_000,
+    3: 250_000,
+    4: 125_000,
+    6: 50_000,
+    7: 20_000,
+    8: 10_000,
+}
+
+
+class _Network(canopen.Network):
+    """The mock's side of the bus: every frame a node sends goes through the mock's
+    :meth:`MockEncoderNodes._send` (stamping, silence, bus-off), and periodic frames (the
+    heartbeat) are scheduled by the mock's thread rather than the interface's own timer."""
+
+    def __init__(self, owner: MockEncoderNodes, bus: can.BusABC):
+        super().__init__(bus)
+        self.owner = owner
+
+    def send_message(self, can_id: int, data: Any, remote: bool = False) -> None:
+        self.owner._send(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False))
+
+    def send_periodic(self, can_id: int, data: Any, period: float, remote: bool = False) -> Any:
+        return self.owner._periodic(can_id, bytes(data), period)
+
+
+class _Periodic:
+    """A periodic frame of the mock's scheduler (the heartbeat): canopen's task interface."""
+
+    def __init__(self, owner: MockEncoderNodes, can_id: int, data: bytes, period: float):
+        self.owner, self.can_id, self.data, self.period = owner, can_id, data, period
+        self.next = time.monotonic() + period
+        self.stopped = False
+
+    def update(self, data: Any) -> None:
+        self.data = bytes(data)
+
+    def stop(self) -> None:
+        self.stopped = True
+
+
+class _Encoder:
+    """One encoder: its LocalNode, the node id it answers at, and its LSS state."""
+
+    def __init__(self, owner: MockEncoderNodes, leg: int, node_id: int, eds: str, serial: int):
+        self.owner, self.leg, self.eds, self.serial = owner, leg, eds, serial
+        self.node_id = node_id
+        self.pending_id = node_id  # set by LSS, in effect after an NMT reset
+        self.bitrate = owner.config.bitrate
+        self.lss_config = False  # LSS configuration state
+        self.lss_selective: list[int] = []
+        self.sync_error = False  # EMCY 0x8240 sent, no reset yet
+        self.sync_count = [0] * 5  # SYNCs since the last transmission, per TPDO 1..4
+        self.next_cyclic = [0.0] * 5
+        self.node = self._build()
+
+    def _build(self) -> canopen.LocalNode:
+        node = canopen.LocalNode(self.node_id, canopen.import_od(self.eds, self.node_id))
+        node.add_read_callback(self._on_read)
+        node.add_write_callback(self._on_write)
+        node.data_store.setdefault(0x1018, {})[4] = self.serial.to_bytes(4, "little")
+        return node
+
+    def attach(self, network: _Network) -> None:
+        self.node.associate_network(network)
+        # NMT is the mock's (boot-up on reset, silence, factory reset); not the LocalNode's.
+        network.unsubscribe(0, self.node.nmt.on_command)
+        if self.leg in self.owner._sdo_deaf:
+            network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+
+    def detach(self) -> None:
+        self.node.nmt.stop_heartbeat()
+        # remove_network() unsubscribes what associate_network() subscribed: put back what
+        # attach() took away first.
+        network = self.node.network
+        network.subscribe(0, self.node.nmt.on_command)
+        if self.leg in self.owner._sdo_deaf:
+            network.subscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        self.node.remove_network()
+
+    # -- object dictionary rules ---------------------------------------------------------------
+    @property
+    def state(self) -> int:
+        return _STATE_CODES.get(self.node.nmt.state, PRE_OPERATIONAL)
+
+    def value(self, index: int, sub: int = 0) -> int:
+        """An object's value as the node holds it (written, else the EDS default), without the
+        SDO server's callbacks (the faults injected there are for the master's requests)."""
+        obj = self.node.object_dictionary[index]
+        var = obj if isinstance(obj, ODVariable) else obj[sub]
+        raw = self.node.data_store.get(index, {}).get(sub)
+        if raw is None:
+            return int(var.value if var.value is not None else (var.default or 0))
+        return int(var.decode_raw(raw))
+
+    def _on_read(self, index: int, subindex: int, od: ODVariable) -> Any:
+        if index == 0x1000 and self.leg in self.owner._device_types:
+            return self.owner._device_types[self.leg]
+        if index == 0x6004:
+            return self.owner._counts(
+                self, float(self.owner.robot.encoder_readings()[self.leg - 1])
+            )
+        return None
+
+    def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
+        abort = self.owner._sdo_aborts.get(self.leg)
+        if abort is not None and abort[0] == index:
+            raise SdoAbortedError(abort[1])
+        pdo_object = 0x1800 <= index <= 0x1803 or 0x1A00 <= index <= 0x1A03
+        if (pdo_object or index == 0x1019) and self.state != PRE_OPERATIONAL:
+            raise SdoAbortedError(ABORT_DEVICE_STATE)
+        if 0x1A00 <= index <= 0x1A03 and subindex > 0:
+            valid = not self.value(0x1800 + index - 0x1A00, 1) & 0x80000000
+            if valid or self.value(index, 0) != 0:
+                raise SdoAbortedError(ABORT_DEVICE_STATE)
+            entry = int.from_bytes(data, "little")
+            target, sub = entry >> 16, (entry >> 8) & 0xFF
+            if entry and not self._mappable(target, sub):
+                raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+
+    def _mappable(self, index: int, sub: int) -> bool:
+        od = self.node.object_dictionary
+        if index not in od:
+            return False
+        obj = od[index]
+        var = obj if isinstance(obj, ODVariable) else obj.get(sub)
+        return bool(var is not None and var.pdo_mappable)
+
+    def factory_reset(self, communication_only: bool) -> None:
+        """NMT reset: objects back to their factory values (the EDS's defaults); a node id set
+        by LSS takes effect."""
+        store = self.node.data_store
+        for index in list(store):
+            if not communication_only or 0x1000 <= index <= 0x1FFF:
+                del store[index]
+        store.setdefault(0x1018, {})[4] = self.serial.to_bytes(4, "little")
+        self.sync_error = False
+        if self.pending_id != self.node_id:
+            network = self.node.network
+            self.detach()
+            self.node_id = self.pending_id
+            self.node = self._build()
+            self.attach(network)  # type: ignore[arg-type]
 
 
 class MockEncoderNodes:
     """The six leg encoders of ``config`` answering on ``bus`` (None: open ``config.interface``/
-    ``config.channel`` at :meth:`start`, close it at :meth:`stop`).
+    ``config.channel`` at :meth:`start`, close it at :meth:`stop`), at their factory settings
+    (module docstring).
 
-    ``heartbeat_period_s`` defaults to a quarter of ``config.heartbeat_timeout_s``.
-    ``jitter_s``: each TPDO is delayed by U(0, jitter_s) s (0: sent at once). ``seed`` seeds the
-    jitter. Observables for tests: ``states`` {leg: NMT state}, ``nmt_log`` [(cs, node)],
-    ``history`` [(SYNC counter, readings (6,) mm latched at that SYNC)], the last ``log_len``
-    (read it through :meth:`latched` while running), ``syncs_seen``.
+    ``jitter_s``: each synchronous TPDO is delayed by U(0, jitter_s) s. ``seed`` seeds the jitter.
+    ``factory_node_ids`` {leg: node id}: a node out of its box, answering at another node id
+    than the configuration's until LSS sets it. ``device_types`` {leg: 0x1000 value}: a node
+    that is another kind of device. ``sdo_aborts`` {leg: (index, abort code)}: a node refusing
+    to write an object. ``sdo_deaf``: legs whose node does not answer SDO. Observables for tests:
+    ``states`` {leg: NMT state}, ``nmt_log`` [(cs, node)], ``history`` [(SYNC counter,
+    readings (6,) mm latched at that SYNC)] (the last ``log_len``; read it through
+    :meth:`latched` while running), ``syncs_seen``, ``encoders`` {leg: the node's state}.
     """
 
     def __init__(
@@ -85,44 +262,59 @@ class MockEncoderNodes:
         config: CanBusConfig,
         bus: can.BusABC | None = None,
         *,
-        heartbeat_period_s: float | None = None,
         jitter_s: float = 0.0,
         latency_s: float = 100e-6,
         seed: int = 0,
         log_len: int = 1_000,
+        factory_node_ids: dict[int, int] | None = None,
+        device_types: dict[int, int] | None = None,
+        sdo_aborts: dict[int, tuple[int, int]] | None = None,
+        sdo_deaf: Iterable[int] = (),
     ):
         self.robot = robot
         self.config = config
-        self.heartbeat_period_s = (
-            config.heartbeat_timeout_s / 4 if heartbeat_period_s is None else heartbeat_period_s
-        )
         self.jitter_s = jitter_s
         self.latency_s = latency_s
         self._bus_in = bus
         self._bus: can.BusABC | None = None
+        self._network: _Network | None = None
         self._wire_times = False
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self._send_lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._node_ids = [c.node_id for c in config.legs]
-        self._leg_of_node = {c.node_id: c.leg for c in config.legs}
-        self.states: dict[int, int] = dict.fromkeys(range(1, 7), BOOTUP)
+        self._device_types = dict(device_types or {})
+        self._sdo_aborts = dict(sdo_aborts or {})
+        self._sdo_deaf = set(sdo_deaf)
+        ids = factory_node_ids or {}
+        self.encoders: dict[int, _Encoder] = {
+            c.leg: _Encoder(
+                self, c.leg, ids.get(c.leg, c.node_id), str(eds_for(config, c)), 4_060_000 + c.leg
+            )
+            for c in config.legs
+        }
         self._silent = dict.fromkeys(range(1, 7), False)
         self._drop = dict.fromkeys(range(1, 7), 0)
         self._skew_next: dict[int, float] = {}  # leg -> s added to its next TPDO's stamp
         self._clock_step_s = 0.0  # s added to every stamp (the interface's clock jumped)
         self._bus_off = False
         self._scheduled: list[tuple[float, int, can.Message]] = []
+        self._periodic_tasks: list[_Periodic] = []
         self._seq = itertools.count()
         self.nmt_log: list[tuple[int, int]] = []
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=log_len)
         self.syncs_seen = 0
 
+    @property
+    def states(self) -> dict[int, int]:
+        """{leg: NMT state code}."""
+        return {leg: e.state for leg, e in self.encoders.items()}
+
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> MockEncoderNodes:
-        """Open the bus (if not given), send the six boot-ups and start answering."""
+        """Open the bus (if not given), boot the six nodes (boot-up, PRE-OPERATIONAL) and start
+        answering."""
         if self._thread is not None:
             return self
         if self._bus_in is not None:
@@ -134,9 +326,16 @@ class MockEncoderNodes:
             self._bus = can.Bus(**kwargs)
         self._wire_times = bool(getattr(self._bus, "preserve_timestamps", False))
         self._stop.clear()
-        for leg in range(1, 7):
-            self.states[leg] = PRE_OPERATIONAL
-            self._heartbeat(leg, BOOTUP)
+        net = self._network = _Network(self, self._bus)
+        net.NOTIFIER_CYCLE = 0.05
+        for enc in self.encoders.values():
+            enc.attach(net)
+        net.subscribe(NMT_COB_ID, self._on_nmt)
+        net.subscribe(SYNC_COB_ID, self._on_sync)
+        net.subscribe(LSS_MASTER_COB_ID, self._on_lss)
+        net.connect()
+        for enc in self.encoders.values():
+            self._boot(enc)
         self._thread = threading.Thread(target=self._run, name="hexcal-mock-encoders", daemon=True)
         self._thread.start()
         return self
@@ -148,9 +347,13 @@ class MockEncoderNodes:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self._thread = None
+        net = self._network
+        if net is not None and net.notifier is not None:
+            net.notifier.stop(1.0)
         if self._bus_in is None and self._bus is not None:
             self._bus.shutdown()
         self._bus = None
+        self._network = None
 
     def __enter__(self) -> MockEncoderNodes:
         return self.start()
@@ -165,19 +368,20 @@ class MockEncoderNodes:
 
     def latched(self) -> dict[int, np.ndarray]:
         """{SYNC counter: readings (6,) mm latched at that SYNC}, a snapshot (the latest SYNC
-        wins when the 1..240 counter wraps)."""
+        wins when the counter wraps; with SYNCs without counter, the key is the SYNC's number
+        since start)."""
         with self._lock:
             return {c: r.copy() for c, r in self.history}
 
     # -- fault injection -------------------------------------------------------------------------
     def silence(self, leg: int, silent: bool = True) -> None:
-        """Leg ``leg``'s node goes quiet (no heartbeat, no TPDO, deaf to NMT) — or comes back,
-        keeping its NMT state, as after a reconnected cable."""
+        """Leg ``leg``'s node goes quiet (no heartbeat, no TPDO, deaf to NMT and SDO) — or comes
+        back, keeping its NMT state, as after a reconnected cable."""
         with self._lock:
             self._silent[leg] = silent
 
     def drop_next(self, leg: int, n: int = 1) -> None:
-        """Lose the next ``n`` TPDOs of leg ``leg`` (the SYNCs still happen)."""
+        """Lose the next ``n`` synchronous TPDOs of leg ``leg`` (the SYNCs still happen)."""
         with self._lock:
             self._drop[leg] += n
 
@@ -235,12 +439,27 @@ class MockEncoderNodes:
             )
 
     def reboot(self, leg: int) -> None:
-        """Leg ``leg``'s node resets: boot-up message, then PRE-OPERATIONAL (no TPDOs)."""
-        with self._lock:
-            self.states[leg] = PRE_OPERATIONAL
-        self._heartbeat(leg, BOOTUP)
+        """Leg ``leg``'s node resets (a supply dip): boot-up, PRE-OPERATIONAL, factory settings
+        (no heartbeat, TPDO2 on SYNC) — until the master sets it up again."""
+        enc = self.encoders[leg]
+        enc.factory_reset(communication_only=False)
+        self._boot(enc)
+
+    def emergency(self, leg: int, code: int, register: int = 0x01, data: bytes = bytes(5)) -> None:
+        """Leg ``leg``'s node sends EMCY ``code`` with error register ``register`` (an encoder
+        alarm); ``code`` 0 with register 0 is the error reset."""
+        self.encoders[leg].node.emcy.send(code, register, data)
 
     # -- the nodes' work -------------------------------------------------------------------------
+    def _leg_of(self, can_id: int) -> int | None:
+        node_id = can_id & 0x7F
+        if can_id in (LSS_SLAVE_COB_ID,) or can_id < 0x80 or can_id > 0x7FF:
+            return None
+        for leg, enc in self.encoders.items():
+            if enc.node_id == node_id:
+                return leg
+        return None
+
     def _send(self, msg: can.Message) -> None:
         bus = self._bus
         if bus is None:
@@ -248,6 +467,10 @@ class MockEncoderNodes:
         with self._send_lock:
             if self._bus_off and not msg.is_error_frame:
                 return  # decided before bus_off(), sent after: a bus-off controller sends nothing
+            if not msg.is_error_frame:
+                leg = self._leg_of(msg.arbitration_id)
+                if leg is not None and self._silent[leg]:
+                    return
             if self._wire_times:
                 msg.timestamp = (msg.timestamp or time.time()) + self._clock_step_s
             try:
@@ -255,42 +478,63 @@ class MockEncoderNodes:
             except can.CanError as exc:  # a mock must not die on a full queue: log and go on
                 log.warning("mock encoders could not send %s: %s", msg, exc)
 
-    def _heartbeat(self, leg: int, state: int | None = None) -> None:
+    def _periodic(self, can_id: int, data: bytes, period: float) -> _Periodic:
+        task = _Periodic(self, can_id, data, period)
         with self._lock:
-            if self._silent[leg] or self._bus_off:
-                return
-            st = self.states[leg] if state is None else state
-        node = self.config.leg(leg).node_id
-        self._send(
-            can.Message(arbitration_id=HEARTBEAT_BASE + node, data=[st], is_extended_id=False)
-        )
+            self._periodic_tasks = [t for t in self._periodic_tasks if not t.stopped] + [task]
+        return task
+
+    def _boot(self, enc: _Encoder) -> None:
+        """Power-up or reset: boot-up message, then PRE-OPERATIONAL with the heartbeat 0x1017
+        says (none at the factory setting)."""
+        enc.node.nmt.send_command(0x81)  # INITIALISING: canopen sends the boot-up message
+        enc.node.nmt.send_command(0x80)  # → PRE-OPERATIONAL, heartbeat per 0x1017
 
     def _run(self) -> None:
-        bus = self._bus
-        assert bus is not None
-        next_hb = time.monotonic() + self.heartbeat_period_s
         while not self._stop.is_set():
             now = time.monotonic()
-            if now >= next_hb:
-                for leg in range(1, 7):
-                    self._heartbeat(leg)
-                next_hb += self.heartbeat_period_s
-                if now - next_hb > self.heartbeat_period_s:  # stalled: do not burst
-                    next_hb = now + self.heartbeat_period_s
+            with self._lock:
+                tasks = [t for t in self._periodic_tasks if not t.stopped and now >= t.next]
+            for t in tasks:
+                self._send(can.Message(arbitration_id=t.can_id, data=t.data, is_extended_id=False))
+                t.next += t.period
+                if now - t.next > t.period:  # stalled: do not burst
+                    t.next = now + t.period
+            self._cyclic(now)
             self._send_due(now)
             with self._lock:
-                due = self._scheduled[0][0] if self._scheduled else next_hb
-            timeout = min(max(0.0, min(due, next_hb) - time.monotonic()), 0.05)
-            try:
-                msg = bus.recv(timeout)
-            except can.CanError:  # bus closed under us at shutdown
-                break
-            if msg is None or msg.is_error_frame or msg.is_extended_id:
+                due = [self._scheduled[0][0]] if self._scheduled else []
+                due += [t.next for t in self._periodic_tasks if not t.stopped]
+            wake = min([*due, now + 0.01])
+            self._stop.wait(max(0.0, min(wake - time.monotonic(), 0.05)))
+
+    def _cyclic(self, now: float) -> None:
+        """Asynchronous TPDOs (transmission type 0xFE/0xFF) of OPERATIONAL nodes, every event
+        timer (or 0x6200 cyclic timer) ms — the factory TPDO1 of a CiA 406 encoder."""
+        for enc in self.encoders.values():
+            if enc.state != OPERATIONAL or self._silent[enc.leg]:
                 continue
-            if msg.arbitration_id == SYNC_COB_ID:
-                self._on_sync(msg)
-            elif msg.arbitration_id == NMT_COB_ID and len(msg.data) >= 2:
-                self._on_nmt(msg.data[0], msg.data[1])
+            for n in (1, 2, 3, 4):
+                if 0x1800 + n - 1 not in enc.node.object_dictionary:
+                    continue
+                cob = enc.value(0x1800 + n - 1, 1)
+                if cob & 0x80000000 or enc.value(0x1800 + n - 1, 2) < 0xFE:
+                    continue
+                period_ms = enc.value(0x1800 + n - 1, 5) or (
+                    enc.value(0x6200) if 0x6200 in enc.node.object_dictionary else 0
+                )
+                if not period_ms:
+                    continue
+                if now >= enc.next_cyclic[n]:
+                    enc.next_cyclic[n] = now + period_ms / 1000
+                    reading = float(self.robot.encoder_readings()[enc.leg - 1])
+                    self._send(
+                        can.Message(
+                            arbitration_id=cob & 0x7FF,
+                            data=self._pdo_data(enc, n, reading),
+                            is_extended_id=False,
+                        )
+                    )
 
     def _send_due(self, now: float) -> None:
         while True:
@@ -300,50 +544,100 @@ class MockEncoderNodes:
                 _, _, msg = heapq.heappop(self._scheduled)
             self._send(msg)
 
-    def _on_nmt(self, cs: int, node: int) -> None:
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 2:
+            return
+        cs, node = data[0], data[1]
         self.nmt_log.append((cs, node))
-        changed = []
-        with self._lock:
-            for nid in self._node_ids if node == 0 else [node]:
-                leg = self._leg_of_node.get(nid)
-                if leg is None or self._silent[leg] or self._bus_off:
-                    continue
-                if cs in _NMT_RESETS:
-                    self.states[leg] = PRE_OPERATIONAL
-                    changed.append((leg, BOOTUP))
-                elif cs in _NMT_COMMANDS:
-                    self.states[leg] = _NMT_COMMANDS[cs]
-                    changed.append((leg, None))
-        for leg, state in changed:  # answer at once: the master need not wait a heartbeat period
-            self._heartbeat(leg, state)
+        for enc in list(self.encoders.values()):
+            if node not in (0, enc.node_id) or self._silent[enc.leg] or self._bus_off:
+                continue
+            if cs in _NMT_RESETS:
+                enc.factory_reset(communication_only=cs == 0x82)
+                self._boot(enc)
+            elif cs in (0x01, 0x02, 0x80):
+                enc.node.nmt.send_command(cs)
+                if not enc.value(0x1017):
+                    continue  # heartbeat off (the factory setting): nothing tells the state
+                # Answer at once: the master need not wait a heartbeat period.
+                self._send(
+                    can.Message(
+                        arbitration_id=HEARTBEAT_BASE + enc.node_id,
+                        data=[enc.state],
+                        is_extended_id=False,
+                    )
+                )
 
-    def _on_sync(self, msg: can.Message) -> None:
-        counter = msg.data[0] if len(msg.data) >= 1 else 0
+    def _counts(self, enc: _Encoder, reading_mm: float) -> int:
+        """A reading as the node's 0x6004 value: counts, clipped or wrapped as its type is."""
+        cfg = self.config.leg(enc.leg)
+        counts = cfg.mm_to_counts(reading_mm)
+        od = enc.node.object_dictionary[0x6004]
+        if od.data_type == canopen.objectdictionary.UNSIGNED32:
+            span = enc.value(0x6002) if 0x6002 in enc.node.object_dictionary else 0
+            return counts % (span or 2**32)
+        return min(max(counts, -(2**31)), 2**31 - 1)
+
+    def _pdo_data(self, enc: _Encoder, n: int, reading_mm: float) -> bytes:
+        """TPDO ``n``'s payload: its mapped objects, 0x6004 from ``reading_mm``."""
+        out = b""
+        for s in range(1, enc.value(0x1A00 + n - 1, 0) + 1):
+            entry = enc.value(0x1A00 + n - 1, s)
+            index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+            if index == 0x6004:
+                od = enc.node.object_dictionary[0x6004]
+                out += od.encode_raw(self._counts(enc, reading_mm))
+            else:
+                out += enc.node.get_data(index, sub)[: bits // 8]
+        return out
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         t = time.monotonic()
         # The SYNC's bus time (wall clock on python-can's buses) on the monotonic clock.
-        t_bus = msg.timestamp or time.time()
+        t_bus = timestamp or time.time()
         t_sync = t_bus - (time.time() - t)
         at = t_sync if self.robot.clock is time.monotonic and t_sync <= t else None
         readings = self.robot.encoder_readings(at)  # latched at the SYNC, as a CiA 406 encoder does
+        counter = data[0] if len(data) >= 1 else self.syncs_seen + 1
         out: list[tuple[float, can.Message]] = []
         with self._lock:
             self.syncs_seen += 1
             self.history.append((counter, readings))
             if self._bus_off:
                 return
-            for cfg in self.config.legs:
-                leg = cfg.leg
-                if self._silent[leg] or self.states[leg] != OPERATIONAL:
+        for enc in self.encoders.values():
+            leg = enc.leg
+            if self._silent[leg] or enc.state not in (OPERATIONAL, PRE_OPERATIONAL):
+                continue
+            overflow = enc.value(0x1019) if 0x1019 in enc.node.object_dictionary else 0
+            wrong = len(data) != (1 if overflow >= 2 else 0)
+            if wrong != enc.sync_error:  # CiA 301: EMCY on the error, a reset once it is gone
+                enc.sync_error = wrong
+                enc.node.emcy.send(
+                    EMCY_SYNC_LENGTH if wrong else 0, REGISTER_COMMUNICATION if wrong else 0
+                )
+            if enc.state != OPERATIONAL:
+                continue
+            for n in (1, 2, 3, 4):
+                if 0x1800 + n - 1 not in enc.node.object_dictionary:
                     continue
-                if self._drop[leg] > 0:
-                    self._drop[leg] -= 1
+                cob = enc.value(0x1800 + n - 1, 1)
+                tt = enc.value(0x1800 + n - 1, 2)
+                if cob & 0x80000000 or tt > 240:
                     continue
-                counts = min(max(cfg.mm_to_counts(float(readings[leg - 1])), _INT32[0]), _INT32[1])
+                enc.sync_count[n] += 1
+                if enc.sync_count[n] < max(tt, 1):
+                    continue
+                enc.sync_count[n] = 0
+                with self._lock:
+                    if self._drop[leg] > 0:
+                        self._drop[leg] -= 1
+                        continue
+                    skew = self._skew_next.pop(leg, 0.0)
                 delay = float(self._rng.uniform(0.0, self.jitter_s)) if self.jitter_s > 0 else 0.0
-                skew = self._skew_next.pop(leg, 0.0)
                 frame = can.Message(
-                    arbitration_id=cfg.tpdo1_cob_id,
-                    data=counts.to_bytes(4, "little", signed=True),
+                    arbitration_id=cob & 0x7FF,
+                    data=self._pdo_data(enc, n, float(readings[leg - 1])),
                     is_extended_id=False,
                     # Never later than now (+ its delay): a wire time is never in the future.
                     timestamp=min(t_bus + self.latency_s, time.time()) + delay + skew
@@ -351,12 +645,58 @@ class MockEncoderNodes:
                     else 0.0,
                 )
                 out.append((delay, frame))
+        with self._lock:
             for delay, frame in out:
                 if delay > 0:
                     heapq.heappush(self._scheduled, (t + delay, next(self._seq), frame))
         for delay, frame in out:
             if delay == 0:
                 self._send(frame)
+
+    # -- LSS slave (CiA 305) ---------------------------------------------------------------------
+    def _lss_reply(self, payload: bytes) -> None:
+        self._send(
+            can.Message(
+                arbitration_id=LSS_SLAVE_COB_ID, data=payload.ljust(8, b"\0"), is_extended_id=False
+            )
+        )
+
+    def _on_lss(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 1:
+            return
+        cs = data[0]
+        value = int.from_bytes(bytes(data[1:5]).ljust(4, b"\0"), "little")
+        for enc in self.encoders.values():
+            if self._silent[enc.leg]:
+                continue
+            ident = [enc.value(0x1018, s) for s in (1, 2, 3, 4)]
+            reply = self._lss_reply
+            if cs == 0x04:  # switch state global
+                enc.lss_config = data[1] == 1
+                enc.lss_selective = []
+            elif 0x40 <= cs <= 0x43:  # switch state selective: vendor, product, revision, serial
+                enc.lss_selective = [*enc.lss_selective[: cs - 0x40], value]
+                if cs == 0x43 and enc.lss_selective == ident:
+                    enc.lss_config = True
+                    reply(bytes([0x44]))
+            elif not enc.lss_config:
+                continue
+            elif cs == 0x11:  # configure node id
+                ok = 1 <= data[1] <= 127 or data[1] == 0xFF
+                if ok:
+                    enc.pending_id = data[1]
+                reply(bytes([0x11, 0 if ok else 1]))
+            elif cs == 0x13:  # configure bit timing: table 0, index
+                ok = data[1] == 0 and data[2] in LSS_BIT_TIMING
+                if ok:
+                    enc.bitrate = LSS_BIT_TIMING[data[2]]
+                reply(bytes([0x13, 0 if ok else 1]))
+            elif cs == 0x17:  # store configuration
+                reply(bytes([0x17, 0]))
+            elif 0x5A <= cs <= 0x5D:  # inquire identity
+                reply(bytes([cs]) + ident[cs - 0x5A].to_bytes(4, "little"))
+            elif cs == 0x5E:  # inquire node id
+                reply(bytes([0x5E, enc.node_id]))
 
 
 __all__ = ["MockEncoderNodes"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from hexcal.devices import DevicesConfigError, load_devices_config
@@ -130,3 +132,44 @@ def test_every_number_is_finite_and_in_range(tmp_path, text, match):
     with pytest.raises(DevicesConfigError, match=match) as err:
         load_devices_config(p)
     assert "errors.pydantic.dev" not in str(err.value)
+
+
+EXAMPLE_RIG = Path(__file__).resolve().parents[1] / "examples" / "rig.toml"
+
+
+def test_the_example_rig_file_loads_for_socketcan_and_for_pcan(tmp_path):
+    cfg = load_devices_config(EXAMPLE_RIG)
+    assert (cfg.tracker.kind, cfg.tracker.url) == ("ndi", "/dev/ttyUSB0")
+    assert (cfg.can.interface, cfg.can.channel, cfg.can.tpdo) == ("socketcan", "can0", 2)
+    assert [leg.node_id for leg in cfg.can.legs] == list(range(0x21, 0x27))
+    assert cfg.can.configure and cfg.can.sync_counter is None and cfg.can.heartbeat_period_ms == 125
+    text = EXAMPLE_RIG.read_text()
+    pcan = text.replace('interface = "socketcan"', '# interface = "socketcan"').replace(
+        'channel = "can0"', '# channel = "can0"'
+    )
+    pcan = pcan.replace('# interface = "pcan"', 'interface = "pcan"').replace(
+        '# channel = "PCAN_USBBUS1"', 'channel = "PCAN_USBBUS1"'
+    )
+    pcan = pcan.replace('# eds = "vendor.eds"', 'eds = "vendor.eds"')
+    p = tmp_path / "rig.toml"
+    p.write_text(pcan)
+    cfg = load_devices_config(p)
+    assert (cfg.can.interface, cfg.can.channel) == ("pcan", "PCAN_USBBUS1")
+    assert cfg.can.eds == str(tmp_path / "vendor.eds")  # relative to the rig file
+
+
+def test_devices_list_names_serial_ports_and_can_interfaces(capsys):
+    from hexcal.cli import main
+
+    assert main(["devices", "list"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("serial ports (tracker: [tracker] url):")
+    assert "CAN interfaces python-can detects" in out
+
+
+def test_a_real_rig_without_robot_json_is_refused(capsys):
+    """A real rig never silently gets the paper's robot as its design."""
+    from hexcal.cli import main
+
+    assert main(["run", "--config", str(EXAMPLE_RIG)]) == 2
+    assert "a real rig needs its design: --robot robot.json" in capsys.readouterr().err

@@ -61,7 +61,10 @@ def make_config(interface: str, channel: str, **kw) -> CanBusConfig:
         )
         for k in range(6)
     ]
-    base = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": HB_TIMEOUT_S}
+    # SYNC with a counter (hexcal writes 0x1019 = 240 to every node): the contract matches
+    # each set to what the mock latched by its counter. The factory setting (no counter) has
+    # tests of its own (test_drivers_can_setup.py).
+    base = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": HB_TIMEOUT_S, "sync_counter": 240}
     return CanBusConfig(interface=interface, channel=channel, legs=legs, **{**base, **kw})
 
 
@@ -183,7 +186,7 @@ def test_decode_tpdo_applies_scale_sign_zero():
         leg = cfg.leg(k + 1)
         for counts in (0, 1, -1, 123_456, -2_000_000, 2**31 - 1, -(2**31)):
             msg = can.Message(
-                arbitration_id=0x1A1 + k,
+                arbitration_id=0x2A1 + k,
                 data=counts.to_bytes(4, "little", signed=True),
                 is_extended_id=False,
             )
@@ -193,7 +196,7 @@ def test_decode_tpdo_applies_scale_sign_zero():
             assert leg.counts_to_mm(counts) == expected
     # Extra mapped bytes after 0x6004 are ignored.
     msg = can.Message(
-        arbitration_id=0x1A1, data=[0x10, 0x27, 0, 0, 9, 9, 9, 9], is_extended_id=False
+        arbitration_id=0x2A1, data=[0x10, 0x27, 0, 0, 9, 9, 9, 9], is_extended_id=False
     )
     assert decode_tpdo(msg, dec) == (1, 10.0)
 
@@ -202,22 +205,22 @@ def test_decode_tpdo_ignores_other_frames_and_rejects_short_ones():
     dec = TpdoDecoder(make_config("virtual", "x"))
     four = bytes(4)
     assert (
-        dec.decode(can.Message(arbitration_id=0x1A7, data=four, is_extended_id=False)) is None
+        dec.decode(can.Message(arbitration_id=0x2A7, data=four, is_extended_id=False)) is None
     )  # node 0x27
     assert dec.decode(can.Message(arbitration_id=0x721, data=[5], is_extended_id=False)) is None
-    assert dec.decode(can.Message(arbitration_id=0x1A1, data=four, is_extended_id=True)) is None
-    assert dec.decode(can.Message(arbitration_id=0x1A1, is_error_frame=True)) is None
+    assert dec.decode(can.Message(arbitration_id=0x2A1, data=four, is_extended_id=True)) is None
+    assert dec.decode(can.Message(arbitration_id=0x2A1, is_error_frame=True)) is None
     with pytest.raises(
         EncoderError,
-        match=r"leg 1 encoder \(node 0x21\) sent a 2-byte TPDO1 .* check that node's TPDO1 mapping",
+        match=r"leg 1 encoder \(node 0x21\) sent a 2-byte TPDO2 .* check that node's TPDO2 mapping",
     ):
-        dec.decode(can.Message(arbitration_id=0x1A1, data=[1, 2], is_extended_id=False))
+        dec.decode(can.Message(arbitration_id=0x2A1, data=[1, 2], is_extended_id=False))
 
 
 def test_decode_batch_matches_scalar():
     dec = TpdoDecoder(make_config("virtual", "x"))
     rng = np.random.default_rng(0)
-    ids = rng.choice([0x080, 0x1A1, 0x1A2, 0x1A3, 0x1A4, 0x1A5, 0x1A6, 0x721, 0x1A7], 500)
+    ids = rng.choice([0x080, 0x2A1, 0x2A2, 0x2A3, 0x2A4, 0x2A5, 0x2A6, 0x721, 0x2A7], 500)
     counts = rng.integers(-(2**31), 2**31, 500)
     payload = np.zeros((500, 8), np.uint8)
     payload[:, :4] = counts.astype("<i4").view(np.uint8).reshape(500, 4)
@@ -512,11 +515,11 @@ def test_a_non_finite_reading_is_a_fault_of_its_set(robot, target):
         )
     dec = TpdoDecoder(drv_cfg)
     msg = can.Message(
-        arbitration_id=0x1A2, data=(123456).to_bytes(4, "little"), is_extended_id=False
+        arbitration_id=0x2A2, data=(123456).to_bytes(4, "little"), is_extended_id=False
     )
     with pytest.raises(EncoderError, match="no finite reading"):
         dec.decode(msg)
-    legs_b, mm_b = dec.decode_batch(np.array([0x1A2]), np.frombuffer(msg.data, np.uint8)[None])
+    legs_b, mm_b = dec.decode_batch(np.array([0x2A2]), np.frombuffer(msg.data, np.uint8)[None])
     assert legs_b[0] == 2 and np.isnan(mm_b[0])
 
 
@@ -551,19 +554,35 @@ def test_driver_timeouts_are_bounded(bad):
 
 
 def test_start_names_a_node_that_never_answers(robot, config, target):
+    """A node silent from the start: the configuration step gets no SDO answer from it (and
+    names every such node); without configuration, no heartbeat after NMT start."""
     mock_cfg = config.model_copy(update={"channel": target["mock_channel"]})
     with MockEncoderNodes(robot, mock_cfg) as nodes:
         nodes.silence(5)
+        nodes.silence(2)
         drv = LegEncoders(config)
         threads = threading.active_count()
         with pytest.raises(
-            EncoderSilent, match=r"leg 5 encoder \(node 0x25\) silent for 0\.\d s after NMT start"
+            EncoderSilent, match=r"leg 2 encoder \(node 0x22\) .*: no SDO answer"
         ) as exc:
             drv.start(timeout=0.15)
-    assert exc.value.legs == (5,)
-    assert "check that it is powered and wired to this bus" in str(exc.value)
-    assert threading.active_count() <= threads  # nothing left running
-    assert not drv.status()["running"]
+        assert exc.value.legs == (2, 5)
+        assert "check that it is powered, wired to this bus, has node id 0x25" in str(exc.value)
+        assert threading.active_count() <= threads  # nothing left running
+        assert not drv.status()["running"]
+        nodes.silence(2, False)
+        # Taken as configured (can.configure = false): only NMT start. The attempt above set
+        # up the four nodes that answered; nodes 2 and 5 are still at their factory settings,
+        # heartbeat off, so they are not heard — and the message says to check the heartbeat
+        # producer.
+        bare = LegEncoders(config.model_copy(update={"configure": False}))
+        with pytest.raises(
+            EncoderSilent, match=r"leg 5 encoder \(node 0x25\) silent for 0\.\d s after NMT start"
+        ) as exc:
+            bare.start(timeout=0.15)
+    assert exc.value.legs == (2, 5)
+    assert "powered and wired to this bus" in str(exc.value)
+    assert "the heartbeat producer (object 0x1017) is on" in str(exc.value)
 
 
 def test_unknown_interface_is_a_bus_error():

@@ -465,9 +465,9 @@ scales = st.tuples(
     st.floats(allow_nan=False, allow_infinity=False),
     st.sampled_from([1, -1]),
 )
-# Mostly the configured TPDO1s (0x1A1..0x1A6), their heartbeats, SYNC, and anything else.
+# Mostly the configured position TPDOs (TPDO2: 0x2A1..0x2A6), their heartbeats, SYNC, and anything else.
 cob_ids = st.one_of(
-    st.integers(0x1A1, 0x1A6),
+    st.integers(0x2A1, 0x2A6),
     st.sampled_from([0x080, 0x000, 0x723, 0x7FF]),
     st.integers(0x721, 0x726),
     st.integers(0, 0x1FFFFFFF),

@@ -330,6 +330,37 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_devices_list(args: argparse.Namespace) -> int:
+    from hexcal.devices_check import list_devices
+
+    print("\n".join(list_devices()))
+    return 0
+
+
+def _cmd_can_setup(args: argparse.Namespace) -> int:
+    from hexcal.devices import load_devices_config
+    from hexcal.drivers.can_lss import LssAddress, LssSetupError, set_node_id
+
+    bus = load_devices_config(args.config).can
+    address = None
+    if args.serial is not None:
+        address = LssAddress(args.vendor, args.product, args.revision, args.serial)
+    try:
+        res = set_node_id(
+            bus, args.node_id, address=address, bitrate=args.bitrate, store=not args.no_store
+        )
+    except LssSetupError as exc:
+        print(f"hexcal devices can-setup: {exc}", file=sys.stderr)
+        return 1
+    who = f"the device at {res.address}" if res.address else "the only LSS device on the bus"
+    print(
+        f"{who}: node id 0x{res.old_node_id:02X} → 0x{res.new_node_id:02X}"
+        + (f", bit rate {res.bitrate // 1000} kbit/s (after a power cycle)" if res.bitrate else "")
+        + ("; stored" if res.stored else "; not stored (lost at power-off)")
+    )
+    return 0
+
+
 def _cmd_devices(args: argparse.Namespace) -> int:
     import contextlib
 
@@ -481,10 +512,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
             return 2
         from hexcal.devices import load_devices_config
         from hexcal.robot import load_robot
-        from hexcal.study import left_hand
 
         load_devices_config(args.config)  # refuse a bad file before the UI starts
-        design = load_robot(args.robot) if args.robot else left_hand()
+        if not args.robot:
+            # A real rig is never the paper's robot: calibrating against the wrong drawing
+            # would start from centimetres off, and nothing would say so.
+            print(
+                "hexcal run: a real rig needs its design: --robot robot.json (the drawing's "
+                "attachment points and leg offsets; the format is in docs/formats.md)",
+                file=sys.stderr,
+            )
+            return 2
+        design = load_robot(args.robot)
         backend = RealBackend(design, f"rig from {args.config}", config_path=args.config)
     app = HexcalApp(
         backend,
@@ -718,6 +757,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--mock", action="store_true", help="check a simulated rig through the real drivers"
     )
     chk.set_defaults(func=_cmd_devices)
+    ls = dv_sub.add_parser(
+        "list", help="the serial ports and CAN interfaces this computer has (for the rig file)"
+    )
+    ls.set_defaults(func=_cmd_devices_list)
+    lss = dv_sub.add_parser(
+        "can-setup",
+        help="give an encoder out of its box its node id (and bit rate) over LSS (CiA 305)",
+        description="Set a CANopen encoder's node id (and bit rate) over LSS. With --serial the "
+        "device is picked by its LSS address (vendor, product, revision from its EDS, serial from "
+        "its label); without, exactly one LSS device may be on the bus (plug the encoders in one "
+        "at a time).",
+    )
+    lss.add_argument("--config", type=Path, required=True, help="the rig file (its [can] bus)")
+    lss.add_argument("--node-id", type=lambda v: int(v, 0), required=True, help="new node id")
+    lss.add_argument("--serial", type=lambda v: int(v, 0), help="serial number (0x1018 sub 4)")
+    lss.add_argument("--vendor", type=lambda v: int(v, 0), default=0, help="vendor id (0x1018:1)")
+    lss.add_argument("--product", type=lambda v: int(v, 0), default=0x406, help="product code")
+    lss.add_argument("--revision", type=lambda v: int(v, 0), default=0x00010000, help="revision")
+    lss.add_argument("--bitrate", type=int, help="new bit rate, bit/s (CiA 305 table)")
+    lss.add_argument("--no-store", action="store_true", help="do not store in the device")
+    lss.set_defaults(func=_cmd_can_setup)
 
     s = sub.add_parser(
         "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"

@@ -1,33 +1,18 @@
 """The rig's device configuration (one TOML file, validated by pydantic) and the device check.
 
-```toml
-[tracker]
-kind = "ndi"                 # NDI Combined API (Polaris / Aurora); "line" for the plain-text protocol
-url = "/dev/ttyUSB0"         # anything serial.serial_for_url opens: a device, socket://host:port, a mock URL
-baudrate = 115200
+A commented example for an NDI Polaris on USB serial and six CiA 406 encoders on SocketCAN or
+a PCAN / Kvaser adapter is ``examples/rig.toml``; its tables:
 
-[can]                        # python-can bus and the six CiA 406 encoder nodes
-interface = "socketcan"
-channel = "can0"
-bitrate = 1000000
-sync_period_s = 0.01
-heartbeat_timeout_s = 0.5
-[[can.legs]]
-leg = 1
-node_id = 0x21
-counts_per_mm = 1000.0
-sign = 1
-zero_mm = 0.0
-# ... legs 2 to 6
+- ``[tracker]``: ``kind`` ("ndi" or "line"), ``url`` (anything ``serial.serial_for_url``
+  opens), ``baudrate``, ``timeout_s``, ``reset``;
+- ``[can]``: the python-can bus (``interface``, ``channel``, ``bitrate``), the SYNC period and
+  heartbeat supervision, what hexcal sets on each encoder at start (``configure``, ``eds``,
+  ``tpdo``, ``other_tpdos``, ``heartbeat_ms``, ``sync_counter``, ``sdo_timeout_s``; see
+  :mod:`hexcal.drivers.can_nodes`) and ``[[can.legs]]`` (``leg``, ``node_id``,
+  ``counts_per_mm``, ``sign``, ``zero_mm``, ``eds``);
+- ``[still]``: the still window a pose is recorded from.
 
-[still]                      # the still window a pose is recorded from
-duration_s = 0.5
-max_position_drift_mm = 0.05   # how far the mean may move between the window's halves
-max_angle_drift_deg = 0.01
-max_reading_drift_mm = 0.01
-max_fault_share = 0.0          # share of flagged samples (CRC error, late CAN set...) a pose may
-                               # leave out; 0: any flagged sample refuses the pose
-```
+Paths in the file (EDS) are relative to it.
 """
 
 from __future__ import annotations
@@ -148,6 +133,8 @@ def load_devices_config(path: str | Path) -> DevicesConfig:
     """Read the TOML device configuration; errors name the file and the field."""
     data = read_toml(path, "devices", _error)
     try:
-        return DevicesConfig.model_validate(data)
+        cfg = DevicesConfig.model_validate(data)
     except ValidationError as exc:
         raise DevicesConfigError(format_validation_error(exc, str(path), data)) from None
+    # EDS paths in the file are relative to it.
+    return cfg.model_copy(update={"can": cfg.can.relative_to(Path(path).parent)})
