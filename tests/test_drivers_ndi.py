@@ -99,8 +99,11 @@ def test_parse_tx_reply_missing_disabled_unoccupied_and_several_handles():
     assert frame.tool(3).state == "disabled" and "setup_tools" in frame.tool(3).problem(PORT)
     problems = frame.system_problems()
     assert any("synchronisation" in p for p in problems) and all(PORT in p for p in problems)
-    with pytest.raises(KeyError, match="no handle 0A"):
+    assert [u.handle for u in frame.unoccupied] == [0x0A]
+    with pytest.raises(KeyError, match="tool 0A is UNOCCUPIED"):
         frame.tool(0x0A)
+    with pytest.raises(KeyError, match="no handle 0B"):
+        frame.tool(0x0B)
 
 
 def test_out_of_volume_status_is_a_fault_of_the_sample():

@@ -212,10 +212,16 @@ def test_missing_and_out_of_volume(dev, robot):
     robot.tool_visible = True
     robot.move_to([0.0, 0.0, 3500.0], np.eye(3))
     time.sleep(0.002)  # next frame
-    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x31 | 0x40
+    # Outside the volume a tracker does not normally report the transform: MISSING, with the
+    # out-of-volume bit; reply option 0x0800 asks for it, and the pose comes with the bit.
+    reply = ask(dev, "TX:0001")
+    assert re.fullmatch(rb"0101MISSING00000071[0-9A-F]{8}\n0000[0-9A-F]{4}\r", reply), reply
+    m = TX_POSE.fullmatch(ask(dev, "TX:0801"))
+    assert int(m.group(10), 16) == 0x31 | 0x40 and abs(int(m.group(8)) - 350000) < 10  # z
     robot.move_to([0.0, 0.0, 2980.0], np.eye(3))
     time.sleep(0.002)
-    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x31 | 0x80
+    for option in ("0001", "0801"):  # partly out: reported with or without the option
+        assert int(TX_POSE.fullmatch(ask(dev, f"TX:{option}")).group(10), 16) == 0x31 | 0x80
 
 
 def test_bx_reply_format(dev):
