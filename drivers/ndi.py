@@ -62,7 +62,8 @@ the tool's pose with the bit's name; the system status follows the current API g
 A pose record is thus 2 + 51 + 16 = 69 characters and LF. Mind the text format's resolution:
 1e-4 per quaternion component (rotation rounding up to about 0.01 deg, 0.006 deg typical) and
 0.01 mm in position, coarser than a good optical tracker's orientation noise. ``BX:0001`` (or
-``BX:0801``) returns the same content in binary with IEEE-754 float32 (little endian), which does not round::
+``BX:0801``) returns the same content in binary with IEEE-754 float32 (little endian), which
+does not round::
 
     C4 A5                                start sequence (0xA5C4 little endian)
     LL LL                                body length, bytes (uint16 LE)
@@ -1692,9 +1693,9 @@ class NDITracker:
 
     # -- tracking -------------------------------------------------------------------------------
     def poll(self) -> TrackerFrame:
-        """One ``TX`` frame (reply option 0x0001, with 0x0800 when :attr:`out_of_volume_transforms`):
-        every handle's pose or MISSING status, the frame number, the system status, the host
-        receive time and the frame's measurement time."""
+        """One ``TX`` frame (reply option 0x0001, and 0x0800 with
+        :attr:`out_of_volume_transforms`): every handle's pose or MISSING status, the frame
+        number, the system status, the host receive time and the frame's measurement time."""
         return self._poll("TX", binary=False)
 
     def poll_binary(self) -> TrackerFrame:
@@ -1720,13 +1721,13 @@ class NDITracker:
                 frame = self._poll_once(plain, binary)
                 self._all_transforms[name] = False
                 log.warning(
-                    "the tracker on %s refused reply option 0800 (%s to %s%s) but answers %s: "
-                    "polling without it, so a tool outside the measurement volume is reported "
-                    "MISSING rather than with its pose",
+                    "the tracker on %s refused reply option 0800 (ERROR%02X to %s:%04X) but "
+                    "answers %s: polling without it, so a tool outside the measurement volume "
+                    "is reported MISSING rather than with its pose",
                     self.url,
-                    f"ERROR{exc.code:02X}",
+                    exc.code,
                     name,
-                    f":{option:04X}",
+                    option,
                     plain,
                 )
                 return frame
