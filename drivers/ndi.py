@@ -21,8 +21,9 @@ Connection sequence (:meth:`NDITracker.open`):
    some USB adapters cannot carry a BREAK; for those the ``RESET:0`` command does the same (tried
    at 9600 baud, then at the working baud rate in case a previous session left the tracker
    there, then at 9600 again). ``reset="auto"`` tries the BREAK first, then the command.
-2. ``COMM:<b>0000`` sets the baud rate (``b`` from :data:`BAUD_CODES`; 8N1, no handshake); the
-   tracker answers ``OKAY`` at the old rate, then both sides switch.
+2. ``COMM:<b>0000`` sets the baud rate (``b`` from :data:`BAUD_CODES`: ``0`` to ``7`` for 9600
+   to 1228739 baud, ``A`` for 230400; 8N1, no handshake); the tracker answers ``OKAY`` at the
+   old rate, then both sides switch.
 3. ``INIT:`` initialises the system.
 
 Tools (:meth:`NDITracker.setup_tools`): ``PHSR:0x`` lists port handles: 2 hex digits (count),
@@ -32,7 +33,9 @@ to free (``PHF:hh``), ``PHSR:02`` those to initialise (``PINIT:hh``), ``PHSR:03`
 ones. Wired (active / Aurora) tools are found this way; passive tools need their ROM file loaded
 first (``PVWR``), which this driver does not do.
 
-Tracking: ``TSTART:`` / ``TSTOP:``. ``TX:0001`` (transforms and status) replies::
+Tracking: ``TSTART:`` / ``TSTOP:``. ``TX:0001`` (transforms and status; ``TX:0801`` adds reply
+option 0x0800, the transforms the tracker does not normally report, such as a tool outside the
+characterised volume: same layout, see :data:`REPLY_ALL_TRANSFORMS`) replies::
 
     nn                                   number of handle records, 2 hex digits
     then per handle, each record ending in LF (0x0A):
@@ -44,15 +47,23 @@ Tracking: ``TSTART:`` / ``TSTOP:``. ``TX:0001`` (transforms and status) replies:
         ssssssss      8 hex              port status (:data:`PORT_STATUS_BITS`)
         ffffffff      8 hex              frame number
       or MISSING ssssssss ffffffff       tool not seen: port status and frame number only
-      or DISABLED                        handle not enabled (no data)
-      or UNOCCUPIED                      nothing in that port (skipped, as ndicapi does)
+      or DISABLED [ssssssss ffffffff]    handle not enabled (no pose)
+      or UNOCCUPIED [ssssssss ffffffff]  nothing in that port (no pose; the other handles'
+                                         records stand: TrackerFrame.unoccupied)
     ssss                                 system status, 4 hex (:data:`SYSTEM_STATUS_BITS`)
     CRC16 CR
 
+The bracketed status and frame number may be there or not: ndicapi reads the bare words,
+sawNDITracker reads both fields after them; either is accepted. Port status bits 8-15
+(:data:`PORT_FAULT_BITS`: algorithm limitation, IR interference, processing exception, fell
+behind while processing, data buffer limitation, and the reserved bits 10, 11, 13) each refuse
+the tool's pose with the bit's name; the system status follows the current API guide's table.
+
 A pose record is thus 2 + 51 + 16 = 69 characters and LF. Mind the text format's resolution:
 1e-4 per quaternion component (rotation rounding up to about 0.01 deg, 0.006 deg typical) and
-0.01 mm in position, coarser than a good optical tracker's orientation noise. ``BX:0001``
-returns the same content in binary with IEEE-754 float32 (little endian), which does not round::
+0.01 mm in position, coarser than a good optical tracker's orientation noise. ``BX:0001`` (or
+``BX:0801``) returns the same content in binary with IEEE-754 float32 (little endian), which
+does not round::
 
     C4 A5                                start sequence (0xA5C4 little endian)
     LL LL                                body length, bytes (uint16 LE)
@@ -69,7 +80,9 @@ Nothing unchecked becomes a pose: a reply whose CRC does not match, that stops s
 content does not follow the format above raises (:class:`TrackerCRCError`,
 :class:`TrackerTimeout`, :class:`TrackerFormatError`). A tool the tracker does not see is not an
 error of the link: the frame reports it (``state == "missing"``) and :meth:`NDITracker.sample`
-turns it into a fault sample, as it does a tool outside the characterised measurement volume.
+turns it into a fault sample, as it does a tool outside the characterised measurement volume
+(whose pose, reported thanks to reply option 0x0800, the sample keeps for the operator's
+message: where the tool is, and to move it back into the volume).
 So does a pose record that passed every check of the link but carries a number no pose can
 have — NaN or infinity in the position, the quaternion or the RMS error (BX's float32 can say
 so; TX's fixed-width digits cannot), or a position beyond :data:`MAX_POSITION_MM` — the frame
@@ -139,7 +152,8 @@ except ImportError:  # pragma: no cover - Windows
 
 log = logging.getLogger(__name__)
 
-#: Baud rate -> the digit COMM takes (ndicapi's NDI_9600 ... NDI_1228739).
+#: Baud rate -> the code COMM takes (one character). ndicapi.h (NDI_9600 ... NDI_1228739 are 0
+#: to 7; NDI_230400 is 10, which ndicapi.cxx's ndiCOMMHelper sends as the character "A").
 BAUD_CODES: dict[int, str] = {
     9600: "0",
     14400: "1",
@@ -149,9 +163,12 @@ BAUD_CODES: dict[int, str] = {
     115200: "5",
     921600: "6",
     1228739: "7",
+    230400: "A",
 }
 
-#: Meaning of the tracker's ``ERRORxx`` codes (NDI Combined API; ndicapi's list).
+#: Meaning of the tracker's ``ERRORxx`` codes, every code the Combined API defines up to 0x42
+#: and the 0xF1 to 0xF6 group (ndicapi.h's NDI_* error defines and ndicapi.cxx's
+#: ndiErrorString; "reserved" where the API guide reserves the code).
 ERROR_TEXT: dict[int, str] = {
     0x01: "invalid command",
     0x02: "command too long",
@@ -190,6 +207,38 @@ ERROR_TEXT: dict[int, str] = {
     0x23: "command parameter out of range",
     0x24: "no camera parameters for this volume",
     0x25: "unable to determine the supported features",
+    0x26: "reserved error code 0x26",
+    0x27: "reserved error code 0x27",
+    0x28: "too many tools are enabled, the tools loaded need too many frames, "
+    "or this tool type is not supported",
+    0x29: "main processor firmware corrupt",
+    0x2A: "no memory available for dynamic allocation (heap full)",
+    0x2B: "the requested port handle has not been allocated",
+    0x2C: "the requested port handle has become unoccupied",
+    0x2D: "all port handles have been allocated",
+    0x2E: "incompatible firmware versions",
+    0x2F: "invalid port description",
+    0x30: "the requested port is already assigned a port handle",
+    0x31: "reserved error code 0x31",
+    0x32: "invalid operation for the device associated with the port handle",
+    0x33: "feature not available",
+    0x34: "user parameter does not exist",
+    0x35: "invalid value type (e.g. a string instead of an integer)",
+    0x36: "user parameter value out of its valid range",
+    0x37: "user parameter array index out of its valid range",
+    0x38: "user parameter size incorrect",
+    0x39: "permission denied: the file or user parameter is read-only, or a command that needs "
+    "master mode came over a monitor-mode connection",
+    0x3A: "reserved error code 0x3A",
+    0x3B: "file not found",
+    0x3C: "error writing to a file",
+    0x3D: "error reading from a file",
+    0x3E: "reserved error code 0x3E",
+    0x3F: "reserved error code 0x3F",
+    0x40: "tool definition file error (its CRC failed or its format is invalid)",
+    0x41: "tool characteristics not supported (number of markers, faces, groups or markers per "
+    "face outside what the system supports)",
+    0x42: "device not present (the command is for a device that is not connected)",
     0xF1: "too much environmental infrared",
     0xF4: "unable to erase the flash memory",
     0xF5: "unable to write the flash memory",
@@ -210,10 +259,27 @@ ERROR_HINT: dict[int, str] = {
     0x12: "check that a tool is enabled (setup_tools()) and that the tracker is not in diagnostic mode",
     0x13: "the tool definition is missing or the tool is faulty: check the tool and its cable",
     0x1A: "power-cycle the tracker; if it persists, contact NDI support",
+    0x28: "enable fewer tools (or load fewer tool definitions) and run setup_tools() again",
+    0x29: "the tracker's firmware must be reinstalled: contact NDI support",
+    0x2B: "run setup_tools() again: the handle was freed or never allocated",
+    0x2C: "the tool was unplugged: plug it back in and run setup_tools() again",
+    0x2E: "update the tracker's firmware so that all its components match",
+    0x40: "check the tool definition (.rom) file: it is damaged or not a tool definition",
+    0x41: "this tool definition does not suit this tracker: use one made for it",
+    0x42: "connect the device this command is for, or do not send it",
     0xF1: "shield the camera from sunlight and other infrared sources",
 }
 
-#: Port status bits (TX: 8 hex digits; BX: uint32).
+#: TX/BX reply options: ``0x0001`` transformations, port status and frame number; ``0x0800``
+#: also the transformations the tracker does not normally report, such as those of a tool
+#: outside the characterised measurement volume (ndicapi.h NDI_XFORMS_AND_STATUS and
+#: NDI_NOT_NORMALLY_REPORTED; sawNDITracker polls ``TX 0801``). The reply's layout is the same.
+REPLY_TRANSFORMS = 0x0001
+REPLY_ALL_TRANSFORMS = 0x0800
+
+#: Port status bits (TX: 8 hex digits; BX: uint32). Bits 0-7 as in ndicapi.h
+#: (NDI_TOOL_IN_PORT ... NDI_PARTIALLY_IN_VOLUME); bits 8-15 as the current API guide lists them
+#: (NDI's own ndtrack Python sample, capi/bx.py PortStatus; bits 10, 11 and 13 reserved).
 PORT_OCCUPIED = 0x01
 PORT_SWITCH_1 = 0x02
 PORT_SWITCH_2 = 0x04
@@ -222,34 +288,105 @@ PORT_INITIALIZED = 0x10
 PORT_ENABLED = 0x20
 PORT_OUT_OF_VOLUME = 0x40
 PORT_PARTIALLY_IN_VOLUME = 0x80
+PORT_ALGORITHM_LIMITATION = 0x0100
+PORT_IR_INTERFERENCE = 0x0200
+PORT_PROCESSING_EXCEPTION = 0x1000
+PORT_FELL_BEHIND = 0x4000
+PORT_DATA_BUFFER_LIMITATION = 0x8000
+
+#: Port status bits 8-15: each one set means the tracker's processing of this tool's markers went
+#: wrong, so the pose (if any) is refused with the bit's name and what to do about it.
+PORT_FAULT_BITS: dict[int, tuple[str, str]] = {
+    PORT_ALGORITHM_LIMITATION: (
+        "algorithm limitation (processing needs more buffer than the tracker has)",
+        "the tracker has too much to process: take stray markers and reflective objects out of "
+        "its view, or enable fewer tools",
+    ),
+    PORT_IR_INTERFERENCE: (
+        "IR interference (a large bright infrared object)",
+        "remove or cover the bright infrared source in the camera's view (sunlight, a lamp, a "
+        "shiny surface)",
+    ),
+    0x0400: (
+        "reserved port status bit 10",
+        "the API guide reserves this bit: check the tracker's firmware and its documentation",
+    ),
+    0x0800: (
+        "reserved port status bit 11",
+        "the API guide reserves this bit: check the tracker's firmware and its documentation",
+    ),
+    PORT_PROCESSING_EXCEPTION: (
+        "processing exception",
+        "the tracker failed to process this frame; if it repeats, power-cycle the tracker",
+    ),
+    0x2000: (
+        "reserved port status bit 13",
+        "the API guide reserves this bit: check the tracker's firmware and its documentation",
+    ),
+    PORT_FELL_BEHIND: (
+        "fell behind while processing",
+        "the tracker cannot keep up: enable fewer tools or take stray markers out of its view",
+    ),
+    PORT_DATA_BUFFER_LIMITATION: (
+        "data buffer limitation (too much data, e.g. too many markers)",
+        "take stray markers and reflective objects out of the camera's view",
+    ),
+}
+
 PORT_STATUS_BITS: dict[int, str] = {
     PORT_OCCUPIED: "occupied",
-    PORT_SWITCH_1: "switch 1 on",
-    PORT_SWITCH_2: "switch 2 on",
-    PORT_SWITCH_3: "switch 3 on",
+    PORT_SWITCH_1: "switch 1 closed / GPIO line 1 active",
+    PORT_SWITCH_2: "switch 2 closed / GPIO line 2 active",
+    PORT_SWITCH_3: "switch 3 closed / GPIO line 3 active",
     PORT_INITIALIZED: "initialised",
     PORT_ENABLED: "enabled",
     PORT_OUT_OF_VOLUME: "out of volume",
     PORT_PARTIALLY_IN_VOLUME: "partially out of volume",
+    **{bit: name for bit, (name, _) in PORT_FAULT_BITS.items()},
 }
 
-#: System status bits (TX: 4 hex digits; BX: uint16) that mean something went wrong.
+#: System status bits (TX: 4 hex digits; BX: uint16), as the current API guide lists them (NDI's
+#: ndtrack sample, capi/bx.py SystemStatus): bits 0, 3 and 6-10. Bits 1, 2, 4 and 5 are reserved
+#: there; older firmware used them as ndicapi.h's NDI_TOO_MUCH_EXTERNAL_INFRARED,
+#: NDI_COMM_CRC_ERROR, NDI_HARDWARE_FAILURE and NDI_HARDWARE_CHANGE, which are named too.
+SYSTEM_SYNC_ERROR = 0x0001
+SYSTEM_PROCESSING_EXCEPTION = 0x0008
+SYSTEM_PORT_OCCUPIED = 0x0040
+SYSTEM_PORT_UNOCCUPIED = 0x0080
+SYSTEM_DIAGNOSTIC_PENDING = 0x0100
+SYSTEM_TEMPERATURE = 0x0200
+SYSTEM_CONFIGURATION_CHANGED = 0x0400
 SYSTEM_STATUS_BITS: dict[int, str] = {
-    0x0001: "communication synchronisation error",
-    0x0002: "too much external infrared",
-    0x0004: "the tracker received a command with a bad CRC",
-    0x0008: "recoverable communication error",
-    0x0010: "hardware failure",
-    0x0020: "hardware configuration changed",
-    0x0040: "a port became occupied",
-    0x0080: "a port became unoccupied",
+    SYSTEM_SYNC_ERROR: "system communication synchronisation error",
+    0x0002: "reserved bit 1 (older firmware: too much external infrared)",
+    0x0004: "reserved bit 2 (older firmware: the tracker received a command with a bad CRC)",
+    SYSTEM_PROCESSING_EXCEPTION: "recoverable system processing exception",
+    0x0010: "reserved bit 4 (older firmware: hardware failure)",
+    0x0020: "reserved bit 5 (older firmware: hardware changed)",
+    SYSTEM_PORT_OCCUPIED: "a port handle has become occupied",
+    SYSTEM_PORT_UNOCCUPIED: "a port handle has become unoccupied",
+    SYSTEM_DIAGNOSTIC_PENDING: "diagnostic pending",
+    SYSTEM_TEMPERATURE: "the tracker is not within its operating temperature range",
+    SYSTEM_CONFIGURATION_CHANGED: "hardware configuration changed",
+}
+
+#: What to do about the system status bits that are faults.
+SYSTEM_STATUS_HINT: dict[int, str] = {
+    0x0002: "shield the camera from sunlight and other infrared sources",
+    SYSTEM_PROCESSING_EXCEPTION: "if it repeats, power-cycle the tracker",
+    0x0010: "power-cycle the tracker; if it persists, contact NDI support",
+    SYSTEM_TEMPERATURE: "its accuracy is specified only within that range (and a tracker "
+    "warming up drifts): let it warm up after power-on, keep it out of the sun and draughts, "
+    "and record again once the bit clears",
 }
 
 #: System status bits that make a frame's poses suspect (a sample from it carries a fault).
 #: The communication bits concern earlier exchanges, not this CRC-checked reply: poll() logs
-#: them; the port (un)occupied and configuration bits are news, not faults.
-SYSTEM_FAULT_BITS = 0x0002 | 0x0010
-SYSTEM_LINK_BITS = 0x0001 | 0x0004 | 0x0008
+#: them; the port (un)occupied and configuration bits are news, not faults (poll() logs a
+#: pending diagnostic and a configuration change).
+SYSTEM_FAULT_BITS = 0x0002 | SYSTEM_PROCESSING_EXCEPTION | 0x0010 | SYSTEM_TEMPERATURE
+SYSTEM_LINK_BITS = SYSTEM_SYNC_ERROR | 0x0004
+SYSTEM_NOTICE_BITS = SYSTEM_DIAGNOSTIC_PENDING | SYSTEM_CONFIGURATION_CHANGED
 
 #: BX handle status byte.
 BX_VALID, BX_MISSING, BX_DISABLED = 0x01, 0x02, 0x04
@@ -265,14 +402,18 @@ MAX_POSITION_MM = 1e5
 
 BX_START = b"\xc4\xa5"
 
-# The records of a TX:0001 reply, exactly as specified (fullmatch: nothing more, nothing less).
+# The records of a TX:0001 (or 0801) reply, exactly as specified (fullmatch: nothing more,
+# nothing less). DISABLED and UNOCCUPIED come bare or followed by port status and frame number:
+# ndicapi.cxx's ndiTXHelper reads status and frame after DISABLED when the line goes on and
+# skips the bare word UNOCCUPIED; sawNDITracker's mtsNDISerial::Track skips status and frame
+# after both words.
 _TX_POSE = re.compile(
     rb"([0-9A-F]{2})([+-]\d{5})([+-]\d{5})([+-]\d{5})([+-]\d{5})"
     rb"([+-]\d{6})([+-]\d{6})([+-]\d{6})([+-]\d{5})([0-9A-F]{8})([0-9A-F]{8})"
 )
 _TX_MISSING = re.compile(rb"([0-9A-F]{2})MISSING([0-9A-F]{8})([0-9A-F]{8})")
 _TX_DISABLED = re.compile(rb"([0-9A-F]{2})DISABLED(?:([0-9A-F]{8})([0-9A-F]{8}))?")
-_TX_UNOCCUPIED = re.compile(rb"[0-9A-F]{2}UNOCCUPIED")
+_TX_UNOCCUPIED = re.compile(rb"([0-9A-F]{2})UNOCCUPIED(?:([0-9A-F]{8})([0-9A-F]{8}))?")
 _HEX2 = re.compile(rb"[0-9A-F]{2}")
 _HEX4 = re.compile(rb"[0-9A-F]{4}")
 _PHSR = re.compile(rb"([0-9A-F]{2})((?:[0-9A-F]{5})*)")
@@ -427,7 +568,9 @@ class ToolReport:
     and ``quaternion`` (4,) unit, scalar first, are None unless ``ok`` (then every number is
     finite); ``rms_mm`` is the tracker's RMS marker fit error (mm, NaN unless ``ok``).
     ``port_status`` is the bit field of :data:`PORT_STATUS_BITS`; ``frame_number`` the
-    tracker's frame counter (None when not reported).
+    tracker's frame counter (None when not reported). A pose whose port status carries one of
+    :data:`PORT_FAULT_BITS` is still ``ok`` (the numbers are there), but :meth:`problem` refuses
+    it, naming the bits.
     """
 
     handle: int
@@ -453,14 +596,37 @@ class ToolReport:
         """Some of the tool's markers are outside the characterised volume."""
         return bool(self.port_status & PORT_PARTIALLY_IN_VOLUME)
 
+    @property
+    def port_faults(self) -> list[str]:
+        """The names of the :data:`PORT_FAULT_BITS` set in :attr:`port_status` (bits 8-15)."""
+        return [name for bit, (name, _) in PORT_FAULT_BITS.items() if self.port_status & bit]
+
+    def _fault_bits_text(self) -> tuple[str, str]:
+        """(names, what to do) of the port status fault bits set, or ("", "")."""
+        set_bits = [(n, h) for bit, (n, h) in PORT_FAULT_BITS.items() if self.port_status & bit]
+        names = ", ".join(n for n, _ in set_bits)
+        hints = "; ".join(dict.fromkeys(h for _, h in set_bits))
+        return names, hints
+
     def problem(self, port: str = "", accept_out_of_volume: bool = False) -> str | None:
         """A sentence for the operator when this tool's reading must not be used, else None."""
         where = f"the tracker on {port}" if port else "the tracker"
+        names, hints = self._fault_bits_text()
         if self.state == "missing":
+            cause = f": {names}" if names else ""
+            if self.out_of_volume:
+                advice = (
+                    "It is outside the characterised measurement volume: move the tool back into "
+                    "the volume"
+                )
+            else:
+                advice = (
+                    "Clear the line of sight between the camera and the tool's markers, or bring "
+                    "the tool back into the measurement volume"
+                )
             return (
                 f"tool {self.handle:02X} MISSING: {where} does not see it (port status "
-                f"{self.port_status:08X}). Clear the line of sight between the camera and the "
-                "tool's markers, or bring the tool back into the measurement volume"
+                f"{self.port_status:08X}{cause}). {advice}" + (f"; {hints}" if hints else "")
             )
         if self.state == "disabled":
             return f"tool {self.handle:02X} is DISABLED on {where}: run setup_tools() to enable it"
@@ -472,20 +638,53 @@ class ToolReport:
                 "occasional one is a tracker glitch; if it repeats, power-cycle the tracker and "
                 "check its firmware"
             )
+        problems = []
+        if names:
+            problems.append(
+                f"tool {self.handle:02X} from {where}: port status {self.port_status:08X} reports "
+                f"{names}, so that pose was refused. {hints[:1].upper()}{hints[1:]}"
+            )
         if not accept_out_of_volume and (self.out_of_volume or self.partially_out_of_volume):
             part = "partly " if not self.out_of_volume else ""
-            return (
+            at = ""
+            if self.position is not None:
+                x, y, z = (float(c) for c in self.position)
+                at = f"at ({x:.1f}, {y:.1f}, {z:.1f}) mm in the tracker's frame; "
+            problems.append(
                 f"tool {self.handle:02X} is {part}outside the characterised measurement volume "
-                f"of {where} (port status {self.port_status:08X}): its pose is not within the "
-                "stated accuracy. Move the robot or the tracker so the tool stays inside the volume"
+                f"of {where} ({at}port status {self.port_status:08X}): its pose is not within "
+                "the stated accuracy. Move the tool back into the volume (move the robot or the "
+                "tracker so that the tool stays inside it)"
             )
-        return None
+        return "; ".join(problems) or None
+
+
+@dataclass(frozen=True, slots=True)
+class UnoccupiedPort:
+    """A port handle the tracker reported ``UNOCCUPIED`` in a frame: nothing is plugged into
+    that port any more. ``port_status`` and ``frame_number`` are those the record carried
+    (0 and None for the bare word)."""
+
+    handle: int
+    port_status: int = 0
+    frame_number: int | None = None
+
+    def problem(self, port: str = "") -> str:
+        """What the operator reads when this handle's pose is asked for."""
+        where = f"the tracker on {port}" if port else "the tracker"
+        return (
+            f"tool {self.handle:02X} is UNOCCUPIED on {where}: nothing is plugged into its port "
+            "any more (the tool was unplugged or its cable came loose). Plug it back in, then "
+            "run setup_tools() (or reconnect())"
+        )
 
 
 @dataclass(frozen=True, slots=True)
 class TrackerFrame:
     """One reply to TX (or BX): every reported handle, the system status, and when it came.
 
+    ``tools`` are the handles with data (a pose, MISSING, DISABLED or an invalid record);
+    ``unoccupied`` the handles reported UNOCCUPIED (nothing in that port), which have none.
     ``received_at`` is the host's ``time.monotonic()`` (s) when the reply's last byte arrived;
     ``latency_s`` the time from sending the command to that moment (NaN when parsed offline).
     ``port`` names the port the frame came from (used in messages). ``measured_at`` is the host
@@ -501,6 +700,7 @@ class TrackerFrame:
     port: str = ""
     measured_at: float = math.nan
     timing_uncertainty_s: float = math.nan
+    unoccupied: tuple[UnoccupiedPort, ...] = ()
 
     @property
     def t(self) -> float:
@@ -511,42 +711,57 @@ class TrackerFrame:
     @property
     def frame_number(self) -> int | None:
         """The tracker's frame counter (the largest reported by any handle), or None."""
-        numbers = [t.frame_number for t in self.tools if t.frame_number is not None]
-        return max(numbers) if numbers else None
+        numbers = [t.frame_number for t in (*self.tools, *self.unoccupied)]
+        known = [n for n in numbers if n is not None]
+        return max(known) if known else None
 
     def tool(self, handle: int | None = None) -> ToolReport:
-        """The report of ``handle`` (the first handle when None)."""
-        if not self.tools:
-            raise KeyError(f"the frame from {self.port or 'the tracker'} reports no tool")
-        if handle is None:
+        """The report of ``handle`` (the first handle when None). KeyError, with a sentence for
+        the operator, when the frame has no data for it (absent, or UNOCCUPIED)."""
+        if handle is not None:
+            for t in self.tools:
+                if t.handle == handle:
+                    return t
+            for u in self.unoccupied:
+                if u.handle == handle:
+                    raise KeyError(u.problem(self.port))
+        elif self.tools:
             return self.tools[0]
-        for t in self.tools:
-            if t.handle == handle:
-                return t
+        if not self.tools:
+            empty = "".join(f"; {u.problem(self.port)}" for u in self.unoccupied)
+            raise KeyError(f"the frame from {self.port or 'the tracker'} reports no tool{empty}")
         have = ", ".join(f"{t.handle:02X}" for t in self.tools)
         raise KeyError(
             f"the frame from {self.port or 'the tracker'} has no handle {handle:02X} (has {have})"
         )
 
     def system_problems(self, mask: int = 0xFFFF) -> list[str]:
-        """The system status bits set (within ``mask``), as sentences."""
+        """The system status bits set (within ``mask``), as sentences (with what to do for the
+        faults)."""
         status = self.system_status & mask
         out = []
         for bit, text in SYSTEM_STATUS_BITS.items():
             if status & bit:
+                hint = SYSTEM_STATUS_HINT.get(bit)
                 out.append(
-                    f"system status {self.system_status:04X} of the tracker on {self.port}: {text}"
+                    f"system status {self.system_status:04X} of the tracker on {self.port}: "
+                    f"{text}" + (f"; {hint}" if hint else "")
                 )
-        unknown = status & ~sum(SYSTEM_STATUS_BITS)
-        if unknown:
-            out.append(f"system status of the tracker on {self.port}: unknown bits {unknown:04X}")
+        reserved = status & ~sum(SYSTEM_STATUS_BITS)
+        if reserved:
+            out.append(
+                f"system status {self.system_status:04X} of the tracker on {self.port}: reserved "
+                f"bits {reserved:04X} set (not in the current API guide)"
+            )
         return out
 
     def to_sample(
         self, handle: int | None = None, accept_out_of_volume: bool = False
     ) -> TrackerSample:
         """The :class:`~hexcal.acquisition.TrackerSample` of ``handle``: a pose, or a fault,
-        stamped :attr:`t` (the frame's measurement instant when the driver estimated it)."""
+        stamped :attr:`t` (the frame's measurement instant when the driver estimated it). A pose
+        with a fault (port status fault bits, out of volume, a system fault) keeps its numbers
+        in the sample, as raw data; the fault refuses it."""
         try:
             tool = self.tool(handle)
         except KeyError as exc:
@@ -636,7 +851,8 @@ def parse_tx_reply(
     command: str = "TX:0001",
     latency_s: float = math.nan,
 ) -> TrackerFrame:
-    """Parse a reply to ``TX:0001`` (format in the module docstring), CRC checked.
+    """Parse a reply to ``TX:0001`` or ``TX:0801`` (one layout, in the module docstring), CRC
+    checked.
 
     ``reply`` is the whole reply, CRC included, with or without its final CR. Raises
     :class:`TrackerCRCError`, :class:`TrackerReplyError` (``ERRORxx``) or
@@ -655,6 +871,7 @@ def parse_tx_reply(
             f"{int(count, 16)} handles announced, {len(records) - 1} records sent",
         )
     tools = []
+    unoccupied: list[UnoccupiedPort] = []
     for rec in records[:-1]:
         m = _TX_POSE.fullmatch(rec)
         if m is not None:
@@ -694,17 +911,32 @@ def parse_tx_reply(
                 )
             )
             continue
-        if _TX_UNOCCUPIED.fullmatch(rec):
+        m = _TX_UNOCCUPIED.fullmatch(rec)
+        if m is not None:
+            # Nothing in that port: no data, but the other handles' records stand.
+            h, status, frame = m.groups()
+            unoccupied.append(
+                UnoccupiedPort(
+                    int(h, 16),
+                    int(status, 16) if status else 0,
+                    int(frame, 16) if frame else None,
+                )
+            )
             continue
         raise _format_error(
-            port, command, reply, f"handle record {bytes(rec)!r} is not a pose, MISSING or DISABLED"
+            port,
+            command,
+            reply,
+            f"handle record {bytes(rec)!r} is not a pose, MISSING, DISABLED or UNOCCUPIED",
         )
     status = records[-1]
     if not _HEX4.fullmatch(status):
         raise _format_error(
             port, command, reply, f"system status {bytes(status)!r} is not 4 hex digits"
         )
-    return TrackerFrame(tuple(tools), int(status, 16), received_at, latency_s, port)
+    return TrackerFrame(
+        tuple(tools), int(status, 16), received_at, latency_s, port, unoccupied=tuple(unoccupied)
+    )
 
 
 def parse_bx_reply(
@@ -715,7 +947,8 @@ def parse_bx_reply(
     command: str = "BX:0001",
     latency_s: float = math.nan,
 ) -> TrackerFrame:
-    """Parse a binary reply to ``BX:0001`` (format in the module docstring), both CRCs checked.
+    """Parse a binary reply to ``BX:0001`` or ``BX:0801`` (one layout, in the module docstring),
+    both CRCs checked.
 
     An ASCII reply (``ERRORxx``) raises :class:`TrackerReplyError`; otherwise as
     :func:`parse_tx_reply`.
@@ -1204,6 +1437,12 @@ class NDITracker:
     ``reset_timeout_s``). ``settle_s`` is the pause after COMM and INIT that ndicapi also makes;
     ``tool_mode`` the PENA tracking priority.
     ``pose_handle`` selects the tool :meth:`sample` reports (default: the first enabled one).
+    ``out_of_volume_transforms`` polls with reply option 0x0800 (``TX:0801`` / ``BX:0801``): the
+    tracker then reports the pose of a tool outside its characterised measurement volume, which
+    the sample keeps (refused, unless ``accept_out_of_volume``) so that the operator reads where
+    the tool is and to move it back into the volume. A tracker that refuses the option (an
+    ``ERRORxx`` to it, while the same poll without it succeeds) is polled without it from then
+    on, with a warning.
 
     Timing (see :class:`FrameClock` and the module docstring): ``frame_rate_hz`` is the
     tracker's nominal frame rate (Polaris 60 Hz), fitted from the polls when
@@ -1241,6 +1480,7 @@ class NDITracker:
         tool_mode: Literal["D", "S", "B"] = "D",
         pose_handle: int | None = None,
         accept_out_of_volume: bool = False,
+        out_of_volume_transforms: bool = True,
         max_jitter_s: float = 0.02,
         resync_s: float = 0.05,
         frame_rate_hz: float = 60.0,
@@ -1267,6 +1507,11 @@ class NDITracker:
         self.tool_mode = tool_mode
         self.pose_handle = pose_handle
         self.accept_out_of_volume = accept_out_of_volume
+        self.out_of_volume_transforms = out_of_volume_transforms
+        # Per command (TX, BX): None until the tracker answered the 0x0800 option, True once it
+        # did, False once it refused it (then polls go without it until the next open()).
+        self._all_transforms: dict[str, bool | None] = {"TX": None, "BX": None}
+        self._last_notice = 0  # the system status notice bits of the previous frame
         self.max_jitter_s = check_duration("max_jitter_s", max_jitter_s)
         self.resync_s = check_duration("resync_s", resync_s, allow_zero=True)
         self.port: serial.SerialBase | None = None
@@ -1321,6 +1566,8 @@ class NDITracker:
             self.frame_clock.reset()
             self._clock_suspect = False
             self._last_sample_frame = None
+            self._all_transforms = {"TX": None, "BX": None}
+            self._last_notice = 0
             try:
                 self._reset_tracker()
                 if self.baudrate != 9600:
@@ -1446,26 +1693,60 @@ class NDITracker:
 
     # -- tracking -------------------------------------------------------------------------------
     def poll(self) -> TrackerFrame:
-        """One ``TX:0001`` frame: every handle's pose or MISSING status, the frame number, the
-        system status, the host receive time and the frame's measurement time."""
-        return self._poll("TX:0001", binary=False)
+        """One ``TX`` frame (reply option 0x0001, and 0x0800 with
+        :attr:`out_of_volume_transforms`): every handle's pose or MISSING status, the frame
+        number, the system status, the host receive time and the frame's measurement time."""
+        return self._poll("TX", binary=False)
 
     def poll_binary(self) -> TrackerFrame:
-        """One ``BX:0001`` frame (float32 values: finer than TX's text resolution)."""
-        return self._poll("BX:0001", binary=True)
+        """One ``BX`` frame (float32 values: finer than TX's text resolution)."""
+        return self._poll("BX", binary=True)
 
-    def _poll(self, command: str, binary: bool) -> TrackerFrame:
-        parse = parse_bx_reply if binary else parse_tx_reply
+    def reply_option(self, name: str = "TX") -> int:
+        """The reply option the next ``name`` (TX or BX) poll sends."""
+        if self.out_of_volume_transforms and self._all_transforms.get(name) is not False:
+            return REPLY_TRANSFORMS | REPLY_ALL_TRANSFORMS
+        return REPLY_TRANSFORMS
+
+    def _poll(self, name: str, binary: bool) -> TrackerFrame:
         with self._lock:
+            option = self.reply_option(name)
             try:
-                ex = self._exchange(command, self.timeout, binary=binary)
-                frame = parse(ex.raw, ex.t_recv, port=self.url, latency_s=ex.t_recv - ex.t_sent)
-            except TrackerError:
-                self._clock_suspect = True
-                raise
-            frame = self._stamp(frame, command, ex)
-            self._note_frame(frame)
-            return frame
+                return self._poll_once(f"{name}:{option:04X}", binary)
+            except TrackerReplyError as exc:
+                if not option & REPLY_ALL_TRANSFORMS or self._all_transforms[name]:
+                    raise
+                # The tracker may not know the option: the same poll without it decides.
+                plain = f"{name}:{REPLY_TRANSFORMS:04X}"
+                frame = self._poll_once(plain, binary)
+                self._all_transforms[name] = False
+                log.warning(
+                    "the tracker on %s refused reply option 0800 (ERROR%02X to %s:%04X) but "
+                    "answers %s: polling without it, so a tool outside the measurement volume "
+                    "is reported MISSING rather than with its pose",
+                    self.url,
+                    exc.code,
+                    name,
+                    option,
+                    plain,
+                )
+                return frame
+
+    def _poll_once(self, command: str, binary: bool) -> TrackerFrame:
+        parse = parse_bx_reply if binary else parse_tx_reply
+        try:
+            ex = self._exchange(command, self.timeout, binary=binary)
+            frame = parse(
+                ex.raw, ex.t_recv, port=self.url, command=command, latency_s=ex.t_recv - ex.t_sent
+            )
+        except TrackerError:
+            self._clock_suspect = True
+            raise
+        if int(command[3:], 16) & REPLY_ALL_TRANSFORMS:
+            self._all_transforms[command[:2]] = True
+        frame = self._stamp(frame, command, ex)
+        self._note_frame(frame)
+        return frame
 
     def _stamp(self, frame: TrackerFrame, command: str, ex: _Exchange) -> TrackerFrame:
         """``frame`` with its measurement time from the frame clock, which it also feeds."""
@@ -1577,6 +1858,13 @@ class NDITracker:
         if frame.system_status & SYSTEM_LINK_BITS:
             for problem in frame.system_problems(SYSTEM_LINK_BITS):
                 log.warning("%s (earlier commands may have been lost: check the cable)", problem)
+        notice = frame.system_status & SYSTEM_NOTICE_BITS
+        if notice & ~self._last_notice:  # said once when it appears, not at every frame
+            for problem in frame.system_problems(notice & ~self._last_notice):
+                log.warning(
+                    "%s (read the tracker's alerts with NDI's tools if poses fail)", problem
+                )
+        self._last_notice = notice
         self._latencies.append(frame.latency_s)
         if len(self._latencies) < 10:
             return

@@ -1,13 +1,30 @@
 """A mock NDI Combined API tracker: the protocol state machine behind two real transports.
 
 The device answers the subset of the API that :mod:`hexcal.drivers.ndi` uses, byte for byte as
-documented there: BREAK or ``RESET`` -> ``RESETBE6F`` at 9600 baud; ``COMM``, ``INIT``,
-``VER``, ``PHSR``, ``PHF``, ``PINIT``, ``PENA``, ``TSTART``, ``TSTOP``, ``TX`` (text) and ``BX``
-(binary). Commands in the ``NAME:params`` form must carry a correct CRC (else ``ERROR04``); the
-``NAME params`` form carries none. Commands out of order get the error a tracker gives
-(``ERROR10`` before INIT, ``ERROR0C`` for TX outside tracking...).
+documented there: BREAK or ``RESET`` -> ``RESETBE6F`` at 9600 baud; ``COMM`` (every baud code,
+``A`` for 230400 included), ``INIT``, ``VER``, ``PHSR``, ``PHF``, ``PINIT``, ``PENA``, ``PDIS``,
+``TSTART``, ``TSTOP``, ``TX`` (text) and ``BX`` (binary) with reply option 0001 or 0801.
+Commands in the ``NAME:params`` form must carry a correct CRC (else ``ERROR04``); the ``NAME
+params`` form carries none. Commands out of order get the error a tracker gives (``ERROR10``
+before INIT, ``ERROR0C`` for TX outside tracking...); a reply option it does not simulate gets
+``ERROR23`` (parameter out of range), as does 0x0800 when :attr:`MockNDITracker.all_transforms`
+is False (an older tracker without it).
 
-Its one tool (port handle 01) is the platform of a :class:`~hexcal.mock_hw.robot.MockRobot`.
+Its main tool (port handle 01) is the platform of a :class:`~hexcal.mock_hw.robot.MockRobot`;
+``static_tools`` adds wired tools at fixed poses (handle -> position, quaternion), such as a
+reference body on the base. Every reply form of TX/BX can be produced:
+
+- a pose, or MISSING (port status and frame number) when the robot's ``tool_visible`` is False;
+- out of volume: with reply option 0x0800 the pose with port status bit 0x40; without it the tool
+  is reported MISSING with that bit (a tracker does not normally report a transform outside its
+  characterised volume); 0x80 (partially out) comes with the pose either way;
+- DISABLED for a handle initialised but not enabled (``PDIS`` disables one while tracking) and
+  UNOCCUPIED for a tool pulled out of its port while tracking (:meth:`MockNDITracker.unplug_tool`),
+  followed by port status and frame number (as sawNDITracker reads them) or bare (as ndicapi
+  does: :attr:`MockNDITracker.records_with_status` False). BX has no UNOCCUPIED status byte
+  (ndicapi, NDI's ndtrack sample): there the mock reports such a handle DISABLED;
+- port status fault bits 8-15 on a handle (:attr:`MockNDITracker.port_status_extra`) and any
+  system status word (:attr:`MockNDITracker.system_status`).
 
 Timing, as on a real tracker: frame n (the counter starts at 1 when the device is created) is
 measured at its frame boundary ``t0 + (n - 1) / frame_rate_hz`` on the device's ``clock``: the
@@ -20,8 +37,9 @@ host next looks at the line, as of that instant). The reply itself is not slowed
 ``delay_s`` and ``jitter_s`` model the return path. :attr:`MockNDITracker.frame_times` records the true measurement instant of every
 frame served, for tests and benchmarks of host-side time stamping. The tool is MISSING when the
 robot's ``tool_visible`` is False; it is flagged out of volume (port status 0x40, or 0x80 within
-``volume_margin_mm`` of the boundary) when outside ``volume_mm``. With ``tool_plugged`` False
-(from the next reset on) the port is empty and setup finds no tool.
+``volume_margin_mm`` of the boundary) when outside ``volume_mm`` (see above for what reply option
+0x0800 changes). With ``tool_plugged`` False (from the next reset on) the port is empty and
+setup finds no tool.
 
 Transports (one at a time per device):
 
@@ -58,7 +76,7 @@ import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from urllib.parse import parse_qs, urlsplit
 
@@ -91,6 +109,7 @@ COMM_BAUD = {
     "5": 115200,
     "6": 921600,
     "7": 1228739,
+    "A": 230400,  # ndicapi.h NDI_230400 = 10, sent as "A" (ndicapi.cxx ndiCOMMHelper)
 }
 
 OCCUPIED, INITIALIZED, ENABLED = 0x01, 0x10, 0x20
@@ -128,21 +147,27 @@ def _signed(value: float, resolution: float, digits: int) -> str:
 @dataclass(frozen=True)
 class ToolState:
     """What the tracker reports for one port handle in one frame: ``sample`` (position (3,) mm,
-    quaternion (4,) scalar first, rms mm) or None when the tool is not seen."""
+    quaternion (4,) scalar first, rms mm) or None when the tool is not seen. ``disabled`` and
+    ``unoccupied`` handles have no data; ``with_status`` writes their port status and frame
+    number after the word (sawNDITracker's reading) instead of the bare word (ndicapi's)."""
 
     handle: int
     sample: Sample | None
     port_status: int
     frame: int
     disabled: bool = False
+    unoccupied: bool = False
+    with_status: bool = False
 
 
 def format_tx_reply(tools: Sequence[ToolState], system_status: int = 0) -> bytes:
-    """The full reply to ``TX:0001`` (CRC and CR included)."""
+    """The full reply to ``TX:0001`` or ``TX:0801`` (one layout; CRC and CR included)."""
     parts = [f"{len(tools):02X}"]
     for t in tools:
-        if t.disabled:
-            parts.append(f"{t.handle:02X}DISABLED\n")
+        if t.disabled or t.unoccupied:
+            word = "UNOCCUPIED" if t.unoccupied else "DISABLED"
+            tail = f"{t.port_status:08X}{t.frame:08X}" if t.with_status else ""
+            parts.append(f"{t.handle:02X}{word}{tail}\n")
         elif t.sample is None:
             parts.append(f"{t.handle:02X}MISSING{t.port_status:08X}{t.frame:08X}\n")
         else:
@@ -159,10 +184,11 @@ def format_tx_reply(tools: Sequence[ToolState], system_status: int = 0) -> bytes
 
 
 def format_bx_reply(tools: Sequence[ToolState], system_status: int = 0) -> bytes:
-    """The full binary reply to ``BX:0001``: header, header CRC, body, body CRC."""
+    """The full binary reply to ``BX:0001`` or ``BX:0801``: header, header CRC, body, body CRC.
+    An unoccupied handle is written as disabled (the BX status byte has no other value for it)."""
     body = bytearray([len(tools)])
     for t in tools:
-        if t.disabled:
+        if t.disabled or t.unoccupied:
             body += bytes([t.handle, 0x04])
         elif t.sample is None:
             body += bytes([t.handle, 0x02]) + struct.pack("<II", t.port_status, t.frame)
@@ -216,6 +242,7 @@ class MockNDITracker:
         clock: Callable[[], float] = time.monotonic,
         name: str = "ndimock",
         log_len: int | None = None,
+        static_tools: Mapping[int, tuple[Sequence[float], Sequence[float]]] | None = None,
     ):
         if robot is None:
             from hexcal.study import left_hand
@@ -244,8 +271,25 @@ class MockNDITracker:
         self.framing_errors = 0
         #: The wired tool is in its port (port handle 01). Takes effect at the next reset.
         self.tool_plugged = True
-        #: The system status word sent with every TX/BX reply (e.g. 0x0010 hardware failure).
+        #: The system status word sent with every TX/BX reply (e.g. 0x0200 temperature).
         self.system_status = 0
+        #: Port status bits ORed into a handle's port status in every TX/BX reply (handle ->
+        #: bits, e.g. {0x01: 0x1000} for a processing exception on the main tool).
+        self.port_status_extra: dict[int, int] = {}
+        #: The tracker accepts reply option 0x0800 (False: an older one, ERROR23 to it).
+        self.all_transforms = True
+        #: DISABLED / UNOCCUPIED records carry port status and frame number (False: bare).
+        self.records_with_status = True
+        # Wired tools at fixed poses: handle -> (position mm, quaternion, rms mm).
+        self._static: dict[int, Sample] = {}
+        for handle, (position, quaternion) in (static_tools or {}).items():
+            if not 0x02 <= handle <= 0xFF:
+                raise ValueError(
+                    f"static tool handle {handle:#x}: use 0x02 to 0xFF (01 is the robot)"
+                )
+            q = np.asarray(quaternion, float)
+            self._static[handle] = (np.asarray(position, float), q / np.linalg.norm(q), 0.02)
+        self._unplugged: set[int] = set()  # handles whose tool was pulled out
         self.plugged = True
         self.generation = 0  # bumped at each unplug: ports opened before are dead
         #: (frame number, ``clock()`` time s at which it was measured) of every frame served in a
@@ -262,8 +306,28 @@ class MockNDITracker:
         self.baud = 9600
         self.initialized = False
         self.tracking = False
-        self.ports: dict[int, int] = {0x01: OCCUPIED} if self.tool_plugged else {}
+        wired = ([0x01] if self.tool_plugged else []) + sorted(self._static)
+        self.ports: dict[int, int] = {h: OCCUPIED for h in wired if h not in self._unplugged}
         self._cached: tuple[int, Sample | None] | None = None
+
+    def unplug_tool(self, handle: int = 0x01) -> None:
+        """Pull the tool out of its port: while tracking, TX reports the handle UNOCCUPIED
+        (BX: disabled) until it is freed (PHF) or the tracker reset; setup then finds no tool
+        there until :meth:`plug_tool`."""
+        with self._cond:
+            self._process_locked()
+            self._unplugged.add(handle)
+            if handle in self.ports:
+                self.ports[handle] &= ~OCCUPIED
+
+    def plug_tool(self, handle: int = 0x01) -> None:
+        """Plug the tool back in: its handle is occupied again and must be set up again (PINIT,
+        PENA), as a freshly plugged tool must."""
+        with self._cond:
+            self._process_locked()
+            self._unplugged.discard(handle)
+            if handle == 0x01 or handle in self._static:
+                self.ports[handle] = OCCUPIED
 
     def frame_number(self, at: float | None = None) -> int:
         """The tracker's frame counter at ``clock()`` time ``at`` (s; None: now): frames since the
@@ -525,7 +589,7 @@ class MockNDITracker:
         self._reply(b"OKAY")
 
     def _cmd_VER(self, params: str) -> None:
-        self._reply(b"hexcal mock NDI tracker\nCombined API subset: TX, BX 0001")
+        self._reply(b"hexcal mock NDI tracker\nCombined API subset: TX, BX 0001 and 0801")
 
     def _cmd_BEEP(self, params: str) -> None:
         self._reply(b"1")
@@ -547,18 +611,23 @@ class MockNDITracker:
         chosen = []
         for handle, status in sorted(self.ports.items()):
             init, enabled = bool(status & INITIALIZED), bool(status & ENABLED)
+            occupied = bool(status & OCCUPIED)
             if (
                 option == 0
-                or (option == 2 and not init)
-                or (option == 3 and init and not enabled)
-                or (option == 4 and enabled)
+                or (option == 1 and not occupied)  # to be freed: the tool was pulled out
+                or (option == 2 and occupied and not init)
+                or (option == 3 and occupied and init and not enabled)
+                or (option == 4 and occupied and enabled)
             ):
                 chosen.append(f"{handle:02X}{status:03X}")
         self._reply(f"{len(chosen):02X}" + "".join(chosen))
 
     def _cmd_PHF(self, params: str) -> None:
-        if self._handle_param(params) is None:
+        handle = self._handle_param(params)
+        if handle is None:
             return self._error(0x08)
+        if not self.ports[handle] & OCCUPIED:  # an emptied port's handle is gone once freed
+            del self.ports[handle]
         self._reply(b"OKAY")
 
     def _cmd_PINIT(self, params: str) -> None:
@@ -566,6 +635,13 @@ class MockNDITracker:
         if handle is None:
             return self._error(0x08)
         self.ports[handle] |= INITIALIZED
+        self._reply(b"OKAY")
+
+    def _cmd_PDIS(self, params: str) -> None:
+        handle = self._handle_param(params)
+        if handle is None:
+            return self._error(0x08)
+        self.ports[handle] &= ~ENABLED
         self._reply(b"OKAY")
 
     def _cmd_PENA(self, params: str) -> None:
@@ -591,7 +667,8 @@ class MockNDITracker:
         self.tracking = False
         self._reply(b"OKAY")
 
-    def _tool_states(self) -> list[ToolState]:
+    def _tool_states(self, mode: int = 0x0001) -> list[ToolState]:
+        """Every initialised handle's record for a TX/BX reply with reply option ``mode``."""
         now = self.clock()
         frame = self.frame_number(self._t_cmd[0] if self._t_cmd is not None else now)
         if self._cached is None or self._cached[0] != frame:  # one measurement per frame
@@ -599,13 +676,30 @@ class MockNDITracker:
             self.frame_times.append((frame, measured))
             measurement = self.robot.tracker_sample(at=self._robot_time(measured, now))
             self._cached = (frame, self._spoil(measurement))
-        sample = self._cached[1]
         states = []
         for handle, status in sorted(self.ports.items()):
-            if not status & ENABLED:
+            if not status & INITIALIZED:
                 continue
-            if sample is not None:
+            status |= self.port_status_extra.get(handle, 0)
+            if not status & OCCUPIED or not status & ENABLED:
+                states.append(
+                    ToolState(
+                        handle,
+                        None,
+                        status,
+                        frame,
+                        disabled=bool(status & OCCUPIED),
+                        unoccupied=not status & OCCUPIED,
+                        with_status=self.records_with_status,
+                    )
+                )
+                continue
+            sample = self._cached[1] if handle == 0x01 else self._static.get(handle)
+            # A spoiled (non-finite) position is a glitch of the numbers, sent as it is.
+            if sample is not None and np.all(np.isfinite(sample[0])):
                 status |= self._volume_bits(sample[0])
+                if status & OUT_OF_VOLUME and not mode & 0x0800:
+                    sample = None  # not normally reported: MISSING, with the bit saying why
             states.append(ToolState(handle, sample, status, frame))
             self.last_sent[handle] = sample
         return states
@@ -624,27 +718,35 @@ class MockNDITracker:
             return OUT_OF_VOLUME
         return PARTIALLY_OUT if inside < self.volume_margin_mm else 0
 
-    def _tracking_mode(self, params: str) -> bool:
+    def _tracking_mode(self, params: str) -> int | None:
+        """The reply option of a TX/BX command, or None once the error reply is sent."""
         if not self.tracking:
             self._error(0x0C)
-            return False
+            return None
         try:
             mode = int(params or "0001", 16)
         except ValueError:
             self._error(0x07)
-            return False
+            return None
         if not mode & 0x0001:  # only transforms and status are simulated
             self._error(0x09)
-            return False
-        return True
+            return None
+        if mode & ~(0x0801 if self.all_transforms else 0x0001):
+            self._error(0x23)
+            return None
+        return mode
 
     def _cmd_TX(self, params: str) -> None:
-        if self._tracking_mode(params):
-            self._emit(format_tx_reply(self._tool_states(), self.system_status), self._draw_fault())
+        mode = self._tracking_mode(params)
+        if mode is not None:
+            reply = format_tx_reply(self._tool_states(mode), self.system_status)
+            self._emit(reply, self._draw_fault())
 
     def _cmd_BX(self, params: str) -> None:
-        if self._tracking_mode(params):
-            self._emit(format_bx_reply(self._tool_states(), self.system_status), self._draw_fault())
+        mode = self._tracking_mode(params)
+        if mode is not None:
+            reply = format_bx_reply(self._tool_states(mode), self.system_status)
+            self._emit(reply, self._draw_fault())
 
     def _spoil(self, sample: Sample | None) -> Sample | None:
         """A new frame's measurement, with a number fault if one is due (queued or drawn)."""

@@ -25,7 +25,7 @@ from hexcal.mock_hw.ndi_tracker import MockNDITracker, device_for_url
 class Serial(SerialBase):
     """A pyserial port connected to a mock NDI tracker."""
 
-    BAUDRATES = (9600, 14400, 19200, 38400, 57600, 115200, 921600, 1228739)
+    BAUDRATES = (9600, 14400, 19200, 38400, 57600, 115200, 230400, 921600, 1228739)
 
     def __init__(self, *args, **kwargs):
         self._device: MockNDITracker | None = None

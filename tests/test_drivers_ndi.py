@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from hexcal.acquisition import TrackerSample
 from hexcal.drivers.crc import crc16, crc16_hex
 from hexcal.drivers.ndi import (
+    BAUD_CODES,
     FrameClock,
     NDITracker,
     ToolReport,
@@ -99,8 +100,11 @@ def test_parse_tx_reply_missing_disabled_unoccupied_and_several_handles():
     assert frame.tool(3).state == "disabled" and "setup_tools" in frame.tool(3).problem(PORT)
     problems = frame.system_problems()
     assert any("synchronisation" in p for p in problems) and all(PORT in p for p in problems)
-    with pytest.raises(KeyError, match="no handle 0A"):
+    assert [u.handle for u in frame.unoccupied] == [0x0A]
+    with pytest.raises(KeyError, match="tool 0A is UNOCCUPIED"):
         frame.tool(0x0A)
+    with pytest.raises(KeyError, match="no handle 0B"):
+        frame.tool(0x0B)
 
 
 def test_out_of_volume_status_is_a_fault_of_the_sample():
@@ -267,6 +271,233 @@ def test_every_wait_is_bounded(name, bad):
     assert NDITracker(PORT, **{name: 60.0}).port is None  # the maximum itself is fine
 
 
+# -- contract: every TX/BX reply form, hand-built from the documented layouts ---------------------
+# The strings below are written from the Combined API's layouts as ndicapi (ndicapi.cxx
+# ndiTXHelper, ndicapi.h), sawNDITracker (mtsNDISerial.cpp Track) and NDI's ndtrack sample
+# (capi/bx.py) read them, not by hexcal's mock. Pose records: handle, Q0 Qx Qy Qz (sign + 5
+# digits, 1e-4), Tx Ty Tz (sign + 6 digits, 0.01 mm), error (sign + 5 digits, 1e-4 mm), port
+# status (8 hex), frame number (8 hex).
+POSE_03 = "03+10000+00000+00000+00000-012345+002000-150000+0021000000031" + "0000002A"
+
+
+@pytest.mark.parametrize(
+    "record, status, frame",
+    [
+        ("02UNOCCUPIED000000300000002A", 0x30, 42),  # sawNDITracker: status and frame follow
+        ("02UNOCCUPIED", 0, None),  # ndicapi: the bare word
+    ],
+)
+def test_contract_tx_unoccupied_keeps_the_other_tools_poses(record, status, frame):
+    """A multi-tool TX frame with one port UNOCCUPIED: the other tools' poses stand; asking for
+    the unoccupied one says what happened and what to do."""
+    text = "03" + POSE_01 + "\n" + record + "\n" + POSE_03 + "\n0080"  # 0080: a port emptied
+    f = parse_tx_reply(reply(text), 5.0, port=PORT, command="TX:0801")
+    assert [t.handle for t in f.tools] == [1, 3] and all(t.state == "ok" for t in f.tools)
+    np.testing.assert_allclose(f.tool(1).position, [12.34, -5.67, 1234.56])
+    np.testing.assert_allclose(f.tool(3).position, [-123.45, 20.0, -1500.0])
+    assert f.tool(3).rms_mm == pytest.approx(0.021) and f.frame_number == 42
+    (empty,) = f.unoccupied
+    assert (empty.handle, empty.port_status, empty.frame_number) == (2, status, frame)
+    assert f.to_sample(1).fault is None and f.to_sample(3).fault is None  # news, not a fault
+    s = f.to_sample(2)
+    assert s.position is None and s.t == 5.0
+    assert "tool 02 is UNOCCUPIED" in s.fault and PORT in s.fault and "Plug it back" in s.fault
+    assert any("become unoccupied" in p for p in f.system_problems())
+
+
+@pytest.mark.parametrize(
+    "record, status, frame",
+    [("02DISABLED", 0, None), ("02DISABLED000000110000002A", 0x11, 42)],
+)
+def test_contract_tx_disabled_with_and_without_status(record, status, frame):
+    f = parse_tx_reply(reply("02" + POSE_01 + "\n" + record + "\n0000"), port=PORT)
+    assert f.tool(1).state == "ok" and f.to_sample(1).fault is None
+    d = f.tool(2)
+    assert (d.state, d.port_status, d.frame_number, d.position) == ("disabled", status, frame, None)
+    assert "DISABLED" in f.to_sample(2).fault and "setup_tools()" in f.to_sample(2).fault
+
+
+# Port status bits 8-15 as the current API guide names them (NDI's ndtrack sample, capi/bx.py).
+PORT_FAULTS = [
+    (0x0100, "algorithm limitation"),
+    (0x0200, "IR interference"),
+    (0x0400, "reserved port status bit 10"),
+    (0x0800, "reserved port status bit 11"),
+    (0x1000, "processing exception"),
+    (0x2000, "reserved port status bit 13"),
+    (0x4000, "fell behind while processing"),
+    (0x8000, "data buffer limitation"),
+]
+
+
+def _bx(*records: bytes, system_status: int = 0) -> bytes:
+    """A BX reply around ``records``, as ndicapi and NDI's ndtrack sample lay it out: C4 A5,
+    body length (uint16 LE), header CRC, body (handle count, the records, system status uint16
+    LE), body CRC."""
+    body = bytes([len(records)]) + b"".join(records) + struct.pack("<H", system_status)
+    header = struct.pack("<HH", 0xA5C4, len(body))
+    return header + struct.pack("<H", crc16(header)) + body + struct.pack("<H", crc16(body))
+
+
+def _bx_valid(handle: int, position, quaternion, status: int, frame: int) -> bytes:
+    """A BX handle record with status 01 (valid): Q0 Qx Qy Qz Tx Ty Tz Err as float32 LE, then
+    port status and frame number as uint32 LE."""
+    floats = struct.pack("<8f", *quaternion, *position, 0.02)
+    return bytes([handle, 0x01]) + floats + struct.pack("<II", status, frame)
+
+
+@pytest.mark.parametrize("bit, name", PORT_FAULTS)
+def test_contract_port_status_fault_bit_refuses_that_pose_by_name(bit, name):
+    """TX and BX: a pose whose port status carries one of bits 8-15 is refused, naming the bit;
+    the other tool of the same frame is untouched."""
+    status = f"{0x31 | bit:08X}"
+    tx = reply("02" + POSE_01.replace("00000031", status) + "\n" + POSE_03 + "\n0000")
+    bx = _bx(
+        _bx_valid(1, (12.34, -5.67, 1234.56), (0.5, 0.5, -0.5, 0.5), 0x31 | bit, 42),
+        _bx_valid(3, (-123.45, 20.0, -1500.0), (1.0, 0.0, 0.0, 0.0), 0x31, 42),
+    )
+    for f in (parse_tx_reply(tx, port=PORT), parse_bx_reply(bx, port=PORT)):
+        (named,) = f.tool(1).port_faults
+        assert named.startswith(name) and f.tool(3).port_faults == []
+        s = f.to_sample(1)
+        assert s.fault is not None and name in s.fault and PORT in s.fault
+        assert f"port status {0x31 | bit:08X}" in s.fault and "refused" in s.fault
+        assert f.to_sample(3).fault is None
+        # Accepting out-of-volume poses does not accept these.
+        assert name in f.to_sample(1, accept_out_of_volume=True).fault
+
+
+def test_contract_processing_exception_0x1000_refuses_the_pose():
+    """The issue's case: a pose with port status 0x1000 used to come back "ok" with no fault."""
+    text = "01" + POSE_01.replace("00000031", "00001031") + "\n0000"
+    s = parse_tx_reply(reply(text), port=PORT).to_sample()
+    assert s.fault.startswith(f"tool 01 from the tracker on {PORT}: port status 00001031 reports")
+    assert "processing exception" in s.fault and "power-cycle" in s.fault
+
+
+def test_contract_missing_names_the_fault_bits_behind_it():
+    f = parse_tx_reply(reply("0101MISSING0000023100000007\n0000"), port=PORT)
+    s = f.to_sample()
+    assert s.position is None and "MISSING" in s.fault and "IR interference" in s.fault
+    assert "bright infrared source" in s.fault
+
+
+@pytest.mark.parametrize(
+    "bit, text, fault",
+    [
+        (0x0001, "system communication synchronisation error", False),
+        (0x0008, "recoverable system processing exception", True),
+        (0x0040, "a port handle has become occupied", False),
+        (0x0080, "a port handle has become unoccupied", False),
+        (0x0100, "diagnostic pending", False),
+        (0x0200, "not within its operating temperature range", True),
+        (0x0400, "hardware configuration changed", False),
+        (0x0800, "reserved bits 0800", False),
+        (0x8000, "reserved bits 8000", False),
+    ],
+)
+def test_contract_system_status_current_table(bit, text, fault):
+    """The system status as the current API guide lists it (NDI's ndtrack sample, capi/bx.py
+    SystemStatus): bit 9 is the temperature, no longer "unknown bits"; the faults refuse the
+    frame's poses, the rest is news."""
+    for f in (
+        parse_tx_reply(reply("01" + POSE_01 + f"\n{bit:04X}"), port=PORT),
+        parse_bx_reply(_bx(_bx_valid(1, (1, 2, 3), (1, 0, 0, 0), 0x31, 9), system_status=bit)),
+    ):
+        (problem,) = f.system_problems()
+        assert text in problem and "unknown" not in problem
+        s = f.to_sample()
+        assert s.position is not None and (text in (s.fault or "")) == fault
+
+
+def test_contract_temperature_bit_says_what_to_do():
+    s = parse_tx_reply(reply("01" + POSE_01 + "\n0200"), port=PORT).to_sample()
+    assert PORT in s.fault and "operating temperature range" in s.fault and "warm up" in s.fault
+
+
+def test_contract_every_error_code_up_to_0x42_has_its_text():
+    """ndicapi.h's NDI_* error defines and ndiErrorString: every code up to 0x42 (reserved ones
+    say so), each through a real ERRORxx reply."""
+    documented = {
+        0x28: "too many tools are enabled",
+        0x29: "main processor firmware corrupt",
+        0x2A: "heap full",
+        0x2B: "port handle has not been allocated",
+        0x2C: "port handle has become unoccupied",
+        0x2D: "all port handles have been allocated",
+        0x2E: "incompatible firmware versions",
+        0x2F: "invalid port description",
+        0x30: "already assigned a port handle",
+        0x32: "invalid operation for the device",
+        0x33: "feature not available",
+        0x34: "user parameter does not exist",
+        0x35: "invalid value type",
+        0x36: "user parameter value out of its valid range",
+        0x37: "user parameter array index out of its valid range",
+        0x38: "user parameter size incorrect",
+        0x39: "permission denied",
+        0x3B: "file not found",
+        0x3C: "error writing to a file",
+        0x3D: "error reading from a file",
+        0x40: "tool definition file error",
+        0x41: "tool characteristics not supported",
+        0x42: "device not present",
+        **{code: "reserved" for code in (0x26, 0x27, 0x31, 0x3A, 0x3E, 0x3F)},
+    }
+    for code in range(0x01, 0x43):
+        with pytest.raises(TrackerReplyError) as err:
+            parse_tx_reply(reply(f"ERROR{code:02X}"), port=PORT, command="TX:0801")
+        assert err.value.code == code and PORT in str(err.value)
+        assert "unknown error code" not in str(err.value), hex(code)
+        assert documented.get(code, "") in error_text(code)
+    assert "unknown error code" in error_text(0x43)
+    assert "plug it back in" in error_text(0x2C)
+
+
+def test_contract_every_baud_code():
+    """COMM's baud codes (ndicapi.h NDI_9600 ... NDI_1228739 = 0 to 7, NDI_230400 = 10, sent as
+    "A" by ndicapi.cxx's ndiCOMMHelper)."""
+    assert BAUD_CODES == {
+        9600: "0",
+        14400: "1",
+        19200: "2",
+        38400: "3",
+        57600: "4",
+        115200: "5",
+        921600: "6",
+        1228739: "7",
+        230400: "A",
+    }
+    for baud in BAUD_CODES:
+        NDITracker(PORT, baudrate=baud)  # every one is accepted
+    with pytest.raises(ValueError, match="230400"):  # and the message lists it
+        NDITracker(PORT, baudrate=460800)
+
+
+def test_contract_out_of_volume_pose_under_reply_option_0800():
+    """With reply option 0x0800 the tracker reports the pose of a tool outside its characterised
+    volume (port status bit 0x40): the sample keeps it, refused, and tells where the tool is and
+    to move it back into the volume. TX and BX alike."""
+    text = "01" + POSE_01.replace("00000031", "00000071") + "\n0000"
+    bx = _bx(_bx_valid(1, (12.34, -5.67, 1234.56), (0.5, 0.5, -0.5, 0.5), 0x71, 42))
+    for f in (
+        parse_tx_reply(reply(text), port=PORT, command="TX:0801"),
+        parse_bx_reply(bx, port=PORT, command="BX:0801"),
+    ):
+        s = f.to_sample()
+        np.testing.assert_allclose(s.position, [12.34, -5.67, 1234.56], atol=1e-4)
+        assert "Move the tool back into the volume" in s.fault
+        assert "at (12.3, -5.7, 1234.6) mm in the tracker's frame" in s.fault and PORT in s.fault
+        assert f.to_sample(accept_out_of_volume=True).fault is None
+
+
+def test_contract_out_of_volume_without_0800_is_missing_with_the_bit():
+    s = parse_tx_reply(reply("0101MISSING0000007100000007\n0000"), port=PORT).to_sample()
+    assert s.position is None and "MISSING" in s.fault
+    assert "outside the characterised measurement volume" in s.fault
+    assert "move the tool back into the volume" in s.fault
+
+
 # -- the driver against the mock, over both transports -------------------------------------------------
 _names = itertools.count()
 
@@ -293,9 +524,9 @@ class Link:
         self.pty.replug() if self.pty else self.device.replug()
 
 
-def _mock_link(kind: str) -> Iterator[Link]:
+def _mock_link(kind: str, **device_options) -> Iterator[Link]:
     robot = MockRobot(left_hand(), noise=NoiseModel(0.01, 0.002, 0.0), seed=21)
-    device = MockNDITracker(robot, seed=21, frame_rate_hz=1000.0)
+    device = MockNDITracker(robot, seed=21, frame_rate_hz=1000.0, **device_options)
     # Short waits keep the fault tests fast; the defaults are for real hardware. The frame rate
     # is the mock's.
     fast = dict(
@@ -513,12 +744,145 @@ def test_fault_non_finite_number_in_a_crc_valid_frame(tracking, kind, defect):
 
 
 def test_fault_out_of_volume(tracking):
+    """The driver polls with reply option 0x0800, so the tracker reports the pose of a tool
+    outside its volume: the operator reads where it is and to move it back."""
     link, trk = tracking
     link.robot.move_to([0.0, 0.0, 3200.0], np.eye(3))
     time.sleep(0.003)
-    s = trk.sample()
+    for binary in (False, True):
+        s = trk.sample(binary=binary)
+        assert s.position is not None and abs(s.position[2] - 3200.0) < 1.0
+        assert "outside the characterised measurement volume" in s.fault and link.url in s.fault
+        assert "Move the tool back into the volume" in s.fault and "3200.0) mm" in s.fault
     assert trk.poll().tool().out_of_volume
-    assert "outside the characterised measurement volume" in s.fault and link.url in s.fault
+    sent = [c[:7] for c in link.device.commands if c[:2] in ("TX", "BX")]
+    assert set(sent) == {"TX:0801", "BX:0801"}
+
+
+def test_tracker_without_reply_option_0800_is_polled_without_it(mock_link, caplog):
+    """A tracker that refuses 0x0800 (ERROR23 here) but answers the plain poll: the driver
+    falls back once per command, with a warning, and an out-of-volume tool is then MISSING
+    with the bit, still telling the operator to move it back into the volume."""
+    mock_link.device.all_transforms = False
+    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+        with mock_link.tracker() as trk:
+            trk.connect()
+            assert trk.poll().tool().visible and trk.poll_binary().tool().visible
+            assert trk.reply_option("TX") == trk.reply_option("BX") == 0x0001
+            mock_link.robot.move_to([0.0, 0.0, 3200.0], np.eye(3))
+            time.sleep(0.003)
+            s = trk.sample()
+    assert s.position is None and "MISSING" in s.fault
+    assert "move the tool back into the volume" in s.fault and mock_link.url in s.fault
+    sent = [c[:7] for c in mock_link.device.commands if c[:2] in ("TX", "BX")]
+    assert sent[:4] == ["TX:0801", "TX:0001", "BX:0801", "BX:0001"]
+    assert sent.count("TX:0801") == 1 and sent.count("BX:0801") == 1  # tried once each
+    warned = [r.getMessage() for r in caplog.records if "0800" in r.getMessage()]
+    assert len(warned) == 2 and all("ERROR23" in w and mock_link.url in w for w in warned)
+
+
+def test_a_reopened_tracker_tries_reply_option_0800_again(mock_link):
+    mock_link.device.all_transforms = False
+    trk = mock_link.tracker().connect()
+    try:
+        trk.poll()
+        assert trk.reply_option() == 0x0001
+        mock_link.device.all_transforms = True  # say, the firmware was updated
+        trk.reconnect()
+        assert trk.reply_option() == 0x0801 and trk.poll().tool().visible
+    finally:
+        trk.close()
+
+
+@pytest.fixture(params=["url", "pty"])
+def two_tools(request) -> Iterator[Link]:
+    """The mock with a second wired tool: handle 02, a reference body at a fixed pose."""
+    yield from _mock_link(
+        request.param, static_tools={0x02: ([100.0, -50.0, 1800.0], [1.0, 0.0, 0.0, 0.0])}
+    )
+
+
+def test_tool_unplugged_while_tracking_keeps_the_other_tools_pose(two_tools):
+    link = two_tools
+    with link.tracker() as trk:
+        assert trk.setup_tools() == (1, 2)
+        trk.start()
+        assert [t.handle for t in trk.poll().tools] == [1, 2]
+        link.device.unplug_tool(2)
+        time.sleep(0.002)
+        f = trk.poll()  # TX: 02UNOCCUPIED + status + frame (sawNDITracker's form)
+        assert [t.handle for t in f.tools] == [1] and f.tool(1).visible
+        (empty,) = f.unoccupied
+        assert empty.handle == 2 and empty.port_status == 0x30
+        assert empty.frame_number == f.tool(1).frame_number
+        assert trk.sample().fault is None  # the robot's tool still records
+        trk.pose_handle = 2
+        s = trk.sample()
+        assert s.position is None and "tool 02 is UNOCCUPIED" in s.fault and link.url in s.fault
+        b = trk.poll_binary()  # BX has no UNOCCUPIED status: the mock says DISABLED
+        assert b.tool(1).visible and b.tool(2).state == "disabled"
+        link.device.records_with_status = False
+        f = trk.poll()  # the bare word (ndicapi's form)
+        assert f.tool(1).visible and f.unoccupied[0].frame_number is None
+        # Setting up again frees the emptied handle and tracks what is left.
+        trk.stop()
+        trk.pose_handle = None
+        assert trk.setup_tools() == (1,)
+        assert any(c.startswith("PHF:02") for c in link.device.commands)
+        trk.start()
+        f = trk.poll()
+        assert [t.handle for t in f.tools] == [1] and not f.unoccupied
+
+
+def test_disabled_handle_while_tracking(two_tools):
+    link = two_tools
+    with link.tracker() as trk:
+        trk.connect()
+        trk.command("PDIS:02")  # the Combined API's port disable
+        for records_with_status in (True, False):
+            link.device.records_with_status = records_with_status
+            f = trk.poll()
+            d = f.tool(2)
+            assert f.tool(1).visible and d.state == "disabled" and d.position is None
+            assert (d.frame_number is not None) == records_with_status
+            assert d.port_status == (0x11 if records_with_status else 0)
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_port_status_fault_bit_from_the_tracker_refuses_the_sample(tracking, binary):
+    link, trk = tracking
+    link.device.port_status_extra = {0x01: 0x1000}
+    s = trk.sample(binary=binary)
+    assert s.position is not None and trk.poll().tool().port_status == 0x1031
+    assert "processing exception" in s.fault and link.url in s.fault
+    link.device.port_status_extra = {}
+    time.sleep(0.002)
+    assert trk.sample(binary=binary).fault is None
+
+
+def test_temperature_and_diagnostic_system_status(tracking, caplog):
+    link, trk = tracking
+    link.device.system_status = 0x0200
+    s = trk.sample()
+    assert s.position is not None and link.url in s.fault
+    assert "not within its operating temperature range" in s.fault
+    link.device.system_status = 0x0100  # diagnostic pending: news, said once
+    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+        samples = [trk.sample(binary=True) for _ in range(3)]
+    assert all(x.fault is None for x in samples)
+    said = [r.getMessage() for r in caplog.records if "diagnostic pending" in r.getMessage()]
+    assert len(said) == 1 and link.url in said[0]
+
+
+def test_connect_at_230400_baud(mock_link):
+    """COMM's code A (230400 baud) end to end: the mock switches, the driver follows."""
+    with mock_link.tracker(baudrate=230400) as trk:
+        assert mock_link.device.baud == 230400
+        trk.connect()
+        assert trk.poll().tool().visible and trk.port.baudrate == 230400
+    comm = "COMM:A0000" + crc16_hex(b"COMM:A0000").decode()
+    assert comm in mock_link.device.commands and mock_link.device.framing_errors == 0
+    assert mock_link.device.baud == 9600  # close() put it back
 
 
 def test_fault_unplug_and_replug(tracking):

@@ -159,10 +159,10 @@ def test_a_different_command_sequence_diverges_at_its_line(recorded):
     with pytest.raises(TrackerDisconnected) as err:
         trk.poll_binary()  # the capture's first poll is TX, not BX
     msg = str(err.value)
-    line = first_line(lines, "TX", "TX:0001")
+    line = first_line(lines, "TX", "TX:0801")  # reply option 0x0800 (out-of-volume poses)
     assert f"the driver's traffic diverged from the capture at line {line} of {path}" in msg
-    assert "expects the driver to send b'TX:0001031A\\r'" in msg
-    assert "the driver sent b'BX:0001C26D\\r'" in msg
+    assert "expects the driver to send b'TX:0801C19B\\r'" in msg
+    assert "the driver sent b'BX:080100EC\\r'" in msg
     trk.close()
 
 
@@ -237,7 +237,7 @@ def test_missing_capture_names_the_path(tmp_path):
 def test_driver_sending_past_the_end_of_the_capture(recorded, tmp_path):
     path, live, _ = recorded
     lines = path.read_text().split("\n")
-    cut = first_line(lines, "TX", "BX:0001")  # keep the session up to the first TX reply
+    cut = first_line(lines, "TX", "BX:0801")  # keep the session up to the first TX reply
     short = tmp_path / "short.txt"
     short.write_text("\n".join(lines[: cut - 1]) + "\n")
     last = max(n for n, line in enumerate(lines[: cut - 1], 1) if label(line) in ("TX", "RX"))
@@ -246,7 +246,7 @@ def test_driver_sending_past_the_end_of_the_capture(recorded, tmp_path):
     assert_same_frames([trk.poll()], live[:1])
     with pytest.raises(TrackerDisconnected) as err:
         trk.poll_binary()
-    assert f"capture {short} ends at line {last}; the driver sent more: b'BX:0001C26D\\r'" in str(
+    assert f"capture {short} ends at line {last}; the driver sent more: b'BX:080100EC\\r'" in str(
         err.value
     )
     trk.close()

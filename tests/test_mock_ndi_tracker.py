@@ -212,10 +212,16 @@ def test_missing_and_out_of_volume(dev, robot):
     robot.tool_visible = True
     robot.move_to([0.0, 0.0, 3500.0], np.eye(3))
     time.sleep(0.002)  # next frame
-    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x31 | 0x40
+    # Outside the volume a tracker does not normally report the transform: MISSING, with the
+    # out-of-volume bit; reply option 0x0800 asks for it, and the pose comes with the bit.
+    reply = ask(dev, "TX:0001")
+    assert re.fullmatch(rb"0101MISSING00000071[0-9A-F]{8}\n0000[0-9A-F]{4}\r", reply), reply
+    m = TX_POSE.fullmatch(ask(dev, "TX:0801"))
+    assert int(m.group(10), 16) == 0x31 | 0x40 and abs(int(m.group(8)) - 350000) < 10  # z
     robot.move_to([0.0, 0.0, 2980.0], np.eye(3))
     time.sleep(0.002)
-    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x31 | 0x80
+    for option in ("0001", "0801"):  # partly out: reported with or without the option
+        assert int(TX_POSE.fullmatch(ask(dev, f"TX:{option}")).group(10), 16) == 0x31 | 0x80
 
 
 def test_bx_reply_format(dev):
@@ -249,6 +255,99 @@ def test_formatters_missing_disabled_and_saturation():
     assert payload.split(b"\n")[1:] == [b"02MISSING0000003100000007", b"03DISABLED", b"0010"]
     bx = format_bx_reply(tools)
     assert bx[6] == 3 and len(bx) == 6 + (1 + 42 + 10 + 2 + 2) + 2
+
+
+def test_formatters_unoccupied_and_status_after_the_word():
+    tools = [
+        ToolState(2, None, 0x30, 0x2A, unoccupied=True, with_status=True),
+        ToolState(3, None, 0x30, 0x2A, unoccupied=True),
+        ToolState(4, None, 0x11, 0x2A, disabled=True, with_status=True),
+    ]
+    payload = format_tx_reply(tools, 0x0080)[:-5]
+    assert payload == (
+        b"0302UNOCCUPIED000000300000002A\n03UNOCCUPIED\n04DISABLED000000110000002A\n0080"
+    )
+    bx = format_bx_reply(tools, 0x0080)  # BX: no UNOCCUPIED status byte: disabled (04)
+    assert bx[6:-2] == bytes([3, 2, 4, 3, 4, 4, 4]) + struct.pack("<H", 0x0080)
+
+
+@pytest.fixture
+def two(robot):
+    """The mock with a second wired tool at a fixed pose (handle 02)."""
+    return MockNDITracker(
+        robot,
+        seed=5,
+        frame_rate_hz=1000.0,
+        static_tools={0x02: ([100.0, -50.0, 1800.0], [1, 0, 0, 0])},
+    )
+
+
+TX_RECORD = re.compile(
+    rb"([0-9A-F]{2})(?:([+-]\d{5}){4}([+-]\d{6}){3}[+-]\d{5}|MISSING|DISABLED|UNOCCUPIED)"
+    rb"([0-9A-F]{8})?([0-9A-F]{8})?"
+)
+
+
+def records(reply: bytes) -> list[tuple[int, bytes, int | None]]:
+    """(handle, record, port status) of every record of a TX reply, checked by this file's own
+    reading of the documented layout."""
+    assert ok_crc(reply)
+    lines = reply[:-5].split(b"\n")
+    assert int(lines[0][:2], 16) == len(lines) - 1 and re.fullmatch(rb"[0-9A-F]{4}", lines[-1])
+    out = []
+    for rec in [lines[0][2:], *lines[1:-1]]:
+        m = TX_RECORD.fullmatch(rec)
+        assert m is not None, rec
+        out.append((int(m.group(1), 16), rec, None if m.group(4) is None else int(m.group(4), 16)))
+    return out
+
+
+def test_unplugged_tool_is_unoccupied_and_its_handle_is_freed(two):
+    for text in ("INIT:", "PINIT:01", "PINIT:02", "PENA:01D", "PENA:02S", "TSTART:"):
+        assert ask(two, text)[:4] == b"OKAY", text
+    assert [h for h, _, _ in records(ask(two, "TX:0801"))] == [1, 2]
+    two.unplug_tool(2)
+    (one, empty) = records(ask(two, "TX:0801"))
+    assert one[0] == 1 and one[2] == 0x31 and re.match(rb"01[+-]\d{5}", one[1])  # a pose
+    assert re.fullmatch(rb"02UNOCCUPIED00000030[0-9A-F]{8}", empty[1]) and empty[2] == 0x30
+    two.records_with_status = False
+    assert records(ask(two, "TX:0801"))[1][1] == b"02UNOCCUPIED"
+    body = ask(two, "BX:0801")[6:-2]
+    assert body[0] == 2 and body[1:3] == b"\x01\x01" and body[43:45] == b"\x02\x04"
+    assert ask(two, "PHSR:01")[:-5] == b"0102030"  # the emptied handle is to be freed
+    assert ask(two, "PHF:02")[:4] == b"OKAY" and 2 not in two.ports
+    assert [h for h, _, _ in records(ask(two, "TX:0801"))] == [1]
+    two.plug_tool(2)  # back in: to be set up again
+    assert ask(two, "PHSR:02")[:-5] == b"0102001"
+
+
+def test_pdis_makes_a_handle_disabled_while_tracking(two):
+    for text in ("INIT:", "PINIT:01", "PINIT:02", "PENA:01D", "PENA:02S", "TSTART:"):
+        ask(two, text)
+    assert ask(two, "PDIS:02")[:4] == b"OKAY"
+    _, disabled = records(ask(two, "TX:0001"))
+    assert re.fullmatch(rb"02DISABLED00000011[0-9A-F]{8}", disabled[1])
+    two.records_with_status = False
+    assert records(ask(two, "TX:0001"))[1][1] == b"02DISABLED"
+
+
+def test_port_status_fault_bits_and_reply_options(dev):
+    tracking(dev)
+    dev.port_status_extra = {0x01: 0x1000 | 0x0200}
+    assert int(TX_POSE.fullmatch(ask(dev, "TX:0001")).group(10), 16) == 0x1231
+    body = ask(dev, "BX:0801")[6:-2]
+    assert struct.unpack_from("<I", body, 35)[0] == 0x1231
+    for option, code in (("0003", b"ERROR23"), ("1001", b"ERROR23"), ("0800", b"ERROR09")):
+        assert ask(dev, f"TX:{option}")[:7] == code, option
+    dev.all_transforms = False  # an older tracker without reply option 0x0800
+    assert ask(dev, "TX:0801")[:7] == b"ERROR23" and ask(dev, "BX:0801")[:7] == b"ERROR23"
+    assert TX_POSE.fullmatch(ask(dev, "TX:0001"))
+
+
+def test_comm_code_a_is_230400_baud(dev):
+    assert ask(dev, "COMM:A0000", baud=9600)[:4] == b"OKAY" and dev.baud == 230400
+    assert ask(dev, "INIT:", baud=230400)[:4] == b"OKAY" and dev.framing_errors == 0
+    assert ask(dev, "COMM:B0000", baud=230400)[:7] == b"ERROR06"  # no such code
 
 
 # -- faults --------------------------------------------------------------------------------------
