@@ -136,7 +136,10 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
                 trk.connect()
                 frame = trk.poll()
                 for tool in frame.tools:
-                    if tool.state == "ok":
+                    # A pose with a port-status fault bit is "ok" by its state but refused:
+                    # what the driver says of it is the verdict.
+                    problem = tool.problem(cfg.tracker.url)
+                    if tool.state == "ok" and problem is None:
                         p = np.round(tool.position, 3).tolist()
                         lines.append(
                             f"  tool {tool.handle:02X}: tracked at {p} mm, RMS {tool.rms_mm:.3f} mm"
@@ -144,8 +147,8 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
                     else:
                         ok = False
                         lines.append(
-                            f"  {tool.problem(cfg.tracker.url)}"
-                            if tool.problem(cfg.tracker.url)
+                            f"  {problem}"
+                            if problem
                             else f"  tool {tool.handle:02X}: {tool.state.upper()}"
                         )
                 lines.append(f"  system status 0x{frame.system_status:04X}")
