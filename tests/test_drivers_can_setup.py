@@ -45,6 +45,15 @@ def robot() -> MockRobot:
     return MockRobot(left_hand(), noise=DEFAULT_NOISE, seed=4)
 
 
+#: Words of the faults a loaded machine causes (a frame handled late): timing, not set-up.
+TIMING = ("arrived", "sent no position", "outside any SYNC window")
+
+
+def not_timing(sets) -> list[str]:
+    """The faults of ``sets`` that are not about timing."""
+    return [f for s in sets for f in s.faults if not any(w in f for w in TIMING)]
+
+
 class Sniffer:
     """Every frame on the channel, from another bus handle (a bus analyser)."""
 
@@ -106,10 +115,8 @@ def test_hexcal_configures_factory_encoders_and_reads_them_on_sync(robot, channe
         sniff.close()
     # A loaded machine delays a frame now and then (flagged late, never lost): the rest are
     # complete, and no flag is about the set-up.
-    flags = [f for s in sets for f in s.faults]
-    assert sum(s.complete for s in sets) >= 54, flags
-    timing = ("arrived", "sent no position", "outside any SYNC window")
-    assert all(any(w in f for w in timing) for f in flags), flags
+    assert sum(s.complete for s in sets) >= 54, [f for s in sets for f in s.faults]
+    assert not not_timing(sets)
     assert st["sync_counter"] == 0
     # SYNC without a counter byte, as the nodes' 0x1019 = 0 asks; no cyclic TPDO1, no EMCY.
     syncs = [m for m in later if m.arbitration_id == 0x080]
@@ -130,7 +137,7 @@ def test_a_sync_counter_set_in_the_rig_file_is_written_to_every_node(robot, chan
     with MockEncoderNodes(robot, cfg) as nodes, LegEncoders(cfg) as drv:
         sets = [drv.read_set(1.0) for _ in range(30)]
         assert all(nodes.encoders[k].value(0x1019) == 240 for k in range(1, 7))
-    assert sum(s.complete for s in sets) >= 28
+    assert sum(s.complete for s in sets) >= 24 and not not_timing(sets)
     counters = [s.sync_counter for s in sets]
     assert all(b == a % 240 + 1 for a, b in itertools.pairwise(counters))
 
@@ -152,7 +159,7 @@ def test_emcy_flags_the_sets_with_its_meaning_until_the_error_reset(robot, chann
         for s in flagged
         for f in s.faults
     )
-    assert sum(s.complete for s in after) >= 9
+    assert not not_timing(after)  # the error reset cleared the flag
 
 
 def test_a_sync_with_a_counter_the_nodes_do_not_expect_is_answered_with_emcy(robot, channel):
@@ -169,7 +176,7 @@ def test_a_sync_with_a_counter_the_nodes_do_not_expect_is_answered_with_emcy(rob
     assert any(
         "EMCY 0x8240 (unexpected SYNC data length)" in f and "sync_counter" in f for f in faults
     )
-    assert sets[-1].complete
+    assert not not_timing(sets[-5:])  # the reset EMCY came with the next empty SYNC
 
 
 def test_a_device_that_is_not_a_406_encoder_is_refused(robot, channel):
@@ -213,7 +220,7 @@ def test_a_rebooted_node_is_set_up_again(robot, channel):
         sets = [drv.read_set(1.0) for _ in range(60)]
         assert nodes.encoders[2].value(0x1017) == 50
     assert any("rebooted" in f for s in sets for f in s.faults)
-    assert all(s.complete for s in sets[-20:])
+    assert not not_timing(sets[-20:]) and sum(s.complete for s in sets[-20:]) >= 16
 
 
 def test_emcy_text():
@@ -248,7 +255,7 @@ def test_can_setup_gives_an_encoder_out_of_its_box_its_node_id(robot, channel, t
         assert nodes.encoders[3].node_id == 0x23
         with LegEncoders(cfg) as drv:
             sets = [drv.read_set(1.0) for _ in range(20)]
-        assert sum(s.complete for s in sets) >= 18
+        assert sum(s.complete for s in sets) >= 16 and not not_timing(sets)
         # Nobody at that address: said so, exit 1.
         assert main([*args[:-1], "999", "--node-id", "0x23"]) == 1
         assert "no device answered LSS address" in capsys.readouterr().err
@@ -287,10 +294,11 @@ class ForeignEncoder:
     """A CiA 406 slave built from canopen's LocalNode alone: canopen's NMT slave, heartbeat
     producer and SDO server, the EDS's factory values. canopen's LocalNode does not answer SYNC
     with its synchronous TPDOs, so that (and only that) is written here: on each SYNC, while
-    OPERATIONAL, each valid TPDO with transmission type 1 sends 0x6004 as its EDS types it."""
+    OPERATIONAL, each valid TPDO with transmission type 1 sends 0x6004 as its EDS types it.
+    The position moves ``step`` counts per SYNC from ``start``, modulo the range 2**20."""
 
-    def __init__(self, net: canopen.Network, node_id: int, eds: Path, counts):
-        self.net, self.counts = net, counts
+    def __init__(self, net: canopen.Network, node_id: int, eds: Path, start: int, step: int):
+        self.net, self.position, self.step = net, start, step
         self.node = canopen.LocalNode(node_id, str(eds))
         self.node.add_read_callback(self._read)
         net.add_node(self.node)
@@ -298,12 +306,16 @@ class ForeignEncoder:
         self.node.nmt.send_command(0x81)  # boot-up
         self.node.nmt.send_command(0x80)  # pre-operational, heartbeat per 0x1017 (0: none)
 
+    def counts(self) -> int:
+        return self.position % WRAP
+
     def _read(self, index, subindex, od):
         return self.counts() if index == 0x6004 else None
 
     def _on_sync(self, can_id, data, timestamp):
         if self.node.nmt.state != "OPERATIONAL":
             return
+        self.position += self.step  # the leg moves between SYNCs
         for n in range(4):
             cob = self.node.sdo[0x1800 + n][1].raw
             if cob & 0x80000000 or self.node.sdo[0x1800 + n][2].raw != 1:
@@ -314,16 +326,12 @@ class ForeignEncoder:
 
 @pytest.fixture
 def foreign(tmp_path, channel):
-    """Six foreign encoders counting up through their wrap point (2**20) at 50,000 counts/s."""
+    """Six foreign encoders counting up through their wrap point (2**20), 500 counts per SYNC
+    (50 mm/s at 100 Hz), from 20,000 counts below it (less 1000 per leg)."""
     eds = vendor_eds(tmp_path)
     net = canopen.Network()
     net.connect(interface="virtual", channel=channel)
-    t0 = time.monotonic()
-
-    def counter(k):
-        return lambda: int(WRAP - 20_000 + 1000 * k + 50_000 * (time.monotonic() - t0)) % WRAP
-
-    nodes = [ForeignEncoder(net, 0x20 + k, eds, counter(k)) for k in range(1, 7)]
+    nodes = [ForeignEncoder(net, 0x20 + k, eds, WRAP - 20_000 + 1000 * k, 500) for k in range(1, 7)]
     yield eds, nodes
     for n in nodes:
         n.node.nmt.stop_heartbeat()
@@ -369,11 +377,12 @@ def test_a_foreign_slaves_wrapping_position_is_unwrapped_and_its_emcy_flags_the_
         sets = [drv.read_set(1.0) for _ in range(60)]  # 0.6 s: every leg crosses 2**20
         nodes[2].node.emcy.send(0x4210, 0x09)
         flagged = [drv.read_set(1.0) for _ in range(5)]
-    readings = np.array([s.readings_mm for s in sets if s.complete])
-    assert len(readings) >= 55
-    steps = np.diff(readings, axis=0)
-    # 50,000 counts/s = 50 mm/s: 0.5 mm per 10 ms SYNC; never the 1048.576 mm of a wrap.
-    assert (steps > 0).all() and steps.max() < 2.0, steps.max()
+    done = [s for s in sets if s.complete]
+    readings = np.array([s.readings_mm for s in done])
+    assert len(readings) >= 45 and not not_timing(sets)
+    per_sync = np.diff(readings, axis=0) / np.diff([s.index for s in done])[:, None]
+    # Exactly 0.5 mm per SYNC on every leg, across the wrap too (never the 1048.576 mm of one).
+    np.testing.assert_allclose(per_sync, 0.5, atol=1e-9)
     assert (readings[-1] - readings[0] > 20.0).all()
     assert readings[0, 0] > 1000.0 and readings[-1, 0] > WRAP / 1000  # continued past the wrap
     faults = [f for s in flagged for f in s.faults]
