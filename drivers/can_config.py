@@ -16,6 +16,7 @@ changes between the rig and the tests.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -265,9 +266,9 @@ def load_can_config(path: str | Path) -> CanBusConfig:
         if path.suffix.lower() == ".json":
             data = json.loads(raw)
         else:
-            try:
+            if sys.version_info >= (3, 11):
                 import tomllib
-            except ModuleNotFoundError:  # Python 3.10
+            else:  # Python 3.10
                 import tomli as tomllib
             data = tomllib.loads(raw.decode("utf-8"))
     except (ValueError, UnicodeDecodeError) as exc:
