@@ -54,10 +54,13 @@ import re
 import threading
 import time
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 URL_SCHEME = "ndireplay"
 
@@ -254,9 +257,10 @@ class Serial(SerialBase):
     def open(self) -> None:
         if self.is_open:
             raise SerialException("Port is already open.")
-        if self._port is None:
+        port = self.portstr
+        if port is None:
             raise SerialException("Port must be configured before it can be used.")
-        path = capture_path(self.portstr)
+        path = capture_path(port)
         chunks = load_capture(path)
         with self._cond:
             self._path, self._chunks = path, chunks
@@ -271,8 +275,9 @@ class Serial(SerialBase):
 
     def _reconfigure_port(self) -> None:
         # No line to configure: any valid baud rate is accepted (spy records no rate changes).
-        if not isinstance(self._baudrate, numbers.Integral) or not 0 < self._baudrate < 2**32:
-            raise ValueError(f"invalid baudrate: {self._baudrate!r}")
+        baud: object = self.baudrate  # as set: pyserial's setter lets a float through
+        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2**32:
+            raise ValueError(f"invalid baudrate: {baud!r}")
 
     def _check_open(self) -> None:
         if not self.is_open:
@@ -322,7 +327,8 @@ class Serial(SerialBase):
     def read(self, size: int = 1) -> bytes:
         """Up to ``size`` bytes, waiting up to ``timeout`` s (None: forever) for all of them."""
         self._check_open()
-        deadline = None if self._timeout is None else time.monotonic() + self._timeout
+        timeout = self.timeout
+        deadline = None if timeout is None else time.monotonic() + timeout
         out = bytearray()
         with self._cond:
             while True:
@@ -345,7 +351,7 @@ class Serial(SerialBase):
                 # waits for a reply that may never come.
                 self._cond.wait(remaining)
 
-    def write(self, data: bytes) -> int:
+    def write(self, data: Buffer) -> int:
         """Accept ``data`` if it is what the capture's TX records expect next, else raise
         :class:`ReplayDivergence` (nothing of ``data`` is consumed then)."""
         self._check_open()
