@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -243,7 +243,7 @@ class CanBusConfig(BaseModel):
         """Leg k's encoder (k in 1..6)."""
         return self.legs[k - 1]
 
-    def bus_kwargs(self) -> dict[str, object]:
+    def bus_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``can.Bus``."""
         return {"interface": self.interface, "channel": self.channel, "bitrate": self.bitrate}
 
