@@ -244,10 +244,12 @@ class _Encoder:
         self.sync_error = False
         if self.pending_id != self.node_id:
             network = self.node.network
+            if not isinstance(network, _Network):
+                raise RuntimeError(f"leg {self.leg}'s encoder is not on the mock's network")
             self.detach()
             self.node_id = self.pending_id
             self.node = self._build()
-            self.attach(network)  # type: ignore[arg-type]
+            self.attach(network)
 
 
 class MockEncoderNodes:

@@ -147,7 +147,7 @@ def parse_capture(text: str, source: str = "<capture>") -> list[CaptureChunk]:
     chunks: list[CaptureChunk] = []
     data = bytearray()
     rows: list[tuple[int, int]] = []
-    direction: str | None = None
+    direction: Literal["TX", "RX"] | None = None
     prev: tuple[str, int, int] | None = None  # last data row: direction, offset, length
 
     def bad(lineno: int, line: str, reason: str) -> CaptureError:
@@ -159,7 +159,7 @@ def parse_capture(text: str, source: str = "<capture>") -> list[CaptureChunk]:
 
     def flush() -> None:
         if direction is not None and data:
-            chunks.append(CaptureChunk(direction, bytes(data), tuple(rows)))  # type: ignore[arg-type]
+            chunks.append(CaptureChunk(direction, bytes(data), tuple(rows)))
 
     # split("\n"), not splitlines(): line numbers must be those an editor shows.
     for lineno, raw in enumerate(text.split("\n"), start=1):
@@ -194,7 +194,8 @@ def parse_capture(text: str, source: str = "<capture>") -> list[CaptureChunk]:
         prev = (label, offset, len(row))
         if label != direction:
             flush()
-            data, rows, direction = bytearray(), [], label
+            data, rows = bytearray(), []
+            direction = "TX" if label == "TX" else "RX"  # the label is one of them (above)
         rows.append((len(data), lineno))
         data += row
     flush()
