@@ -16,8 +16,9 @@ changes between the rig and the tests.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -242,7 +243,7 @@ class CanBusConfig(BaseModel):
         """Leg k's encoder (k in 1..6)."""
         return self.legs[k - 1]
 
-    def bus_kwargs(self) -> dict[str, object]:
+    def bus_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``can.Bus``."""
         return {"interface": self.interface, "channel": self.channel, "bitrate": self.bitrate}
 
@@ -265,9 +266,9 @@ def load_can_config(path: str | Path) -> CanBusConfig:
         if path.suffix.lower() == ".json":
             data = json.loads(raw)
         else:
-            try:
+            if sys.version_info >= (3, 11):
                 import tomllib
-            except ModuleNotFoundError:  # Python 3.10
+            else:  # Python 3.10
                 import tomli as tomllib
             data = tomllib.loads(raw.decode("utf-8"))
     except (ValueError, UnicodeDecodeError) as exc:

@@ -129,7 +129,7 @@ def set_node_id(
             ) from None
         lss.send_switch_state_global(LssMaster.WAITING_STATE)
         if old not in (0, 0xFF, new_node_id):
-            net.send_message(0x000, [NMT_RESET_COMMUNICATION, old])
+            net.send_message(0x000, bytes([NMT_RESET_COMMUNICATION, old]))
         return LssResult(address, old, new_node_id, bitrate, store)
     finally:
         net.disconnect()

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import canopen
-from canopen.objectdictionary import SIGNED_TYPES
+from canopen.objectdictionary import SIGNED_TYPES, ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
@@ -199,6 +199,13 @@ def configure_node(network: canopen.Network, leg: LegEncoderConfig, bus: CanBusC
     PRE-OPERATIONAL (it may be OPERATIONAL for the reads, not for the PDO writes). Returns what
     was read and set; raises :class:`EncoderConfigError`."""
     node = network[leg.node_id]
+    if not isinstance(node, canopen.RemoteNode):
+        raise EncoderConfigError(
+            f"{_name(leg)}: node id 0x{leg.node_id:02X} on {bus.bus_name} is served by this host "
+            "(a canopen LocalNode), not an encoder it can configure",
+            leg.leg,
+            leg.node_id,
+        )
     node.sdo.RESPONSE_TIMEOUT = bus.sdo_timeout_s
     sdo = _Sdo(node, leg, bus)
     device_type = sdo.read(DEVICE_TYPE)
@@ -213,6 +220,13 @@ def configure_node(network: canopen.Network, leg: LegEncoderConfig, bus: CanBusC
         )
     ident = [sdo.read(IDENTITY, s, optional=True) for s in (1, 2, 3, 4)]
     od_pos = node.object_dictionary[POSITION]
+    if not isinstance(od_pos, ODVariable):
+        raise EncoderConfigError(
+            f"{_name(leg)}: 0x{POSITION:04X} (position value) is not a single variable in its EDS "
+            "— give the vendor's EDS (can.eds in the rig file)",
+            leg.leg,
+            leg.node_id,
+        )
     position_type = "INTEGER32" if od_pos.data_type in SIGNED_TYPES else "UNSIGNED32"
     total_range = sdo.read(TOTAL_RANGE, optional=True) or None
     operating = sdo.read(OPERATING_PARAMETERS, optional=True)

@@ -57,6 +57,8 @@ try:
     _IO_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
 except ImportError:  # pragma: no cover - Windows
     _IO_ERRORS = (OSError,)
+#: What opening the port may raise: a bad URL or setting, or the OS refusing the device.
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (ValueError, *_IO_ERRORS)
 
 
 class LineProtocolError(TrackerFormatError, ValueError):
@@ -116,15 +118,16 @@ def parse_line(
     """The record on ``line``, or None for a blank or comment line. Raises
     :class:`LineProtocolError` naming ``source`` and ``lineno``."""
     if isinstance(line, bytes):
+        data = line
         try:
-            line = line.decode("ascii")
+            line = data.decode("ascii")
         except UnicodeDecodeError:
             raise LineProtocolError(
-                f"{_where(source, lineno)}: not ASCII text ({line[:60]!r}); check the baud rate and "
+                f"{_where(source, lineno)}: not ASCII text ({data[:60]!r}); check the baud rate and "
                 "that the device sends this line protocol",
                 source,
                 lineno,
-                line.decode("ascii", "replace"),
+                data.decode("ascii", "replace"),
             ) from None
     raw = line.rstrip("\r\n")
     fields = raw.split("#", 1)[0].split()
@@ -204,7 +207,7 @@ class LineTracker:
         self.url = url
         self.baudrate = baudrate
         self.timeout = check_duration("timeout", timeout)
-        self.port: serial.SerialBase | None = None
+        self.port: serial.Serial | None = None
         self.lineno = 0
         self._buf = bytearray()
 
@@ -212,7 +215,7 @@ class LineTracker:
         self.close()
         try:
             self.port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.02)
-        except (ValueError, *_IO_ERRORS) as exc:
+        except _OPEN_ERRORS as exc:
             raise TrackerDisconnected(
                 f"cannot open the tracker port {self.url}: {exc}. Check the port name and that the "
                 "device is connected",

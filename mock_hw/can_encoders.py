@@ -106,6 +106,15 @@ LSS_BIT_TIMING = {
 }
 
 
+def _position_variable(node: canopen.LocalNode) -> ODVariable:
+    """0x6004 (position value) in the node's object dictionary, a single variable in any
+    CiA 406 EDS."""
+    od = node.object_dictionary[0x6004]
+    if not isinstance(od, ODVariable):
+        raise TypeError(f"0x6004 in the EDS is a {type(od).__name__}, not a single variable")
+    return od
+
+
 class _Network(canopen.Network):
     """The mock's side of the bus: every frame a node sends goes through the mock's
     :meth:`MockEncoderNodes._send` (stamping, silence, bus-off), and periodic frames (the
@@ -235,10 +244,12 @@ class _Encoder:
         self.sync_error = False
         if self.pending_id != self.node_id:
             network = self.node.network
+            if not isinstance(network, _Network):
+                raise RuntimeError(f"leg {self.leg}'s encoder is not on the mock's network")
             self.detach()
             self.node_id = self.pending_id
             self.node = self._build()
-            self.attach(network)  # type: ignore[arg-type]
+            self.attach(network)
 
 
 class MockEncoderNodes:
@@ -572,7 +583,7 @@ class MockEncoderNodes:
         """A reading as the node's 0x6004 value: counts, clipped or wrapped as its type is."""
         cfg = self.config.leg(enc.leg)
         counts = cfg.mm_to_counts(reading_mm)
-        od = enc.node.object_dictionary[0x6004]
+        od = _position_variable(enc.node)
         if od.data_type == canopen.objectdictionary.UNSIGNED32:
             span = enc.value(0x6002) if 0x6002 in enc.node.object_dictionary else 0
             return counts % (span or 2**32)
@@ -585,7 +596,7 @@ class MockEncoderNodes:
             entry = enc.value(0x1A00 + n - 1, s)
             index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
             if index == 0x6004:
-                od = enc.node.object_dictionary[0x6004]
+                od = _position_variable(enc.node)
                 out += od.encode_raw(self._counts(enc, reading_mm))
             else:
                 out += enc.node.get_data(index, sub)[: bits // 8]

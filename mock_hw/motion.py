@@ -152,8 +152,8 @@ class MockMotionController:
         """Move to a pose (P (3,) mm, R (3, 3)); refused if it breaks the clamp or the limits."""
         P, R = np.asarray(position, float), np.asarray(rotation, float)
         off = self.violation_mm(P, R)
-        if off > self.tolerance_mm:
-            c = self.clamp_state
+        c = self.clamp_state
+        if off > self.tolerance_mm and c is not None:  # no clamp: nothing to violate (off 0)
             raise MotionError(
                 f"leg {c.leg} is clamped ({c.constraint}): that pose would move it {off:.3f} mm "
                 "against the clamp — release the clamp or choose a pose that respects it"

@@ -16,10 +16,14 @@ from __future__ import annotations
 
 import numbers
 import time
+from typing import TYPE_CHECKING
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from hexcal.mock_hw.ndi_tracker import MockNDITracker, device_for_url
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 
 class Serial(SerialBase):
@@ -36,10 +40,11 @@ class Serial(SerialBase):
     def open(self) -> None:
         if self.is_open:
             raise SerialException("Port is already open.")
-        if self._port is None:
+        port = self.portstr
+        if port is None:
             raise SerialException("Port must be configured before it can be used.")
         try:
-            device = device_for_url(self.portstr)
+            device = device_for_url(port)
         except (ValueError, KeyError) as exc:
             raise SerialException(f"could not open port {self.portstr}: {exc.args[0]}") from None
         if not device.plugged:
@@ -58,8 +63,9 @@ class Serial(SerialBase):
         super().close()
 
     def _reconfigure_port(self) -> None:
-        if not isinstance(self._baudrate, numbers.Integral) or not 0 < self._baudrate < 2**32:
-            raise ValueError(f"invalid baudrate: {self._baudrate!r}")
+        baud: object = self.baudrate  # as set: pyserial's setter lets a float through
+        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2**32:
+            raise ValueError(f"invalid baudrate: {baud!r}")
 
     def _live(self) -> MockNDITracker:
         if not self.is_open or self._device is None:
@@ -76,7 +82,8 @@ class Serial(SerialBase):
 
     def read(self, size: int = 1) -> bytes:
         dev = self._live()
-        deadline = None if self._timeout is None else time.monotonic() + self._timeout
+        timeout = self.timeout
+        deadline = None if timeout is None else time.monotonic() + timeout
         data = bytearray()
         while len(data) < size:
             remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
@@ -88,10 +95,10 @@ class Serial(SerialBase):
                 break
         return bytes(data)
 
-    def write(self, data: bytes) -> int:
+    def write(self, data: Buffer) -> int:
         dev = self._live()
         data = bytes(data)
-        dev.feed(data, host_baud=self._baudrate)
+        dev.feed(data, host_baud=self.baudrate)
         return len(data)
 
     def reset_input_buffer(self) -> None:
@@ -107,7 +114,7 @@ class Serial(SerialBase):
 
     # -- modem lines and break --------------------------------------------------------------------------
     def _update_break_state(self) -> None:
-        if self._break_state:  # the tracker resets on the BREAK's start
+        if self.break_condition:  # the tracker resets on the BREAK's start
             self._live().on_break()
 
     def _update_rts_state(self) -> None:

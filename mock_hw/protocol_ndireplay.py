@@ -54,10 +54,13 @@ import re
 import threading
 import time
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 URL_SCHEME = "ndireplay"
 
@@ -144,7 +147,7 @@ def parse_capture(text: str, source: str = "<capture>") -> list[CaptureChunk]:
     chunks: list[CaptureChunk] = []
     data = bytearray()
     rows: list[tuple[int, int]] = []
-    direction: str | None = None
+    direction: Literal["TX", "RX"] | None = None
     prev: tuple[str, int, int] | None = None  # last data row: direction, offset, length
 
     def bad(lineno: int, line: str, reason: str) -> CaptureError:
@@ -156,7 +159,7 @@ def parse_capture(text: str, source: str = "<capture>") -> list[CaptureChunk]:
 
     def flush() -> None:
         if direction is not None and data:
-            chunks.append(CaptureChunk(direction, bytes(data), tuple(rows)))  # type: ignore[arg-type]
+            chunks.append(CaptureChunk(direction, bytes(data), tuple(rows)))
 
     # split("\n"), not splitlines(): line numbers must be those an editor shows.
     for lineno, raw in enumerate(text.split("\n"), start=1):
@@ -191,7 +194,8 @@ def parse_capture(text: str, source: str = "<capture>") -> list[CaptureChunk]:
         prev = (label, offset, len(row))
         if label != direction:
             flush()
-            data, rows, direction = bytearray(), [], label
+            data, rows = bytearray(), []
+            direction = "TX" if label == "TX" else "RX"  # the label is one of them (above)
         rows.append((len(data), lineno))
         data += row
     flush()
@@ -254,9 +258,10 @@ class Serial(SerialBase):
     def open(self) -> None:
         if self.is_open:
             raise SerialException("Port is already open.")
-        if self._port is None:
+        port = self.portstr
+        if port is None:
             raise SerialException("Port must be configured before it can be used.")
-        path = capture_path(self.portstr)
+        path = capture_path(port)
         chunks = load_capture(path)
         with self._cond:
             self._path, self._chunks = path, chunks
@@ -271,8 +276,9 @@ class Serial(SerialBase):
 
     def _reconfigure_port(self) -> None:
         # No line to configure: any valid baud rate is accepted (spy records no rate changes).
-        if not isinstance(self._baudrate, numbers.Integral) or not 0 < self._baudrate < 2**32:
-            raise ValueError(f"invalid baudrate: {self._baudrate!r}")
+        baud: object = self.baudrate  # as set: pyserial's setter lets a float through
+        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2**32:
+            raise ValueError(f"invalid baudrate: {baud!r}")
 
     def _check_open(self) -> None:
         if not self.is_open:
@@ -322,7 +328,8 @@ class Serial(SerialBase):
     def read(self, size: int = 1) -> bytes:
         """Up to ``size`` bytes, waiting up to ``timeout`` s (None: forever) for all of them."""
         self._check_open()
-        deadline = None if self._timeout is None else time.monotonic() + self._timeout
+        timeout = self.timeout
+        deadline = None if timeout is None else time.monotonic() + timeout
         out = bytearray()
         with self._cond:
             while True:
@@ -345,7 +352,7 @@ class Serial(SerialBase):
                 # waits for a reply that may never come.
                 self._cond.wait(remaining)
 
-    def write(self, data: bytes) -> int:
+    def write(self, data: Buffer) -> int:
         """Accept ``data`` if it is what the capture's TX records expect next, else raise
         :class:`ReplayDivergence` (nothing of ``data`` is consumed then)."""
         self._check_open()

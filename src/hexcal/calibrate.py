@@ -59,7 +59,8 @@ class Calibration:
 
         r = self.refinement
         i = 42 if self.model == 42 else 36
-        keep, values = [], []
+        keep: list[str] = []
+        values: list[float] = []
         for e in self.effects:
             eff = get_effect(e)
             n = len(eff.params(self.robot))

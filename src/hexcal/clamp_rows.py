@@ -62,7 +62,7 @@ class ClampSteps:
             if c not in N_NUISANCE or not 1 <= k <= 6:
                 continue
             group[i] = keys.setdefault((int(k), str(c), str(s)), len(keys))
-        ordered = sorted(keys, key=keys.get)
+        ordered = sorted(keys, key=keys.__getitem__)
         return cls(
             group,
             np.array([k - 1 for k, _, _ in ordered], int),
@@ -180,14 +180,14 @@ class ClampModel:
         return int(self.mask.sum())
 
     def nuisance_vector(self, nu: Nuisance) -> np.ndarray:
-        out = []
+        out: list[np.ndarray] = []
         for s, c in enumerate(self.steps.kind):
             if c == "direction":
                 out.append(np.zeros(2))
             elif c == "direction+length":
                 out.append(nu.C[s])
             else:
-                out.append([nu.r[s]])
+                out.append(np.array([nu.r[s]]))
         return np.concatenate(out) if out else np.zeros(0)
 
     def nuisance_values(self, x: np.ndarray) -> Nuisance:
@@ -233,9 +233,9 @@ class ClampModel:
         res[:, :6] = length - pred
         rtn = np.einsum("mji,mkj->mki", self.R, n)
         if want_jac:
-            for c in range(3):
-                jac[:, legs, 3 * legs + c] = -n[:, :, c]
-                jac[:, legs, 18 + 3 * legs + c] = rtn[:, :, c]
+            for axis in range(3):
+                jac[:, legs, 3 * legs + axis] = -n[:, :, axis]
+                jac[:, legs, 18 + 3 * legs + axis] = rtn[:, :, axis]
             if self.fit_offsets:
                 jac[:, legs, 36 + legs] = -1.0
             if q:

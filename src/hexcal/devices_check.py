@@ -139,7 +139,7 @@ def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
                     # A pose with a port-status fault bit is "ok" by its state but refused:
                     # what the driver says of it is the verdict.
                     problem = tool.problem(cfg.tracker.url)
-                    if tool.state == "ok" and problem is None:
+                    if tool.state == "ok" and problem is None and tool.position is not None:
                         p = np.round(tool.position, 3).tolist()
                         lines.append(
                             f"  tool {tool.handle:02X}: tracked at {p} mm, RMS {tool.rms_mm:.3f} mm"

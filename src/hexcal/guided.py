@@ -221,6 +221,13 @@ class GuidedSession:
         return self.steps[self.index]
 
     @property
+    def _rec(self) -> StepRecorder:
+        """The current step's recorder (none once the procedure is finished)."""
+        if self.recorder is None:
+            raise GuidedError("the procedure is finished: every step is done or skipped")
+        return self.recorder
+
+    @property
     def n_poses(self) -> int:
         """Poses recorded in the current step."""
         return len(self.recorder.poses) if self.recorder else 0
@@ -277,7 +284,7 @@ class GuidedSession:
             self._sink("refused", st, None, str(exc))
             return False, self._say(f"pose refused: {exc}")
         try:
-            self.recorder.accept(pose)
+            self._rec.accept(pose)
         except ClampSlipped as exc:
             self._sink("refused", st, pose, str(exc))
             return False, self._say(str(exc))
@@ -292,8 +299,8 @@ class GuidedSession:
         """Set the current step's last pose aside (kept in the file, out of the calibration)."""
         if not self.n_poses:
             raise GuidedError(f"{self.step.name} has no pose to undo")
-        self.recorder.poses.pop()
-        if not self.recorder.poses:
+        self._rec.poses.pop()
+        if not self._rec.poses:
             self.recorder = StepRecorder(self.step, self.clamp_tolerance_mm)
         self.sf.undo_last_pose()
         return self._say(f"{self.step.name}: last pose set aside ({self.n_poses} left)")
@@ -306,10 +313,11 @@ class GuidedSession:
             raise GuidedError(
                 f"{st.name} needs at least {st.min_poses} poses ({self.n_poses} so far)"
             )
-        check = self.recorder.finish(per_pose_noise(self.recorder.poses), self.platform_radius_mm)
+        rec = self._rec
+        check = rec.finish(per_pose_noise(rec.poses), self.platform_radius_mm)
         self.release()
         if not check.ok:
-            for p in self.recorder.poses:
+            for p in rec.poses:
                 self._sink("set-aside", st, p, check.message)
             self.recorder = StepRecorder(st, self.clamp_tolerance_mm)
             self._say(check.message)
@@ -386,21 +394,18 @@ class GuidedSession:
             return f"leg {st.leg} not clamped yet", True
         k = st.leg - 1
         parts, ok = [], True
-        tol = self.recorder.clamp_tolerance_mm
+        rec = self._rec
+        tol = rec.clamp_tolerance_mm
         if "length" in st.constraint:
-            ref = (
-                float(self.recorder.poses[0].readings[k])
-                if self.recorder.poses
-                else self._clamp_reading
-            )
+            ref = float(rec.poses[0].readings[k]) if rec.poses else self._clamp_reading
             if ref is not None and np.isfinite(readings[k]):
                 d = float(readings[k] - ref)
                 ok = abs(d) <= tol
                 parts.append(
-                    f"length {d:+.4f} mm since {'the first pose' if self.recorder.poses else 'clamped'}"
+                    f"length {d:+.4f} mm since {'the first pose' if rec.poses else 'clamped'}"
                     f" (±{tol:g})" + ("" if ok else " — SLIPPING")
                 )
-        if "direction" in st.constraint and pos is not None and len(self.recorder.poses) >= 4:
+        if "direction" in st.constraint and pos is not None and len(rec.poses) >= 4:
             off = self._direction_offset(pos, Rotation.from_rotvec(rv, degrees=True), readings[k])
             limit = max(4 * self._noise_mm(), 0.03)
             good = off <= limit
@@ -432,10 +437,14 @@ class GuidedSession:
         return DEFAULT_POSE_NOISE
 
     def _arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        poses = self.recorder.poses
+        """The current step's poses: P (n, 3), R (n, 3, 3), the clamped leg's readings (n,)."""
+        st = self.step
+        if not st.leg:
+            raise GuidedError(f"{st.name} clamps no leg: its poses make no leg's system")
+        poses = self._rec.poses
         P = np.array([p.position for p in poses])
         R = Rotation.from_quat(np.array([p.quaternion for p in poses]), scalar_first=True)
-        rho = np.array([p.readings[self.step.leg - 1] for p in poses]) if self.step.leg else None
+        rho = np.array([p.readings[st.leg - 1] for p in poses])
         return P, R.as_matrix(), rho
 
     def _direction_offset(self, pos: np.ndarray, rot: Rotation, reading: float) -> float:
@@ -470,6 +479,7 @@ class GuidedSession:
             + (np.deg2rad(noise.orientation_deg) * self.platform_radius_mm) ** 2
             + (noise.reading_mm**2 if st.constraint == "direction" else 0.0)
         )
+        groups: tuple[slice | None, slice]
         if st.constraint == "direction":
             A, _ = type_i_system(P, R, rho)
             groups = (slice(0, 3), slice(3, 6))
@@ -635,7 +645,7 @@ class GuidedSession:
         counts: dict[str, int] = {}
         for r in self.sf.session.poses:
             counts[r.step] = counts.get(r.step, 0) + 1
-        out = []
+        out: list[tuple[str, str, int, int, int]] = []
         for i, s in enumerate(self.steps):
             state = prog[s.name].status if s.name in prog else ("now" if i == self.index else "")
             out.append((s.name, state, counts.get(s.name, 0), s.min_poses, s.n_poses))

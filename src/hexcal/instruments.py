@@ -75,6 +75,12 @@ class Instruments(BaseModel):
         """Encoder reading noise, mm, one standard deviation."""
         return float(self.encoders.reading_sigma_mm)
 
+    def stated_source(self) -> str | None:
+        """The optional ``source`` key: where the figures came from, when the file (or the
+        hexcal step that estimated them) says."""
+        value = (self.model_extra or {}).get("source")
+        return None if value is None else str(value)
+
     def to_json(self) -> str:
         """instruments.json text (indent 2), unknown keys included."""
         return json.dumps(self.model_dump(), indent=2, allow_nan=False) + "\n"

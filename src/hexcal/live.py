@@ -13,10 +13,14 @@ import logging
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hexcal.acquisition import Acquisition, StillWindow, TrackerSample
 from hexcal.devices import DevicesConfig
+
+if TYPE_CHECKING:
+    from hexcal.drivers.lineproto import LineTracker
+    from hexcal.drivers.ndi import NDITracker
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +79,7 @@ def open_rig(cfg: DevicesConfig, window: StillWindow | None = None) -> Iterator[
     from hexcal.drivers.can_encoders import LegEncoders
 
     with contextlib.ExitStack() as stack:
+        tracker: NDITracker | LineTracker
         if cfg.tracker.kind == "ndi":
             from hexcal.drivers.ndi import NDITracker
 

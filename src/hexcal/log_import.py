@@ -248,16 +248,21 @@ def import_log(log_path: str | Path, mapping: LogMap | str | Path) -> Measuremen
             f"{log.path}: line {i + 2}, column {c.constraint!r}: {unknown[0]!r} is not a "
             f"constraint ({', '.join(CONSTRAINTS)})"
         )
-    kwargs = {}
-    if c.step:
-        kwargs["step"] = log.text(c.step)
-    if c.pose_id:
-        kwargs["pose_id"] = log.numbers(c.pose_id).astype(np.int64)
-    if c.temperature:
-        kwargs["temperature"] = log.numbers(c.temperature)
+    # A column not mapped is left to from_arrays' default (None).
+    step = log.text(c.step) if c.step else None
+    pose_id = log.numbers(c.pose_id).astype(np.int64) if c.pose_id else None
+    temperature = log.numbers(c.temperature) if c.temperature else None
     try:
         return Measurements.from_arrays(
-            position, rot, readings, leg=leg, constraint=constraint, t=t, **kwargs
+            position,
+            rot,
+            readings,
+            leg=leg,
+            constraint=constraint,
+            t=t,
+            step=step,
+            pose_id=pose_id,
+            temperature=temperature,
         )
     except ValueError as exc:
         raise LogImportError(f"{log.path}: {exc}") from None

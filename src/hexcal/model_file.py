@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -36,7 +36,7 @@ MAX_PARAMETER = 1e12
 #: A fit or accuracy statistic (RMS, percentile, χ²/dof...): finite, ≥ 0.
 Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False)]
 
-FORMAT = "hexcal-calibrated-model"
+FORMAT: Final = "hexcal-calibrated-model"
 FORMAT_VERSION = 1
 
 

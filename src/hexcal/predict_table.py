@@ -13,6 +13,7 @@ import csv
 import io
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, overload
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -51,6 +52,12 @@ class Table:
     header: list[str]
     rows: list[list[str]]
     lines: list[int]
+
+    @overload
+    def column(self, name: str, required: Literal[True] = True) -> np.ndarray: ...
+
+    @overload
+    def column(self, name: str, required: bool) -> np.ndarray | None: ...
 
     def column(self, name: str, required: bool = True) -> np.ndarray | None:
         if name not in self.header:

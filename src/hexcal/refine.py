@@ -94,6 +94,17 @@ class Refinement:
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
 
+    def whitened(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(whitened Jacobian (6M, p), whitened residual (6M,), whiteners (M, 6, 6)) at the
+        solution. A refinement with clamp rows has none: asking for them is a bug."""
+        jw, rw, w = self.whitened_jacobian, self.whitened_residual, self.whiteners
+        if jw is None or rw is None or w is None:
+            raise ValueError(
+                "this refinement has no whitened arrays (fitted with clamp rows, whose rows are "
+                "not the six leg lengths)"
+            )
+        return jw, rw, w
+
     @property
     def exceeds_stated_noise(self) -> bool:
         """χ²/dof above what the stated noise allows (4σ of χ²/dof, √(2/dof) each): the model
@@ -209,7 +220,7 @@ def refine(
             clamps,
         )
     known = sigmas is not None
-    sig = sigmas if known else DEFAULT_SIGMAS
+    sig = sigmas if sigmas is not None else DEFAULT_SIGMAS
     fixed = np.asarray(offsets0, float)
     q = 0 if basis is None else basis.shape[-1]
     th = np.zeros(q) if theta0 is None else np.asarray(theta0, float)
@@ -279,7 +290,7 @@ def _refine_with_clamps(
 ) -> Refinement:
     """:func:`refine` with the clamp rows: the same parameters, plus each step's nuisance."""
     known = sigmas is not None
-    sig = sigmas if known else DEFAULT_SIGMAS
+    sig = sigmas if sigmas is not None else DEFAULT_SIGMAS
     fixed = np.asarray(offsets0, float)
     m = len(P)
     basis = np.zeros((m, 6, 0)) if basis is None else basis

@@ -29,10 +29,10 @@ from __future__ import annotations
 import json
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -62,7 +62,7 @@ log = logging.getLogger(__name__)
 # (without a handler, Python would print the warnings over the text UI's screen).
 log.addHandler(logging.NullHandler())
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION: Final = 2
 
 
 def _now() -> datetime:
@@ -73,7 +73,7 @@ def _usable(v: float) -> bool:
     return math.isfinite(v) and abs(v) <= MAX_COORDINATE_MM
 
 
-def _nan_to_none(values: Sequence[float]) -> list[float | None]:
+def _nan_to_none(values: Iterable[float]) -> list[float | None]:
     """Values as saved in a raw sample: None where the device gave no number (NaN, infinity,
     or beyond the ±1 km of :data:`~hexcal.safe_read.MAX_COORDINATE_MM`)."""
     return [float(v) if _usable(float(v)) else None for v in values]
@@ -105,7 +105,7 @@ class RawTrackerSample(BaseModel):
         the file never holds NaN and the sample is never taken for a good one."""
         rms = float(s.rms_mm) if _usable(float(s.rms_mm)) and s.rms_mm >= 0 else None
         position, quaternion, fault = s.position, s.quaternion, s.fault
-        bad = []
+        bad: list[str] = []
         if position is not None and not all(_usable(float(v)) for v in position):
             position, bad = None, [*bad, "position"]
         if quaternion is not None and not all(
@@ -260,16 +260,16 @@ class Session(BaseModel):
         columns = [c for c in self.columns if has_t or c != "temperature"]
         extra_names = [c for c in self.columns if c in p[0].extra]
         return Measurements(
-            pose_id=[r.pose_id for r in p],
-            t=[r.t for r in p],
-            step=[r.step for r in p],
-            leg=[r.leg for r in p],
-            constraint=[r.constraint for r in p],
-            position=[r.position for r in p],
-            quaternion=[r.quaternion for r in p],
-            readings=[r.readings for r in p],
+            pose_id=np.asarray([r.pose_id for r in p]),
+            t=np.asarray([r.t for r in p], float),
+            step=np.asarray([r.step for r in p], object),
+            leg=np.asarray([r.leg for r in p]),
+            constraint=np.asarray([r.constraint for r in p], object),
+            position=np.asarray([r.position for r in p], float),
+            quaternion=np.asarray([r.quaternion for r in p], float),
+            readings=np.asarray([r.readings for r in p], float),
             temperature=_none_to_nan(temps) if has_t else None,
-            extra={k: [r.extra.get(k, "") for r in p] for k in extra_names},
+            extra={k: np.asarray([r.extra.get(k, "") for r in p], object) for k in extra_names},
             columns=tuple(columns),
         )
 
@@ -300,8 +300,9 @@ class Session(BaseModel):
         used = [r.pose_id for r in self.poses] + [
             s.pose.pose_id for s in self.set_aside if s.pose is not None
         ]
-        used += [_unreadable_id(s.unreadable_pose) for s in self.set_aside]
-        return max((u for u in used if u is not None), default=0) + 1
+        unreadable = [_unreadable_id(s.unreadable_pose) for s in self.set_aside]
+        used += [u for u in unreadable if u is not None]
+        return max(used, default=0) + 1
 
     def pose_record(
         self,
@@ -407,7 +408,9 @@ def set_aside_null_poses(data: dict[str, Any]) -> list[str]:
         data["poses"] = kept
     for item in aside:
         pose = item.get("pose") if isinstance(item, dict) else None
-        fields = _null_fields(pose) if isinstance(pose, dict) else []
+        if not isinstance(pose, dict):
+            continue
+        fields = _null_fields(pose)
         if fields:
             reason = _null_reason(pose, fields)
             item["unreadable_pose"] = item.pop("pose")
@@ -589,6 +592,8 @@ class SessionFile:
                     # reason only, since no valid record can hold it.
                     reason = f"{reason} (its values are not kept: {exc})"
             if kind == "pose":
+                if rec is None:
+                    raise SessionFileError(f"step {step.name}: a recorded pose came without values")
                 ids[id(pose)] = rec.pose_id
                 self.add_pose(rec)
             elif kind == "refused":

@@ -72,13 +72,15 @@ def simulate_session(
             if n == 0:
                 continue
             P, R = getattr(sim, method)(k, (n,), rng)
-            Ps.append(P), Rs.append(R)
+            Ps.append(P)
+            Rs.append(R)
             legs += [k + 1] * n
             cons += [constraint] * n
             steps += [f"leg{k + 1}-{constraint}"] * n
     if plan.n_free:
         P, R = sim.free((plan.n_free,), rng)
-        Ps.append(P), Rs.append(R)
+        Ps.append(P)
+        Rs.append(R)
         legs += [0] * plan.n_free
         cons += ["free"] * plan.n_free
         steps += ["free"] * plan.n_free
@@ -181,7 +183,7 @@ def write_session_dir(
     )
     save_instruments(inst, outdir / "instruments.json")
     text = truth_json(truth, seed, plan, label)
-    if values is not None:
+    if effect and values is not None:
         from hexcal.effects import get_effect
 
         data = json.loads(text)

@@ -89,11 +89,13 @@ def precise_session(
     starts = sim.free((clusters,), rng)
     Ps, Rs = [], []
     for P, R in zip(*starts, strict=True):
-        Ps.append(P), Rs.append(R)
+        Ps.append(P)
+        Rs.append(R)
         for _ in range(steps):
             size = rng.uniform(0.012, 0.040, 6) * rng.choice([-1.0, 1.0], 6)
             P, R = move_legs(truth, P, R, size * (rng.random(6) < 0.75))
-            Ps.append(P), Rs.append(R)
+            Ps.append(P)
+            Rs.append(R)
     P, R = np.array(Ps), np.array(Rs)
     t = np.cumsum(rng.uniform(5.0, 10.0, len(P)))
     Pm, Rm, rho = sim.measure(rng, P, R, PoseContext(P, R, t, np.full(len(P), 20.0)))

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, overload
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -99,6 +99,24 @@ class NoiseModel:
     @property
     def sigma_reading_mm(self) -> float:
         return self.reading_mm * self._factor
+
+    @overload
+    def apply(
+        self,
+        rng: np.random.Generator,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        readings: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    @overload
+    def apply(
+        self,
+        rng: np.random.Generator,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        readings: None = None,
+    ) -> tuple[np.ndarray, np.ndarray, None]: ...
 
     def apply(
         self,

@@ -16,7 +16,7 @@ end calls these functions and only formats what they return; nothing here prints
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,7 @@ from hexcal.model_file import (
 from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas
 from hexcal.refine import FitStalled
 from hexcal.robot import Robot
+from hexcal.solvers.whole_robot import Form
 
 #: The most effects ``diagnose --auto`` adds before it stops.
 MAX_AUTO_STEPS = 8
@@ -85,7 +86,7 @@ class FitFailed(ValueError):
     """The refinement did not converge: the message names the poses pulling it."""
 
 
-def pose_names(meas: Measurements, rows: Sequence[int]) -> str:
+def pose_names(meas: Measurements, rows: Iterable[int]) -> str:
     """'pose 40 (step leg2-length, t 536.3 s), …' for 0-based rows."""
     return ", ".join(
         f"pose {int(meas.pose_id[i])} (step {meas.step[i]}, t {float(meas.t[i]):g} s)" for i in rows
@@ -185,12 +186,15 @@ def session_inputs(session: Any, path: Path | str) -> Inputs:
     the noise of its own still windows."""
     meas = session.measurements()
     inst = session_instruments(session)
-    source = inst.source if inst is not None else "estimated from the residual"
+    if inst is None:
+        source = "estimated from the residual"
+    else:
+        source = inst.stated_source() or "estimated from the still windows of the recorded poses"
     return Inputs(
         meas,
         session.robot,
         inst,
-        str(source),
+        source,
         f"{path} ({len(meas)} poses)",
         {"session": Path(path)},
     )
@@ -245,15 +249,16 @@ def _noise_record(inp: Inputs, cal: Calibration) -> tuple[Instruments | None, st
     sig = _floor_sigmas(inp, r.chi2 / r.dof)
     if not (sig.position_mm <= 1000.0 and np.degrees(sig.orientation_rad) <= 180.0):
         return None, "estimated from the residual, beyond any instrument's noise: not recorded"
+    source = "estimated from the residual (a typical tracker and encoder, scaled to χ²/dof)"
     inst = Instruments(
         tracker=TrackerNoise(
             position_sigma_mm=sig.position_mm,
             orientation_sigma_deg=float(np.degrees(sig.orientation_rad)),
         ),
         encoders=EncoderNoise(reading_sigma_mm=sig.reading_mm),
-        source="estimated from the residual (a typical tracker and encoder, scaled to χ²/dof)",
+        source=source,
     )
-    return inst, str(inst.source)
+    return inst, source
 
 
 def build_file(
@@ -309,7 +314,7 @@ def calibrate_model(
     model: int = 42,
     effects: Sequence[str] = (),
     clamps: bool = True,
-    form: str = "paper",
+    form: Form = "paper",
     do_refine: bool = True,
 ) -> ModelResult:
     """Calibrate Model ``model`` with ``effects`` (and the model file's own, when the robot
@@ -331,7 +336,7 @@ def calibrate_model(
             inp.design,
             model=model,
             instruments=inp.instruments,
-            form=form,  # type: ignore[arg-type]
+            form=form,
             do_refine=do_refine,
             effects=effects,
             clamps=clamps,
@@ -443,8 +448,8 @@ def result_record(
         "pose_accuracy": [_record(a).model_dump() for a in result.accuracy],
     }
     return ResultRecord(
-        kind=kind,  # type: ignore[arg-type]
-        model=cal.model,  # type: ignore[arg-type]
+        kind=kind,
+        model=cal.model,
         effects=list(cal.effects),
         pose_ids=[int(i) for i in meas.pose_id],
         robot=cal.robot,

@@ -167,7 +167,7 @@ class Diagnosis:
         f = self.fit
         session = self.session_problem
         m = session.meas
-        res, held, floor = f.residuals, f.cv_residuals, self.floor_per_residual
+        res, held, floor = f.residuals, f.held_out_residuals, self.floor_per_residual
         aside = np.zeros(len(m), bool)
         if self.outliers:
             rows = np.array([o.index for o in self.outliers])
@@ -176,7 +176,7 @@ class Diagnosis:
             kept = ~aside
             res[kept], held[kept], floor[kept] = (
                 f.residuals,
-                f.cv_residuals,
+                f.held_out_residuals,
                 self.floor_per_residual,
             )
             res[rows] = held[rows] = pose_residuals(session, f)[rows]
@@ -275,7 +275,8 @@ def _orthonormal(a: np.ndarray) -> np.ndarray:
 def jacobian_basis(fit: ModelFit) -> np.ndarray:
     """Orthonormal basis of the fit's whitened Jacobian (what :func:`score_candidate` projects
     out); computed once per fit when several candidates are scored."""
-    return _orthonormal(fit.refinement.whitened_jacobian)
+    jw, _, _ = fit.refinement.whitened()
+    return _orthonormal(jw)
 
 
 def score_candidate(
@@ -290,12 +291,11 @@ def score_candidate(
             name, 0.0, False, False, reason=why, separating_motion=eff.separating_motion
         )
     ref = fit.refinement
-    W = ref.whiteners
+    jw, rw, W = ref.whitened()
     specs = eff.params(problem.design)
     names = [s.name for s in specs]
     basis = problem.basis(name)
     bw = np.einsum("mij,mjp->mip", W, -basis).reshape(-1, basis.shape[-1])
-    jw = ref.whitened_jacobian
     q = _orthonormal(jw) if q is None else q
     b_perp = bw - q @ (q.T @ bw)
     norms = np.linalg.norm(bw, axis=0)
@@ -313,9 +313,8 @@ def score_candidate(
     )
     unresolved = (sines < MIN_SINE) | ~(se < need)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
-    r = ref.whitened_residual
-    qb = _orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(r), 0))
-    score = float(np.sum((qb.T @ r) ** 2))
+    qb = _orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(rw), 0))
+    score = float(np.sum((qb.T @ rw) ** 2))
     cand = Candidate(
         name,
         score,
@@ -351,6 +350,8 @@ def _closes_excess(
     nibbles at a structured residual, unless another catalogue effect accounts for the rest
     (two hidden effects are then named one after the other)."""
     ref = c.refit
+    if ref is None:
+        raise ValueError(f"{c.effect} has not been refitted: nothing to test")
     if ref.chi2 / (ref.dof * expected_per_dof) <= band:
         return True, ""
     q = None
@@ -368,7 +369,7 @@ def _closes_excess(
 
 
 def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
-    n = base.refinement.whitened_residual.size
+    n = base.refinement.whitened()[1].size
     dp = new.n_params - base.n_params
     if problem.sigmas is not None:
         return (new.chi2 - base.chi2) + dp * np.log(n)
@@ -581,15 +582,17 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
             )
     elif excess:
         verdict = "unexplained"
-        helpful = [c for c in candidates if c.refit is not None and c.delta_bic < BIC_STRONG]
+        helpful = [
+            (c, c.refit) for c in candidates if c.refit is not None and c.delta_bic < BIC_STRONG
+        ]
         if helpful:
             notes.append(
                 "some effects help but none brings the residual to the noise floor, alone or with one more "
                 "catalogue effect: "
                 + ", ".join(
                     f"{c.effect} (explains {100 * c.explained:.0f} % of the excess, leaves χ²/dof "
-                    f"{c.refit.chi2 / (c.refit.dof * s2):.2f})"
-                    for c in helpful
+                    f"{refit.chi2 / (refit.dof * s2):.2f})"
+                    for c, refit in helpful
                 )
             )
     else:

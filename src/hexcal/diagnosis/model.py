@@ -82,17 +82,26 @@ class ModelFit:
         return np.sqrt(np.mean(self.residuals**2, axis=0))
 
     @property
+    def held_out_residuals(self) -> np.ndarray:
+        """(M, 6) mm, the random folds' held-out residuals; a fit made without
+        cross-validation has none, and asking for them is a bug."""
+        if self.cv_residuals is None:
+            raise ValueError(f"{self.model_name} was fitted without cross-validation")
+        return self.cv_residuals
+
+    @property
     def cv_rms_per_leg(self) -> np.ndarray:
-        return np.sqrt(np.mean(self.cv_residuals**2, axis=0))
+        return np.sqrt(np.mean(self.held_out_residuals**2, axis=0))
 
     def rms_per_step(self, steps: np.ndarray) -> dict[str, dict[str, float]]:
         """{step: {"rms_mm", "cv_rms_mm", "poses"}} in recording order; steps (M,) labels."""
         out = {}
+        held = self.held_out_residuals
         for step in dict.fromkeys(steps.tolist()):
             m = steps == step
             out[str(step)] = {
                 "rms_mm": float(np.sqrt(np.mean(self.residuals[m] ** 2))),
-                "cv_rms_mm": float(np.sqrt(np.mean(self.cv_residuals[m] ** 2))),
+                "cv_rms_mm": float(np.sqrt(np.mean(held[m] ** 2))),
                 "poses": int(m.sum()),
             }
         return out
@@ -272,6 +281,8 @@ def out_of_range_note(p: ParamRow, design: Robot) -> str:
     """The note of a value outside its plausible range: what the value means physically and
     what to check (the effect's :meth:`~hexcal.effects.base.Effect.meaning`), or that the range
     can be widened — a flag for the user, not a verdict."""
+    if p.plausible is None:
+        raise ValueError(f"{p.name} has no plausible range to be outside of")
     lo, hi = p.plausible
     effect = "offset" if p.name.startswith("offset") else p.name.split(".")[0]
     meaning = get_effect(effect).meaning(p.name, p.value, design)
@@ -442,6 +453,8 @@ def design_accuracy(problem: Problem, sig: NoiseSigmas | None = None) -> PoseAcc
 def noise_floor(problem: Problem, fit: ModelFit) -> np.ndarray:
     """(M, 6) mm: the standard deviation of each residual that the stated noise alone gives,
     propagated through the fitted geometry (the diagonal of each pose's 6×6 covariance)."""
+    if problem.sigmas is None:
+        raise ValueError("the noise floor needs the instruments' stated noise")
     r = fit.refinement
     cov = leg_covariance(r.a, r.b, problem.meas.position, problem.R, problem.sigmas)
     return np.sqrt(np.einsum("mkk->mk", cov))

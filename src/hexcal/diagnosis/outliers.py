@@ -89,8 +89,8 @@ class Subset(Problem):
     session's, rows taken; the linear seeds are recomputed without the poses set aside.
     """
 
-    parent: Problem | None = None
-    rows: np.ndarray | None = None  #: (n,) row indices into the parent's table
+    parent: Problem = field(kw_only=True)
+    rows: np.ndarray = field(kw_only=True)  #: (n,) row indices into the parent's table
 
     @classmethod
     def of(cls, parent: Problem, rows: np.ndarray) -> Subset:
@@ -248,11 +248,9 @@ def find_outliers(
         )
         out[:] = False
         sub = problem
-    residuals = None
-    if out.any():
-        residuals = pose_residuals(problem, rich)
     outliers = []
     meas = problem.meas
+    residuals = pose_residuals(problem, rich) if out.any() else np.zeros((0, 6))
     for i in np.where(out)[0]:
         k = int(np.argmax(np.abs(residuals[i])))
         outliers.append(

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -355,7 +356,7 @@ def _plot_time(view: _View, outdir: Path, name: str) -> Path:
     ax.set_ylabel(view.resid_label)
     ax.grid(True, alpha=0.25)
     _title(fig, view, "residual against time (recording order)")
-    legend = [
+    legend: list[Artist] = [
         Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.8, label=f"leg {k + 1}")
         for k in range(6)
     ]
@@ -392,7 +393,7 @@ def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
         if i == 0:
             ax.set_ylabel(view.resid_label)
     _title(fig, view, "residual against platform pose")
-    legend = [
+    legend: list[Artist] = [
         Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.3, label=f"leg {k + 1}")
         for k in range(6)
     ]
@@ -757,18 +758,16 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     first, last = diags[0], diags[-1]
-    panels = [("drawing (robot.json)", first.design_pose_errors, "all poses")]
-    panels.append((first.fit.model_name, first.pose_errors, "held-out"))
-    if len(diags) > 1:
-        panels.append((last.fit.model_name, last.pose_errors, "held-out"))
     # Each step's errors are over the poses it kept (gross outliers set aside), so each panel
     # places its own poses.
-    where = [first.problem.meas, first.problem.meas]
+    shown = [
+        ("drawing (robot.json)", first.design_pose_errors, "all poses", first.problem.meas),
+        (first.fit.model_name, first.pose_errors, "held-out", first.problem.meas),
+    ]
     if len(diags) > 1:
-        where.append(last.problem.meas)
-    keep = [i for i, p in enumerate(panels) if p[1] is not None]
-    panels = [panels[i] for i in keep]
-    where = [where[i] for i in keep]
+        shown.append((last.fit.model_name, last.pose_errors, "held-out", last.problem.meas))
+    panels = [(title, e, kind) for title, e, kind, _ in shown if e is not None]
+    where = [meas for _, e, _, meas in shown if e is not None]
     values = np.concatenate([e.position_mm[e.closed] for _, e, _ in panels]) * UM
     lo = max(float(np.min(values[values > 0])), 1e-3)
     norm_ = LogNorm(vmin=lo, vmax=max(float(values.max()), 10 * lo))

@@ -19,6 +19,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TypeGuard
 
 import numpy as np
 
@@ -148,7 +149,7 @@ def _e(text: object) -> str:
     return html.escape(str(text), quote=True)
 
 
-def _finite(v: float | None) -> bool:
+def _finite(v: float | None) -> TypeGuard[float]:
     return v is not None and bool(np.isfinite(v))
 
 

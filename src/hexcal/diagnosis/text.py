@@ -77,10 +77,12 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             "session, set aside: --add outliers acknowledges them"
         )
     else:
-        c = d.candidate(v)
+        won = d.candidate(v)
+        if won is None:
+            raise ValueError(f"the verdict {v!r} is none of the scored candidates")
         lines.append(
-            f"verdict: {v} — it explains {100 * c.explained:.0f} % of the excess over the noise floor "
-            f"(ΔBIC {c.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → {_um(c.cv_rms_mm_after)} µm "
+            f"verdict: {v} — it explains {100 * won.explained:.0f} % of the excess over the noise floor "
+            f"(ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → {_um(won.cv_rms_mm_after)} µm "
             f"(floor {_um(d.noise_floor_mm)} µm). Add it: --add {v}"
         )
         from hexcal.effects import get_effect

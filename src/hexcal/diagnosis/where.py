@@ -9,6 +9,8 @@ tested) and is at least twice the noise.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -102,7 +104,7 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
     worst_legs = [
         g["group"] for g in sorted(legs, key=lambda g: -g["excess_ratio"]) if g["stands_out"]
     ]
-    out = {
+    out: dict[str, Any] = {
         "legs": legs,
         "steps": steps,
         "time": time,

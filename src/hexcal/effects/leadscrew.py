@@ -35,7 +35,10 @@ class Leadscrew(Effect):
         return with_priors(self.name, specs, robot)
 
     def basis(self, data: EffectData) -> np.ndarray:
-        phase = 2 * np.pi * data.readings / float(data.robot.leadscrew_pitch_mm)
+        pitch = data.robot.leadscrew_pitch_mm
+        if not pitch:
+            raise ValueError("leadscrew: robot.json has no leadscrew_pitch_mm")
+        phase = 2 * np.pi * data.readings / float(pitch)
         out = np.zeros((*data.readings.shape, 12))
         k = np.arange(6)
         out[:, k, 2 * k] = np.sin(phase)

@@ -32,6 +32,8 @@ class Thermal(Effect):
         return with_priors(self.name, [spec], robot)
 
     def basis(self, data: EffectData) -> np.ndarray:
+        if data.temperature is None:
+            raise ValueError("thermal: the measurements have no temperature column")
         length = data.readings + data.robot.offsets
         return ((data.temperature - T_REF)[:, None] * length * 1e-6)[..., None]
 

@@ -28,13 +28,24 @@ from hexcal.session import Session, SessionFile, SessionFileError
 from hexcal.tui.backend import Backend, Rig
 
 
-class StartScreen(Screen):
+class HexcalScreen(Screen):
+    """A screen of hexcal's UI: ``hexcal`` is the app it runs in, as a :class:`HexcalApp`."""
+
+    @property
+    def hexcal(self) -> HexcalApp:
+        app = self.app
+        if not isinstance(app, HexcalApp):
+            raise TypeError(f"hexcal's screens run in a HexcalApp, not in a {type(app).__name__}")
+        return app
+
+
+class StartScreen(HexcalScreen):
     """Robot, devices, procedure and session file; start a new session or resume one."""
 
     BINDINGS = [("ctrl+n", "new", "New session"), ("ctrl+r", "resume", "Resume session")]
 
     def compose(self) -> ComposeResult:
-        app: HexcalApp = self.app  # type: ignore[assignment]
+        app = self.hexcal
         yield Header()
         with Vertical(id="start"):
             yield Static(
@@ -76,7 +87,7 @@ class StartScreen(Screen):
         self.query_one("#start-message", Static).update(text)
 
     def action_new(self) -> None:
-        app: HexcalApp = self.app  # type: ignore[assignment]
+        app = self.hexcal
         path = Path(self.query_one("#session-path", Input).value.strip())
         name = str(self.query_one("#procedure", Select).value)
         try:
@@ -91,7 +102,7 @@ class StartScreen(Screen):
         app.begin(sf, proc)
 
     def action_resume(self) -> None:
-        app: HexcalApp = self.app  # type: ignore[assignment]
+        app = self.hexcal
         path = Path(self.query_one("#session-path", Input).value.strip())
         try:
             sf = SessionFile.resume(path)
@@ -172,10 +183,12 @@ class HexcalApp(App):
         message.fn(*message.args)
 
     def on_mount(self) -> None:
-        self._log = logging.getLogger("hexcal")
+        # Not ``_log``: that is Textual's own App._log, which every ``self.log`` call goes
+        # through.
+        self._hexcal_log = logging.getLogger("hexcal")
         self._handler = _ToScreen(self)
-        self._log.addHandler(self._handler)
-        self._propagate, self._log.propagate = self._log.propagate, False
+        self._hexcal_log.addHandler(self._handler)
+        self._propagate, self._hexcal_log.propagate = self._hexcal_log.propagate, False
         self.push_screen(StartScreen())
 
     def device_message(self, text: str, level: int = logging.WARNING) -> None:
@@ -232,8 +245,8 @@ class HexcalApp(App):
         self.notices = []
 
     def on_unmount(self) -> None:
-        self._log.removeHandler(self._handler)
-        self._log.propagate = self._propagate
+        self._hexcal_log.removeHandler(self._handler)
+        self._hexcal_log.propagate = self._propagate
         self.backend.close()
 
 

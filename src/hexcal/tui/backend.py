@@ -53,7 +53,7 @@ class Backend:
 class RealBackend(Backend):
     """The lab's rig from a device configuration file (see ``hexcal devices check``)."""
 
-    config_path: Path | None = None
+    config_path: Path = field(kw_only=True)
 
     def open(self) -> Rig:
         from hexcal.devices import load_devices_config

@@ -14,12 +14,12 @@ from scipy.spatial.transform import Rotation
 from textual import work
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
-from textual.screen import Screen
 from textual.widgets import Footer, Header, ProgressBar, RichLog, Static
 
 from hexcal.guided import GuidedError, GuidedSession
 from hexcal.mock_hw.motion import MotionError
-from hexcal.nbp import motion_text
+from hexcal.nbp import Suggestion, motion_text
+from hexcal.tui.app import HexcalScreen
 from hexcal.tui.prompt import TextPrompt
 
 
@@ -29,7 +29,7 @@ def _fmt(v: np.ndarray | None, digits: int = 3) -> str:
     return "  ".join(f"{x:+9.{digits}f}" if np.isfinite(x) else "      nan" for x in v)
 
 
-class RecordScreen(Screen):
+class RecordScreen(HexcalScreen):
     """Guided recording (see module docstring)."""
 
     BINDINGS = [
@@ -52,11 +52,14 @@ class RecordScreen(Screen):
         super().__init__()
         self.busy = False
         self._stop_auto = False
-        self.suggested = None
+        self.suggested: Suggestion | None = None
 
     @property
     def guided(self) -> GuidedSession:
-        return self.app.guided  # type: ignore[attr-defined]
+        guided = self.hexcal.guided
+        if guided is None:
+            raise RuntimeError("the recording screen needs a guided session: none is open")
+        return guided
 
     def compose(self):
         yield Header()
@@ -135,7 +138,7 @@ class RecordScreen(Screen):
         self.query_one("#progress", ProgressBar).update(
             total=st.n_poses, progress=min(n, st.n_poses)
         )
-        design = self.app.backend.design  # type: ignore[attr-defined]
+        design = self.hexcal.backend.design
         c = g.conditioning(design.b)
         self.suggested = g.suggestion(design) if g.clamped else None
         text = ""
@@ -149,7 +152,7 @@ class RecordScreen(Screen):
                 f"[green]target reached[/green]: predicted 1σ {s.sigma_before_mm:.3f} mm ≤ "
                 f"{st.target_sigma_mm:g} mm — enough poses for this step, [b]n[/b] for the next"
             )
-        elif s is not None and g.recorder.poses:
+        elif s is not None and g.recorder is not None and g.recorder.poses:
             last = g.recorder.poses[-1]
             R_last = Rotation.from_quat(last.quaternion, scalar_first=True).as_matrix()
             why = (
@@ -300,7 +303,7 @@ class RecordScreen(Screen):
             ok, msg = self.guided.record()
         except GuidedError as exc:
             ok, msg = False, str(exc)
-        self.app.post(self._recorded, ok, msg)
+        self.hexcal.post(self._recorded, ok, msg)
 
     def _recorded(self, ok: bool, msg: str) -> None:
         self.log_line(msg, "" if ok else "red")
@@ -324,7 +327,7 @@ class RecordScreen(Screen):
 
     def _auto_move(self, g: GuidedSession) -> None:
         """The mock operator follows the next best pose once there is one, else moves at random."""
-        s = g.suggestion(self.app.backend.design) if g.clamped else None  # type: ignore[attr-defined]
+        s = g.suggestion(self.hexcal.backend.design) if g.clamped else None
         if s is not None:
             try:
                 g.move_to_suggestion(s)
@@ -338,14 +341,14 @@ class RecordScreen(Screen):
         """The mock operator: clamp, move and record until the step's recommended count, then
         end the step (and go on through the procedure with ``all_steps``)."""
         g = self.guided
-        call = self.app.post
+        call = self.hexcal.post
         refused = 0
         try:
             while not g.finished and not self._stop_auto:
                 st = g.step
                 if st.leg and not g.clamped:
                     call(self.log_line, g.clamp())
-                if g.n_poses < st.n_poses and not g.target_met(self.app.backend.design):  # type: ignore[attr-defined]
+                if g.n_poses < st.n_poses and not g.target_met(self.hexcal.backend.design):
                     # A refused pose is recorded again where it stands, as record_procedure
                     # does: moving on would hide a motion from history-dependent effects.
                     if refused == 0:

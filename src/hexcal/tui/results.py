@@ -17,14 +17,20 @@ from rich.markup import escape
 from textual import work
 from textual.binding import Binding
 from textual.containers import Horizontal, VerticalScroll
-from textual.screen import Screen
 from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
+from hexcal.guided import GuidedSession
+from hexcal.procedure import Procedure
+from hexcal.tui.app import HexcalScreen
+from hexcal.tui.backend import Rig
 
-def _app_state(screen: Screen) -> tuple[Any, Any, Any]:
-    app = screen.app
-    return app.guided, app.procedure, app.rig  # type: ignore[attr-defined]
+
+def _app_state(screen: HexcalScreen) -> tuple[GuidedSession, Procedure, Rig | None]:
+    app = screen.hexcal
+    if app.guided is None or app.procedure is None:
+        raise RuntimeError("the results need a guided session and its procedure: none is open")
+    return app.guided, app.procedure, app.rig
 
 
 def session_inputs(guided) -> Any:
@@ -34,7 +40,7 @@ def session_inputs(guided) -> Any:
     return inputs(guided.sf.session, guided.sf.path)
 
 
-class ResultScreen(Screen):
+class ResultScreen(HexcalScreen):
     """The calibrated geometry with its intervals (see :func:`hexcal.report_text`)."""
 
     BINDINGS = [
@@ -65,7 +71,7 @@ class ResultScreen(Screen):
             inp = session_inputs(guided)
             result = calibrate_model(inp, proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
-            self.app.post(
+            self.hexcal.post(
                 self._show, f"[red]cannot calibrate yet:[/red]\n{exc}\n\nEscape to record more."
             )
             return
@@ -87,7 +93,7 @@ class ResultScreen(Screen):
         if rig is not None and rig.truth is not None and cal.refinement is not None:
             text += "\n\n" + truth_line(cal.refinement, rig.truth)
         store(guided.sf, "calibration", result, inp.meas)
-        self.app.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
+        self.hexcal.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
     def _show(self, text: str) -> None:
         self.query_one("#result", Static).update(text)
@@ -114,7 +120,7 @@ def truth_line(refinement: Any, truth: Any) -> str:
     )
 
 
-def export_text(screen: Screen) -> str:
+def export_text(screen: HexcalScreen) -> str:
     """Export the session next to its file, the latest model as calibrated.json; one line for
     the operator."""
     from hexcal.workflow import export
@@ -129,7 +135,7 @@ def export_text(screen: Screen) -> str:
     return f"[green]exported to {out}/: {', '.join(written)}[/green]"
 
 
-class DiagnosisScreen(Screen):
+class DiagnosisScreen(HexcalScreen):
     """Model against measurements, where it fails, the missing effect; add it, watch the error
     fall (see module docstring)."""
 
@@ -181,10 +187,10 @@ class DiagnosisScreen(Screen):
             # The step's model as a lab ships it: calibrated with its effects, clamps included.
             result = model_of(inp, [*self.history, d], proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:
-            self.app.post(self._failed, str(exc))
+            self.hexcal.post(self._failed, str(exc))
             return
         store(guided.sf, "diagnosis", result, inp.meas, summary=d.to_dict())
-        self.app.post(self._show, d)
+        self.hexcal.post(self._show, d)
 
     def _failed(self, msg: str) -> None:
         self.busy = False
@@ -236,7 +242,8 @@ class DiagnosisScreen(Screen):
         plt.multiple_bar(
             legs,
             [(1000 * d.fit.cv_rms_per_leg).tolist() for d in self.history],
-            labels=[d.fit.model_name for d in self.history],
+            # plotext takes ``labels`` (one per series); textual-plotext's stub says ``label``.
+            labels=[d.fit.model_name for d in self.history],  # type: ignore[call-arg]
         )
         floor = 1000 * self.history[-1].noise_floor_mm
         plt.hline(floor, "red")
