@@ -23,14 +23,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.mock_hw.robot import MockRobot
+from hexcal.recording import MotionError
 from hexcal.simulate import PoseRanges, Simulator
 
 #: The clamp kinds, as the measurement table names the constraint they impose.
 CLAMPS = ("direction", "direction+length", "length")
-
-
-class MotionError(Exception):
-    """The controller cannot do what was asked; the message says why."""
 
 
 @dataclass(frozen=True)

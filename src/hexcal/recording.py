@@ -270,6 +270,11 @@ class Recorder(Protocol):
     def record(self) -> RecordedPose: ...
 
 
+class MotionError(Exception):
+    """The motion controller (a :class:`Mover`) cannot do what was asked; the message says
+    why. Raised by any controller — the mock's (:mod:`hexcal.mock_hw.motion`) or a real one."""
+
+
 class Mover(Protocol):
     def clamp(self, leg: int, constraint: str) -> object: ...
     def release(self) -> None: ...

@@ -17,8 +17,8 @@ from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.widgets import Footer, Header, ProgressBar, RichLog, Static
 
 from hexcal.guided import GuidedError, GuidedSession
-from hexcal.mock_hw.motion import MotionError
 from hexcal.nbp import Suggestion, motion_text
+from hexcal.recording import MotionError
 from hexcal.tui.app import HexcalScreen
 from hexcal.tui.prompt import TextPrompt
 
