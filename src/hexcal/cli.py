@@ -537,7 +537,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_session(args: argparse.Namespace) -> int:
-    from hexcal.measurements import read_measurements
+    from hexcal.measurements_csv import read_measurements
     from hexcal.robot import load_robot
     from hexcal.session import Session, SessionFile, export_session, load_session
 
