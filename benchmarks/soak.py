@@ -656,19 +656,19 @@ def watch_list(
         Watched(
             "NDITracker.frame_clock._lo",
             _attr(trk, "frame_clock", "_lo"),
-            "drivers/ndi.py FrameClock (per poll)",
+            "drivers/ndi_clock.py FrameClock (per poll)",
             "trimmed to window_s / max_frames",
         ),
         Watched(
             "NDITracker.frame_clock._hi",
             _attr(trk, "frame_clock", "_hi"),
-            "drivers/ndi.py FrameClock (per new frame)",
+            "drivers/ndi_clock.py FrameClock (per new frame)",
             "trimmed to window_s / max_frames",
         ),
         Watched(
             "NDITracker.frame_clock._own",
             _attr(trk, "frame_clock", "_own"),
-            "drivers/ndi.py FrameClock (per new frame)",
+            "drivers/ndi_clock.py FrameClock (per new frame)",
         ),
         Watched("LegEncoders._queue", _attr(enc, "_queue"), "drivers/can_encoders.py"),
         Watched(

@@ -38,20 +38,10 @@ is discarded (that set was flagged with the position missing); two positions fro
 one SYNC flag the set. Produced SYNCs are kept at least ``tpdo_deadline_s`` apart, so after a
 stall no catch-up SYNC can overtake the answers to the one before.
 
-Clock jumps. The bus interface's clock is not the host's and can jump: an adapter that resets
-restarts its clock, SocketCAN stamps with the system time, which an operator or NTP may step,
-and one corrupt timestamp is enough to matter. A frame whose (arrival − bus time) differs from
-the learnt offset by more than ``clock_jump_s`` (1 s by default: a thousand times the jitter of
-a stamp, more than any stall a working receive thread has) cannot be placed on the bus clock,
-so its bus time is not trusted: it takes no part in attribution, closing or the offset, and a
-position it carries is discarded and its set flagged (naming the leg and the jump). When the
-next frame is on the known clock again, those were stray stamps: the driver says so (a warning
-naming the bus and the offset the first time, at info level after). If instead frames keep
-coming with one new offset (at least three, over more than two SYNC periods) the clock itself
-has jumped: the driver re-anchors — the new offset replaces the old one and the open sets are
-moved onto the new clock — logs a warning naming the bus and the jump, once, and flags the set
-it happens in. A single frame stamped an hour off thus costs one flagged set, a clock reset a
-few; neither leaves the driver stuck until a restart. (``status()`` counts both.)
+Clock jumps (an adapter that resets, a stepped system time, a corrupt timestamp) are followed
+by :class:`~hexcal.drivers.can_clock.BusClock`; its module docstring says how. A frame whose bus
+time is not trusted takes no part in attribution, and a position it carries is discarded and its
+set flagged.
 
 Anything unusual during a set — a position missing, late or twice, a silent node, a node not
 OPERATIONAL, a CAN error frame, the bus not error-active, a SYNC that could not be sent — is
@@ -63,327 +53,72 @@ a python-can log (``log_path``: .asc, .blf, .csv, .log, ...) and replayed later 
 Known limit: a node that answers every SYNC more than a whole period late (a broken node) looks
 on the bus like one that answers on time, one SYNC behind; only its first, missing position is
 flagged. Real CiA 406 encoders latch in hardware at the SYNC and answer within microseconds.
+
+Where the parts live: frame decoding, reading sets, bus states and the errors in
+:mod:`hexcal.drivers.can_frames` (re-exported here), the bus clock in
+:mod:`hexcal.drivers.can_clock`, the receive path (frame handling, set assembly) in
+:mod:`hexcal.drivers.can_receive`; :class:`LegEncoders` here holds the lifecycle, the reading
+API, the SYNC producer and the supervision.
 """
 
 from __future__ import annotations
 
 import contextlib
 import copy
+import functools
 import logging
 import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 import can
 import canopen
-import numpy as np
 from canopen.nmt import NMT_STATES
 
 from hexcal.acquisition import LegSample
-from hexcal.drivers.can_config import (
-    SYNC_COB_ID,
-    CanBusConfig,
-    LegEncoderConfig,
-)
+from hexcal.drivers.can_clock import BusClock
+from hexcal.drivers.can_config import CanBusConfig
 from hexcal.drivers.can_emcy import Emergency
+from hexcal.drivers.can_frames import (
+    BUS_ACTIVE,
+    BUS_ERROR,
+    BUS_OFF,
+    BUS_PASSIVE,
+    NMT_CMD_PRE_OPERATIONAL,
+    NMT_CMD_START,
+    NMT_OPERATIONAL,
+    SYNC_COUNTER_MAX,
+    BusError,
+    EncoderError,
+    EncoderSilent,
+    ReadingSet,
+    TpdoDecoder,
+)
+from hexcal.drivers.can_frames import CAN_ERR_ACK as CAN_ERR_ACK
+from hexcal.drivers.can_frames import CAN_ERR_BUSERROR as CAN_ERR_BUSERROR
+from hexcal.drivers.can_frames import CAN_ERR_BUSOFF as CAN_ERR_BUSOFF
+from hexcal.drivers.can_frames import CAN_ERR_CRTL as CAN_ERR_CRTL
+from hexcal.drivers.can_frames import CAN_ERR_CRTL_ACTIVE as CAN_ERR_CRTL_ACTIVE
+from hexcal.drivers.can_frames import CAN_ERR_CRTL_RX_PASSIVE as CAN_ERR_CRTL_RX_PASSIVE
+from hexcal.drivers.can_frames import CAN_ERR_CRTL_TX_PASSIVE as CAN_ERR_CRTL_TX_PASSIVE
+from hexcal.drivers.can_frames import CAN_ERR_LOSTARB as CAN_ERR_LOSTARB
+from hexcal.drivers.can_frames import CAN_ERR_PROT as CAN_ERR_PROT
+from hexcal.drivers.can_frames import CAN_ERR_RESTARTED as CAN_ERR_RESTARTED
+from hexcal.drivers.can_frames import CAN_ERR_TRX as CAN_ERR_TRX
+from hexcal.drivers.can_frames import CAN_ERR_TX_TIMEOUT as CAN_ERR_TX_TIMEOUT
+from hexcal.drivers.can_frames import NMT_BOOTUP as NMT_BOOTUP
+from hexcal.drivers.can_frames import NMT_PRE_OPERATIONAL as NMT_PRE_OPERATIONAL
+from hexcal.drivers.can_frames import decode_tpdo as decode_tpdo
+from hexcal.drivers.can_frames import describe_error_frame as describe_error_frame
 from hexcal.drivers.can_nodes import EncoderConfigError, NodeInfo, configure_node, eds_for
+from hexcal.drivers.can_receive import _Pending, _ReceivePath
 from hexcal.drivers.limits import check_duration
 
 log = logging.getLogger(__name__)
-
-NMT_OPERATIONAL = 0x05
-NMT_PRE_OPERATIONAL = 0x7F
-NMT_BOOTUP = 0x00
-NMT_CMD_START = 0x01
-NMT_CMD_PRE_OPERATIONAL = 0x80
-
-#: CiA 301: a SYNC counter runs 1..overflow; 240 is the largest overflow value allowed.
-SYNC_COUNTER_MAX = 240
-
-# SocketCAN error classes (linux/can/error.h): the error frame's arbitration id is a bit mask.
-# Other interfaces deliver error frames with id 0; they still count as error frames.
-CAN_ERR_TX_TIMEOUT = 0x001
-CAN_ERR_LOSTARB = 0x002
-CAN_ERR_CRTL = 0x004
-CAN_ERR_PROT = 0x008
-CAN_ERR_TRX = 0x010
-CAN_ERR_ACK = 0x020
-CAN_ERR_BUSOFF = 0x040
-CAN_ERR_BUSERROR = 0x080
-CAN_ERR_RESTARTED = 0x100
-# data[1] of a CAN_ERR_CRTL frame
-CAN_ERR_CRTL_RX_PASSIVE = 0x10
-CAN_ERR_CRTL_TX_PASSIVE = 0x20
-CAN_ERR_CRTL_ACTIVE = 0x40
-
-_ERROR_CLASSES = (
-    (CAN_ERR_TX_TIMEOUT, "transmit timeout"),
-    (CAN_ERR_LOSTARB, "lost arbitration"),
-    (CAN_ERR_CRTL, "controller problem"),
-    (CAN_ERR_PROT, "protocol violation"),
-    (CAN_ERR_TRX, "transceiver problem"),
-    (CAN_ERR_ACK, "no acknowledge (is any other node powered?)"),
-    (CAN_ERR_BUSOFF, "bus-off"),
-    (CAN_ERR_BUSERROR, "bus error"),
-    (CAN_ERR_RESTARTED, "controller restarted"),
-)
-
-BUS_ACTIVE = "ACTIVE"
-BUS_PASSIVE = "ERROR-PASSIVE"
-BUS_OFF = "BUS-OFF"
-BUS_ERROR = "ERROR"
-
-
-# -- errors ----------------------------------------------------------------------------------------
-class EncoderError(Exception):
-    """The leg encoders cannot deliver readings; the message says what to check."""
-
-
-class EncoderSilent(EncoderError):
-    """One or more encoder nodes sent no heartbeat within the timeout.
-
-    ``legs`` (1..6) and ``node_ids`` name them, in the same order."""
-
-    def __init__(self, message: str, legs: tuple[int, ...] = (), node_ids: tuple[int, ...] = ()):
-        super().__init__(message)
-        self.legs = legs
-        self.node_ids = node_ids
-
-
-class BusError(EncoderError):
-    """The CAN bus itself is at fault (cannot open, bus-off, error-passive, send failed).
-
-    ``state`` is the bus state as :meth:`LegEncoders.status` reports it."""
-
-    def __init__(self, message: str, state: str = BUS_ERROR):
-        super().__init__(message)
-        self.state = state
-
-
-# -- decoding --------------------------------------------------------------------------------------
-class TpdoDecoder:
-    """The position TPDO → (leg, mm) for one configuration, precompiled so decoding a frame is
-    one dict lookup and one integer conversion.
-
-    ``table`` maps the TPDO's COB-ID (TPDO ``config.tpdo`` of each node) to (leg 1..6, sign,
-    counts_per_mm, zero_mm). ``signed`` (6,) says how each node's 0x6004 is decoded (INTEGER32
-    by default; :meth:`set_nodes` takes it from the nodes' object dictionaries) and ``ranges``
-    (6,) its total measuring range in counts (None: no wrap-around). With a range, a position
-    is unwrapped against the leg's previous one (:meth:`counts`): the first position is taken
-    as the node reports it, and moves across the wrap point continue from there.
-    """
-
-    __slots__ = (
-        "_cpm",
-        "_last",
-        "_leg_of",
-        "_sign",
-        "_zero",
-        "config",
-        "ranges",
-        "signed",
-        "table",
-    )
-
-    def __init__(self, config: CanBusConfig):
-        self.config = config
-        self.signed = [True] * 6
-        self.ranges: list[int | None] = [None] * 6
-        self._last: list[tuple[int, int] | None] = [None] * 6  # (raw, unwrapped) counts
-        self.table: dict[int, tuple[int, int, float, float]] = {
-            c.tpdo_cob_id(config.tpdo): (c.leg, c.sign, c.counts_per_mm, c.zero_mm)
-            for c in config.legs
-        }
-        # Lookup arrays over the whole 11-bit id space for the batch path (leg 0 = not a TPDO1).
-        self._leg_of = np.zeros(0x800, np.int64)
-        self._sign = np.zeros(0x800)
-        self._cpm = np.ones(0x800)
-        self._zero = np.zeros(0x800)
-        for c in config.legs:
-            i = c.tpdo_cob_id(config.tpdo)
-            self._leg_of[i], self._sign[i], self._cpm[i], self._zero[i] = (
-                c.leg,
-                c.sign,
-                c.counts_per_mm,
-                c.zero_mm,
-            )
-
-    def set_nodes(self, nodes: list[NodeInfo]) -> None:
-        """Decode as the nodes' object dictionaries say (data type of 0x6004, range 0x6002)."""
-        for info in nodes:
-            self.signed[info.leg - 1] = info.position_type == "INTEGER32"
-            self.ranges[info.leg - 1] = info.total_range or None
-        self._last = [None] * 6
-
-    def counts(self, k: int, data: bytes | bytearray) -> int:
-        """Leg ``k`` (0..5)'s position in counts from the TPDO's first four bytes, unwrapped at
-        the total measuring range when the node has one."""
-        raw = int.from_bytes(data[:4], "little", signed=self.signed[k])
-        span = self.ranges[k]
-        if span is None:
-            return raw
-        last = self._last[k]
-        value = raw
-        if last is not None:
-            step = (raw - last[0] + span // 2) % span - span // 2
-            value = last[1] + step
-        self._last[k] = (raw, value)
-        return value
-
-    def decode(self, msg: can.Message) -> tuple[int, float] | None:
-        """(leg 1..6, reading mm, finite) of the position TPDO of a configured node; None for
-        any other frame.
-
-        Raises :class:`EncoderError` for a TPDO too short to hold 0x6004, and for counts the
-        leg's scaling cannot turn into a finite reading."""
-        entry = self.table.get(msg.arbitration_id)
-        if entry is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
-            return None
-        data = msg.data
-        if len(data) < 4:
-            raise EncoderError(
-                _short_tpdo_message(self.config.leg(entry[0]), len(data), self.config)
-            )
-        leg, sign, cpm, zero = entry
-        counts = self.counts(leg - 1, data)
-        mm = sign * counts / cpm + zero
-        if not math.isfinite(mm):
-            raise EncoderError(_nonfinite_message(self.config.leg(leg), counts, self.config))
-        return leg, mm
-
-    def decode_batch(
-        self, cob_ids: np.ndarray, payload: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised decode of N standard data frames (INTEGER32 or UNSIGNED32 per leg as
-        ``signed`` says; no unwrapping, which needs the frames one by one).
-
-        ``cob_ids`` (N,) int; ``payload`` (N, ≥4) uint8 (the frames' data bytes). Returns legs
-        (N,) int (0 where the frame is not a configured position TPDO) and readings (N,) mm
-        (NaN there, and where the leg's scaling gives no finite reading: :meth:`decode` raises
-        there).
-        """
-        ids = np.asarray(cob_ids, np.int64)
-        legs = np.zeros(ids.shape, np.int64)
-        inside = (ids >= 0) & (ids < 0x800)
-        legs[inside] = self._leg_of[ids[inside]]
-        raw = np.ascontiguousarray(np.asarray(payload, np.uint8)[:, :4])
-        counts = raw.view("<i4")[:, 0].astype(float)
-        unsigned = np.array([not s for s in self.signed] + [False])[np.maximum(legs, 1) - 1]
-        counts = np.where(unsigned & (counts < 0), counts + 2.0**32, counts)
-        idx = np.where(legs > 0, ids, 0)
-        with np.errstate(over="ignore", invalid="ignore"):  # flagged just below, not warned
-            mm = self._sign[idx] * counts / self._cpm[idx] + self._zero[idx]
-        mm[(legs == 0) | ~np.isfinite(mm)] = np.nan
-        return legs, mm
-
-
-def decode_tpdo(msg: can.Message, config: CanBusConfig | TpdoDecoder) -> tuple[int, float] | None:
-    """(leg 1..6, reading mm) of one position TPDO, or None when the frame is not the position
-    TPDO of a configured node. ``reading_mm = sign × counts / counts_per_mm + zero_mm``.
-
-    Pass a :class:`TpdoDecoder` (built once from the config) on a hot path; a
-    :class:`CanBusConfig` works too but compiles the lookup on every call.
-    """
-    dec = config if isinstance(config, TpdoDecoder) else TpdoDecoder(config)
-    return dec.decode(msg)
-
-
-def describe_error_frame(msg: can.Message) -> str:
-    """What an error frame says, in words (SocketCAN error classes; 'error frame' otherwise)."""
-    cls = msg.arbitration_id & 0x1FFFFFFF
-    words = [text for bit, text in _ERROR_CLASSES if cls & bit]
-    if cls & CAN_ERR_CRTL and len(msg.data) > 1:
-        ctrl = msg.data[1]
-        if ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
-            words.append("controller error-passive")
-        if ctrl & CAN_ERR_CRTL_ACTIVE:
-            words.append("controller back to error-active")
-    return ", ".join(words) or "error frame"
-
-
-def _nonfinite_message(leg: LegEncoderConfig, counts: int, config: CanBusConfig) -> str:
-    return (
-        f"{leg.name} sent {counts} counts on {config.bus_name}, which its scaling "
-        f"(counts_per_mm {leg.counts_per_mm:g}, zero_mm {leg.zero_mm:g}) turns into no finite "
-        "reading — position discarded; check that leg's scaling in the CAN configuration"
-    )
-
-
-def _short_tpdo_message(leg: LegEncoderConfig, n: int, config: CanBusConfig) -> str:
-    return (
-        f"{leg.name} sent a {n}-byte TPDO{config.tpdo} on {config.bus_name}; expected at least 4 "
-        f"bytes (0x6004 mapped first) — check that node's TPDO{config.tpdo} mapping (hexcal sets "
-        "it when can.configure is true)"
-    )
-
-
-# -- reading sets ----------------------------------------------------------------------------------
-@dataclass
-class ReadingSet:
-    """The six legs' positions answering one SYNC.
-
-    ``sync_counter``: the counter byte the SYNC carried (1..240), 0 if it carried none.
-    ``t_sync``: monotonic time (s) the SYNC was sent (driver-produced) or was on the bus.
-    ``readings_mm``: (6,) mm, leg k at index k − 1, NaN where no position arrived.
-    ``arrival``: (6,) monotonic s each position was on the bus (``t_sync`` + its bus-time delay
-    after the SYNC), NaN where none came.
-    ``complete``: all six arrived in time and nothing went wrong; otherwise ``faults`` says what
-    (operator sentences naming leg, node, bus and what to do).
-    ``index``: 0, 1, 2... in SYNC order since :meth:`LegEncoders.start`; never skips.
-    """
-
-    sync_counter: int
-    t_sync: float
-    readings_mm: np.ndarray
-    arrival: np.ndarray
-    complete: bool
-    faults: list[str] = field(default_factory=list)
-    index: int = 0
-
-    def to_leg_sample(self) -> LegSample:
-        """This set as the acquisition's :class:`~hexcal.acquisition.LegSample`, stamped with the
-        SYNC time (the instant the six encoders latched their positions)."""
-        faults = tuple(self.faults)
-        if not self.complete and not faults:  # cannot happen by construction; never hide it
-            faults = ("leg encoder reading set incomplete",)
-        return LegSample(self.t_sync, self.readings_mm.copy(), faults)
-
-
-class _JumpCandidate:
-    """Frames stamped off the bus clock by about one amount, since ``first_t`` (monotonic s):
-    a clock jump once enough of them agree (see :meth:`LegEncoders._clock_step`)."""
-
-    __slots__ = ("first_t", "frames", "lag", "lag_min", "offset")
-
-    def __init__(self, first_t: float, lag: float, offset: float):
-        self.first_t = first_t
-        self.lag = lag  # the first frame's arrival − bus time, s
-        self.lag_min = lag  # the smallest of them, s: the new offset if it is a jump
-        self.offset = offset  # the offset (s) they stray from
-        self.frames = 0
-
-
-class _Pending:
-    """A set being assembled (plain lists: faster per frame than numpy element writes)."""
-
-    __slots__ = ("arrival", "counter", "faults", "index", "n", "readings", "t_bus", "t_sync")
-
-    def __init__(
-        self, index: int, counter: int, t_sync: float, t_bus: float, faults: dict[str, str]
-    ):
-        self.index = index
-        self.counter = counter
-        self.t_sync = t_sync  # monotonic s
-        self.t_bus = t_bus  # the same instant on the bus interface's clock, s
-        self.readings = [math.nan] * 6
-        self.arrival = [math.nan] * 6
-        self.n = 0
-        self.faults = faults  # key -> message; a key repeats (error frames) without piling up
 
 
 # -- python-can glue -------------------------------------------------------------------------------
@@ -463,7 +198,7 @@ class _Network(canopen.Network):
 
 
 # -- the driver ------------------------------------------------------------------------------------
-class LegEncoders:
+class LegEncoders(_ReceivePath):
     """The six leg encoders on one CAN bus.
 
     ``config``: bus and legs. ``bus``: an open python-can bus to use (the caller keeps owning
@@ -473,7 +208,7 @@ class LegEncoders:
     received and sent to this python-can log (.asc, .blf, ...). ``max_queue``: reading sets kept
     for :meth:`read_set` (100 000 ≈ 17 min at 100 Hz); beyond it the oldest are discarded and the
     next set says so. ``clock_jump_s``: how far (s) a frame's bus time may stray from the learnt
-    bus-to-host clock offset before it is taken for a clock jump (module docstring). The
+    bus-to-host clock offset before it is taken for a clock jump (:mod:`~hexcal.drivers.can_clock`). The
     configuration's durations must be at most :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S`
     (ValueError naming the field otherwise).
 
@@ -552,13 +287,8 @@ class LegEncoders:
         self._last_closed_t_bus = -math.inf
         self._late_discarded = 0
         self._skipped_syncs = 0
-        # Bus clock → monotonic: the smallest (arrival − bus time) in this and the last window.
-        self._offset_min = [math.inf, math.inf]
-        self._offset_window_end = 0.0
-        self._jump: _JumpCandidate | None = None  # frames off the clock, not yet explained
-        self._clock_jumps = 0
-        self._untrusted_stamps = 0
-        self._warned_stamp = False
+        # The bus interface's clock against the host's (offset, jumps): learnt afresh each run.
+        self._clock = BusClock(self._bus_name, self.clock_jump_s, self._jump_confirm_s)
         self._sync_counter = 0
         self._emergencies: list[Emergency | None] = [None] * 6  # the active error per node
         self._emcy_count = 0
@@ -601,8 +331,10 @@ class LegEncoders:
             # canopen RemoteNode with the node's object dictionary: NMT master side, heartbeat
             # consumer, SDO client for the configuration step.
             node = net.add_node(leg.node_id, str(eds_for(cfg, leg)))
-            node.nmt.add_heartbeat_callback(lambda state, k=k: self._on_heartbeat(k, state))
-        net.listeners.append(self._listener)
+            node.nmt.add_heartbeat_callback(functools.partial(self._on_heartbeat, k))
+        # canopen types the list by its own listener class; python-can's Notifier takes any
+        # can.Listener.
+        net.listeners.append(self._listener)  # type: ignore[arg-type]
         try:
             if self._bus_in is None:
                 net.connect(**cfg.bus_kwargs())
@@ -618,7 +350,9 @@ class LegEncoders:
                 BUS_ERROR,
             ) from exc
         self._network = net
-        self._polls_state = type(net.bus).state is not can.BusABC.state
+        bus = net.bus
+        assert bus is not None  # connect() opened it or was given it
+        self._polls_state = type(bus).state is not can.BusABC.state
         self._t_start = time.monotonic()
         self._running = True
         try:
@@ -816,8 +550,8 @@ class LegEncoders:
                 "incomplete_sets": self._incomplete,
                 "late_discarded": self._late_discarded,
                 "skipped_syncs": self._skipped_syncs,
-                "clock_jumps": self._clock_jumps,
-                "untrusted_stamps": self._untrusted_stamps,
+                "clock_jumps": self._clock.jumps,
+                "untrusted_stamps": self._clock.untrusted,
                 "emergencies": self._emcy_count,
                 "sync_counter": self._sync_overflow,
                 "queued": len(self._queue),
@@ -877,414 +611,6 @@ class LegEncoders:
         target = self._open[-1].faults if self._open else self._pending_faults
         target[key] = message
 
-    # -- clocks ----------------------------------------------------------------------------------
-    def _bus_time(self, msg: can.Message, t: float) -> tuple[float, bool]:
-        """The frame's bus time (s on the interface's clock) and whether it is trusted; learns
-        the clock offset and follows its jumps (module docstring). ``t`` is the frame's
-        monotonic arrival time. Lock held."""
-        stamp = msg.timestamp
-        # No stamp (or no number): stamped on arrival, on the wall clock as python-can does.
-        ts = stamp if stamp and math.isfinite(stamp) else time.time() - time.monotonic() + t
-        if t >= self._offset_window_end:  # a fresh window every 5 s follows clock drift
-            self._offset_min = [math.inf, self._offset_min[0]]
-            self._offset_window_end = t + 5.0
-        lag = t - ts
-        offset = min(self._offset_min)
-        if offset != math.inf and abs(lag - offset) > self.clock_jump_s:
-            return ts, self._clock_step(t, lag, offset)
-        if self._jump is not None:  # on the known clock again: what strayed were frames' stamps
-            self._stray_stamps(self._jump)
-            self._jump = None
-        if lag < self._offset_min[0]:
-            self._offset_min[0] = lag
-        return ts, True
-
-    def _clock_step(self, t: float, lag: float, offset: float) -> bool:
-        """A frame arrived ``lag`` s after its bus time, ``offset`` expected: count it towards a
-        clock jump; True when it confirms one (the driver re-anchored: its stamp holds now)."""
-        jump = self._jump
-        if jump is None or abs(lag - jump.lag) > self.clock_jump_s / 2:
-            if jump is not None:
-                self._stray_stamps(jump)
-            jump = self._jump = _JumpCandidate(t, lag, offset)
-        jump.lag_min = min(jump.lag_min, lag)
-        jump.frames += 1
-        if jump.frames >= 3 and t - jump.first_t >= self._jump_confirm_s:
-            self._reanchor(jump.lag_min, offset)
-            return True
-        self._untrusted_stamps += 1
-        return False
-
-    def _stray_stamps(self, jump: _JumpCandidate) -> None:
-        """Frames stamped off the clock turned out not to be a jump (the frames after them are
-        on the known clock): say so — a warning the first time, then at info level."""
-        level = logging.INFO if self._warned_stamp else logging.WARNING
-        self._warned_stamp = True
-        log.log(
-            level,
-            "%s: %d frame(s) stamped %+.3f s off the bus clock (against the host clock) — "
-            "their bus times were not trusted, positions in them discarded and their sets "
-            "flagged; the clock itself did not jump (a corrupt timestamp?)",
-            self._bus_name,
-            jump.frames,
-            jump.offset - jump.lag,
-        )
-
-    def _reanchor(self, new: float, old: float) -> None:
-        """The bus clock jumped: (arrival − bus time) is ``new`` s now, ``old`` s before. Move
-        the open sets, the closing evidence and the offset onto the new clock."""
-        shift = old - new  # a bus time on the old clock + shift = the same instant on the new
-        for s in self._open:
-            s.t_bus += shift
-        self._evidence += shift
-        self._last_closed_t_bus += shift
-        self._offset_min = [new, new]
-        self._jump = None
-        self._clock_jumps += 1
-        message = (
-            f"the clock of {self._bus_name} jumped {shift:+.3f} s (frame timestamps against the "
-            "host clock: the interface's clock was reset or the system time stepped) — SYNC "
-            "attribution re-anchored to the new clock; sets around the jump are flagged"
-        )
-        log.warning("%s", message)
-        self._note("clock_jump", message)
-
-    def _to_bus(self, t: float) -> float:
-        """Monotonic time ``t`` on the bus clock (the offset errs early: a frame is never
-        placed before the SYNC it answers)."""
-        offset = min(self._offset_min)
-        if offset == math.inf:
-            offset = time.monotonic() - time.time()
-        return t - offset
-
-    # -- assembling sets (lock held) --------------------------------------------------------------
-    def _open_set(self, t: float, t_bus: float, counter: int) -> None:
-        faults, self._pending_faults = self._pending_faults, {}
-        for k, em in enumerate(self._emergencies):
-            if em is not None:  # the node still reports an error: its readings are suspect
-                faults[f"emcy{k}"] = em.describe(self._names[k])
-        self._open.append(_Pending(self._index, counter, t, t_bus, faults))
-        self._index += 1
-
-    def _close_until(self, evidence: float) -> None:
-        """Close the open sets whose answers are all due before bus time ``evidence``."""
-        self._evidence = max(self._evidence, evidence)
-        while self._open and self._open[0].t_bus + self._deadline < self._evidence:
-            self._close(time.monotonic())
-
-    def _close_all(self) -> None:
-        """Close every open set now (the SYNC just opened could not be sent)."""
-        while self._open:
-            self._close(time.monotonic())
-
-    def _close(self, now: float) -> None:
-        """Close the oldest open set and queue it."""
-        s = self._open.popleft()
-        self._last_closed_t_bus = s.t_bus
-        cfg = self.config
-        bus_down = self._bus_state != BUS_ACTIVE
-        for k in range(6):
-            # The cause (a silent node, a node not started, the bus down) is reported instead
-            # of its symptom, the missing position, so the operator reads what to fix.
-            cause = False
-            if self._age(k, now) > cfg.heartbeat_timeout_s:
-                s.faults[f"silent{k}"] = self._silent_message(k, now)
-                cause = True
-            st = self._hb_state[k]
-            if st is not None and st != NMT_OPERATIONAL:
-                cause = True
-                s.faults[f"nmt{k}"] = (
-                    f"{self._names[k]} reports NMT state {NMT_STATES.get(st, hex(st))} on "
-                    f"{self._bus_name}, not OPERATIONAL, so it sends no position — "
-                    + (
-                        "it may have rebooted (supply dip?); hexcal sent NMT start again, check its "
-                        "power if this repeats"
-                        if not self.listen_only
-                        else "the NMT master must start it"
-                    )
-                )
-            if s.arrival[k] != s.arrival[k]:  # NaN: no position for this SYNC
-                self._missing[k] += 1
-                if not (cause or bus_down):
-                    s.faults.setdefault(
-                        f"missing{k}",
-                        f"{self._names[k]} sent no position for SYNC {s.counter} on {self._bus_name}: "
-                        "frame lost or late — set flagged incomplete; if it repeats check that node's "
-                        "cable and the bus termination",
-                    )
-        if bus_down:
-            s.faults["bus"] = self._bus_message()
-        complete = s.n == 6 and not s.faults
-        rs = ReadingSet(
-            sync_counter=s.counter,
-            t_sync=s.t_sync,
-            readings_mm=np.array(s.readings),
-            arrival=np.array(s.arrival),
-            complete=complete,
-            faults=list(s.faults.values()),
-            index=s.index,
-        )
-        if not complete:
-            self._incomplete += 1
-        if len(self._queue) >= self.max_queue:
-            self._queue.popleft()
-            self._discarded += 1
-            self._pending_faults["discarded"] = (
-                f"{self._discarded} reading sets from {self._bus_name} were discarded unread (queue "
-                f"of {self.max_queue} full) — call read_set()/sample() continuously; the CAN log "
-                "keeps every frame"
-            )
-        self._queue.append(rs)
-        self._latest = rs
-        self._cond.notify_all()
-
-    # -- receive thread ---------------------------------------------------------------------------
-    def _on_message(self, msg: can.Message) -> None:
-        t = time.monotonic()  # stamped on arrival, before anything else
-        rec = self._recorder
-        if rec is not None:
-            with rec.lock:
-                rec.write(msg)
-                self._dispatch(msg, t)
-        else:
-            self._dispatch(msg, t)
-
-    def _dispatch(self, msg: can.Message, t: float) -> None:
-        with self._lock:
-            ts, trusted = self._bus_time(msg, t)
-        if msg.is_error_frame:
-            self._on_error_frame(msg, t)
-            return
-        if msg.is_remote_frame or msg.is_extended_id:
-            return
-        cid = msg.arbitration_id
-        entry = self.decoder.table.get(cid)
-        if entry is not None:
-            if trusted:
-                self._on_tpdo(entry, msg.data, ts)
-            else:
-                self._on_unplaced_tpdo(entry[0] - 1, t - ts)
-        elif cid == SYNC_COB_ID:
-            self._on_bus_sync(msg, t, ts if trusted else None)
-        elif cid in self._leg_of_emcy:
-            self._on_emcy(self._leg_of_emcy[cid], msg.data, ts if trusted else None)
-        if trusted:  # an untrusted bus time must not close sets
-            with self._lock:
-                self._close_until(ts)
-        if self._bus_state == BUS_OFF:
-            with self._lock:
-                # A frame came through: the controller is receiving again.
-                self._bus_state, self._bus_detail = BUS_ACTIVE, ""
-                self._note(
-                    "recovered",
-                    f"{self._bus_name} recovered from BUS-OFF (frames arrive again); sets taken "
-                    "while it was off are flagged",
-                )
-
-    def _on_tpdo(self, entry: tuple[int, int, float, float], data: bytearray, ts: float) -> None:
-        """A position stamped ``ts`` on the bus clock."""
-        leg, sign, cpm, zero = entry
-        k = leg - 1
-        with self._lock:
-            self._frames[k] += 1
-            if len(data) < 4:
-                self._note(
-                    f"short{k}", _short_tpdo_message(self.config.legs[k], len(data), self.config)
-                )
-                return
-            counts = self.decoder.counts(k, data)
-            mm = sign * counts / cpm + zero
-            s = next((o for o in reversed(self._open) if o.t_bus <= ts), None)
-            if not math.isfinite(mm):  # a fault of that set, never a reading
-                target = s.faults if s is not None else self._pending_faults
-                target[f"nonfinite{k}"] = _nonfinite_message(
-                    self.config.legs[k], counts, self.config
-                )
-                return
-            if s is None:
-                if ts >= self._last_closed_t_bus:
-                    # Its SYNC's set was closed already (flagged with this position missing).
-                    self._late_discarded += 1
-                    log.debug("%s: position after its set closed, discarded", self._names[k])
-                    return
-                self._note(
-                    f"orphan{k}",
-                    f"{self._names[k]} sent a position ({mm:.4f} mm) outside any SYNC window on "
-                    f"{self._bus_name} (very late, or TPDO{self.config.tpdo} not synchronous) — "
-                    f"discarded; check its TPDO{self.config.tpdo} transmission type is 1 (every "
-                    "SYNC: hexcal sets it when can.configure is true)",
-                )
-                return
-            if s.arrival[k] == s.arrival[k]:
-                s.faults[f"twice{k}"] = (
-                    f"{self._names[k]} sent two positions for SYNC {s.counter} on {self._bus_name} (a "
-                    "late frame from the previous SYNC, or a cyclic TPDO?) — set flagged, the later "
-                    f"one kept; check its TPDO{self.config.tpdo} transmission type is 1 (every SYNC)"
-                )
-            else:
-                s.n += 1
-            delay = ts - s.t_bus
-            s.readings[k] = mm
-            s.arrival[k] = s.t_sync + delay
-            if delay > self._deadline:
-                s.faults[f"late{k}"] = (
-                    f"{self._names[k]} position arrived {delay * 1e3:.1f} ms after SYNC {s.counter} "
-                    f"(limit {self._deadline * 1e3:.1f} ms) on {self._bus_name}: timing jitter or bus "
-                    "overload — set flagged; if it repeats reduce the bus load or raise max_tpdo_delay_s"
-                )
-            self._cond.notify_all()
-
-    def _on_unplaced_tpdo(self, k: int, lag: float) -> None:
-        """A position whose bus time is not trusted (it arrived ``lag`` s after it): no SYNC
-        window can be told for it, so it is discarded and the newest set flagged."""
-        with self._lock:
-            self._frames[k] += 1
-            off = min(self._offset_min) - lag
-            self._note(
-                f"stamp{k}",
-                f"{self._names[k]} sent a position stamped {off:+.3f} s off the clock of "
-                f"{self._bus_name} (against the host clock) — no SYNC can be told for it, so it "
-                "was discarded and this set flagged; a jump of the interface's clock or a corrupt "
-                "timestamp",
-            )
-
-    def _on_bus_sync(self, msg: can.Message, t: float, ts: float | None) -> None:
-        """A SYNC on the bus at bus time ``ts`` (None: not trusted, placed by arrival ``t``)."""
-        counter = msg.data[0] if len(msg.data) >= 1 else 0
-        with self._lock:
-            if self._producing:
-                if msg.is_rx:
-                    self._foreign_syncs += 1
-                    self._note(
-                        "foreign_sync",
-                        f"another SYNC producer is on {self._bus_name} (SYNC not sent by hexcal) — "
-                        "the encoders answer both; switch it off, or set sync_period_s = 0 to follow it",
-                    )
-                return
-            if ts is None:
-                self._open_set(t, self._to_bus(t), counter)
-                self._open[-1].faults["sync_stamp"] = (
-                    f"SYNC {counter} on {self._bus_name} carried a timestamp off the bus clock: "
-                    "placed by its arrival instead, so its positions may be misplaced — set flagged"
-                )
-                return
-            self._open_set(ts + min(self._offset_min), ts, counter)
-
-    def _on_emcy(self, k: int, data: bytearray, ts: float | None) -> None:
-        """An EMCY of leg ``k + 1``'s node at bus time ``ts`` (None: not trusted): it flags the
-        set it falls in, and the sets after it while the node's error register is non-zero."""
-        em = Emergency.from_frame(self.config.legs[k].node_id, bytes(data))
-        with self._lock:
-            self._emcy_count += 1
-            if em.is_reset:
-                if self._emergencies[k] is not None:
-                    log.info("%s: error reset (EMCY 0x0000)", self._names[k])
-                self._emergencies[k] = None
-                return
-            text = em.describe(self._names[k])
-            log.warning("%s on %s", text, self._bus_name)
-            self._emergencies[k] = em if em.register else None
-            s = (
-                next((o for o in reversed(self._open) if o.t_bus <= ts), None)
-                if ts is not None
-                else None
-            )
-            target = (
-                s.faults
-                if s is not None
-                else (self._open[-1].faults if self._open else self._pending_faults)
-            )
-            target[f"emcy{k}"] = text
-
-    def _on_heartbeat(self, k: int, state: int) -> None:
-        """A heartbeat of leg ``k + 1``'s node (through canopen's NMT master), NMT ``state``."""
-        t = time.monotonic()
-        restart = False
-        with self._lock:
-            self._last_hb[k] = t
-            self._hb_state[k] = state
-            if self._silent[k]:
-                self._silent[k] = False
-                log.info("%s heartbeat back on %s", self._names[k], self._bus_name)
-            if state == NMT_BOOTUP and self._running:
-                self._note(
-                    f"bootup{k}",
-                    f"{self._names[k]} rebooted (boot-up message on {self._bus_name}) — "
-                    + ("hexcal sets it up and starts it again; " if not self.listen_only else "")
-                    + "check its supply if this repeats",
-                )
-            reboot = state == NMT_BOOTUP and self.config.configure
-            if (
-                self._running
-                and not self.listen_only
-                and k not in self._configuring
-                and state in (NMT_BOOTUP, NMT_PRE_OPERATIONAL)
-                and (reboot or t - self._last_nmt[k] > self.config.heartbeat_timeout_s / 5)
-            ):
-                restart = True
-                if reboot:
-                    self._configuring.add(k)
-            self._cond.notify_all()
-        if not restart:
-            return
-        if reboot:
-            # A rebooted node is back at its factory settings (no heartbeat, no synchronous
-            # position). SDO answers come through this very thread, so set it up from another.
-            threading.Thread(
-                target=self._reconfigure, args=(k,), name="hexcal-can-reconfigure", daemon=True
-            ).start()
-        else:  # outside the lock: sending may block
-            self._nmt_start(k)
-
-    def _reconfigure(self, k: int) -> None:
-        """Set leg ``k + 1``'s node up again after a reboot, then NMT-start it."""
-        net = self._network
-        try:
-            if net is None:
-                return
-            info = configure_node(net, self.config.legs[k], self.config)
-            with self._lock:
-                if self.nodes:
-                    self.nodes[k] = info
-            self._nmt_start(k)
-        except EncoderConfigError as exc:
-            with self._lock:
-                self._note(f"reconfigure{k}", str(exc))
-        finally:
-            with self._lock:
-                self._configuring.discard(k)
-
-    def _on_error_frame(self, msg: can.Message, t: float) -> None:
-        cls = msg.arbitration_id & 0x1FFFFFFF
-        desc = describe_error_frame(msg)
-        with self._lock:
-            self._error_frames += 1
-            if cls & CAN_ERR_BUSOFF:
-                if self._bus_state != BUS_OFF:
-                    log.error("%s is BUS-OFF", self._bus_name)
-                self._bus_state, self._bus_detail = BUS_OFF, "error frame: bus-off"
-            elif cls & CAN_ERR_RESTARTED:
-                self._bus_state, self._bus_detail = BUS_ACTIVE, ""
-            elif cls & CAN_ERR_CRTL and len(msg.data) > 1:
-                ctrl = msg.data[1]
-                if ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
-                    self._bus_state, self._bus_detail = BUS_PASSIVE, "error frame: " + desc
-                elif ctrl & CAN_ERR_CRTL_ACTIVE:
-                    self._bus_state, self._bus_detail = BUS_ACTIVE, ""
-            self._note(
-                "error_frame",
-                f"CAN error frame on {self._bus_name} ({desc}; {self._error_frames} so far): frames "
-                "are being corrupted — check the 120 Ω termination at both ends, the connectors and "
-                f"that every node runs at {self.config.bitrate / 1000:g} kbit/s",
-            )
-
-    def _on_receive_error(self, exc: Exception) -> None:
-        with self._lock:
-            self._bus_state, self._bus_detail = BUS_ERROR, f"receive failed: {exc}"
-            self._note("receive", self._bus_message())
-        # The notifier retries at once; do not spin on a dead adapter.
-        self._stop_evt.wait(0.05)
-
     # -- sending ---------------------------------------------------------------------------------
     def _nmt_start(self, k: int) -> None:
         net = self._network
@@ -1314,7 +640,7 @@ class LegEncoders:
         with self._lock:
             # Open the set before sending: the answers may arrive before send() returns.
             t = time.monotonic()
-            self._open_set(t, self._to_bus(t), self._sync_counter)
+            self._open_set(t, self._clock.to_bus(t), self._sync_counter)
         try:
             # No counter byte for nodes whose 0x1019 is 0: they answer one with EMCY 0x8240.
             net.sync.transmit(self._sync_counter or None)
@@ -1371,7 +697,10 @@ class LegEncoders:
         if self._polls_state and now >= self._next_state_poll and self._network is not None:
             self._next_state_poll = now + 0.1
             try:
-                st = self._network.bus.state
+                bus = self._network.bus
+                if bus is None:
+                    return
+                st = bus.state
             except Exception:  # an interface without state support: nothing to learn
                 self._polls_state = False
                 return

@@ -27,7 +27,7 @@ Fields are separated by spaces or tabs; numbers use the decimal syntax of Python
 :class:`LineTracker` reads such a stream from any pyserial port (``serial_for_url``: a device,
 ``socket://host:port``, ``loop://`` in tests) and stamps each record with the host's
 ``time.monotonic()`` on arrival. A line that breaks the format raises
-:class:`LineProtocolError` (a :class:`~hexcal.drivers.ndi.TrackerFormatError`), naming the
+:class:`LineProtocolError` (a :class:`~hexcal.drivers.ndi_protocol.TrackerFormatError`), naming the
 source and line number; it is never turned into a pose.
 """
 
@@ -44,7 +44,7 @@ import serial
 
 from hexcal.acquisition import TrackerSample
 from hexcal.drivers.limits import check_duration
-from hexcal.drivers.ndi import TrackerDisconnected, TrackerFormatError, TrackerTimeout
+from hexcal.drivers.ndi_protocol import TrackerDisconnected, TrackerFormatError, TrackerTimeout
 
 #: Longest line accepted (bytes): a stream without newlines is not this protocol.
 MAX_LINE = 1024

@@ -524,7 +524,7 @@ def block_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_block_check_agrees_with_the_row_check(block_dir: Path, data: st.DataObject) -> None:
     """Whatever the values, reading a block at a time with numpy gives exactly what
     validating every row with MeasurementRow gives: the same table, or the same error."""
-    from hexcal.measurements import _Slow, _TableReader
+    from hexcal.measurements_csv import _Slow, _TableReader
 
     n = data.draw(st.integers(1, 6), label="rows")
     rows = [{"pose_id": str(k + 1), **GOOD} for k in range(n)]

@@ -3,7 +3,7 @@
 Both streams are stamped on one monotonic clock (``time.monotonic``) with the instant the
 device measured: a leg-reading set with the SYNC that latched it, a tracker sample with its
 frame's measurement time estimated from the tracker's frame numbers (see
-:mod:`hexcal.drivers.ndi`, "Timing"). A pose is
+docs/ndi.md, "Timing: the frame clock"). A pose is
 recorded from a *still window*: every tracker sample and every leg-reading set whose arrival
 time falls in ``[t_end − duration, t_end]``. A pose taken during a device fault is refused,
 never kept: by default one flagged sample in the window (a tool MISSING for a frame, a CRC

@@ -16,10 +16,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
+
+if TYPE_CHECKING:
+    from hexcal.procedure import Procedure
+    from hexcal.session import SessionFile
 
 #: Effects the demo may hide: those the mock rig can produce and the session can reveal.
 #: Not thermal: the rig has no temperature sensor yet. Not compliance: the mock's length clamp
@@ -112,47 +116,16 @@ def run_demo(
     settings: DemoSettings | None = None, on_event: Callable[[str], None] = lambda m: None
 ) -> dict[str, Any]:
     """Run the demo; the JSON-ready result (see module docstring)."""
-    from hexcal.acquisition import StillWindow
-    from hexcal.live import open_rig
-    from hexcal.mock_hw.rig import mock_rig
     from hexcal.procedure import load_procedure
-    from hexcal.recording import record_procedure
-    from hexcal.session import Session, SessionFile
-    from hexcal.workflow import (
-        calibrate_model,
-        diagnose_chain,
-        model_of,
-        procedure_steps,
-        session_inputs,
-        store,
-    )
+    from hexcal.workflow import calibrate_model, diagnose_chain, model_of, session_inputs, store
 
     st = settings or DemoSettings()
     hr = hidden_robot(st.seed, st.effect, st.effect_scale)
-    design, truth, effect, hook = hr.design, hr.truth, hr.effect, hr.hook
+    truth, effect = hr.truth, hr.effect
 
     proc = load_procedure(st.procedure)
-    steps = procedure_steps(proc, st.poses_per_step, st.free_poses)
-    window = StillWindow(duration_s=st.window_s)
     path = st.session_path or Path(f"hexcal-demo-{time.strftime('%Y%m%d-%H%M%S')}.json")
-    t_start = time.monotonic()
-    rig_seed = st.seed if st.rig_seed is None else st.rig_seed
-    with mock_rig(truth, seed=rig_seed, effects=[hook]) as rig:
-        sf = SessionFile.create(
-            path,
-            Session(robot=design, devices=rig.config, procedure=proc.model_dump(by_alias=True)),
-        )
-        on_event(f"session file: {path}")
-        with open_rig(rig.config, window) as live:
-            record_procedure(
-                live.acquisition,
-                rig.motion,
-                steps,
-                float(np.linalg.norm(design.b, axis=1).max()),
-                on_event=on_event,
-                on_record=sf.recording_sink(time.monotonic()),
-            )
-    t_record = time.monotonic() - t_start
+    sf, t_record = _record_session(st, hr, proc, path, on_event)
     inp = session_inputs(sf.session, path)
     inst = inp.instruments
     if inst is None:
@@ -215,6 +188,45 @@ def run_demo(
             "with_effect": cal_with.clamp_check.text if cal_with.clamp_check else None,
         },
     }
+
+
+def _record_session(
+    st: DemoSettings,
+    hr: HiddenRobot,
+    proc: Procedure,
+    path: Path,
+    on_event: Callable[[str], None],
+) -> tuple[SessionFile, float]:
+    """Record the procedure ``proc`` on a mock rig around the hidden robot into a new session
+    file at ``path``: the :class:`~hexcal.session.SessionFile` and the recording's duration (s)."""
+    from hexcal.acquisition import StillWindow
+    from hexcal.live import open_rig
+    from hexcal.mock_hw.rig import mock_rig
+    from hexcal.recording import record_procedure
+    from hexcal.session import Session, SessionFile
+    from hexcal.workflow import procedure_steps
+
+    design = hr.design
+    steps = procedure_steps(proc, st.poses_per_step, st.free_poses)
+    window = StillWindow(duration_s=st.window_s)
+    t_start = time.monotonic()
+    rig_seed = st.seed if st.rig_seed is None else st.rig_seed
+    with mock_rig(hr.truth, seed=rig_seed, effects=[hr.hook]) as rig:
+        sf = SessionFile.create(
+            path,
+            Session(robot=design, devices=rig.config, procedure=proc.model_dump(by_alias=True)),
+        )
+        on_event(f"session file: {path}")
+        with open_rig(rig.config, window) as live:
+            record_procedure(
+                live.acquisition,
+                rig.motion,
+                steps,
+                float(np.linalg.norm(design.b, axis=1).max()),
+                on_event=on_event,
+                on_record=sf.recording_sink(time.monotonic()),
+            )
+    return sf, time.monotonic() - t_start
 
 
 def demo_text(r: dict[str, Any]) -> str:

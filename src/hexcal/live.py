@@ -40,7 +40,7 @@ class _BinaryPoll:
         self._next_try = 0.0
 
     def sample(self) -> TrackerSample:
-        from hexcal.drivers.ndi import TrackerDisconnected, TrackerError
+        from hexcal.drivers.ndi_protocol import TrackerDisconnected, TrackerError
 
         if self.tracker.lost:
             now = time.monotonic()

@@ -26,7 +26,8 @@ import numpy as np
 from hexcal.accuracy import PoseAccuracy
 from hexcal.calibrate import Calibration, calibrate
 from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
-from hexcal.measurements import Measurements, read_measurements
+from hexcal.measurements import Measurements
+from hexcal.measurements_csv import read_measurements
 from hexcal.model_file import (
     CalibratedRobot,
     CalibrationBlock,

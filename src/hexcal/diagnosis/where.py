@@ -37,6 +37,26 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
         g = _group(z2, np.repeat((meas.step == step)[:, None], 6, 1), f"step {step}")
         if g:
             steps.append(g)
+    pos = meas.position - np.median(meas.position, axis=0)
+    worst_legs = [
+        g["group"] for g in sorted(legs, key=lambda g: -g["excess_ratio"]) if g["stands_out"]
+    ]
+    out: dict[str, Any] = {
+        "legs": legs,
+        "steps": steps,
+        "time": _time_blocks(z2, meas),
+        "region": _regions(z2, pos, meas.rotations.magnitude()),
+        "leg_region": _leg_regions(r, floor, pos),
+        "worst_poses": _worst_poses(z2, meas),
+        "worst_legs": worst_legs,
+    }
+    out["summary"] = _summary(out)
+    return out
+
+
+def _time_blocks(z2: np.ndarray, meas) -> list[dict]:
+    """The groups of five consecutive blocks of poses, in recording order."""
+    m = len(z2)
     time = []
     for i, block in enumerate(np.array_split(np.arange(m), 5)):
         mask = np.zeros((m, 6), bool)
@@ -48,9 +68,13 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
         )
         if g:
             time.append(g)
+    return time
+
+
+def _regions(z2: np.ndarray, pos: np.ndarray, tilt: np.ndarray) -> list[dict]:
+    """The groups of the workspace's halves: platform position ``pos`` (about its median) along
+    each axis, and ``tilt`` (rotation magnitude) above and below its median."""
     region = []
-    pos = meas.position - np.median(meas.position, axis=0)
-    tilt = meas.rotations.magnitude()
     for label, sel in [
         ("platform x > median", pos[:, 0] > 0),
         ("platform x < median", pos[:, 0] <= 0),
@@ -64,10 +88,14 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
         g = _group(z2, np.repeat(sel[:, None], 6, 1), label)
         if g:
             region.append(g)
-    # Within each leg, a local defect shows as a difference between the two halves of the
-    # workspace: the fit spreads a step over both halves, so each half alone only looks like the
-    # leg's overall excess, but their signed means differ. z = difference / its standard error
-    # (pose noise, so one term per pose).
+    return region
+
+
+def _leg_regions(r: np.ndarray, floor: np.ndarray, pos: np.ndarray) -> list[dict]:
+    """Within each leg, a local defect shows as a difference between the two halves of the
+    workspace: the fit spreads a step over both halves, so each half alone only looks like the
+    leg's overall excess, but their signed means differ. z = difference / its standard error
+    (pose noise, so one term per pose)."""
     leg_region = []
     for k in range(6):
         for axis, name in enumerate("xyz"):
@@ -90,9 +118,14 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
                     "stands_out": bool(abs(z) > 6.0),
                 }
             )
+    return leg_region
+
+
+def _worst_poses(z2: np.ndarray, meas) -> list[dict]:
+    """The five poses with the largest mean squared normalised residual."""
     pose_score = z2.mean(axis=1)
     worst = np.argsort(-pose_score)[:5]
-    worst_poses = [
+    return [
         {
             "pose_id": int(meas.pose_id[i]),
             "step": str(meas.step[i]),
@@ -101,18 +134,10 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
         }
         for i in worst
     ]
-    worst_legs = [
-        g["group"] for g in sorted(legs, key=lambda g: -g["excess_ratio"]) if g["stands_out"]
-    ]
-    out: dict[str, Any] = {
-        "legs": legs,
-        "steps": steps,
-        "time": time,
-        "region": region,
-        "leg_region": leg_region,
-        "worst_poses": worst_poses,
-        "worst_legs": worst_legs,
-    }
+
+
+def _summary(out: dict) -> str:
+    """One line: the groups of ``out`` that stand out, the largest excess first."""
     standouts = [
         g
         for key in ("legs", "steps", "time", "region", "leg_region")
@@ -120,7 +145,7 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
         if g["stands_out"]
     ]
     standouts.sort(key=lambda g: -g["excess_ratio"])
-    out["summary"] = (
+    return (
         "residual at the noise floor everywhere"
         if not standouts
         else "concentrated in "
@@ -131,4 +156,3 @@ def concentrations(problem, fit, floor: np.ndarray) -> dict:
             for g in standouts[:4]
         )
     )
-    return out
