@@ -3,6 +3,89 @@
 Units are millimetres, seconds and degrees Celsius throughout; quaternions in files are unit and
 scalar first (``qw, qx, qy, qz``); every rotation goes through
 :class:`scipy.spatial.transform.Rotation`.
+
+The public API, by stage of the data flow (example in ``docs/library.md``)::
+
+    robot.json, measurements.csv, instruments.json
+        load_robot, read_measurements, load_instruments, import_log
+    → calibrate (Model 36 / 42, effects)          → Calibration
+    → diagnose (what is missing)                  → Diagnosis
+    → calibrated.json: save_model, load_model     → CalibratedRobot, LegModel (predict)
+
+The names are loaded on first use, so ``import hexcal`` stays quick.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 __version__ = "0.1.0"
+
+#: public name → the module that defines it
+_HOMES = {
+    "Robot": "hexcal.robot",
+    "load_robot": "hexcal.robot",
+    "save_robot": "hexcal.robot",
+    "Measurements": "hexcal.measurements",
+    "read_measurements": "hexcal.measurements_csv",
+    "write_measurements": "hexcal.measurements",
+    "Instruments": "hexcal.instruments",
+    "load_instruments": "hexcal.instruments",
+    "save_instruments": "hexcal.instruments",
+    "import_log": "hexcal.log_import",
+    "calibrate": "hexcal.calibrate",
+    "Calibration": "hexcal.calibrate",
+    "diagnose": "hexcal.diagnosis.diagnose",
+    "Diagnosis": "hexcal.diagnosis.diagnose",
+    "CalibratedRobot": "hexcal.model_file",
+    "load_model": "hexcal.model_file",
+    "save_model": "hexcal.model_file",
+    "LegModel": "hexcal.predict",
+}
+
+__all__ = [
+    "CalibratedRobot",
+    "Calibration",
+    "Diagnosis",
+    "Instruments",
+    "LegModel",
+    "Measurements",
+    "Robot",
+    "__version__",
+    "calibrate",
+    "diagnose",
+    "import_log",
+    "load_instruments",
+    "load_model",
+    "load_robot",
+    "read_measurements",
+    "save_instruments",
+    "save_model",
+    "save_robot",
+    "write_measurements",
+]
+
+if TYPE_CHECKING:
+    from hexcal.calibrate import Calibration, calibrate
+    from hexcal.diagnosis.diagnose import Diagnosis, diagnose
+    from hexcal.instruments import Instruments, load_instruments, save_instruments
+    from hexcal.log_import import import_log
+    from hexcal.measurements import Measurements, write_measurements
+    from hexcal.measurements_csv import read_measurements
+    from hexcal.model_file import CalibratedRobot, load_model, save_model
+    from hexcal.predict import LegModel
+    from hexcal.robot import Robot, load_robot, save_robot
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'hexcal' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value  # once loaded, a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_HOMES})
