@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal import nbp
+from hexcal import nbp, nbp_study
 from hexcal.kinematics import condition_number
 from hexcal.noise import NoiseSigmas
 from hexcal.session_sim import SessionPlan, perturbed_truth
@@ -34,12 +34,12 @@ def test_suggested_poses_need_at_most_half_the_random_ones(constraint, scoring):
     truth = perturbed_truth(ROBOT, np.random.default_rng(5), SessionPlan())
     design = ROBOT if scoring == "estimated" else None
     random = [
-        nbp.sequence(constraint, truth, 2, SIG, np.random.default_rng(s), 60, "random")
+        nbp_study.sequence(constraint, truth, 2, SIG, np.random.default_rng(s), 60, "random")
         for s in range(16)
     ]
     target = float(np.median(random, axis=0)[29])
     suggested = [
-        nbp.sequence(
+        nbp_study.sequence(
             constraint,
             truth,
             2,

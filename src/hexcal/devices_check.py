@@ -1,29 +1,15 @@
 """``hexcal devices check``: open each device of the rig, read from it, report what was found.
 
-With ``--mock`` the rig is simulated: one :class:`~hexcal.mock_hw.robot.MockRobot` behind a mock
-NDI tracker (``ndimock://``) and six mock CANopen encoder nodes on python-can's virtual bus; the
-real drivers talk to them through their real transports.
+With ``--mock`` (:mod:`hexcal.commands.devices`) the rig is simulated: one mock robot behind a
+mock NDI tracker (``ndimock://``) and six mock CANopen encoder nodes on python-can's virtual bus;
+the real drivers talk to them through their real transports.
 """
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator
-
 import numpy as np
 
 from hexcal.devices import DevicesConfig
-
-
-@contextlib.contextmanager
-def mock_rig(seed: int = 0) -> Iterator[DevicesConfig]:
-    """A running simulated rig (:func:`hexcal.mock_hw.rig.mock_rig`) and the device
-    configuration that reaches it."""
-    from hexcal.mock_hw.rig import mock_rig as start_rig
-
-    with start_rig(seed=seed) as rig:
-        yield rig.config
-
 
 #: Reading sets read by the check (0.5 s at the default 100 Hz SYNC).
 N_CHECK_SETS = 50

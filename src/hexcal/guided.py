@@ -48,10 +48,10 @@ from hexcal.recording import (
 )
 from hexcal.robot import Robot
 from hexcal.session import PoseRecord, SessionFile, StepProgress
-from hexcal.simulate import Simulator
 from hexcal.solvers.direct import type_i_system, type_ii_system
 from hexcal.solvers.linalg import lstsq
 from hexcal.solvers.paper import platform_point_positions
+from hexcal.workspace import Workspace
 
 #: Noise assumed for the live predictions until the step's own still windows tell (1σ of a
 #: recorded pose): a good optical tracker and encoder, averaged over a still window.
@@ -558,7 +558,7 @@ class GuidedSession:
             geo = nbp.estimate_geometry(st.constraint, k, P, R, rho, design)
             a_all, b_all = design.a.copy(), design.b.copy()
             a_all[k], b_all[k] = geo.a, geo.b
-            sim = Simulator(design.with_geometry(a_all, b_all, design.offsets))
+            sim = Workspace(design.with_geometry(a_all, b_all, design.offsets))
             return nbp.suggest(
                 st.constraint,
                 geo,

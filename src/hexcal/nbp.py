@@ -1,7 +1,7 @@
 """Next best pose: which pose of the clamped leg's constraint manifold to record next.
 
 For the leg being calibrated and its clamp type, feasible candidate poses are drawn on the
-manifold (within stroke and joint-angle limits, :class:`~hexcal.simulate.Simulator`, and away
+manifold (within stroke and joint-angle limits, :class:`~hexcal.workspace.Workspace`, and away
 from singularities, :data:`MAX_CONDITION`) of the geometry estimated so far; each is scored by
 what it adds to the information of the step's constraint (:mod:`hexcal.bound`): the predicted
 E‖â − a‖² (Types I and III) or E‖b̂ − b‖² (Type II) once it is recorded — A-optimality on the
@@ -27,7 +27,7 @@ from hexcal import bound
 from hexcal.kinematics import condition_number
 from hexcal.noise import NoiseSigmas
 from hexcal.robot import Robot
-from hexcal.simulate import NoiseModel, PoseRanges, Simulator
+from hexcal.workspace import Workspace
 
 #: Candidates whose dimensionless leg Jacobian has a larger condition number are dropped: near
 #: a singularity the legs do not hold the platform rigidly (about 5 at home, at most 13 over
@@ -118,7 +118,7 @@ def _prior(constraint: str, prior_mm: float) -> np.ndarray:
 
 
 def candidates(
-    sim: Simulator, constraint: str, geo: LegGeometry, n: int, rng: np.random.Generator
+    sim: Workspace, constraint: str, geo: LegGeometry, n: int, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
     """``n`` feasible poses (P (n, 3), R (n, 3, 3)) on the step's manifold of ``sim``'s robot,
     away from singularities (:data:`MAX_CONDITION`; fewer than ``n`` only if most of the
@@ -151,7 +151,7 @@ def suggest(
     P_done: np.ndarray,
     R_done: np.ndarray,
     sig: NoiseSigmas,
-    sim: Simulator,
+    sim: Workspace,
     rng: np.random.Generator,
     n_candidates: int = 1000,
     space_filling: bool = False,
@@ -225,75 +225,6 @@ def _coverage_distance(Pc, Rc, P_done, R_done) -> np.ndarray:
     cos = (np.einsum("mij,nij->mn", Rc, R_done) - 1.0) / 2.0  # (tr(R_cᵀ R_d) − 1) / 2
     dr = np.rad2deg(np.arccos(np.clip(cos, -1.0, 1.0)))
     return np.min(dp + 2.0 * dr, axis=1)
-
-
-def sequence(
-    constraint: str,
-    robot: Robot,
-    k: int,
-    sig: NoiseSigmas,
-    rng: np.random.Generator,
-    n_poses: int,
-    strategy: str = "suggested",
-    ranges: PoseRanges | None = None,
-    space_filling_every: int = 5,
-    n_candidates: int = 1000,
-    design: Robot | None = None,
-) -> np.ndarray:
-    """The predicted 1σ (mm) of the point that matters after each of ``n_poses`` poses on one
-    clamp of leg ``k`` of ``robot`` (the truth), poses chosen by ``strategy``: "suggested"
-    (this module) or "random" (drawn on the same manifold). The clamp is set where the first
-    random pose puts the leg; the 1σ is the bound at the truth for the poses taken.
-
-    Without ``design`` the suggestions are scored with the true geometry (an oracle). With it,
-    as on a rig: the poses are measured with Gaussian noise ``sig``, and from the 4th pose on
-    the suggestions are scored with the geometry those measurements estimate
-    (:func:`estimate_geometry`, ``design`` filling in what the step cannot tell; before that,
-    with ``design``'s), while the poses stay on the true clamp (the clamp holds the robot)."""
-    sim = Simulator(robot, ranges=ranges or PoseRanges())
-    constraint_kind = {"direction": "type_i", "direction+length": "type_ii", "length": "type_iii"}
-    P0, R0 = getattr(sim, constraint_kind[constraint])(k, (1,), rng)
-    geo = _clamp_geometry(robot, k, P0[0], R0[0])
-    noise = NoiseModel(sig.position_mm, np.rad2deg(sig.orientation_rad), sig.reading_mm)
-    P, R = P0, R0
-    measured = [noise.apply(rng, P, R, sim.readings(P, R)[:, k])] if design is not None else []
-    out = [
-        predicted_sigma_mm(
-            constraint, _prior(constraint, 1e3) + information(constraint, geo, P, R, sig)
-        )
-    ]
-    for i in range(1, n_poses):
-        if strategy == "random":
-            Pn, Rn = candidates(sim, constraint, geo, 1, rng)
-        else:
-            score = None
-            if design is not None:
-                Pm, Rm, rho = (np.concatenate(c) for c in zip(*measured, strict=True))
-                score = _clamp_geometry(design, k, Pm[0], Rm[0])
-                if len(P) >= 4:
-                    try:
-                        score = estimate_geometry(constraint, k, Pm, Rm, rho, design)
-                    except (ValueError, np.linalg.LinAlgError):
-                        pass
-            s = suggest(
-                constraint,
-                geo,
-                P,
-                R,
-                sig,
-                sim,
-                rng,
-                n_candidates=n_candidates,
-                space_filling=space_filling_every > 0 and i % space_filling_every == 0,
-                score_geo=score,
-            )
-            Pn, Rn = s.position[None], s.rotation[None]
-            if design is not None:
-                measured.append(noise.apply(rng, Pn, Rn, sim.readings(Pn, Rn)[:, k]))
-        P, R = np.concatenate([P, Pn]), np.concatenate([R, Rn])
-        info = _prior(constraint, 1e3) + information(constraint, geo, P, R, sig)
-        out.append(predicted_sigma_mm(constraint, info))
-    return np.array(out)
 
 
 def _clamp_geometry(robot: Robot, k: int, P: np.ndarray, R: np.ndarray) -> LegGeometry:

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from hexcal.devices import DevicesConfig
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -49,10 +55,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    import contextlib
-
-    from hexcal.devices import DevicesConfig, load_devices_config
-    from hexcal.devices_check import check_devices, mock_rig
+    from hexcal.devices import load_devices_config
+    from hexcal.devices_check import check_devices
 
     ctx: contextlib.AbstractContextManager[DevicesConfig]
     if args.mock:
@@ -98,3 +102,13 @@ def _can_setup(args: argparse.Namespace) -> int:
         + ("; stored" if res.stored else "; not stored (lost at power-off)")
     )
     return 0
+
+
+@contextlib.contextmanager
+def mock_rig(seed: int = 0) -> Iterator[DevicesConfig]:
+    """A running simulated rig (:func:`hexcal.mock_hw.rig.mock_rig`) and the device
+    configuration that reaches it."""
+    from hexcal.mock_hw.rig import mock_rig as start_rig
+
+    with start_rig(seed=seed) as rig:
+        yield rig.config

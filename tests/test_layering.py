@@ -1,0 +1,166 @@
+"""The data flow, checked on the imports: a module imports only from its own stage or an
+earlier one, and no production module imports the simulator or the mock hardware.
+
+    model → io → effects → estimate → acquire → procedure → (sim) → app
+
+``sim`` (the simulator, simulated sessions and robots, the study, mock hardware) sits beside
+the flow: it may use every production stage, and only the application layer (the CLI, the
+text UI, the workflow under them) may use it — for ``simulate``, ``demo``, ``study`` and
+``--mock``. Imports are read from the source with ``ast`` (lazy imports inside functions
+included)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SOURCES = {
+    "src/hexcal": "hexcal",
+    "drivers": "hexcal.drivers",
+    "mock_hw": "hexcal.mock_hw",
+    "procedures": "hexcal.procedures",
+}
+#: Stages in flow order: module name prefixes (the longest prefix decides).
+STAGES = {
+    "model": [
+        "hexcal",  # the package's own __init__: version and the lazy public API (see below)
+        "hexcal.robot",
+        "hexcal.kinematics",
+        "hexcal.noise",
+        "hexcal.instruments",
+        "hexcal.fileio",
+        "hexcal.validation",
+        "hexcal.safe_read",
+        "hexcal.workspace",
+    ],
+    "io": ["hexcal.measurements", "hexcal.measurements_csv", "hexcal.log_import"],
+    "effects": ["hexcal.effects"],
+    "estimate": [
+        "hexcal.solvers",
+        "hexcal.refine",
+        "hexcal.calibrate",
+        "hexcal.clamp_rows",
+        "hexcal.bound",
+        "hexcal.nbp",
+        "hexcal.predict",
+        "hexcal.predict_table",
+        "hexcal.accuracy",
+        "hexcal.model_file",
+        "hexcal.sanity",
+        "hexcal.diagnosis",
+        "hexcal.model_validation",
+    ],
+    "acquire": [
+        "hexcal.drivers",
+        "hexcal.acquisition",
+        "hexcal.live",
+        "hexcal.devices",
+        "hexcal.devices_check",
+    ],
+    "procedure": [
+        "hexcal.procedure",
+        "hexcal.procedures",
+        "hexcal.recording",
+        "hexcal.session",
+        "hexcal.guided",
+    ],
+    "sim": [
+        "hexcal.simulate",
+        "hexcal.session_sim",
+        "hexcal.sim_robots",
+        "hexcal.study",
+        "hexcal.session_efficiency",
+        "hexcal.nbp_study",
+        "hexcal.effects.inject",
+        "hexcal.effects.foreign",
+        "hexcal.mock_hw",
+    ],
+    "app": [
+        "hexcal.workflow",
+        "hexcal.report_text",
+        "hexcal.demo",
+        "hexcal.cli",
+        "hexcal.commands",
+        "hexcal.tui",
+    ],
+}
+ORDER = list(STAGES)
+PRODUCTION = ORDER[: ORDER.index("sim")]
+#: Imports that run against the flow, each with its reason; the test fails when one is added,
+#: and when one listed here is gone (so the list only shrinks).
+KNOWN = {
+    ("hexcal.robot", "hexcal.effects"): "robot.json's `plausible` keys are checked against the "
+    "effect catalogue's parameter names (lazy import in the validator)",
+    ("hexcal.robot", "hexcal.model_file"): "load_robot reads a calibrated.json as a robot, "
+    "validating its calibration block (lazy import)",
+}
+#: The package __init__ names the public API by module path and imports it lazily: its
+#: TYPE_CHECKING imports are for the type checker, not a dependency of the model stage.
+LAZY_API = "hexcal"
+
+
+def stage_of(module: str) -> str | None:
+    best: tuple[int, str] | None = None
+    for name, prefixes in STAGES.items():
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and (best is None or len(p) > best[0]):
+                best = (len(p), name)
+    return None if best is None else best[1]
+
+
+def modules():
+    for root, package in SOURCES.items():
+        for path in sorted((ROOT / root).rglob("*.py")):
+            parts = path.relative_to(ROOT / root).with_suffix("").parts
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            yield ".".join((package, *parts)), path
+
+
+def imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.add(node.module)
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+    return {m for m in out if m == "hexcal" or m.startswith("hexcal.")}
+
+
+def against_the_flow() -> dict[tuple[str, str], str]:
+    found = {}
+    for module, path in modules():
+        here = stage_of(module)
+        assert here is not None, f"{module} belongs to no stage: add it to STAGES"
+        if here == "app" or module == LAZY_API:
+            continue
+        for target in imports(path):
+            there = stage_of(target)
+            assert there is not None, f"{module} imports {target}, which belongs to no stage"
+            if here in PRODUCTION and there == "sim":
+                found[(module, target)] = f"{here} → sim"
+            elif ORDER.index(there) > ORDER.index(here) and not (
+                here == "sim" and there in PRODUCTION
+            ):
+                found[(module, target.split(".")[0] + "." + target.split(".")[1])] = (
+                    f"{here} → {there}"
+                )
+    return found
+
+
+def test_every_module_belongs_to_a_stage_and_imports_run_down_the_flow():
+    found = against_the_flow()
+    new = {k: v for k, v in found.items() if k not in KNOWN}
+    assert not new, "imports against the data flow (or into sim): " + "; ".join(
+        f"{a} imports {b} ({why})" for (a, b), why in sorted(new.items())
+    )
+    gone = set(KNOWN) - set(found)
+    assert not gone, f"fixed, so take them off KNOWN: {sorted(gone)}"
+
+
+def test_no_production_module_imports_the_simulator_or_mock_hardware():
+    for module, path in modules():
+        if stage_of(module) in PRODUCTION and module != LAZY_API:
+            bad = {t for t in imports(path) if stage_of(t) == "sim"}
+            assert not bad, f"{module} imports {sorted(bad)}"
