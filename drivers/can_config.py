@@ -23,6 +23,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hexcal.drivers.limits import MAX_TIMEOUT_S
+from hexcal.errors import InputError
 from hexcal.validation import format_validation_error
 
 #: COB-ID bases of the CANopen services the driver uses (CiA 301 predefined connection set).
@@ -41,7 +42,7 @@ def tpdo_cob_id(n: int, node_id: int) -> int:
 _Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
-class CanConfigError(ValueError):
+class CanConfigError(InputError):
     """A CAN configuration file could not be read; the message names the file and the field."""
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from hexcal.acquisition import LegSample
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
 from hexcal.drivers.can_nodes import NodeInfo
+from hexcal.errors import DeviceError
 
 NMT_OPERATIONAL = 0x05
 NMT_PRE_OPERATIONAL = 0x7F
@@ -59,7 +60,7 @@ BUS_ERROR = "ERROR"
 
 
 # -- errors ----------------------------------------------------------------------------------------
-class EncoderError(Exception):
+class EncoderError(DeviceError):
     """The leg encoders cannot deliver readings; the message says what to check."""
 
 

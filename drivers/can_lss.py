@@ -21,6 +21,7 @@ import canopen
 from canopen.lss import LssError, LssMaster
 
 from hexcal.drivers.can_config import CanBusConfig
+from hexcal.errors import DeviceError
 
 #: CiA 305 bit-timing table 0: bit/s → index.
 BIT_TIMING_INDEX = {
@@ -36,7 +37,7 @@ BIT_TIMING_INDEX = {
 NMT_RESET_COMMUNICATION = 0x82
 
 
-class LssSetupError(Exception):
+class LssSetupError(DeviceError):
     """An LSS step failed; the message says which and what to do."""
 
 

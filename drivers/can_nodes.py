@@ -38,6 +38,7 @@ from canopen.objectdictionary import SIGNED_TYPES, ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
+from hexcal.errors import DeviceError
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +78,7 @@ def eds_for(bus: CanBusConfig, leg: LegEncoderConfig) -> Path:
     return Path(path) if path else generic_eds()
 
 
-class EncoderConfigError(Exception):
+class EncoderConfigError(DeviceError):
     """An encoder could not be set up; the message names the leg, the node, the object and
     what to do."""
 

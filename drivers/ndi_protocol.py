@@ -32,6 +32,7 @@ from hexcal.drivers.ndi_codes import (
     SYSTEM_STATUS_BITS,
     SYSTEM_STATUS_HINT,
 )
+from hexcal.errors import DeviceError
 
 # The records of a TX:0001 (or 0801) reply, exactly as specified (fullmatch: nothing more,
 # nothing less). DISABLED and UNOCCUPIED come bare or followed by port status and frame number:
@@ -53,7 +54,7 @@ _PHSR = re.compile(rb"([0-9A-F]{2})((?:[0-9A-F]{5})*)")
 # ------------------------------------------------------------------------------------------------
 # Errors
 # ------------------------------------------------------------------------------------------------
-class TrackerError(Exception):
+class TrackerError(DeviceError):
     """Something went wrong talking to the tracker; the message names the port and says what to
     do. ``port`` is the port URL."""
 

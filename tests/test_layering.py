@@ -33,6 +33,7 @@ STAGES = {
         "hexcal.validation",
         "hexcal.safe_read",
         "hexcal.workspace",
+        "hexcal.errors",
     ],
     "io": ["hexcal.measurements", "hexcal.measurements_csv", "hexcal.log_import"],
     "effects": ["hexcal.effects"],
@@ -164,3 +165,28 @@ def test_no_production_module_imports_the_simulator_or_mock_hardware():
         if stage_of(module) in PRODUCTION and module != LAZY_API:
             bad = {t for t in imports(path) if stage_of(t) == "sim"}
             assert not bad, f"{module} imports {sorted(bad)}"
+
+
+def test_one_exception_hierarchy():
+    """Every exception class hexcal defines (outside tests and the mocks) derives from
+    HexcalError, through InputError, DeviceError or RefusedError where it is one of those."""
+    import importlib
+    import inspect
+
+    from hexcal.errors import HexcalError
+
+    loose = []
+    for module, _ in modules():
+        if stage_of(module) == "sim" or module.endswith("__main__"):
+            continue
+        mod = importlib.import_module(module)
+        for name, obj in vars(mod).items():
+            if (
+                inspect.isclass(obj)
+                and issubclass(obj, BaseException)
+                and obj.__module__ == module
+                and not name.startswith("_")
+                and not issubclass(obj, HexcalError)
+            ):
+                loose.append(f"{module}.{name}")
+    assert not loose, loose

@@ -47,6 +47,8 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import RefusedError
+
 
 @dataclass(frozen=True)
 class TrackerSample:
@@ -139,7 +141,7 @@ _NUMBER = re.compile(r"\d+(?:\.\d+)?")
 UNIT_QUATERNION_TOLERANCE = 1e-2
 
 
-class PoseRefused(Exception):
+class PoseRefused(RefusedError):
     """The pose was not recorded; the message says why and what to do."""
 
 

@@ -63,12 +63,12 @@ def error_message(exc: BaseException) -> tuple[int, str]:
     raw library text reaches the user."""
     import numpy as np
 
-    from hexcal.acquisition import PoseRefused
-    from hexcal.solvers.whole_robot import CalibrationRefused
-    from hexcal.workflow import FitFailed
+    from hexcal.errors import HexcalError, RefusedError
 
-    if isinstance(exc, (CalibrationRefused, PoseRefused, FitFailed)):
+    if isinstance(exc, RefusedError):
         return EXIT_REFUSED, str(exc)
+    if isinstance(exc, HexcalError):  # its message names what and says what to do
+        return EXIT_INPUT, str(exc)
     if isinstance(exc, np.linalg.LinAlgError):
         return EXIT_REFUSED, (
             "the poses do not determine the geometry (the system to solve is singular); record "

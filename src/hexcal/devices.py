@@ -24,6 +24,7 @@ from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
 
 from hexcal.acquisition import StillWindow
 from hexcal.drivers.can_config import CanBusConfig, default_can_config
+from hexcal.errors import InputError
 from hexcal.safe_read import read_toml
 from hexcal.validation import format_validation_error
 
@@ -44,7 +45,7 @@ MAX_ZERO_MM = 1e6
 Timeout = Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S, allow_inf_nan=False)]
 
 
-class DevicesConfigError(ValueError):
+class DevicesConfigError(InputError):
     """The device configuration file is unreadable; the message names the file and field."""
 
 

@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from hexcal import nbp
 from hexcal.acquisition import LegSample, PoseRefused, RecordedPose, TrackerSample
+from hexcal.errors import HexcalError
 from hexcal.noise import NoiseSigmas
 from hexcal.recording import (
     ClampSlipped,
@@ -69,7 +70,7 @@ _HINT_DOFS = {
 _HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
 
 
-class GuidedError(Exception):
+class GuidedError(HexcalError):
     """The operator asked for something the step does not allow now; the message says why."""
 
 

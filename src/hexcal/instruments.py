@@ -15,6 +15,7 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from hexcal.errors import InputError
 from hexcal.fileio import write_text_atomic
 from hexcal.safe_read import read_json
 from hexcal.validation import format_validation_error
@@ -30,7 +31,7 @@ SigmaMm = Annotated[float, Field(gt=0, le=MAX_SIGMA_MM, strict=True, allow_inf_n
 SigmaDeg = Annotated[float, Field(gt=0, le=MAX_SIGMA_DEG, strict=True, allow_inf_nan=False)]
 
 
-class InstrumentsError(ValueError):
+class InstrumentsError(InputError):
     """instruments.json could not be read; the message names the file and the field."""
 
     def __init__(self, message: str, path: str | Path | None = None):

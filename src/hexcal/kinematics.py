@@ -10,6 +10,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import RefusedError
+
 
 def rotation_matrices(rotations: Rotation) -> np.ndarray:
     """(N, 3, 3) matrices of a Rotation (a single rotation gives (1, 3, 3))."""
@@ -63,7 +65,7 @@ def condition_number(
     return np.linalg.cond(jac)
 
 
-class ForwardKinematicsError(RuntimeError):
+class ForwardKinematicsError(RefusedError, RuntimeError):
     """No pose reproduces the given leg lengths within tolerance."""
 
 

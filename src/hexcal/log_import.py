@@ -42,6 +42,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import InputError
 from hexcal.measurements import CONSTRAINTS, Measurements
 from hexcal.safe_read import MB, FileKind, read_text, read_toml
 from hexcal.validation import format_validation_error
@@ -55,7 +56,7 @@ LINEAR_UNITS = {"mm": 1.0, "um": 1e-3, "m": 1000.0}
 SCALED_UNITS = ("counts", "rev")
 
 
-class LogImportError(ValueError):
+class LogImportError(InputError):
     """The log or its mapping cannot be read; the message names the file, line and column."""
 
 

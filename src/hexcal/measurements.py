@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import InputError
 from hexcal.fileio import write_text_atomic
 from hexcal.safe_read import (
     MAX_COORDINATE_MM,
@@ -95,7 +96,7 @@ class Issue:
         return f"{head}: {self.message}"
 
 
-class MeasurementError(ValueError):
+class MeasurementError(InputError):
     """A measurement table could not be read (or a :class:`Measurements` is inconsistent).
 
     The message holds one line per problem, each naming the file, the line (1-based, header =

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.effects import EffectData, ParamSpec, get_effect
+from hexcal.errors import InputError
 from hexcal.kinematics import ForwardKinematicsError, forward_kinematics
 from hexcal.robot import Robot
 
@@ -41,7 +42,7 @@ MAX_NEWTON = 60
 MAX_FIXED_POINT = 400
 
 
-class PredictionError(ValueError):
+class PredictionError(InputError):
     """A reading or pose the model cannot serve: out of the stroke, the workspace or a joint's
     range; the message names the rows (1-based, in the order given) and what to do."""
 

@@ -18,6 +18,7 @@ from typing import Literal, overload
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import InputError
 from hexcal.predict import LegModel
 from hexcal.safe_read import (
     MAX_COORDINATE_MM,
@@ -39,7 +40,7 @@ _RANGES = {
 }
 
 
-class TableError(ValueError):
+class TableError(InputError):
     """The table cannot be read; the message names the file, line and column."""
 
 

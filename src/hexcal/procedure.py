@@ -41,6 +41,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from hexcal.errors import InputError
 from hexcal.recording import Step
 from hexcal.safe_read import KINDS, FileKind, parse_toml, read_text
 from hexcal.validation import format_validation_error
@@ -61,7 +62,7 @@ MAX_POSES_PER_STEP = 10_000
 MAX_ID_CHARS = 200
 
 
-class ProcedureError(ValueError):
+class ProcedureError(InputError):
     """A procedure file cannot be used; the message names the file, the step and the field."""
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.acquisition import PoseRefused, RecordedPose
+from hexcal.errors import DeviceError
 from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.measurements import Measurements
 from hexcal.solvers.direct import type_i_system, type_ii_system
@@ -270,7 +271,7 @@ class Recorder(Protocol):
     def record(self) -> RecordedPose: ...
 
 
-class MotionError(Exception):
+class MotionError(DeviceError):
     """The motion controller (a :class:`Mover`) cannot do what was asked; the message says
     why. Raised by any controller — the mock's (:mod:`hexcal.mock_hw.motion`) or a real one."""
 

@@ -20,6 +20,7 @@ from scipy import stats
 from scipy.optimize import least_squares
 
 from hexcal.clamp_rows import ClampModel, ClampSteps, Nuisance
+from hexcal.errors import RefusedError
 from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 
 #: Function evaluations one least-squares pass may take (a converging fit takes about 10): a
@@ -27,7 +28,7 @@ from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 MAX_NFEV = 200
 
 
-class FitStalled(ValueError):
+class FitStalled(RefusedError, ValueError):
     """The refinement did not converge within :data:`MAX_NFEV` evaluations, or its residual is
     not finite. ``rows`` (0-based) are the poses with the largest whitened residual there: the
     ones pulling the fit."""

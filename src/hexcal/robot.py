@@ -21,6 +21,7 @@ from pydantic import (
     field_validator,
 )
 
+from hexcal.errors import InputError
 from hexcal.fileio import write_text_atomic
 from hexcal.safe_read import Millimetres, QuaternionPart, read_json
 from hexcal.validation import format_validation_error
@@ -41,7 +42,7 @@ Range = Annotated[
 ]
 
 
-class RobotFileError(ValueError):
+class RobotFileError(InputError):
     """robot.json could not be read; the message names the file and the field."""
 
 

@@ -34,6 +34,8 @@ from typing import Annotated, Any
 
 from pydantic import Field
 
+from hexcal.errors import InputError
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # Python 3.10
@@ -124,7 +126,7 @@ KINDS: dict[str, FileKind] = {
 ErrorFactory = Callable[[str], Exception]
 
 
-class InputFileError(ValueError):
+class InputFileError(InputError):
     """A file could not be read; the message names it and says what to do."""
 
 

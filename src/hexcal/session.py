@@ -40,6 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from hexcal import __version__
 from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.devices import DevicesConfig
+from hexcal.errors import InputError
 from hexcal.fileio import remove_orphan_temp_files, write_text_atomic
 from hexcal.instruments import Instruments
 from hexcal.measurements import REQUIRED_COLUMNS, Measurements
@@ -83,7 +84,7 @@ def _none_to_nan(values: Sequence[float | None]) -> np.ndarray:
     return np.array([math.nan if v is None else v for v in values], float)
 
 
-class SessionFileError(ValueError):
+class SessionFileError(InputError):
     """A session file cannot be read or written; the message names it and says what to do."""
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from hexcal.accuracy import PoseAccuracy
 from hexcal.calibrate import Calibration, calibrate
+from hexcal.errors import RefusedError
 from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
 from hexcal.measurements import Measurements
 from hexcal.measurements_csv import read_measurements
@@ -83,7 +84,7 @@ class Inputs:
         return replace(self, meas=meas, label=label)
 
 
-class FitFailed(ValueError):
+class FitFailed(RefusedError, ValueError):
     """The refinement did not converge: the message names the poses pulling it."""
 
 

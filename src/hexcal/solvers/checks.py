@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import RefusedError
 from hexcal.solvers.linalg import scaled_singular_values
 
 #: Smallest useful spread of the clamped leg's length in a Type I set, mm.
@@ -29,7 +30,7 @@ PAPER_NAMES = {
 }
 
 
-class DegenerateSet(ValueError):
+class DegenerateSet(RefusedError, ValueError):
     """A constrained pose set cannot determine the leg's parameters; the message says why and
     which motion to add."""
 

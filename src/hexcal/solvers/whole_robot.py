@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 
+from hexcal.errors import RefusedError
 from hexcal.solvers import direct, free, paper
 from hexcal.solvers.checks import DegenerateSet, check_type_i, check_type_ii, check_type_iii
 
@@ -64,7 +65,7 @@ class LinearCalibration:
         return [leg.label for leg in self.legs]
 
 
-class CalibrationRefused(ValueError):
+class CalibrationRefused(RefusedError, ValueError):
     """No method could calibrate one or more legs; the message lists, per leg, what to record."""
 
     def __init__(self, reasons: dict[int, list[str]]):
