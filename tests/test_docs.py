@@ -27,3 +27,20 @@ def test_the_readme_is_a_front_page():
     assert len(text.splitlines()) <= 250
     for page in ("guide", "diagnosis", "devices", "methods", "formats", "performance"):
         assert f"(docs/{page}.md)" in text
+
+
+def test_the_readme_layout_names_every_module():
+    """The layout in the README matches the tree: every module of the library, the drivers and
+    the mocks is named there."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    layout = text[text.index("## Layout") : text.index("## Development")]
+    missing = [
+        str(path.relative_to(ROOT))
+        for folder in ("src/hexcal", "drivers", "mock_hw")
+        for path in sorted((ROOT / folder).rglob("*.py"))
+        if path.name != "__init__.py"
+        and path.name not in layout
+        # a subpackage of the library may be named as a whole (solvers/, diagnosis/, ...)
+        and not (path.parent.parent.name == "hexcal" and f"{path.parent.name}/" in layout)
+    ]
+    assert not missing, missing
