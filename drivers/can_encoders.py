@@ -72,7 +72,6 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import can
@@ -80,6 +79,7 @@ import canopen
 from canopen.nmt import NMT_STATES
 
 from hexcal.acquisition import LegSample
+from hexcal.drivers.base import Device
 from hexcal.drivers.can_clock import BusClock
 from hexcal.drivers.can_config import CanBusConfig
 from hexcal.drivers.can_emcy import Emergency
@@ -198,7 +198,7 @@ class _Network(canopen.Network):
 
 
 # -- the driver ------------------------------------------------------------------------------------
-class LegEncoders(_ReceivePath):
+class LegEncoders(_ReceivePath, Device):
     """The six leg encoders on one CAN bus.
 
     ``config``: bus and legs. ``bus``: an open python-can bus to use (the caller keeps owning
@@ -308,6 +308,18 @@ class LegEncoders(_ReceivePath):
         self._next_state_poll = 0.0
 
     # -- lifecycle -------------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._running
+
+    def open(self) -> LegEncoders:
+        """:meth:`start` with its default timeout (the :class:`Device` interface)."""
+        return self.start()
+
+    def close(self) -> None:
+        """:meth:`stop` (the :class:`Device` interface)."""
+        self.stop()
+
     def start(self, timeout: float | None = None) -> LegEncoders:
         """Open the bus, NMT-start the six nodes and wait until each reports OPERATIONAL in its
         heartbeat (at most ``timeout`` s, default 2 × heartbeat_timeout_s), then produce SYNC
@@ -442,17 +454,6 @@ class LegEncoders(_ReceivePath):
         if self._bus_in is None and net.bus is not None:
             net.bus.shutdown()
         self._network = None
-
-    def __enter__(self) -> LegEncoders:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
     # -- reading ---------------------------------------------------------------------------------
     def read_set(self, timeout: float = 1.0) -> ReadingSet:

@@ -37,12 +37,12 @@ import math
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from types import TracebackType
 
 import numpy as np
 import serial
 
 from hexcal.acquisition import TrackerSample
+from hexcal.drivers.base import Device
 from hexcal.drivers.limits import check_duration
 from hexcal.drivers.ndi_protocol import TrackerDisconnected, TrackerFormatError, TrackerTimeout
 
@@ -194,7 +194,7 @@ def format_missing(t: float) -> str:
     return f"MISSING {float(t):.9g}\n"
 
 
-class LineTracker:
+class LineTracker(Device):
     """Reads the line protocol from a pyserial port (``url`` for :func:`serial.serial_for_url`).
 
     :meth:`read_pose` returns the next record; :meth:`sample` the next one as a
@@ -210,6 +210,10 @@ class LineTracker:
         self.port: serial.Serial | None = None
         self.lineno = 0
         self._buf = bytearray()
+
+    @property
+    def is_open(self) -> bool:
+        return self.port is not None
 
     def open(self) -> LineTracker:
         self.close()
@@ -232,19 +236,6 @@ class LineTracker:
                 port.close()
             except _IO_ERRORS:
                 pass
-
-    def __enter__(self) -> LineTracker:
-        if self.port is None:
-            self.open()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def read_line(self) -> tuple[bytes, float]:
         """The next raw line (without LF) and its host arrival time (monotonic s)."""

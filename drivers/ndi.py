@@ -20,12 +20,12 @@ import threading
 import time
 from collections import deque
 from dataclasses import replace
-from types import TracebackType
 from typing import Literal, NamedTuple, cast
 
 import serial
 
 from hexcal.acquisition import TrackerSample
+from hexcal.drivers.base import Device
 from hexcal.drivers.crc import crc16
 from hexcal.drivers.limits import check_duration
 from hexcal.drivers.ndi_clock import FrameClock
@@ -119,7 +119,7 @@ class _Exchange(NamedTuple):
 # ------------------------------------------------------------------------------------------------
 # The driver
 # ------------------------------------------------------------------------------------------------
-class NDITracker:
+class NDITracker(Device):
     """An NDI Combined API tracker on a pyserial port (``url``: a device path, ``socket://``,
     a pty, ``ndimock://``...).
 
@@ -239,6 +239,10 @@ class NDITracker:
         return f"NDITracker({self.url!r}, {self.baudrate} baud, {state})"
 
     # -- connection -----------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self.port is not None
+
     def open(self) -> NDITracker:
         """Open the port, reset the tracker, set the baud rate (COMM) and initialise it (INIT)."""
         with self._lock:
@@ -377,19 +381,6 @@ class NDITracker:
                     log.warning("closing the tracker on %s: %s", self.url, exc)
             self.tracking = False
             self._close_port()
-
-    def __enter__(self) -> NDITracker:
-        if self.port is None:
-            self.open()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     # -- tracking -------------------------------------------------------------------------------
     def poll(self) -> TrackerFrame:

@@ -55,7 +55,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable
-from types import TracebackType
 from typing import Any
 
 import can
@@ -64,6 +63,7 @@ import numpy as np
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError
 
+from hexcal.drivers.base import Device
 from hexcal.drivers.can_config import (
     HEARTBEAT_BASE,
     NMT_COB_ID,
@@ -252,7 +252,7 @@ class _Encoder:
             self.attach(network)
 
 
-class MockEncoderNodes:
+class MockEncoderNodes(Device):
     """The six leg encoders of ``config`` answering on ``bus`` (None: open ``config.interface``/
     ``config.channel`` at :meth:`start`, close it at :meth:`stop`), at their factory settings
     (module docstring).
@@ -323,6 +323,16 @@ class MockEncoderNodes:
         return {leg: e.state for leg, e in self.encoders.items()}
 
     # -- lifecycle -------------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._thread is not None
+
+    def open(self) -> MockEncoderNodes:
+        return self.start()
+
+    def close(self) -> None:
+        self.stop()
+
     def start(self) -> MockEncoderNodes:
         """Open the bus (if not given), boot the six nodes (boot-up, PRE-OPERATIONAL) and start
         answering."""
@@ -365,17 +375,6 @@ class MockEncoderNodes:
             self._bus.shutdown()
         self._bus = None
         self._network = None
-
-    def __enter__(self) -> MockEncoderNodes:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
     def latched(self) -> dict[int, np.ndarray]:
         """{SYNC counter: readings (6,) mm latched at that SYNC}, a snapshot (the latest SYNC
