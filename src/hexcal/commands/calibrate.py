@@ -6,10 +6,9 @@ import argparse
 from pathlib import Path
 
 from hexcal.commands.common import (
-    POSE_ID,
+    add_pose_selection,
     drawing_mismatch,
     jsonable,
-    number,
     read_inputs,
     report_mismatch,
 )
@@ -53,26 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "it, plus every effect with its parameters; docs/formats.md)",
     )
     c.add_argument("--force", action="store_true", help="replace an existing --out file")
-    c.add_argument(
-        "--exclude-poses",
-        nargs="+",
-        type=POSE_ID,
-        metavar="ID",
-        help="leave these pose ids out (e.g. the gross outliers hexcal names)",
-    )
-    c.add_argument(
-        "--drawing-tolerance",
-        type=number(float, 0.0, 10.0, lo_open=True),
-        default=0.10,
-        help="how far a fitted point may lie from its design point, as a fraction of the "
-        "design radius (default 0.10); a leg beyond it, or nearer another leg's design, stops "
-        "with exit status 4",
-    )
-    c.add_argument(
-        "--no-drawing-check",
-        action="store_true",
-        help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
-    )
+    add_pose_selection(c)
     c.set_defaults(func=run)
 
 

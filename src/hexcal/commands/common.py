@@ -108,3 +108,28 @@ def refuse_existing(directory: Path, names: list[str], force: bool) -> None:
             f"{directory}: already holds {', '.join(there)}; pass --force to replace them, or "
             "choose another --out"
         )
+
+
+def add_pose_selection(p: argparse.ArgumentParser) -> None:
+    """The options calibrate and diagnose share for which poses count and how the result is
+    checked against the drawing: --exclude-poses, --drawing-tolerance, --no-drawing-check."""
+    p.add_argument(
+        "--exclude-poses",
+        nargs="+",
+        type=POSE_ID,
+        metavar="ID",
+        help="leave these pose ids out (e.g. the gross outliers hexcal names)",
+    )
+    p.add_argument(
+        "--drawing-tolerance",
+        type=number(float, 0.0, 10.0, lo_open=True),
+        default=0.10,
+        help="how far a fitted point may lie from its design point, as a fraction of the "
+        "design radius (default 0.10); a leg beyond it, or nearer another leg's design, stops "
+        "with exit status 4",
+    )
+    p.add_argument(
+        "--no-drawing-check",
+        action="store_true",
+        help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
+    )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.commands.common import POSE_ID, jsonable, number, read_inputs, report_mismatch
+from hexcal.commands.common import add_pose_selection, jsonable, read_inputs, report_mismatch
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -46,26 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="leave out the poses with a leg at the end of its stroke or a joint at its limit",
     )
-    d.add_argument(
-        "--exclude-poses",
-        nargs="+",
-        type=POSE_ID,
-        metavar="ID",
-        help="leave these pose ids out (e.g. the gross outliers hexcal names)",
-    )
-    d.add_argument(
-        "--drawing-tolerance",
-        type=number(float, 0.0, 10.0, lo_open=True),
-        default=0.10,
-        help="how far a fitted point may lie from its design point, as a fraction of the "
-        "design radius (default 0.10); a leg beyond it, or nearer another leg's design, stops "
-        "with exit status 4",
-    )
-    d.add_argument(
-        "--no-drawing-check",
-        action="store_true",
-        help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
-    )
+    add_pose_selection(d)
     d.set_defaults(func=run)
 
 
