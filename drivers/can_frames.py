@@ -193,7 +193,8 @@ class TpdoDecoder:
         legs[inside] = self._leg_of[ids[inside]]
         raw = np.ascontiguousarray(np.asarray(payload, np.uint8)[:, :4])
         counts = raw.view("<i4")[:, 0].astype(float)
-        unsigned = np.array([not s for s in self.signed] + [False])[np.maximum(legs, 1) - 1]
+        # legs 0 (not a position TPDO) index leg 1 here; their readings are set to NaN below.
+        unsigned = ~np.array(self.signed)[np.maximum(legs, 1) - 1]
         counts = np.where(unsigned & (counts < 0), counts + 2.0**32, counts)
         idx = np.where(legs > 0, ids, 0)
         with np.errstate(over="ignore", invalid="ignore"):  # flagged just below, not warned
