@@ -37,12 +37,12 @@ from hexcal.session_sim import SessionPlan, bump_poses, perturbed_truth, simulat
 from hexcal.sim_robots import (
     MOTION_BASE_INSTRUMENTS,
     PRECISE_INSTRUMENTS,
+    left_hand,
     motion_base_design,
     motion_base_plan,
     motion_base_values,
     precise_session,
 )
-from hexcal.study import left_hand
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),

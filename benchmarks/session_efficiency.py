@@ -22,8 +22,8 @@ import time
 
 from hexcal.session_efficiency import efficiency_table, session_efficiency
 from hexcal.session_sim import SessionPlan
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import NoiseModel
-from hexcal.study import left_hand
 
 
 def main() -> None:

@@ -87,7 +87,7 @@ from hexcal.drivers.ndi import (
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregister
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 #: How "memory flat" is judged (also written into the JSON).
 FLAT_DEFINITION = (

@@ -13,7 +13,8 @@ import pytest
 from hexcal.calibrate import calibrate
 from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.session_sim import SessionPlan, simulate_session
-from hexcal.study import StudyConfig, left_hand, run_study
+from hexcal.sim_robots import left_hand
+from hexcal.study import StudyConfig, run_study
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),

@@ -14,7 +14,7 @@ from hexcal.diagnosis import diagnose
 from hexcal.effects.inject import effect_hook, realistic_values
 from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),

@@ -55,7 +55,7 @@ def mock_rig(
 ) -> Iterator[MockRig]:
     """Start a simulated rig (default truth: the left-hand design) and stop it on exit."""
     if truth is None:
-        from hexcal.study import left_hand
+        from hexcal.sim_robots import left_hand
 
         truth = left_hand()
     name = f"rig{uuid.uuid4().hex[:8]}"

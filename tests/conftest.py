@@ -31,8 +31,8 @@ settings.register_profile(
 )
 settings.load_profile("fuzz" if os.environ.get("HEXCAL_FUZZ") else "default")
 
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import Simulator
-from hexcal.study import left_hand
 
 SHARED_EXAMPLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "examples" / "left-hand"
 

@@ -15,7 +15,7 @@ from hexcal.effects.inject import effect_hook, realistic_values
 from hexcal.noise import NoiseSigmas
 from hexcal.predict import LegModel
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session, write_session_dir
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 SEED = 11
 PLAN = SessionPlan()

@@ -13,10 +13,10 @@ import pytest
 from hexcal.devices import DevicesConfigError, load_devices_config
 from hexcal.instruments import InstrumentsError, load_instruments
 from hexcal.measurements import MeasurementError, read_measurements
-from hexcal.model_file import load_model
+from hexcal.model_file import load_model, load_robot
 from hexcal.predict_table import TableError, read_table
 from hexcal.procedure import ProcedureError, load_procedure
-from hexcal.robot import RobotFileError, load_robot
+from hexcal.robot import RobotFileError
 from hexcal.session import SessionFileError, load_session
 
 BAD = Path(__file__).parent / "data" / "bad_inputs"

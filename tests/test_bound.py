@@ -7,9 +7,10 @@ import pytest
 
 from hexcal import bound
 from hexcal.noise import NoiseSigmas
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import NoiseModel, PoseRanges, Simulator
 from hexcal.solvers import direct, weighted
-from hexcal.study import StudyConfig, efficiency, left_hand, run_study
+from hexcal.study import StudyConfig, efficiency, run_study
 
 ROBOT = left_hand()
 K = 2

@@ -17,9 +17,9 @@ from hexcal.noise import NoiseSigmas
 from hexcal.refine import refine
 from hexcal.report_text import calibration_json, calibration_text
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import NoiseModel, PoseRanges, Simulator
 from hexcal.solvers.free import free_linear
-from hexcal.study import left_hand
 
 TRUTH = left_hand()
 NOISE = NoiseModel(0.1, 0.01, 0.1, "gaussian")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hexcal.cli import EXIT_INPUT, EXIT_REFUSED, main
-from hexcal.robot import load_robot
+from hexcal.model_file import load_robot
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "left-hand-sim"
 
@@ -121,7 +121,7 @@ def test_calibrate_with_an_added_effect(tmp_path, capsys):
     from hexcal.measurements import write_measurements
     from hexcal.robot import save_robot
     from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-    from hexcal.study import left_hand
+    from hexcal.sim_robots import left_hand
 
     design = left_hand()
     rng = np.random.default_rng(2)

@@ -89,7 +89,7 @@ def test_devices_check_fails_when_many_sets_are_flagged():
     from hexcal.mock_hw.can_encoders import MockEncoderNodes
     from hexcal.mock_hw.ndi_tracker import register_robot, unregister
     from hexcal.mock_hw.robot import MockRobot
-    from hexcal.study import left_hand
+    from hexcal.sim_robots import left_hand
 
     robot = MockRobot(left_hand(), seed=0)
     register_robot("jittery", robot)

@@ -24,7 +24,7 @@ from hexcal.drivers.can_encoders import EncoderError, EncoderSilent, LegEncoders
 from hexcal.drivers.can_nodes import generic_eds
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 SYNC_S = 0.01
 

@@ -24,7 +24,7 @@ from hexcal.drivers.lineproto import (
 )
 from hexcal.drivers.ndi import TrackerDisconnected, TrackerError, TrackerTimeout
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 SRC = "/dev/ttyLINE"
 

@@ -53,8 +53,8 @@ from hexcal.mock_hw.ndi_tracker import (
 )
 from hexcal.mock_hw.pty_tracker import PtyTracker
 from hexcal.mock_hw.robot import MockRobot
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import NoiseModel
-from hexcal.study import left_hand
 
 REAL_PORT = os.environ.get("HEXCAL_TRACKER_PORT")
 PORT = "/dev/ttyTEST"

@@ -65,7 +65,7 @@ from hexcal.mock_hw.protocol_ndireplay import (
     parse_hex_row,
 )
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 pytestmark = pytest.mark.fuzz
 

@@ -31,10 +31,10 @@ from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.devices import DevicesConfig, DevicesConfigError, TrackerConfig, load_devices_config
 from hexcal.instruments import InstrumentsError, load_instruments
 from hexcal.measurements import MeasurementError, Measurements, read_measurements
-from hexcal.model_file import load_model
+from hexcal.model_file import load_model, load_robot
 from hexcal.predict_table import Table, TableError, direction, read_table
 from hexcal.procedure import ProcedureError, load_procedure
-from hexcal.robot import RobotFileError, load_robot
+from hexcal.robot import RobotFileError
 from hexcal.session import (
     OperatorNote,
     ResultRecord,

@@ -90,12 +90,7 @@ ORDER = list(STAGES)
 PRODUCTION = ORDER[: ORDER.index("sim")]
 #: Imports that run against the flow, each with its reason; the test fails when one is added,
 #: and when one listed here is gone (so the list only shrinks).
-KNOWN = {
-    ("hexcal.robot", "hexcal.effects"): "robot.json's `plausible` keys are checked against the "
-    "effect catalogue's parameter names (lazy import in the validator)",
-    ("hexcal.robot", "hexcal.model_file"): "load_robot reads a calibrated.json as a robot, "
-    "validating its calibration block (lazy import)",
-}
+KNOWN: dict[tuple[str, str], str] = {}
 #: The package __init__ names the public API by module path and imports it lazily: its
 #: TYPE_CHECKING imports are for the type checker, not a dependency of the model stage.
 LAZY_API = "hexcal"

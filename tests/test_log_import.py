@@ -15,7 +15,7 @@ from hexcal.cli import EXIT_INPUT, main
 from hexcal.diagnosis.limits import at_limits
 from hexcal.log_import import LogImportError, import_log, load_map
 from hexcal.measurements import read_measurements
-from hexcal.robot import load_robot
+from hexcal.model_file import load_robot
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv"

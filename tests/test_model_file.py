@@ -11,10 +11,10 @@ import pytest
 
 from hexcal.cli import main
 from hexcal.effects import CATALOGUE
-from hexcal.model_file import CalibratedRobot, leg_model_of, load_model
-from hexcal.robot import Robot, RobotFileError, load_robot
+from hexcal.model_file import CalibratedRobot, leg_model_of, load_model, load_robot
+from hexcal.robot import Robot, RobotFileError
 from hexcal.session_sim import SessionPlan, write_session_dir
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 from hexcal.workflow import calibrate_model, read_inputs
 
 #: A short session (4 poses per clamped step, 30 free) keeps each calibration quick.

@@ -11,8 +11,8 @@ from hexcal import nbp, nbp_study
 from hexcal.kinematics import condition_number
 from hexcal.noise import NoiseSigmas
 from hexcal.session_sim import SessionPlan, perturbed_truth
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import Simulator
-from hexcal.study import left_hand
 
 ROBOT = left_hand()
 SIG = NoiseSigmas(0.1, np.deg2rad(0.01), 0.1)

@@ -15,9 +15,9 @@ from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.model import Problem, fit_model
 from hexcal.effects import get_effect
 from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.model_file import CalibratedRobot, parse_model
+from hexcal.model_file import CalibratedRobot, load_robot, parse_model
 from hexcal.predict import LegModel
-from hexcal.robot import Robot, RobotFileError, load_robot, save_robot
+from hexcal.robot import Robot, RobotFileError, save_robot
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
 
 JUGGLEBOT = Path(__file__).parent / "data" / "jugglebot"
@@ -188,3 +188,20 @@ def test_jugglebot_scales_several_per_cent_off_are_plausible(jugglebot):
         in n
         for n in fit.notes
     ), fit.notes
+
+
+def test_an_unknown_prior_key_in_a_session_file_is_refused_and_the_file_kept(tmp_path, design):
+    """The key check runs on every reader of a robot, the session file's included."""
+    from hexcal.measurements_csv import read_measurements
+    from hexcal.session import Session, SessionFile, SessionFileError, load_session
+
+    meas = read_measurements(Path(__file__).parents[1] / "examples/left-hand-sim/measurements.csv")
+    path = tmp_path / "s.json"
+    SessionFile.create(path, Session.from_measurements(meas, design))
+    data = json.loads(path.read_text())
+    data["robot"]["plausible"] = {"gian": [0, 1]}
+    path.write_text(json.dumps(data))
+    before = path.read_bytes()
+    with pytest.raises(SessionFileError, match=r"s\.json: field plausible: unknown .*'gian'"):
+        load_session(path)
+    assert path.read_bytes() == before

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLE
 
-from hexcal.robot import RobotFileError, load_robot, save_robot
+from hexcal.model_file import load_robot
+from hexcal.robot import RobotFileError, save_robot
 
 
 def test_round_trip_keeps_unknown_keys(tmp_path, design):

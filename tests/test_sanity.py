@@ -13,10 +13,10 @@ import pytest
 from hexcal import refine as refine_module
 from hexcal.cli import EXIT_DRAWING, EXIT_INPUT, EXIT_INTERNAL, EXIT_REFUSED, error_message, main
 from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.robot import load_robot
+from hexcal.model_file import load_robot
 from hexcal.sanity import check_against_drawing, gross_outliers
 from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "left-hand-sim"
 

@@ -17,7 +17,7 @@ import pytest
 
 from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.measurements import read_measurements, write_measurements
-from hexcal.robot import load_robot
+from hexcal.model_file import load_robot
 from hexcal.session import (
     SCHEMA_VERSION,
     Session,
@@ -132,7 +132,7 @@ WRITER = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     from test_session import recorded_pose
     from hexcal.session import Session, SessionFile
-    from hexcal.study import left_hand
+    from hexcal.sim_robots import left_hand
     rng = np.random.default_rng(0)
     sf = SessionFile.create(sys.argv[1], Session(robot=left_hand()))
     print("ready", flush=True)

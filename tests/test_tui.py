@@ -19,10 +19,9 @@ from scipy import stats
 
 from hexcal.demo import DemoSettings, against_truth, run_demo
 from hexcal.measurements import read_measurements
-from hexcal.model_file import load_model, save_model
-from hexcal.robot import load_robot
+from hexcal.model_file import load_model, load_robot, save_model
 from hexcal.session import Session, load_session
-from hexcal.study import left_hand
+from hexcal.sim_robots import left_hand
 from hexcal.tui.app import HexcalApp
 from hexcal.tui.backend import InstantBackend, mock_backend
 from hexcal.tui.record import RecordScreen

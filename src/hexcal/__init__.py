@@ -25,7 +25,7 @@ __version__ = "0.1.0"
 #: public name → the module that defines it
 _HOMES = {
     "Robot": "hexcal.robot",
-    "load_robot": "hexcal.robot",
+    "load_robot": "hexcal.model_file",
     "save_robot": "hexcal.robot",
     "Measurements": "hexcal.measurements",
     "read_measurements": "hexcal.measurements_csv",
@@ -73,9 +73,9 @@ if TYPE_CHECKING:
     from hexcal.log_import import import_log
     from hexcal.measurements import Measurements, write_measurements
     from hexcal.measurements_csv import read_measurements
-    from hexcal.model_file import CalibratedRobot, load_model, save_model
+    from hexcal.model_file import CalibratedRobot, load_model, load_robot, save_model
     from hexcal.predict import LegModel
-    from hexcal.robot import Robot, load_robot, save_robot
+    from hexcal.robot import Robot, save_robot
 
 
 def __getattr__(name: str) -> Any:

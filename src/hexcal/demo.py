@@ -102,7 +102,7 @@ def hidden_robot(seed: int = 1, effect: str | None = None, scale: float = 1.0) -
     ``seed``."""
     from hexcal.effects.inject import effect_hook, realistic_values
     from hexcal.session_sim import SessionPlan, perturbed_truth
-    from hexcal.study import left_hand
+    from hexcal.sim_robots import left_hand
 
     rng = np.random.default_rng(seed)
     effect = effect or str(rng.choice(DEMO_EFFECTS))

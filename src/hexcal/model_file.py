@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from hexcal import __version__
 from hexcal.effects import get_effect
+from hexcal.effects.priors import check_priors
 from hexcal.fileio import write_text_atomic
 from hexcal.instruments import Instruments
 from hexcal.predict import LegModel
@@ -220,6 +221,10 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
         robot = cls.model_validate(data)
     except ValidationError as exc:
         raise RobotFileError(format_validation_error(exc, where, data)) from None
+    try:
+        check_priors(robot, where)
+    except ValueError as exc:
+        raise RobotFileError(str(exc)) from None
     if isinstance(robot, CalibratedRobot):
         try:
             robot.leg_model()
@@ -233,6 +238,13 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
 def load_model(path: str | Path) -> CalibratedRobot | Robot:
     """Read calibrated.json (or a plain robot.json: the model with no effects)."""
     return parse_model(read_robot_json(path), str(path))
+
+
+def load_robot(path: str | Path) -> Robot:
+    """Read robot.json (or a calibrated.json: its geometry, the calibration block validated
+    and left out); errors name the file and the field and say what to fix."""
+    model = load_model(path)
+    return model.plain_robot() if isinstance(model, CalibratedRobot) else model
 
 
 def leg_model_of(robot: Robot) -> LegModel:

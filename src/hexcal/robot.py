@@ -17,7 +17,6 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
-    ValidationInfo,
     field_validator,
 )
 
@@ -112,27 +111,12 @@ class Robot(BaseModel):
 
     @field_validator("plausible")
     @classmethod
-    def _priors(
-        cls, table: dict[str, list[float]] | None, info: ValidationInfo
-    ) -> dict[str, list[float]] | None:
+    def _priors(cls, table: dict[str, list[float]] | None) -> dict[str, list[float]] | None:
         if not table:
             return table
         for key, (lo, hi) in table.items():
             if not lo < hi:
                 raise ValueError(f"{key} is [low, high] with low < high (got [{lo:g}, {hi:g}])")
-        # The names depend on the robot (compliance.c with a platform mass, compliance.cm
-        # without): judged on the keys validated so far, all declared above this one.
-        stub = Robot.model_construct(**info.data)
-        known = prior_names(stub)
-        unknown = [k for k in table if k not in known]
-        if unknown:
-            hint = ""
-            if "compliance.c" in unknown and not stub.platform_mass_kg:
-                hint = " (without platform_mass_kg the compliance parameter is compliance.cm, c·m)"
-            raise ValueError(
-                f"unknown effect or parameter {', '.join(map(repr, unknown))}; known: "
-                f"{known_text(stub)}{hint}"
-            )
         return table
 
     @property
@@ -171,30 +155,6 @@ class Robot(BaseModel):
         return json_text(self.model_dump(exclude_none=True))
 
 
-def prior_names(robot: Robot) -> set[str]:
-    """The keys robot.json's ``plausible`` may use for this robot: every catalogue effect and
-    every parameter's full name (``compliance.c`` with ``platform_mass_kg``, else
-    ``compliance.cm``)."""
-    from hexcal.effects import CATALOGUE
-
-    names = set(CATALOGUE)
-    for eff in CATALOGUE.values():
-        names.update(s.name for s in eff.params(robot))
-    return names
-
-
-def known_text(robot: Robot) -> str:
-    """The known ``plausible`` keys, one group per effect: ``gain (gain.g1 … gain.g6)``."""
-    from hexcal.effects import CATALOGUE
-
-    parts = []
-    for name in sorted(CATALOGUE):
-        specs = [s.name for s in CATALOGUE[name].params(robot)]
-        inner = " … ".join([specs[0], specs[-1]]) if len(specs) > 2 else ", ".join(specs)
-        parts.append(f"{name} ({inner})" if inner else name)
-    return ", ".join(parts)
-
-
 def json_text(data: Any) -> str:
     """JSON text (indent 2) of a robot file's content; NaN or infinity is refused."""
     try:
@@ -209,23 +169,6 @@ def read_robot_json(path: str | Path) -> object:
     """The JSON object of a robot file (robot.json or calibrated.json), within the limits of
     :mod:`hexcal.safe_read`; errors name the file and the line or field."""
     return read_json(path, "robot", RobotFileError)
-
-
-def load_robot(path: str | Path) -> Robot:
-    """Read robot.json (or a calibrated.json: its geometry); errors name the file and the field
-    and say what to fix."""
-    data = read_robot_json(path)
-    if isinstance(data, dict) and "calibration" in data:
-        # A calibrated.json read as a robot: its geometry (the calibration block is validated
-        # and left out; hexcal.model_file reads the effects).
-        from hexcal.model_file import CalibratedRobot, parse_model
-
-        model = parse_model(data, str(path))
-        return model.plain_robot() if isinstance(model, CalibratedRobot) else model
-    try:
-        return Robot.model_validate(data)
-    except ValidationError as exc:
-        raise RobotFileError(format_validation_error(exc, str(path), data)) from None
 
 
 def save_robot(robot: Robot, path: str | Path) -> None:

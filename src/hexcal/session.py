@@ -40,6 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from hexcal import __version__
 from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.devices import DevicesConfig
+from hexcal.effects.priors import check_priors
 from hexcal.errors import InputError
 from hexcal.fileio import remove_orphan_temp_files, write_text_atomic
 from hexcal.instruments import Instruments
@@ -459,6 +460,15 @@ def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
             format_validation_error(exc, str(path), data)
             + "\nthe file is left untouched; fix the field or start a new session"
         ) from None
+    robots = [session.robot] + [r for res in session.results for r in (res.robot, res.calibrated)]
+    for robot in robots:
+        if robot is not None:
+            try:
+                check_priors(robot, str(path))
+            except ValueError as exc:
+                raise SessionFileError(
+                    f"{exc}\nthe file is left untouched; fix the field or start a new session"
+                ) from None
     for reason in moved:
         log.warning("%s: %s", path, reason)
     if notices is not None:

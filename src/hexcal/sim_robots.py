@@ -10,6 +10,7 @@ against the instruments' noise, and the size of the robot against the effects.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -20,7 +21,13 @@ from hexcal.measurements import Measurements
 from hexcal.robot import Robot
 from hexcal.session_sim import SessionPlan, perturbed_truth
 from hexcal.simulate import NoiseModel, PoseContext, PoseRanges, Simulator
-from hexcal.study import left_hand
+
+
+def left_hand() -> Robot:
+    """The seed paper's Left Hand robot (§4 table, converted to mm)."""
+    text = resources.files("hexcal").joinpath("data/left_hand.json").read_text(encoding="utf-8")
+    return Robot.model_validate_json(text)
+
 
 # -- a precision hexapod ----------------------------------------------------------------------
 #: 1 µm on every reading and on the tracker's position, 0.0002° on its orientation (1σ).

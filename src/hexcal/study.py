@@ -27,7 +27,6 @@ import csv
 import json
 import os
 from dataclasses import asdict, dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Literal
 
@@ -36,6 +35,7 @@ import numpy as np
 from hexcal import bound
 from hexcal.noise import NoiseSigmas
 from hexcal.robot import Robot
+from hexcal.sim_robots import left_hand
 from hexcal.simulate import NoiseModel, PoseRanges, Simulator
 from hexcal.solvers import direct, paper, weighted
 from hexcal.solvers.linalg import METHOD as lstsq_method
@@ -48,12 +48,6 @@ PAPER_FACTORS = {
     "type_ii": {"platform": 1.4},
     "type_iii": {"base": 2.8},
 }
-
-
-def left_hand() -> Robot:
-    """The seed paper's Left Hand robot (§4 table, converted to mm)."""
-    text = resources.files("hexcal").joinpath("data/left_hand.json").read_text(encoding="utf-8")
-    return Robot.model_validate_json(text)
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
             )
             return 2
         from hexcal.devices import load_devices_config
-        from hexcal.robot import load_robot
+        from hexcal.model_file import load_robot
 
         load_devices_config(args.config)  # refuse a bad file before the UI starts
         if not args.robot:

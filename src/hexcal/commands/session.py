@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hexcal.measurements_csv import read_measurements
-    from hexcal.robot import load_robot
+    from hexcal.model_file import load_robot
     from hexcal.session import Session, SessionFile, export_session, load_session
 
     if args.session_command == "export":

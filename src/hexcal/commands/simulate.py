@@ -63,10 +63,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hexcal.robot import load_robot
+    from hexcal.model_file import load_robot
     from hexcal.session_sim import SessionPlan, write_session_dir
+    from hexcal.sim_robots import left_hand
     from hexcal.simulate import NoiseModel
-    from hexcal.study import left_hand
 
     design = load_robot(args.robot) if args.robot else left_hand()
     if args.mass_kg is not None:

@@ -119,7 +119,7 @@ class InstantBackend(Backend):
 
 
 def mock_backend(seed: int = 1, effect: str | None = None, window_s: float = 0.25) -> MockBackend:
-    from hexcal.study import left_hand
+    from hexcal.sim_robots import left_hand
 
     return MockBackend(
         left_hand(),
