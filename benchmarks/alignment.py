@@ -47,7 +47,7 @@ from hexcal.drivers.ndi import NDITracker, TrackerError, TrackerFrame
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.ndi_tracker import FaultSettings, register_robot, unregister
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 
 def summary(values_s: list[float] | np.ndarray) -> dict[str, float | int]:

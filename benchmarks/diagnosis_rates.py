@@ -28,13 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from hexcal.diagnosis import diagnose
-from hexcal.effects.foreign import local_dent
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-from hexcal.measurements import Measurements
-from hexcal.robot import Robot
-from hexcal.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
-from hexcal.sim_robots import (
+from hexcal.io.measurements import Measurements
+from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.model.robot import Robot
+from hexcal.sim.foreign import local_dent
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import (
     MOTION_BASE_INSTRUMENTS,
     PRECISE_INSTRUMENTS,
     left_hand,
@@ -43,6 +42,7 @@ from hexcal.sim_robots import (
     motion_base_values,
     precise_session,
 )
+from hexcal.sim.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),

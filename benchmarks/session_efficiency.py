@@ -20,10 +20,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse
 import time
 
-from hexcal.session_efficiency import efficiency_table, session_efficiency
-from hexcal.session_sim import SessionPlan
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_efficiency import efficiency_table, session_efficiency
+from hexcal.sim.session_sim import SessionPlan
+from hexcal.sim.simulate import NoiseModel
 
 
 def main() -> None:

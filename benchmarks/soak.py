@@ -2,12 +2,12 @@
 
     python benchmarks/soak.py --seconds 60 [--sync-period-ms 1] [--json out.json]
 
-The rig is the one ``hexcal devices check --mock`` builds (:func:`hexcal.devices_check.mock_rig`),
+The rig is the one ``hexcal devices check --mock`` builds (:func:`hexcal.acquire.devices_check.mock_rig`),
 assembled here by hand so the soak can watch the mock side too: one
 :class:`~hexcal.mock_hw.robot.MockRobot`, a mock NDI tracker registered under a fresh name and
 reached as ``ndimock://NAME``, and six :class:`~hexcal.mock_hw.can_encoders.MockEncoderNodes` on
 python-can's virtual bus. The real drivers read them through their real transports and the real
-acquisition threads: :class:`hexcal.acquisition.Acquisition` pumps
+acquisition threads: :class:`hexcal.acquire.acquisition.Acquisition` pumps
 ``NDITracker.sample(binary=True)`` (continuous polling; the mock makes a new frame at 60 Hz) and
 ``LegEncoders.read_set()`` (SYNC produced by the driver at ``--sync-period-ms``). Meanwhile a
 motion thread moves the robot to a small random pose about home every ``--move-period-s``, and
@@ -73,7 +73,7 @@ import numpy as np
 from can.interfaces import virtual as can_virtual
 from scipy.spatial.transform import Rotation
 
-from hexcal.acquisition import Acquisition, LegSample, PoseRefused, TrackerSample
+from hexcal.acquire.acquisition import Acquisition, LegSample, PoseRefused, TrackerSample
 from hexcal.drivers.can_config import SYNC_COB_ID, CanBusConfig, default_can_config
 from hexcal.drivers.can_encoders import EncoderError, LegEncoders, ReadingSet
 from hexcal.drivers.ndi import (
@@ -87,7 +87,7 @@ from hexcal.drivers.ndi import (
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregister
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 #: How "memory flat" is judged (also written into the JSON).
 FLAT_DEFINITION = (
@@ -672,10 +672,18 @@ def watch_list(
         ),
         Watched("LegEncoders._queue", _attr(enc, "_queue"), "drivers/can_encoders.py"),
         Watched(
-            "Acquisition._tbuf", _attr(acq, "_tbuf"), "src/hexcal/acquisition.py (tracker)", buf
+            "Acquisition._tbuf",
+            _attr(acq, "_tbuf"),
+            "src/hexcal/acquire/acquisition.py (tracker)",
+            buf,
         ),
-        Watched("Acquisition._lbuf", _attr(acq, "_lbuf"), "src/hexcal/acquisition.py (legs)", buf),
-        Watched("Acquisition._errors", _attr(acq, "_errors"), "src/hexcal/acquisition.py"),
+        Watched(
+            "Acquisition._lbuf",
+            _attr(acq, "_lbuf"),
+            "src/hexcal/acquire/acquisition.py (legs)",
+            buf,
+        ),
+        Watched("Acquisition._errors", _attr(acq, "_errors"), "src/hexcal/acquire/acquisition.py"),
     ]
 
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import pytest
 
-from hexcal.calibrate import calibrate
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-from hexcal.session_sim import SessionPlan, simulate_session
-from hexcal.sim_robots import left_hand
-from hexcal.study import StudyConfig, run_study
+from hexcal.estimate.calibrate import calibrate
+from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, simulate_session
+from hexcal.sim.study import StudyConfig, run_study
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
@@ -49,7 +49,7 @@ def test_bench_predict_poses_from_readings(benchmark):
     import numpy as np
     from scipy.spatial.transform import Rotation
 
-    from hexcal.predict import LegModel
+    from hexcal.estimate.predict import LegModel
 
     rng = np.random.default_rng(0)
     robot = left_hand()
@@ -64,7 +64,7 @@ def test_bench_predict_poses_from_readings(benchmark):
 def test_bench_calibrate_with_pose_accuracy(benchmark, session_7_7_40):
     """`hexcal calibrate`'s whole job: the calibration, then the pose accuracy of the drawing
     and of Model 42 on held-out poses (5 refits and forward kinematics of every pose)."""
-    from hexcal.workflow import Inputs, calibrate_model
+    from hexcal.app.workflow import Inputs, calibrate_model
 
     inp = Inputs(session_7_7_40, left_hand(), INST, "stated", "bench")
     result = benchmark(calibrate_model, inp, 42)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from hexcal.diagnosis import diagnose
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.sim_robots import left_hand
+from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),

@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hexcal.acquisition import PoseRefused
-from hexcal.recording import Step
-from hexcal.session import Session, SessionFile
+from hexcal.acquire.acquisition import PoseRefused
+from hexcal.procedure.recording import Step
+from hexcal.procedure.session import Session, SessionFile
 from hexcal.tui.app import HexcalApp
 from hexcal.tui.backend import mock_backend
 from hexcal.tui.record import RecordScreen

@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from hexcal.drivers.limits import MAX_TIMEOUT_S
 from hexcal.errors import InputError
-from hexcal.validation import format_validation_error
+from hexcal.io.validation import format_validation_error
 
 #: COB-ID bases of the CANopen services the driver uses (CiA 301 predefined connection set).
 NMT_COB_ID = 0x000

@@ -78,7 +78,7 @@ import can
 import canopen
 from canopen.nmt import NMT_STATES
 
-from hexcal.acquisition import LegSample
+from hexcal.acquire.acquisition import LegSample
 from hexcal.drivers.base import Device
 from hexcal.drivers.can_clock import BusClock
 from hexcal.drivers.can_config import CanBusConfig

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from hexcal.acquisition import LegSample
+from hexcal.acquire.acquisition import LegSample
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
 from hexcal.drivers.can_nodes import NodeInfo
 from hexcal.errors import DeviceError
@@ -267,7 +267,7 @@ class ReadingSet:
     index: int = 0
 
     def to_leg_sample(self) -> LegSample:
-        """This set as the acquisition's :class:`~hexcal.acquisition.LegSample`, stamped with the
+        """This set as the acquisition's :class:`~hexcal.acquire.acquisition.LegSample`, stamped with the
         SYNC time (the instant the six encoders latched their positions)."""
         faults = tuple(self.faults)
         if not self.complete and not faults:  # cannot happen by construction; never hide it

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 import serial
 
-from hexcal.acquisition import TrackerSample
+from hexcal.acquire.acquisition import TrackerSample
 from hexcal.drivers.base import Device
 from hexcal.drivers.limits import check_duration
 from hexcal.drivers.ndi_protocol import TrackerDisconnected, TrackerFormatError, TrackerTimeout
@@ -198,7 +198,7 @@ class LineTracker(Device):
     """Reads the line protocol from a pyserial port (``url`` for :func:`serial.serial_for_url`).
 
     :meth:`read_pose` returns the next record; :meth:`sample` the next one as a
-    :class:`~hexcal.acquisition.TrackerSample` (the acquisition's PoseSource; MISSING becomes a
+    :class:`~hexcal.acquire.acquisition.TrackerSample` (the acquisition's PoseSource; MISSING becomes a
     fault sample). ``timeout`` (s, finite, > 0 and at most
     :data:`~hexcal.drivers.limits.MAX_TIMEOUT_S`, else ValueError) bounds the wait for one line.
     """

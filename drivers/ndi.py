@@ -24,7 +24,7 @@ from typing import Literal, NamedTuple, cast
 
 import serial
 
-from hexcal.acquisition import TrackerSample
+from hexcal.acquire.acquisition import TrackerSample
 from hexcal.drivers.base import Device
 from hexcal.drivers.crc import crc16
 from hexcal.drivers.limits import check_duration
@@ -473,7 +473,7 @@ class NDITracker(Device):
 
     def sample(self, binary: bool = False) -> TrackerSample:
         """The next new frame (frame number changed) as a :class:`TrackerSample` of
-        :attr:`pose_handle`: the acquisition's :class:`~hexcal.acquisition.PoseSource`.
+        :attr:`pose_handle`: the acquisition's :class:`~hexcal.acquire.acquisition.PoseSource`.
 
         A tool missing or out of volume, a bad system status, or a frame counter that stopped
         for ``timeout`` s gives a sample with ``fault`` set; a link failure raises

@@ -14,7 +14,7 @@ from typing import Literal
 
 import numpy as np
 
-from hexcal.acquisition import TrackerSample
+from hexcal.acquire.acquisition import TrackerSample
 from hexcal.drivers.crc import crc16, crc16_hex
 from hexcal.drivers.ndi_codes import (
     BX_DISABLED,
@@ -374,7 +374,7 @@ class TrackerFrame:
     def to_sample(
         self, handle: int | None = None, accept_out_of_volume: bool = False
     ) -> TrackerSample:
-        """The :class:`~hexcal.acquisition.TrackerSample` of ``handle``: a pose, or a fault,
+        """The :class:`~hexcal.acquire.acquisition.TrackerSample` of ``handle``: a pose, or a fault,
         stamped :attr:`t` (the frame's measurement instant when the driver estimated it). A pose
         with a fault (port status fault bits, out of volume, a system fault) keeps its numbers
         in the sample, as raw data; the fault refuses it."""

@@ -2,7 +2,7 @@
 
 No drivers, no threads, no waiting: :meth:`InstantAcquisition.record` draws a still window's
 tracker samples and reading sets from the simulated robot at once, on a simulated clock, and
-makes the recorded pose with the same :func:`~hexcal.acquisition.record_pose` as the real
+makes the recorded pose with the same :func:`~hexcal.acquire.acquisition.record_pose` as the real
 acquisition. For what needs a calibration session fast and reproducibly — the text UI's
 snapshot and unit tests, scripted checks of the guided session — and not for testing devices:
 the drivers and their timing are tested against the mock devices in ``mock_hw`` (and the
@@ -11,14 +11,20 @@ text UI's whole-session Pilot test runs through them).
 
 from __future__ import annotations
 
-from hexcal.acquisition import LegSample, RecordedPose, StillWindow, TrackerSample, record_pose
+from hexcal.acquire.acquisition import (
+    LegSample,
+    RecordedPose,
+    StillWindow,
+    TrackerSample,
+    record_pose,
+)
 from hexcal.mock_hw.robot import MockRobot
 
 
 class InstantAcquisition:
     """Records from ``robot`` with a window of ``window.duration_s`` simulated seconds:
     ``tracker_hz`` and ``sync_hz`` samples per second. Implements ``record()`` and ``latest()``
-    as :class:`~hexcal.acquisition.Acquisition` does."""
+    as :class:`~hexcal.acquire.acquisition.Acquisition` does."""
 
     def __init__(
         self,

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.recording import MotionError
-from hexcal.simulate import PoseRanges, Simulator
+from hexcal.procedure.recording import MotionError
+from hexcal.sim.simulate import PoseRanges, Simulator
 
 #: The clamp kinds, as the measurement table names the constraint they impose.
 CLAMPS = ("direction", "direction+length", "length")
@@ -52,7 +52,7 @@ class Slip:
 
 class MockMotionController:
     """Moves a :class:`~hexcal.mock_hw.robot.MockRobot`; poses are drawn as a procedure's
-    operator would move the platform (``ranges`` as in :class:`~hexcal.simulate.PoseRanges`).
+    operator would move the platform (``ranges`` as in :class:`~hexcal.sim.simulate.PoseRanges`).
 
     ``tolerance_mm``: how far a commanded pose may break the clamp's constraint before
     :meth:`move_to` refuses it.

@@ -157,7 +157,7 @@ class MockNDITracker:
         static_tools: Mapping[int, tuple[Sequence[float], Sequence[float]]] | None = None,
     ):
         if robot is None:
-            from hexcal.sim_robots import left_hand
+            from hexcal.sim.robots import left_hand
 
             robot = MockRobot(left_hand(), seed=seed)
         self.robot = robot

@@ -2,7 +2,7 @@
 
 :func:`mock_rig` starts everything and yields a :class:`MockRig` whose ``config`` reaches the
 devices through the real transports (``ndimock://`` for the tracker, python-can's virtual bus
-for the encoders), so whatever opens a real rig from a :class:`~hexcal.devices.DevicesConfig`
+for the encoders), so whatever opens a real rig from a :class:`~hexcal.acquire.devices.DevicesConfig`
 opens this one unchanged.
 """
 
@@ -15,14 +15,14 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from hexcal.devices import DevicesConfig, TrackerConfig
+from hexcal.acquire.devices import DevicesConfig, TrackerConfig
 from hexcal.drivers.can_config import default_can_config
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.motion import MockMotionController
 from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregister
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
-from hexcal.robot import Robot
-from hexcal.simulate import LengthEffect, NoiseModel, PoseRanges
+from hexcal.model.robot import Robot
+from hexcal.sim.simulate import LengthEffect, NoiseModel, PoseRanges
 
 #: Python's thread switch interval (s) while a mock rig runs (see :func:`mock_rig`).
 MOCK_SWITCH_INTERVAL_S = 0.0005
@@ -55,7 +55,7 @@ def mock_rig(
 ) -> Iterator[MockRig]:
     """Start a simulated rig (default truth: the left-hand design) and stop it on exit."""
     if truth is None:
-        from hexcal.sim_robots import left_hand
+        from hexcal.sim.robots import left_hand
 
         truth = left_hand()
     name = f"rig{uuid.uuid4().hex[:8]}"

@@ -16,8 +16,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hexcal.robot import Robot
-from hexcal.simulate import LengthEffect, NoiseModel, PoseContext, Simulator
+from hexcal.model.robot import Robot
+from hexcal.sim.simulate import LengthEffect, NoiseModel, PoseContext, Simulator
 
 #: A good optical tracker and encoder (1 sigma): 0.01 mm, 0.002 deg, 0.002 mm.
 DEFAULT_NOISE = NoiseModel(0.01, 0.002, 0.002)

@@ -31,8 +31,8 @@ settings.register_profile(
 )
 settings.load_profile("fuzz" if os.environ.get("HEXCAL_FUZZ") else "default")
 
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import Simulator
+from hexcal.sim.robots import left_hand
+from hexcal.sim.simulate import Simulator
 
 SHARED_EXAMPLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "examples" / "left-hand"
 
@@ -64,7 +64,7 @@ def rng():
 
 def instruments():
     """The instruments of the simulated sessions in the tests (1 sigma)."""
-    from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+    from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
 
     return Instruments(
         tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
@@ -77,8 +77,8 @@ def backlash_diagnoses():
     """A session hiding backlash, diagnosed as Model 42 (verdict backlash) and Model 42 +
     backlash (verdict none): (before, after, measurements, design). Built once per test run."""
     from hexcal.diagnosis import diagnose
-    from hexcal.effects.inject import effect_hook, realistic_values
-    from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+    from hexcal.sim.inject import effect_hook, realistic_values
+    from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
     inst = instruments()
     design = left_hand().model_copy(update={"platform_mass_kg": 20.0})

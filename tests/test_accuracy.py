@@ -9,13 +9,13 @@ import json
 import numpy as np
 import pytest
 
-from hexcal.accuracy import pose_errors, pose_floor
-from hexcal.cli import main
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.noise import NoiseSigmas
-from hexcal.predict import LegModel
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session, write_session_dir
-from hexcal.sim_robots import left_hand
+from hexcal.app.cli import main
+from hexcal.estimate.accuracy import pose_errors, pose_floor
+from hexcal.estimate.predict import LegModel
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session, write_session_dir
 
 SEED = 11
 PLAN = SessionPlan()
@@ -118,7 +118,7 @@ def test_validate_names_a_moved_zero_and_rehomes(tmp_path, capsys):
     at the floor."""
     import dataclasses
 
-    from hexcal.measurements import read_measurements, write_measurements
+    from hexcal.io.measurements import read_measurements, write_measurements
 
     fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
     write_session_dir(fit_dir, left_hand(), SEED, PLAN, "gain")

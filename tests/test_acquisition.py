@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.acquisition import (
+from hexcal.acquire.acquisition import (
     Acquisition,
     LegSample,
     PoseRefused,
@@ -17,7 +17,7 @@ from hexcal.acquisition import (
     record_pose,
 )
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 WINDOW = StillWindow(duration_s=0.5)
 TOLERANT = StillWindow(duration_s=0.5, max_fault_share=0.1)

@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from hexcal.devices import DevicesConfigError, load_devices_config
-from hexcal.instruments import InstrumentsError, load_instruments
-from hexcal.measurements import MeasurementError, read_measurements
-from hexcal.model_file import load_model, load_robot
-from hexcal.predict_table import TableError, read_table
-from hexcal.procedure import ProcedureError, load_procedure
-from hexcal.robot import RobotFileError
-from hexcal.session import SessionFileError, load_session
+from hexcal.acquire.devices import DevicesConfigError, load_devices_config
+from hexcal.estimate.model_file import load_model, load_robot
+from hexcal.estimate.predict_table import TableError, read_table
+from hexcal.io.measurements import MeasurementError, read_measurements
+from hexcal.model.instruments import InstrumentsError, load_instruments
+from hexcal.model.robot import RobotFileError
+from hexcal.procedure.session import SessionFileError, load_session
+from hexcal.procedure.steps import ProcedureError, load_procedure
 
 BAD = Path(__file__).parent / "data" / "bad_inputs"
 #: Every refusal below takes milliseconds; the bound catches a quadratic or runaway parse.
@@ -184,7 +184,7 @@ def test_the_command_line_refuses_each_bad_input_cleanly(name: str, capsys) -> N
     """Each corpus file through the command that reads it (``main``, the console script's entry
     point, which owns the one error path): exit 2, the file named, no traceback and no library
     text."""
-    from hexcal.cli import main
+    from hexcal.app.cli import main
 
     assert main(_cli_args(name, BAD / name)) == 2
     err = capsys.readouterr().err

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexcal import bound
-from hexcal.noise import NoiseSigmas
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel, PoseRanges, Simulator
-from hexcal.solvers import direct, weighted
-from hexcal.study import StudyConfig, efficiency, run_study
+from hexcal.estimate import bound
+from hexcal.estimate.solvers import direct, weighted
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.robots import left_hand
+from hexcal.sim.simulate import NoiseModel, PoseRanges, Simulator
+from hexcal.sim.study import StudyConfig, efficiency, run_study
 
 ROBOT = left_hand()
 K = 2

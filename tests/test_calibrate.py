@@ -9,17 +9,17 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hexcal.calibrate import RETRY_CHI2_PER_DOF, calibrate, refine_from_seeds
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
-from hexcal.measurements import Measurements
-from hexcal.noise import NoiseSigmas
-from hexcal.refine import refine
-from hexcal.report_text import calibration_json, calibration_text
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel, PoseRanges, Simulator
-from hexcal.solvers.free import free_linear
+from hexcal.app.report_text import calibration_json, calibration_text
+from hexcal.estimate.calibrate import RETRY_CHI2_PER_DOF, calibrate, refine_from_seeds
+from hexcal.estimate.refine import refine
+from hexcal.estimate.solvers.free import free_linear
+from hexcal.io.measurements import Measurements
+from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.sim.simulate import NoiseModel, PoseRanges, Simulator
 
 TRUTH = left_hand()
 NOISE = NoiseModel(0.1, 0.01, 0.1, "gaussian")

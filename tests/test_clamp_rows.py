@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.clamp_rows import ROWS, ClampModel, ClampSteps, Nuisance
-from hexcal.noise import NoiseSigmas
-from hexcal.refine import refine
-from hexcal.session_efficiency import session_efficiency
-from hexcal.session_sim import SessionPlan, simulate_session
-from hexcal.simulate import NoiseModel
+from hexcal.estimate.clamp_rows import ROWS, ClampModel, ClampSteps, Nuisance
+from hexcal.estimate.refine import refine
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.session_efficiency import session_efficiency
+from hexcal.sim.session_sim import SessionPlan, simulate_session
+from hexcal.sim.simulate import NoiseModel
 
 SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
 CLEAN = SessionPlan(

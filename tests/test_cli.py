@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexcal.cli import EXIT_INPUT, EXIT_REFUSED, main
-from hexcal.model_file import load_robot
+from hexcal.app.cli import EXIT_INPUT, EXIT_REFUSED, main
+from hexcal.estimate.model_file import load_robot
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "left-hand-sim"
 
@@ -116,12 +116,12 @@ def test_shipped_example_is_the_simulators_output(tmp_path):
 def test_calibrate_with_an_added_effect(tmp_path, capsys):
     import numpy as np
 
-    from hexcal.effects.inject import effect_hook
-    from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise, save_instruments
-    from hexcal.measurements import write_measurements
-    from hexcal.robot import save_robot
-    from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-    from hexcal.sim_robots import left_hand
+    from hexcal.io.measurements import write_measurements
+    from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, save_instruments
+    from hexcal.model.robot import save_robot
+    from hexcal.sim.inject import effect_hook
+    from hexcal.sim.robots import left_hand
+    from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
     design = left_hand()
     rng = np.random.default_rng(2)
@@ -228,7 +228,7 @@ def test_predict_round_trips_through_csv(session, tmp_path, capsys):
     readings = tmp_path / "readings.csv"
     assert main(["predict", str(cal), str(poses), "--to", "readings", "--out", str(readings)]) == 0
     capsys.readouterr()
-    from hexcal.measurements import read_measurements
+    from hexcal.io.measurements import read_measurements
 
     a, b = read_measurements(table), read_measurements(readings)
     assert np.abs(a.readings - b.readings).max() < 1e-6

@@ -10,7 +10,7 @@ import pytest
 from conftest import SHARED_EXAMPLE
 from scipy import stats
 
-from hexcal.cli import main
+from hexcal.app.cli import main
 
 pytestmark = pytest.mark.skipif(
     not (SHARED_EXAMPLE / "truth.json").exists(), reason="../shared is absent"

@@ -9,11 +9,11 @@ import json
 
 import pytest
 
-from hexcal.cli import main
-from hexcal.demo import DemoSettings, demo_text, run_demo
-from hexcal.measurements import read_measurements
-from hexcal.model_file import load_model
-from hexcal.session import load_session
+from hexcal.app.cli import main
+from hexcal.app.demo import DemoSettings, demo_text, run_demo
+from hexcal.estimate.model_file import load_model
+from hexcal.io.measurements import read_measurements
+from hexcal.procedure.session import load_session
 
 
 @pytest.fixture(scope="module")

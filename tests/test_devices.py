@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from hexcal.devices import DevicesConfigError, load_devices_config
+from hexcal.acquire.devices import DevicesConfigError, load_devices_config
 
 GOOD = """
 [tracker]
@@ -65,7 +65,7 @@ def test_missing_file(tmp_path):
 
 
 def test_devices_check_on_the_mock_rig(capsys):
-    from hexcal.cli import main
+    from hexcal.app.cli import main
 
     assert main(["devices", "check", "--mock"]) == 0
     out = capsys.readouterr().out
@@ -75,7 +75,7 @@ def test_devices_check_on_the_mock_rig(capsys):
 
 
 def test_devices_check_needs_a_config_or_mock(capsys):
-    from hexcal.cli import EXIT_INPUT, main
+    from hexcal.app.cli import EXIT_INPUT, main
 
     assert main(["devices", "check"]) == EXIT_INPUT
     assert "--config FILE" in capsys.readouterr().err
@@ -83,13 +83,13 @@ def test_devices_check_needs_a_config_or_mock(capsys):
 
 def test_devices_check_fails_when_many_sets_are_flagged():
     """TPDOs jittered past max_tpdo_delay_s flag most sets: the check names the fault and fails."""
-    from hexcal.devices import DevicesConfig, TrackerConfig
-    from hexcal.devices_check import check_devices
+    from hexcal.acquire.devices import DevicesConfig, TrackerConfig
+    from hexcal.acquire.devices_check import check_devices
     from hexcal.drivers.can_config import default_can_config
     from hexcal.mock_hw.can_encoders import MockEncoderNodes
     from hexcal.mock_hw.ndi_tracker import register_robot, unregister
     from hexcal.mock_hw.robot import MockRobot
-    from hexcal.sim_robots import left_hand
+    from hexcal.sim.robots import left_hand
 
     robot = MockRobot(left_hand(), seed=0)
     register_robot("jittery", robot)
@@ -159,7 +159,7 @@ def test_the_example_rig_file_loads_for_socketcan_and_for_pcan(tmp_path):
 
 
 def test_devices_list_names_serial_ports_and_can_interfaces(capsys):
-    from hexcal.cli import main
+    from hexcal.app.cli import main
 
     assert main(["devices", "list"]) == 0
     out = capsys.readouterr().out
@@ -169,7 +169,7 @@ def test_devices_list_names_serial_ports_and_can_interfaces(capsys):
 
 def test_a_real_rig_without_robot_json_is_refused(capsys):
     """A real rig never silently gets the paper's robot as its design."""
-    from hexcal.cli import main
+    from hexcal.app.cli import main
 
     assert main(["run", "--config", str(EXAMPLE_RIG)]) == 2
     assert "a real rig needs its design: --robot robot.json" in capsys.readouterr().err

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLE, instruments
 
-from hexcal.cli import main
+from hexcal.app.cli import main
 from hexcal.diagnosis import diagnose
-from hexcal.diagnosis.model import Problem, fit_model
-from hexcal.effects.foreign import local_dent
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.noise import NoiseSigmas
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.simulate import PoseRanges
+from hexcal.estimate.effect_fit import Problem, fit_model
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.foreign import local_dent
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.sim.simulate import PoseRanges
 
 INST = instruments()
 

@@ -13,10 +13,10 @@ import pytest
 import hexcal
 import hexcal.diagnosis.plots as plots_mod
 import hexcal.diagnosis.report as report_mod
-from hexcal.diagnosis.model import ParamRow
 from hexcal.diagnosis.plots import PLOT_NAMES
 from hexcal.diagnosis.report import REPORT_PLOTS, _param_rows, write_report
-from hexcal.measurements import write_measurements
+from hexcal.estimate.effect_fit import ParamRow
+from hexcal.io.measurements import write_measurements
 
 
 @pytest.fixture(scope="module")

@@ -29,6 +29,10 @@ def test_the_readme_is_a_front_page():
         assert f"(docs/{page}.md)" in text
 
 
+#: The library's folders that are stages of the flow: their modules are named one by one.
+STAGE_FOLDERS = ("io", "model", "estimate", "acquire", "procedure", "sim", "app")
+
+
 def test_the_readme_layout_names_every_module():
     """The layout in the README matches the tree: every module of the library, the drivers and
     the mocks is named there."""
@@ -40,7 +44,9 @@ def test_the_readme_layout_names_every_module():
         for path in sorted((ROOT / folder).rglob("*.py"))
         if path.name != "__init__.py"
         and path.name not in layout
-        # a subpackage of the library may be named as a whole (solvers/, diagnosis/, ...)
-        and not (path.parent.parent.name == "hexcal" and f"{path.parent.name}/" in layout)
+        # a folder below a stage may be named as a whole (solvers/, commands/, diagnosis/...)
+        and not (path.parent.name not in STAGE_FOLDERS and f"{path.parent.name}/" in layout)
     ]
     assert not missing, missing
+    for stage in STAGE_FOLDERS:
+        assert f"\n  {stage}/" in layout, f"the stage folder {stage}/ is not in the layout"

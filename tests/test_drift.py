@@ -12,9 +12,9 @@ from conftest import instruments
 from hexcal.diagnosis import diagnose
 from hexcal.effects import EffectData, get_effect
 from hexcal.effects.drift import UM_PER_H
-from hexcal.effects.inject import TYPICAL_SESSION_H, effect_hook, realistic_values
-from hexcal.measurements import Measurements
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.io.measurements import Measurements
+from hexcal.sim.inject import TYPICAL_SESSION_H, effect_hook, realistic_values
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
 INST = instruments()
 #: The temperature rises 5 K over the session in every test here: drift must not be thermal.

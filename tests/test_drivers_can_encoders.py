@@ -25,7 +25,7 @@ import can
 import numpy as np
 import pytest
 
-from hexcal.acquisition import LegSample
+from hexcal.acquire.acquisition import LegSample
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
 from hexcal.drivers.can_encoders import (
     BusError,
@@ -40,7 +40,7 @@ from hexcal.drivers.can_encoders import (
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.can_replay import replay_log
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 SYNC_S = 0.01
 HB_TIMEOUT_S = 0.2

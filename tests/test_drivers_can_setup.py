@@ -17,14 +17,14 @@ import canopen
 import numpy as np
 import pytest
 
-from hexcal.cli import main
+from hexcal.app.cli import main
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
 from hexcal.drivers.can_emcy import Emergency, emcy_text
 from hexcal.drivers.can_encoders import EncoderError, EncoderSilent, LegEncoders
 from hexcal.drivers.can_nodes import generic_eds
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 SYNC_S = 0.01
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.acquisition import TrackerSample
+from hexcal.acquire.acquisition import TrackerSample
 from hexcal.drivers.lineproto import (
     MAX_LINE,
     LineProtocolError,
@@ -24,7 +24,7 @@ from hexcal.drivers.lineproto import (
 )
 from hexcal.drivers.ndi import TrackerDisconnected, TrackerError, TrackerTimeout
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 SRC = "/dev/ttyLINE"
 

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.acquisition import TrackerSample
+from hexcal.acquire.acquisition import TrackerSample
 from hexcal.drivers.crc import crc16, crc16_hex
 from hexcal.drivers.ndi import (
     BAUD_CODES,
@@ -53,8 +53,8 @@ from hexcal.mock_hw.ndi_tracker import (
 )
 from hexcal.mock_hw.pty_tracker import PtyTracker
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel
+from hexcal.sim.robots import left_hand
+from hexcal.sim.simulate import NoiseModel
 
 REAL_PORT = os.environ.get("HEXCAL_TRACKER_PORT")
 PORT = "/dev/ttyTEST"

@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexcal.diagnosis.model import Problem, fit_model
 from hexcal.effects import CATALOGUE, Effect, EffectData, ParamSpec, get_effect, register
 from hexcal.effects.backlash import motion_state
 from hexcal.effects.compliance import leg_forces
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.noise import NoiseSigmas
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.simulate import NoiseModel
+from hexcal.estimate.effect_fit import Problem, fit_model
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.sim.simulate import NoiseModel
 
 NAMES = ("offset", "gain", "backlash", "thermal", "compliance", "leadscrew")
 SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
@@ -65,7 +65,7 @@ def test_motion_state_keeps_state_of_a_leg_that_did_not_move():
 
 
 def test_leg_forces_balance_the_weight(design, rng):
-    from hexcal.simulate import Simulator
+    from hexcal.sim.simulate import Simulator
 
     sim = Simulator(design)
     P, R = sim.free((20,), rng)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from hexcal.fileio import orphan_temp_files, remove_orphan_temp_files, write_text_atomic
+from hexcal.io.fileio import orphan_temp_files, remove_orphan_temp_files, write_text_atomic
 
 
 def test_new_file_mode_follows_umask(tmp_path):

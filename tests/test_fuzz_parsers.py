@@ -28,7 +28,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 from serial.urlhandler.protocol_spy import FormatHexdump
 
-from hexcal.acquisition import TrackerSample, checked_tracker_sample
+from hexcal.acquire.acquisition import TrackerSample, checked_tracker_sample
 from hexcal.drivers.can_config import (
     CanBusConfig,
     CanConfigError,
@@ -65,7 +65,7 @@ from hexcal.mock_hw.protocol_ndireplay import (
     parse_hex_row,
 )
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
+from hexcal.sim.robots import left_hand
 
 pytestmark = pytest.mark.fuzz
 

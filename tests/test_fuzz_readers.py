@@ -27,15 +27,19 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import BaseModel
 
-from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
-from hexcal.devices import DevicesConfig, DevicesConfigError, TrackerConfig, load_devices_config
-from hexcal.instruments import InstrumentsError, load_instruments
-from hexcal.measurements import MeasurementError, Measurements, read_measurements
-from hexcal.model_file import load_model, load_robot
-from hexcal.predict_table import Table, TableError, direction, read_table
-from hexcal.procedure import ProcedureError, load_procedure
-from hexcal.robot import RobotFileError
-from hexcal.session import (
+from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
+from hexcal.acquire.devices import (
+    DevicesConfig,
+    DevicesConfigError,
+    TrackerConfig,
+    load_devices_config,
+)
+from hexcal.estimate.model_file import load_model, load_robot
+from hexcal.estimate.predict_table import Table, TableError, direction, read_table
+from hexcal.io.measurements import MeasurementError, Measurements, read_measurements
+from hexcal.model.instruments import InstrumentsError, load_instruments
+from hexcal.model.robot import RobotFileError
+from hexcal.procedure.session import (
     OperatorNote,
     ResultRecord,
     Session,
@@ -45,6 +49,7 @@ from hexcal.session import (
     load_session,
     session_to_text,
 )
+from hexcal.procedure.steps import ProcedureError, load_procedure
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "left-hand-sim"

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hexcal.calibrate import calibrate
-from hexcal.demo import against_truth, hidden_robot
-from hexcal.guided import GuidedError, GuidedSession
+from hexcal.app.demo import against_truth, hidden_robot
+from hexcal.estimate.calibrate import calibrate
 from hexcal.mock_hw.instant import InstantAcquisition
 from hexcal.mock_hw.motion import MockMotionController
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.procedure import load_procedure
-from hexcal.session import Session, SessionFile, load_session
+from hexcal.procedure.guided import GuidedError, GuidedSession
+from hexcal.procedure.session import Session, SessionFile, load_session
+from hexcal.procedure.steps import load_procedure
 
 
 def _setup(tmp_path, seed=3, n=6, free=12, procedure="model42-direction-length", effects=True):

@@ -11,15 +11,15 @@ import pytest
 from conftest import instruments
 
 from hexcal.diagnosis import diagnose
-from hexcal.diagnosis.model import Problem
 from hexcal.effects import EffectData, get_effect
 from hexcal.effects.backlash import DEADBAND_MM, deadband_for_noise, deadband_mm, motion_state
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.noise import NoiseSigmas
-from hexcal.predict import LegModel
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.sim_robots import PRECISE_INSTRUMENTS, precise_design, precise_session
-from hexcal.simulate import Simulator
+from hexcal.estimate.effect_fit import Problem
+from hexcal.estimate.predict import LegModel
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import PRECISE_INSTRUMENTS, precise_design, precise_session
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.sim.simulate import Simulator
 
 MASS_KG = 20.0
 
@@ -131,8 +131,8 @@ def test_precision_hexapod_backlash_of_a_few_um_is_named_and_falls_to_the_floor(
 
 
 def test_the_calibrated_model_file_keeps_the_dead_band_it_was_fitted_with():
-    from hexcal.calibrate import calibrate
-    from hexcal.model_file import CalibratedRobot, parse_model
+    from hexcal.estimate.calibrate import calibrate
+    from hexcal.estimate.model_file import CalibratedRobot, parse_model
 
     meas, design = precise_session(0, clusters=30).meas, precise_design()
     cal = calibrate(meas, design, 42, instruments=PRECISE_INST, effects=("backlash",), clamps=False)
@@ -160,6 +160,6 @@ def test_the_calibrated_model_file_keeps_the_dead_band_it_was_fitted_with():
 
 
 def _params(model):
-    from hexcal.model_file import effect_records
+    from hexcal.estimate.model_file import effect_records
 
     return effect_records(model)[0].parameters

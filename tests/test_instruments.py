@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hexcal.instruments import (
+from hexcal.model.instruments import (
     EncoderNoise,
     Instruments,
     InstrumentsError,

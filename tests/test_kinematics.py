@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.kinematics import (
+from hexcal.model.kinematics import (
     ForwardKinematicsError,
     condition_number,
     forward_kinematics,

@@ -1,8 +1,10 @@
 """The data flow, checked on the imports: a module imports only from its own stage or an
 earlier one, and no production module imports the simulator or the mock hardware.
 
-    model → io → effects → estimate → acquire → procedure → (sim) → app
+    io → model → effects → estimate → diagnosis → acquire → procedure → (sim) → app
 
+Each stage is one subpackage of ``hexcal`` (``hexcal.io``, ``hexcal.model``...; the drivers,
+the mock hardware and the procedure files keep their top-level folders as the design card asks).
 ``sim`` (the simulator, simulated sessions and robots, the study, mock hardware) sits beside
 the flow: it may use every production stage, and only the application layer (the CLI, the
 text UI, the workflow under them) may use it — for ``simulate``, ``demo``, ``study`` and
@@ -21,70 +23,22 @@ SOURCES = {
     "mock_hw": "hexcal.mock_hw",
     "procedures": "hexcal.procedures",
 }
-#: Stages in flow order: module name prefixes (the longest prefix decides).
+#: Stages in flow order: module name prefixes (the longest prefix decides). Each stage is one
+#: subpackage (the drivers and the mock hardware keep their top-level folders, design card).
 STAGES = {
-    "model": [
+    "base": [
         "hexcal",  # the package's own __init__: version and the lazy public API (see below)
-        "hexcal.robot",
-        "hexcal.kinematics",
-        "hexcal.noise",
-        "hexcal.instruments",
-        "hexcal.fileio",
-        "hexcal.validation",
-        "hexcal.safe_read",
-        "hexcal.workspace",
         "hexcal.errors",
     ],
-    "io": ["hexcal.measurements", "hexcal.measurements_csv", "hexcal.log_import"],
+    "io": ["hexcal.io"],
+    "model": ["hexcal.model"],
     "effects": ["hexcal.effects"],
-    "estimate": [
-        "hexcal.solvers",
-        "hexcal.refine",
-        "hexcal.calibrate",
-        "hexcal.clamp_rows",
-        "hexcal.bound",
-        "hexcal.nbp",
-        "hexcal.predict",
-        "hexcal.predict_table",
-        "hexcal.accuracy",
-        "hexcal.model_file",
-        "hexcal.sanity",
-        "hexcal.diagnosis",
-        "hexcal.model_validation",
-    ],
-    "acquire": [
-        "hexcal.drivers",
-        "hexcal.acquisition",
-        "hexcal.live",
-        "hexcal.devices",
-        "hexcal.devices_check",
-    ],
-    "procedure": [
-        "hexcal.procedure",
-        "hexcal.procedures",
-        "hexcal.recording",
-        "hexcal.session",
-        "hexcal.guided",
-    ],
-    "sim": [
-        "hexcal.simulate",
-        "hexcal.session_sim",
-        "hexcal.sim_robots",
-        "hexcal.study",
-        "hexcal.session_efficiency",
-        "hexcal.nbp_study",
-        "hexcal.effects.inject",
-        "hexcal.effects.foreign",
-        "hexcal.mock_hw",
-    ],
-    "app": [
-        "hexcal.workflow",
-        "hexcal.report_text",
-        "hexcal.demo",
-        "hexcal.cli",
-        "hexcal.commands",
-        "hexcal.tui",
-    ],
+    "estimate": ["hexcal.estimate"],
+    "diagnosis": ["hexcal.diagnosis"],
+    "acquire": ["hexcal.acquire", "hexcal.drivers"],
+    "procedure": ["hexcal.procedure", "hexcal.procedures"],
+    "sim": ["hexcal.sim", "hexcal.mock_hw"],
+    "app": ["hexcal.app", "hexcal.tui"],
 }
 ORDER = list(STAGES)
 PRODUCTION = ORDER[: ORDER.index("sim")]
@@ -185,3 +139,13 @@ def test_one_exception_hierarchy():
             ):
                 loose.append(f"{module}.{name}")
     assert not loose, loose
+
+
+def test_the_folders_are_the_stages():
+    """Nothing lies loose beside the stage packages: a new module goes into its stage's folder."""
+    top = ROOT / "src" / "hexcal"
+    loose = sorted(p.name for p in top.glob("*.py") if p.name not in ("__init__.py", "errors.py"))
+    assert loose == []
+    packages = sorted(p.name for p in top.iterdir() if (p / "__init__.py").exists())
+    expected = sorted(s.split(".")[1] for prefixes in STAGES.values() for s in prefixes if "." in s)
+    assert packages == sorted(set(expected) - {"errors", "drivers", "mock_hw", "procedures"})

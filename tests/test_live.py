@@ -1,6 +1,6 @@
 """Device faults end to end: the mock rig behind the real drivers (an NDI tracker on
 ``ndimock://``, six CANopen encoders on python-can's virtual bus), the live acquisition
-(:func:`hexcal.live.open_rig`), the guided session engine the text UI drives, and its session
+(:func:`hexcal.acquire.live.open_rig`), the guided session engine the text UI drives, and its session
 file on disk.
 
 For every fault of the issue's list: a pose taken during the fault is refused with a message
@@ -22,12 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from hexcal.acquisition import StillWindow
-from hexcal.guided import GuidedSession
-from hexcal.live import open_rig
+from hexcal.acquire.acquisition import StillWindow
+from hexcal.acquire.live import open_rig
 from hexcal.mock_hw.rig import MockRig, mock_rig
-from hexcal.recording import Step
-from hexcal.session import Session, SessionFile, load_session
+from hexcal.procedure.guided import GuidedSession
+from hexcal.procedure.recording import Step
+from hexcal.procedure.session import Session, SessionFile, load_session
 
 WINDOW_S = 0.2
 

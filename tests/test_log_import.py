@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal.cli import EXIT_INPUT, main
+from hexcal.app.cli import EXIT_INPUT, main
 from hexcal.diagnosis.limits import at_limits
-from hexcal.log_import import LogImportError, import_log, load_map
-from hexcal.measurements import read_measurements
-from hexcal.model_file import load_robot
+from hexcal.estimate.model_file import load_robot
+from hexcal.io.log_import import LogImportError, import_log, load_map
+from hexcal.io.measurements import read_measurements
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv"

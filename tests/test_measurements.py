@@ -16,7 +16,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from hexcal.measurements import (
+from hexcal.io.measurements import (
     CONSTRAINTS,
     REQUIRED_COLUMNS,
     MeasurementError,
@@ -524,7 +524,7 @@ def block_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_block_check_agrees_with_the_row_check(block_dir: Path, data: st.DataObject) -> None:
     """Whatever the values, reading a block at a time with numpy gives exactly what
     validating every row with MeasurementRow gives: the same table, or the same error."""
-    from hexcal.measurements_csv import _Slow, _TableReader
+    from hexcal.io.measurements_csv import _Slow, _TableReader
 
     n = data.draw(st.integers(1, 6), label="rows")
     rows = [{"pose_id": str(k + 1), **GOOD} for k in range(n)]
@@ -572,7 +572,7 @@ def test_a_200_mb_table_reads_in_under_1_gb(tmp_path: Path) -> None:
     code = textwrap.dedent(
         """
         import resource, sys, time
-        from hexcal.measurements import read_measurements
+        from hexcal.io.measurements import read_measurements
         start = time.perf_counter()
         m = read_measurements(sys.argv[1])
         took = time.perf_counter() - start

@@ -5,7 +5,7 @@ import pytest
 
 from hexcal.mock_hw.motion import CLAMPS, MockMotionController, MotionError
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.session_sim import SessionPlan, perturbed_truth
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth
 
 
 @pytest.fixture

@@ -23,8 +23,8 @@ from hexcal.mock_hw.ndi_tracker import MockNDITracker
 from hexcal.mock_hw.protocol_ndireplay import CaptureError, ReplayDivergence, parse_capture
 from hexcal.mock_hw.pty_tracker import PtyTracker
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel
+from hexcal.sim.robots import left_hand
+from hexcal.sim.simulate import NoiseModel
 
 # Short waits keep the tests fast; a pty carries no BREAK, so the RESET command resets.
 FAST = dict(timeout=0.25, settle_s=0.0, resync_s=0.02, reset_timeout_s=0.2, reset="command")

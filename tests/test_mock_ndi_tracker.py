@@ -31,8 +31,8 @@ from hexcal.mock_hw.ndi_tracker import (
 )
 from hexcal.mock_hw.pty_tracker import PtyTracker
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel
+from hexcal.sim.robots import left_hand
+from hexcal.sim.simulate import NoiseModel
 
 TX_POSE = re.compile(
     rb"01(01)([+-]\d{5})([+-]\d{5})([+-]\d{5})([+-]\d{5})([+-]\d{6})([+-]\d{6})([+-]\d{6})"

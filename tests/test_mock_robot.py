@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import NoiseModel
+from hexcal.sim.robots import left_hand
+from hexcal.sim.simulate import NoiseModel
 
 
 class FakeClock:

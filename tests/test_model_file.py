@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexcal.cli import main
+from hexcal.app.cli import main
+from hexcal.app.workflow import calibrate_model, read_inputs
 from hexcal.effects import CATALOGUE
-from hexcal.model_file import CalibratedRobot, leg_model_of, load_model, load_robot
-from hexcal.robot import Robot, RobotFileError
-from hexcal.session_sim import SessionPlan, write_session_dir
-from hexcal.sim_robots import left_hand
-from hexcal.workflow import calibrate_model, read_inputs
+from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, load_model, load_robot
+from hexcal.model.robot import Robot, RobotFileError
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, write_session_dir
 
 #: A short session (4 poses per clamped step, 30 free) keeps each calibration quick.
 PLAN = SessionPlan(n_type_i=4, n_type_ii=4, n_type_iii=4, n_free=30)

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hexcal import nbp, nbp_study
-from hexcal.kinematics import condition_number
-from hexcal.noise import NoiseSigmas
-from hexcal.session_sim import SessionPlan, perturbed_truth
-from hexcal.sim_robots import left_hand
-from hexcal.simulate import Simulator
+from hexcal.estimate import nbp
+from hexcal.model.kinematics import condition_number
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim import nbp_study
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth
+from hexcal.sim.simulate import Simulator
 
 ROBOT = left_hand()
 SIG = NoiseSigmas(0.1, np.deg2rad(0.01), 0.1)

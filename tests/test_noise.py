@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexcal.noise import NoiseSigmas, leg_covariance
-from hexcal.simulate import NoiseModel, Simulator
+from hexcal.model.noise import NoiseSigmas, leg_covariance
+from hexcal.sim.simulate import NoiseModel, Simulator
 
 
 def test_leg_covariance_matches_monte_carlo(truth, rng):

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from conftest import instruments
 
+from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
-from hexcal.diagnosis.model import Problem, fit_model
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Subset,
@@ -22,10 +22,10 @@ from hexcal.diagnosis.outliers import (
     outlier_threshold,
     pose_residuals,
 )
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.noise import NoiseSigmas
-from hexcal.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
-from hexcal.workflow import Inputs, diagnose_chain
+from hexcal.estimate.effect_fit import Problem, fit_model
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
 
 INST = instruments()
 PLAN = SessionPlan(temperature_rise_k=5.0)

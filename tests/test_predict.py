@@ -8,9 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hexcal.effects import CATALOGUE
-from hexcal.effects.inject import realistic_values
-from hexcal.predict import LegModel, Poses, PredictionError
-from hexcal.sim_robots import left_hand
+from hexcal.estimate.predict import LegModel, Poses, PredictionError
+from hexcal.sim.inject import realistic_values
+from hexcal.sim.robots import left_hand
 
 ROBOT = left_hand().model_copy(update={"platform_mass_kg": 25.0, "leadscrew_pitch_mm": 5.0})
 

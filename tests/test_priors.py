@@ -12,13 +12,13 @@ import pytest
 from conftest import instruments
 
 from hexcal.diagnosis import diagnose
-from hexcal.diagnosis.model import Problem, fit_model
 from hexcal.effects import get_effect
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.model_file import CalibratedRobot, load_robot, parse_model
-from hexcal.predict import LegModel
-from hexcal.robot import Robot, RobotFileError, save_robot
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
+from hexcal.estimate.effect_fit import Problem, fit_model
+from hexcal.estimate.model_file import CalibratedRobot, load_robot, parse_model
+from hexcal.estimate.predict import LegModel
+from hexcal.model.robot import Robot, RobotFileError, save_robot
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
 JUGGLEBOT = Path(__file__).parent / "data" / "jugglebot"
 MAP = Path(__file__).parents[1] / "examples" / "jugglebot" / "map.toml"
@@ -163,7 +163,7 @@ def test_a_value_outside_its_range_is_flagged_with_what_it_means_not_a_verdict(d
 
 @pytest.fixture(scope="module")
 def jugglebot():
-    from hexcal.log_import import import_log
+    from hexcal.io.log_import import import_log
 
     meas = import_log(JUGGLEBOT / "108_calibration_poses.csv", MAP)
     return meas, load_robot(JUGGLEBOT / "design-robot.json")
@@ -192,8 +192,8 @@ def test_jugglebot_scales_several_per_cent_off_are_plausible(jugglebot):
 
 def test_an_unknown_prior_key_in_a_session_file_is_refused_and_the_file_kept(tmp_path, design):
     """The key check runs on every reader of a robot, the session file's included."""
-    from hexcal.measurements_csv import read_measurements
-    from hexcal.session import Session, SessionFile, SessionFileError, load_session
+    from hexcal.io.measurements_csv import read_measurements
+    from hexcal.procedure.session import Session, SessionFile, SessionFileError, load_session
 
     meas = read_measurements(Path(__file__).parents[1] / "examples/left-hand-sim/measurements.csv")
     path = tmp_path / "s.json"

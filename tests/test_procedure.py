@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexcal.calibrate import calibrate
-from hexcal.measurements import Measurements
-from hexcal.procedure import BUILTIN, ProcedureError, load_procedure, parse_procedure
-from hexcal.session_sim import SessionPlan, perturbed_truth
-from hexcal.simulate import NoiseModel, Simulator
+from hexcal.estimate.calibrate import calibrate
+from hexcal.io.measurements import Measurements
+from hexcal.procedure.steps import BUILTIN, ProcedureError, load_procedure, parse_procedure
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth
+from hexcal.sim.simulate import NoiseModel, Simulator
 
 METHOD = {"direction": "type_i", "direction+length": "type_ii", "length": "type_iii"}
 

@@ -8,13 +8,13 @@ import pytest
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from hexcal.acquisition import LegSample, RecordedPose, StillWindow, TrackerSample
-from hexcal.calibrate import calibrate
-from hexcal.live import open_rig
+from hexcal.acquire.acquisition import LegSample, RecordedPose, StillWindow, TrackerSample
+from hexcal.acquire.live import open_rig
+from hexcal.estimate.calibrate import calibrate
 from hexcal.mock_hw.motion import MockMotionController
 from hexcal.mock_hw.rig import mock_rig
 from hexcal.mock_hw.robot import MockRobot
-from hexcal.recording import (
+from hexcal.procedure.recording import (
     ClampSlipped,
     NoiseLevels,
     RunSettings,
@@ -24,7 +24,7 @@ from hexcal.recording import (
     standard_procedure,
     still_window_noise,
 )
-from hexcal.session_sim import SessionPlan, perturbed_truth
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth
 
 SIG_P, SIG_DEG, SIG_R = 0.01, 0.002, 0.002  # per sample, as the mock robot's default noise
 

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hexcal.calibrate import calibrate
-from hexcal.noise import NoiseSigmas
-from hexcal.refine import refine
-from hexcal.session_sim import SessionPlan, simulate_session
-from hexcal.simulate import NoiseModel, PoseRanges, Simulator
+from hexcal.estimate.calibrate import calibrate
+from hexcal.estimate.refine import refine
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.session_sim import SessionPlan, simulate_session
+from hexcal.sim.simulate import NoiseModel, PoseRanges, Simulator
 
 SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
 SMALL = SessionPlan(n_type_i=0, n_type_ii=6, n_type_iii=6, n_free=30)
@@ -51,7 +51,7 @@ def test_intervals_have_their_coverage(design, known):
     d2, inside = [], []
     inst = None
     if known:
-        from hexcal.instruments import EncoderNoise, Instruments, TrackerNoise
+        from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
 
         inst = Instruments(
             tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),

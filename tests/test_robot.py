@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLE
 
-from hexcal.model_file import load_robot
-from hexcal.robot import RobotFileError, save_robot
+from hexcal.estimate.model_file import load_robot
+from hexcal.model.robot import RobotFileError, save_robot
 
 
 def test_round_trip_keeps_unknown_keys(tmp_path, design):

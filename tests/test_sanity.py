@@ -10,13 +10,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexcal import refine as refine_module
-from hexcal.cli import EXIT_DRAWING, EXIT_INPUT, EXIT_INTERNAL, EXIT_REFUSED, error_message, main
-from hexcal.effects.inject import effect_hook, realistic_values
-from hexcal.model_file import load_robot
-from hexcal.sanity import check_against_drawing, gross_outliers
-from hexcal.session_sim import SessionPlan, perturbed_truth, simulate_session
-from hexcal.sim_robots import left_hand
+from hexcal.app.cli import (
+    EXIT_DRAWING,
+    EXIT_INPUT,
+    EXIT_INTERNAL,
+    EXIT_REFUSED,
+    error_message,
+    main,
+)
+from hexcal.estimate import refine as refine_module
+from hexcal.estimate.model_file import load_robot
+from hexcal.estimate.sanity import check_against_drawing, gross_outliers
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "left-hand-sim"
 

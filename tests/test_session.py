@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexcal.acquisition import LegSample, RecordedPose, TrackerSample
-from hexcal.measurements import read_measurements, write_measurements
-from hexcal.model_file import load_robot
-from hexcal.session import (
+from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
+from hexcal.estimate.model_file import load_robot
+from hexcal.io.measurements import read_measurements, write_measurements
+from hexcal.procedure.session import (
     SCHEMA_VERSION,
     Session,
     SessionFile,
@@ -131,8 +131,8 @@ WRITER = textwrap.dedent(
     import sys, numpy as np
     sys.path.insert(0, {tests!r})
     from test_session import recorded_pose
-    from hexcal.session import Session, SessionFile
-    from hexcal.sim_robots import left_hand
+    from hexcal.procedure.session import Session, SessionFile
+    from hexcal.sim.robots import left_hand
     rng = np.random.default_rng(0)
     sf = SessionFile.create(sys.argv[1], Session(robot=left_hand()))
     print("ready", flush=True)
@@ -227,7 +227,7 @@ def test_a_pose_holding_nan_or_inf_is_refused_not_saved(tmp_path, design, field)
 
 
 def test_a_raw_sample_with_a_non_number_is_saved_as_none_and_flagged():
-    from hexcal.session import RawLegSample, RawTrackerSample
+    from hexcal.procedure.session import RawLegSample, RawTrackerSample
 
     s = RawTrackerSample.of(TrackerSample(1.0, np.array([1.0, np.nan, 0]), np.ones(4) / 2, 0.1))
     assert s.position is None and s.quaternion == [0.5] * 4
@@ -240,7 +240,7 @@ def test_a_raw_sample_with_a_non_number_is_saved_as_none_and_flagged():
 def test_pose_ids_are_bounded(design):
     from pydantic import ValidationError
 
-    from hexcal.session import PoseRecord
+    from hexcal.procedure.session import PoseRecord
 
     row = dict(
         t=0.0,

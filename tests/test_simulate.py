@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexcal.session_sim import SessionPlan, simulate_session
-from hexcal.simulate import Limits, NoiseModel, PoseContext, Simulator
+from hexcal.sim.session_sim import SessionPlan, simulate_session
+from hexcal.sim.simulate import Limits, NoiseModel, PoseContext, Simulator
 
 K = 2
 

@@ -7,7 +7,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_solvers_paper import K
 
-from hexcal.solvers.checks import DegenerateSet, check_type_i, check_type_ii, check_type_iii
+from hexcal.estimate.solvers.checks import (
+    DegenerateSet,
+    check_type_i,
+    check_type_ii,
+    check_type_iii,
+)
 
 
 def _about_one_axis(sim, n, rng, axis=(0.0, 0.0, 1.0)):

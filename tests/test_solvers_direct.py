@@ -7,8 +7,8 @@ import pytest
 from statcheck import spread_matches_theory, trace_ratio_tolerance
 from test_solvers_paper import K, rel_err
 
-from hexcal.simulate import NoiseModel, Simulator
-from hexcal.solvers import direct
+from hexcal.estimate.solvers import direct
+from hexcal.sim.simulate import NoiseModel, Simulator
 
 
 def test_type_i_direct_noise_free(clean_sim, truth, rng):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from test_solvers_paper import rel_err
 
-from hexcal.solvers import free
+from hexcal.estimate.solvers import free
 
 
 @pytest.mark.parametrize("k", range(6))

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from statcheck import spread_matches_theory, trace_ratio_tolerance
 
-from hexcal.simulate import NoiseModel, Simulator
-from hexcal.solvers import paper
-from hexcal.solvers.linalg import lstsq
+from hexcal.estimate.solvers import paper
+from hexcal.estimate.solvers.linalg import lstsq
+from hexcal.sim.simulate import NoiseModel, Simulator
 
 K = 2  # leg 3, as in the paper
 

@@ -7,10 +7,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from test_solvers_paper import K
 
-from hexcal.noise import NoiseSigmas
-from hexcal.simulate import NoiseModel, Simulator
-from hexcal.solvers import direct, weighted
-from hexcal.solvers.weighted import _inv3_sym, _point_cov
+from hexcal.estimate.solvers import direct, weighted
+from hexcal.estimate.solvers.weighted import _inv3_sym, _point_cov
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.simulate import NoiseModel, Simulator
 
 SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexcal.session_sim import SessionPlan, simulate_session
-from hexcal.simulate import NoiseModel
-from hexcal.solvers.whole_robot import CalibrationRefused, calibrate_linear
+from hexcal.estimate.solvers.whole_robot import CalibrationRefused, calibrate_linear
+from hexcal.sim.session_sim import SessionPlan, simulate_session
+from hexcal.sim.simulate import NoiseModel
 
 CLEAN = SessionPlan(noise=NoiseModel(), resolution=None)
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from hexcal.cli import main
-from hexcal.study import METHODS, StudyConfig, run_study
+from hexcal.app.cli import main
+from hexcal.sim.study import METHODS, StudyConfig, run_study
 
 SMALL = dict(trials=300, n_type_i=(4, 12), n_type_ii=(4, 12), n_type_iii=(5, 12))
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hexcal.demo import DemoSettings, against_truth, run_demo
-from hexcal.measurements import read_measurements
-from hexcal.model_file import load_model, load_robot, save_model
-from hexcal.session import Session, load_session
-from hexcal.sim_robots import left_hand
+from hexcal.app.demo import DemoSettings, against_truth, run_demo
+from hexcal.estimate.model_file import load_model, load_robot, save_model
+from hexcal.io.measurements import read_measurements
+from hexcal.procedure.session import Session, load_session
+from hexcal.sim.robots import left_hand
 from hexcal.tui.app import HexcalApp
 from hexcal.tui.backend import InstantBackend, mock_backend
 from hexcal.tui.record import RecordScreen
@@ -161,7 +161,7 @@ def _validate_on_a_second_session(tmp_path, shipped_path, uncorrected) -> None:
             [
                 sys.executable,
                 "-m",
-                "hexcal.cli",
+                "hexcal.app.cli",
                 "validate",
                 str(model_path),
                 str(second),

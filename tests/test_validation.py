@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from pydantic import AfterValidator, BaseModel, Field, ValidationError
 
-from hexcal.validation import clean_location, format_validation_error, shown_value
+from hexcal.io.validation import clean_location, format_validation_error, shown_value
 
 
 class Leg(BaseModel):

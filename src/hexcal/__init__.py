@@ -24,24 +24,24 @@ __version__ = "0.1.0"
 
 #: public name → the module that defines it
 _HOMES = {
-    "Robot": "hexcal.robot",
-    "load_robot": "hexcal.model_file",
-    "save_robot": "hexcal.robot",
-    "Measurements": "hexcal.measurements",
-    "read_measurements": "hexcal.measurements_csv",
-    "write_measurements": "hexcal.measurements",
-    "Instruments": "hexcal.instruments",
-    "load_instruments": "hexcal.instruments",
-    "save_instruments": "hexcal.instruments",
-    "import_log": "hexcal.log_import",
-    "calibrate": "hexcal.calibrate",
-    "Calibration": "hexcal.calibrate",
+    "Robot": "hexcal.model.robot",
+    "load_robot": "hexcal.estimate.model_file",
+    "save_robot": "hexcal.model.robot",
+    "Measurements": "hexcal.io.measurements",
+    "read_measurements": "hexcal.io.measurements_csv",
+    "write_measurements": "hexcal.io.measurements",
+    "Instruments": "hexcal.model.instruments",
+    "load_instruments": "hexcal.model.instruments",
+    "save_instruments": "hexcal.model.instruments",
+    "import_log": "hexcal.io.log_import",
+    "calibrate": "hexcal.estimate.calibrate",
+    "Calibration": "hexcal.estimate.calibrate",
     "diagnose": "hexcal.diagnosis.diagnose",
     "Diagnosis": "hexcal.diagnosis.diagnose",
-    "CalibratedRobot": "hexcal.model_file",
-    "load_model": "hexcal.model_file",
-    "save_model": "hexcal.model_file",
-    "LegModel": "hexcal.predict",
+    "CalibratedRobot": "hexcal.estimate.model_file",
+    "load_model": "hexcal.estimate.model_file",
+    "save_model": "hexcal.estimate.model_file",
+    "LegModel": "hexcal.estimate.predict",
 }
 
 __all__ = [
@@ -67,15 +67,15 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from hexcal.calibrate import Calibration, calibrate
     from hexcal.diagnosis.diagnose import Diagnosis, diagnose
-    from hexcal.instruments import Instruments, load_instruments, save_instruments
-    from hexcal.log_import import import_log
-    from hexcal.measurements import Measurements, write_measurements
-    from hexcal.measurements_csv import read_measurements
-    from hexcal.model_file import CalibratedRobot, load_model, load_robot, save_model
-    from hexcal.predict import LegModel
-    from hexcal.robot import Robot, save_robot
+    from hexcal.estimate.calibrate import Calibration, calibrate
+    from hexcal.estimate.model_file import CalibratedRobot, load_model, load_robot, save_model
+    from hexcal.estimate.predict import LegModel
+    from hexcal.io.log_import import import_log
+    from hexcal.io.measurements import Measurements, write_measurements
+    from hexcal.io.measurements_csv import read_measurements
+    from hexcal.model.instruments import Instruments, load_instruments, save_instruments
+    from hexcal.model.robot import Robot, save_robot
 
 
 def __getattr__(name: str) -> Any:

@@ -6,6 +6,6 @@ ranks every catalogue effect not in the model, and gives a verdict.
 """
 
 from hexcal.diagnosis.diagnose import Candidate, Diagnosis, diagnose
-from hexcal.diagnosis.model import ModelFit, fit_model
+from hexcal.estimate.effect_fit import ModelFit, fit_model
 
 __all__ = ["Candidate", "Diagnosis", "ModelFit", "diagnose", "fit_model"]

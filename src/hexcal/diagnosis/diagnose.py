@@ -30,17 +30,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hexcal.accuracy import PoseAccuracy, PoseErrors
-from hexcal.diagnosis.model import (
-    ModelFit,
-    Problem,
-    design_accuracy,
-    design_pose_errors,
-    fit_model,
-    heldout_accuracy,
-    heldout_pose_errors,
-    noise_floor,
-)
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
@@ -52,10 +41,21 @@ from hexcal.diagnosis.outliers import (
 )
 from hexcal.diagnosis.where import concentrations
 from hexcal.effects import CATALOGUE, get_effect
-from hexcal.instruments import Instruments
-from hexcal.measurements import Measurements
-from hexcal.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
-from hexcal.robot import Robot
+from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors
+from hexcal.estimate.effect_fit import (
+    ModelFit,
+    Problem,
+    design_accuracy,
+    design_pose_errors,
+    fit_model,
+    heldout_accuracy,
+    heldout_pose_errors,
+    noise_floor,
+)
+from hexcal.io.measurements import Measurements
+from hexcal.model.instruments import Instruments
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+from hexcal.model.robot import Robot
 
 #: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
 BIC_STRONG = -10.0

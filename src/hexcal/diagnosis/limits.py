@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hexcal.robot import Robot
+from hexcal.model.robot import Robot
 
 #: The margin at a stroke's end: this fraction of the leg's span of readings…
 END_FRACTION = 0.002
@@ -116,7 +116,7 @@ def at_limits(meas, design: Robot, reading_sigma_mm: float | None = None) -> Lim
                 )
     limit = getattr(design, "joint_limit_deg", None)
     if limit is not None:
-        from hexcal.predict import LegModel, Poses
+        from hexcal.estimate.predict import LegModel, Poses
 
         model = LegModel(design)
         base, plat = model.joint_angles(Poses(meas.position, meas.rotations.as_matrix()))

@@ -29,11 +29,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import stats
 
-from hexcal.diagnosis.model import ModelFit, Problem, fit_model, fitted_robot
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.effects.drift import T_MID
-from hexcal.noise import DEFAULT_SIGMAS, leg_covariance
-from hexcal.refine import _model
+from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
+from hexcal.estimate.refine import _model
+from hexcal.model.noise import DEFAULT_SIGMAS, leg_covariance
 
 #: Family-wise false-alarm probability of the outlier test over a whole session (Bonferroni:
 #: each of the M poses is tested at OUTLIER_ALPHA / M against χ²(6)). Strict on purpose: a sound

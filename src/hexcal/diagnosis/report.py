@@ -25,9 +25,9 @@ import numpy as np
 
 import hexcal
 from hexcal.diagnosis.diagnose import Diagnosis
-from hexcal.diagnosis.model import ParamRow
 from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
-from hexcal.fileio import write_text_atomic
+from hexcal.estimate.effect_fit import ParamRow
+from hexcal.io.fileio import write_text_atomic
 
 UM = 1e3
 

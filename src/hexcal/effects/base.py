@@ -8,7 +8,7 @@ from functools import cached_property
 
 import numpy as np
 
-from hexcal.robot import Robot
+from hexcal.model.robot import Robot
 
 
 @dataclass(frozen=True)

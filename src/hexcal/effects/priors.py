@@ -1,14 +1,14 @@
 """The keys robot.json's ``plausible`` may use, judged against the effect catalogue.
 
 A robot file is read by the model stage, which knows nothing of effects; the readers above it
-(:func:`hexcal.model_file.parse_model`, :func:`hexcal.session.load_session`) call
+(:func:`hexcal.estimate.model_file.parse_model`, :func:`hexcal.procedure.session.load_session`) call
 :func:`check_priors` so that a misspelt key is refused with the file's name and the known keys.
 """
 
 from __future__ import annotations
 
 from hexcal.effects.base import CATALOGUE
-from hexcal.robot import Robot
+from hexcal.model.robot import Robot
 
 
 def prior_names(robot: Robot) -> set[str]:

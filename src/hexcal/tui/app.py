@@ -21,10 +21,10 @@ from textual.message import Message
 from textual.screen import Screen
 from textual.widgets import Button, Footer, Header, Input, Label, Select, Static
 
-from hexcal.guided import GuidedSession
-from hexcal.procedure import BUILTIN, Procedure, load_procedure
-from hexcal.recording import Step
-from hexcal.session import Session, SessionFile, SessionFileError
+from hexcal.procedure.guided import GuidedSession
+from hexcal.procedure.recording import Step
+from hexcal.procedure.session import Session, SessionFile, SessionFileError
+from hexcal.procedure.steps import BUILTIN, Procedure, load_procedure
 from hexcal.tui.backend import Backend, Rig
 
 
@@ -201,7 +201,7 @@ class HexcalApp(App):
             self.notify(text, severity="warning", timeout=8)
 
     def steps(self, proc: Procedure) -> list[Step]:
-        from hexcal.workflow import procedure_steps
+        from hexcal.app.workflow import procedure_steps
 
         return procedure_steps(proc, self.poses_per_step, self.free_poses)
 

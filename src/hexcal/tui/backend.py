@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hexcal.acquisition import StillWindow
-from hexcal.robot import Robot
+from hexcal.acquire.acquisition import StillWindow
+from hexcal.model.robot import Robot
 
 
 @dataclass
@@ -56,8 +56,8 @@ class RealBackend(Backend):
     config_path: Path = field(kw_only=True)
 
     def open(self) -> Rig:
-        from hexcal.devices import load_devices_config
-        from hexcal.live import open_rig
+        from hexcal.acquire.devices import load_devices_config
+        from hexcal.acquire.live import open_rig
 
         cfg = load_devices_config(self.config_path)
         live = self._stack.enter_context(open_rig(cfg))
@@ -75,8 +75,8 @@ class MockBackend(Backend):
     window_s: float = 0.25
 
     def open(self) -> Rig:
-        from hexcal.demo import hidden_robot
-        from hexcal.live import open_rig
+        from hexcal.acquire.live import open_rig
+        from hexcal.app.demo import hidden_robot
         from hexcal.mock_hw.rig import mock_rig
 
         hr = hidden_robot(self.seed, self.effect)
@@ -104,7 +104,7 @@ class InstantBackend(Backend):
     effect: str | None = "gain"
 
     def open(self) -> Rig:
-        from hexcal.demo import hidden_robot
+        from hexcal.app.demo import hidden_robot
         from hexcal.mock_hw.instant import InstantAcquisition
         from hexcal.mock_hw.motion import MockMotionController
         from hexcal.mock_hw.robot import MockRobot
@@ -119,7 +119,7 @@ class InstantBackend(Backend):
 
 
 def mock_backend(seed: int = 1, effect: str | None = None, window_s: float = 0.25) -> MockBackend:
-    from hexcal.sim_robots import left_hand
+    from hexcal.sim.robots import left_hand
 
     return MockBackend(
         left_hand(),

@@ -16,9 +16,9 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.widgets import Footer, Header, ProgressBar, RichLog, Static
 
-from hexcal.guided import GuidedError, GuidedSession
-from hexcal.nbp import Suggestion, motion_text
-from hexcal.recording import MotionError
+from hexcal.estimate.nbp import Suggestion, motion_text
+from hexcal.procedure.guided import GuidedError, GuidedSession
+from hexcal.procedure.recording import MotionError
 from hexcal.tui.app import HexcalScreen
 from hexcal.tui.prompt import TextPrompt
 

@@ -20,8 +20,8 @@ from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
-from hexcal.guided import GuidedSession
-from hexcal.procedure import Procedure
+from hexcal.procedure.guided import GuidedSession
+from hexcal.procedure.steps import Procedure
 from hexcal.tui.app import HexcalScreen
 from hexcal.tui.backend import Rig
 
@@ -35,13 +35,13 @@ def _app_state(screen: HexcalScreen) -> tuple[GuidedSession, Procedure, Rig | No
 
 def session_inputs(guided) -> Any:
     """The workflow's inputs of the guided session (its noise from the still windows)."""
-    from hexcal.workflow import session_inputs as inputs
+    from hexcal.app.workflow import session_inputs as inputs
 
     return inputs(guided.sf.session, guided.sf.path)
 
 
 class ResultScreen(HexcalScreen):
-    """The calibrated geometry with its intervals (see :func:`hexcal.report_text`)."""
+    """The calibrated geometry with its intervals (see :func:`hexcal.app.report_text`)."""
 
     BINDINGS = [
         Binding("d", "diagnose", "Diagnose"),
@@ -62,9 +62,9 @@ class ResultScreen(HexcalScreen):
 
     @work(thread=True, exclusive=True, group="compute")
     def _calibrate(self) -> None:
-        from hexcal.accuracy import accuracy_table
-        from hexcal.report_text import calibration_text
-        from hexcal.workflow import calibrate_model, check_drawing, store
+        from hexcal.app.report_text import calibration_text
+        from hexcal.app.workflow import calibrate_model, check_drawing, store
+        from hexcal.estimate.accuracy import accuracy_table
 
         guided, proc, rig = _app_state(self)
         try:
@@ -110,7 +110,7 @@ class ResultScreen(HexcalScreen):
 
 def truth_line(refinement: Any, truth: Any) -> str:
     """How a refined geometry compares with a simulated robot's truth, one line."""
-    from hexcal.demo import against_truth
+    from hexcal.app.demo import against_truth
 
     t = against_truth(refinement, truth)
     return (
@@ -123,7 +123,7 @@ def truth_line(refinement: Any, truth: Any) -> str:
 def export_text(screen: HexcalScreen) -> str:
     """Export the session next to its file, the latest model as calibrated.json; one line for
     the operator."""
-    from hexcal.workflow import export
+    from hexcal.app.workflow import export
 
     guided, _, _ = _app_state(screen)
     out = Path(guided.sf.path).with_suffix("")
@@ -177,7 +177,7 @@ class DiagnosisScreen(HexcalScreen):
 
     @work(thread=True, exclusive=True, group="compute")
     def _diagnose(self, add: tuple[str, ...]) -> None:
-        from hexcal.workflow import diagnose_chain, model_of, store
+        from hexcal.app.workflow import diagnose_chain, model_of, store
 
         guided, proc, _ = _app_state(self)
         try:

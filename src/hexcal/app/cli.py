@@ -1,0 +1,97 @@
+"""The ``hexcal`` command line: calibrate, diagnose, devices, study, simulate, demo, session,
+schema.
+
+Each command is a module of :mod:`hexcal.app.commands` (its options and what it does); this module
+builds the parser from them and runs one. Errors go to stderr with a non-zero exit status;
+``--json`` prints one JSON object on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from hexcal.app.commands import COMMANDS
+from hexcal.app.commands.common import COUNT as COUNT
+from hexcal.app.commands.common import EXIT_DRAWING as EXIT_DRAWING
+from hexcal.app.commands.common import EXIT_INPUT, EXIT_INTERNAL, EXIT_REFUSED
+from hexcal.app.commands.common import POSE_ID as POSE_ID
+from hexcal.app.commands.common import POSITIVE_COUNT as POSITIVE_COUNT
+from hexcal.app.commands.common import SECONDS as SECONDS
+from hexcal.app.commands.common import SEED as SEED
+from hexcal.app.commands.common import SIGMA as SIGMA
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from hexcal import __version__
+
+    p = argparse.ArgumentParser(
+        prog="hexcal", description="Calibrate Gough-Stewart platforms (units: mm, deg)."
+    )
+    p.add_argument("--version", action="version", version=f"hexcal {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    import os
+
+    # The problems here are small (a few hundred poses): BLAS threads cost more than they give
+    # (measured: diagnose 0.81 s with one thread, 0.91 s with two), and they oversubscribe the
+    # cores when several hexcal processes run. The user's own setting wins.
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("hexcal: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # one error path: a message and an exit status, no traceback
+        code, message = error_message(exc)
+        print(f"hexcal: {message}", file=sys.stderr)
+        if code == EXIT_INTERNAL and os.environ.get("HEXCAL_DEBUG"):
+            raise
+        return code
+
+
+def error_message(exc: BaseException) -> tuple[int, str]:
+    """(exit status, message) for an exception reaching the command line. hexcal's own errors
+    name the file, line, field or device already; library errors are put in words here, so no
+    raw library text reaches the user."""
+    import numpy as np
+
+    from hexcal.errors import HexcalError, RefusedError
+
+    if isinstance(exc, RefusedError):
+        return EXIT_REFUSED, str(exc)
+    if isinstance(exc, HexcalError):  # its message names what and says what to do
+        return EXIT_INPUT, str(exc)
+    if isinstance(exc, np.linalg.LinAlgError):
+        return EXIT_REFUSED, (
+            "the poses do not determine the geometry (the system to solve is singular); record "
+            "poses that move every leg over its stroke and change its direction, or check the "
+            "table for repeated or constant columns"
+        )
+    if isinstance(exc, (RecursionError, MemoryError)):
+        return EXIT_INPUT, (
+            f"an input is too large or too deeply nested to read ({type(exc).__name__}); check "
+            "the files given"
+        )
+    if isinstance(exc, UnicodeDecodeError):
+        return EXIT_INPUT, f"an input is not UTF-8 text (byte {exc.start}); save it as UTF-8"
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        return EXIT_INPUT, f"{where}{exc.strerror or exc}"
+    if isinstance(exc, ValueError):
+        return EXIT_INPUT, str(exc)
+    return EXIT_INTERNAL, (
+        f"internal error ({type(exc).__name__}: {exc}); this is a fault in hexcal, not in your "
+        "data: please report it with the command line (HEXCAL_DEBUG=1 shows the traceback)"
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,135 @@
+"""What the ``hexcal`` commands share: exit statuses, the option types (every number that enters
+is finite and in range), reading the workflow's inputs, the drawing check's report and the
+refusal to overwrite."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+EXIT_INPUT = 2  # bad input: a file, a field or a pose set the user must fix
+EXIT_REFUSED = 3  # the data cannot calibrate the robot: more or other poses are needed
+EXIT_DRAWING = 4  # the calibration fits but does not match the drawing (swapped legs, …)
+EXIT_INTERNAL = 1  # a fault of hexcal's own: the message says how to report it
+
+
+# -- option types: every number that enters is finite and in range ---------------------------
+def number(kind: type, lo: float | None = None, hi: float | None = None, lo_open: bool = False):
+    """An argparse type: ``kind`` (int or float), finite, within [lo, hi] (lo excluded when
+    ``lo_open``), with a message naming the allowed range."""
+    import math
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not {'an integer' if kind is int else 'a number'}"
+            ) from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{text!r} is not finite")
+        below = lo is not None and (v <= lo if lo_open else v < lo)
+        if below or (hi is not None and v > hi):
+            left = "(" if lo_open else "["
+            raise argparse.ArgumentTypeError(f"{text} is outside {left}{lo:g}, {hi:g}]")
+        return v
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+COUNT = number(int, 0, 100_000)  # poses or trials
+POSITIVE_COUNT = number(int, 1, 100_000)
+SEED = number(int, 0, 2**32 - 1)
+SIGMA = number(float, 0.0, 1000.0)
+SECONDS = number(float, 0.0, 60.0, lo_open=True)
+POSE_ID = number(int, 0, 2**53)
+
+
+def read_inputs(args: argparse.Namespace):
+    """The workflow's inputs from the command's files; a calibrated.json given as --robot
+    brings its effects (said on stderr)."""
+    from hexcal.app.workflow import read_inputs as read_workflow_inputs
+
+    inp = read_workflow_inputs(args.measurements, args.robot, args.instruments)
+    for text in inp.notices:
+        print(f"hexcal: {text}", file=sys.stderr)
+    if getattr(args, "exclude_poses", None):
+        inp = inp.without(args.exclude_poses)
+    if inp.model_effects and not getattr(args, "json", False):
+        print(
+            f"hexcal: {args.robot} is a calibrated model: its effects "
+            f"({', '.join(inp.model_effects)}) are part of the model",
+            file=sys.stderr,
+        )
+    return inp
+
+
+def drawing_mismatch(args: argparse.Namespace, inp, cal) -> list[str]:
+    """The calibration against the drawing (none with --no-drawing-check)."""
+    from hexcal.app.workflow import check_drawing
+
+    if args.no_drawing_check:
+        return []
+    return check_drawing(inp, cal, args.drawing_tolerance)
+
+
+def report_mismatch(mismatch: list[str], args: argparse.Namespace) -> int:
+    """0 when the calibration matches the drawing, else the mismatch on stderr and
+    :data:`EXIT_DRAWING`."""
+    if not mismatch:
+        return 0
+    lines = "\n".join(f"  {m}" for m in mismatch)
+    unwritten = f"; {args.out} was not written" if getattr(args, "out", None) else ""
+    print(
+        f"hexcal: the calibration fits the data but does not match the drawing{unwritten}:\n"
+        f"{lines}\nfix the cause and calibrate again; if the drawing itself is wrong, "
+        "--drawing-tolerance or --no-drawing-check",
+        file=sys.stderr,
+    )
+    return EXIT_DRAWING
+
+
+def jsonable(o):
+    """``json.dumps``'s ``default``: a non-finite float as null."""
+    import math
+
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    raise TypeError(f"not JSON: {type(o).__name__}")
+
+
+def refuse_existing(directory: Path, names: list[str], force: bool) -> None:
+    """An output directory whose files would be replaced needs --force."""
+    there = [n for n in names if (Path(directory) / n).exists()]
+    if there and not force:
+        raise ValueError(
+            f"{directory}: already holds {', '.join(there)}; pass --force to replace them, or "
+            "choose another --out"
+        )
+
+
+def add_pose_selection(p: argparse.ArgumentParser) -> None:
+    """The options calibrate and diagnose share for which poses count and how the result is
+    checked against the drawing: --exclude-poses, --drawing-tolerance, --no-drawing-check."""
+    p.add_argument(
+        "--exclude-poses",
+        nargs="+",
+        type=POSE_ID,
+        metavar="ID",
+        help="leave these pose ids out (e.g. the gross outliers hexcal names)",
+    )
+    p.add_argument(
+        "--drawing-tolerance",
+        type=number(float, 0.0, 10.0, lo_open=True),
+        default=0.10,
+        help="how far a fitted point may lie from its design point, as a fraction of the "
+        "design radius (default 0.10); a leg beyond it, or nearer another leg's design, stops "
+        "with exit status 4",
+    )
+    p.add_argument(
+        "--no-drawing-check",
+        action="store_true",
+        help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
+    )

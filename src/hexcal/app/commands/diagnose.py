@@ -1,0 +1,142 @@
+"""``hexcal diagnose``: compare the model with the measurements and find the missing effect."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hexcal.app.commands.common import add_pose_selection, jsonable, read_inputs, report_mismatch
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``diagnose`` command and its options."""
+    d = sub.add_parser(
+        "diagnose", help="compare the model with the measurements and find the missing effect"
+    )
+    d.add_argument(
+        "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"
+    )
+    d.add_argument("--robot", type=Path, help="robot.json (a session file carries its own)")
+    d.add_argument("--model", type=int, choices=(36, 42), default=42)
+    d.add_argument(
+        "--instruments", type=Path, help="instruments.json: the noise that sets the floor"
+    )
+    d.add_argument(
+        "--add", nargs="+", metavar="EFFECT", help="catalogue effects already in the model"
+    )
+    d.add_argument(
+        "--auto",
+        action="store_true",
+        help="add the named effect and go on until the verdict is none",
+    )
+    d.add_argument("--json", action="store_true", help="print one JSON object")
+    d.add_argument("--plots", help="directory for the residual plots (PNG)")
+    d.add_argument("--report", help="write one self-contained HTML report here")
+    d.add_argument(
+        "--residuals", help="write predicted against measured for every pose and leg (CSV)"
+    )
+    d.add_argument(
+        "--out",
+        type=Path,
+        help="write the last step's calibrated model here (calibrated.json, with its effects)",
+    )
+    d.add_argument("--force", action="store_true", help="replace an existing --out file")
+    d.add_argument(
+        "--exclude-at-limits",
+        action="store_true",
+        help="leave out the poses with a leg at the end of its stroke or a joint at its limit",
+    )
+    add_pose_selection(d)
+    d.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from hexcal.app.workflow import diagnose_chain, model_of, refuse_overwrite, save_result
+    from hexcal.diagnosis.text import before_after_text, diagnosis_text
+
+    inp = read_inputs(args)
+    for out_path in (args.out, args.residuals, args.report):
+        if out_path:
+            refuse_overwrite(Path(out_path), inp, force=True)
+    if args.out:
+        refuse_overwrite(args.out, inp, args.force)
+    from hexcal.diagnosis.limits import at_limits
+
+    sigma = None if inp.instruments is None else inp.instruments.sigma_reading_mm
+    limits = at_limits(inp.meas, inp.design, sigma)
+    limit_lines = limits.lines(inp.meas)
+    limits_json = limits.to_dict(inp.meas)
+    if args.exclude_at_limits and limits.rows:
+        inp = inp.without([int(inp.meas.pose_id[r]) for r in limits.rows])
+    steps = diagnose_chain(inp, args.model, add=tuple(args.add or ()), auto=args.auto)
+    result = model_of(inp, steps, args.model) if args.out else None
+    mismatch = []
+    if not args.no_drawing_check:
+        from hexcal.estimate.sanity import check_against_drawing
+
+        ref = steps[0].fit.refinement
+        found = check_against_drawing(ref.a, ref.b, inp.design, args.drawing_tolerance)
+        mismatch = [f.text for f in found]
+    if result is not None and not mismatch:
+        save_result(result, args.out, inp, args.force)
+    if args.plots:
+        from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
+
+        out = Path(args.plots)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = write_plots(steps[-1], out)
+        paths.append(pose_error_map(steps, out))
+        for i in range(1, len(steps)):
+            paths.append(before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png"))
+    if args.residuals:
+        from hexcal.io.fileio import write_text_atomic
+
+        write_text_atomic(args.residuals, steps[-1].residual_table())
+    if args.report:
+        from hexcal.diagnosis.report import write_report
+
+        write_report(steps, Path(args.report), dict(inp.files), limits=limit_lines)
+    if args.json:
+        out = steps[-1].to_dict()
+        if len(steps) > 1:
+            out["steps"] = [
+                {
+                    "model": d.fit.model_name,
+                    "effects": list(d.effects),
+                    "cv_rms_mm": d.fit.cv_rms_mm,
+                    "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
+                    "noise_floor_mm": d.noise_floor_mm,
+                    "verdict": d.verdict,
+                    "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
+                }
+                for d in steps
+            ]
+        out["at_limits"] = limits_json
+        out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
+        if result is not None:
+            out["written"] = {"path": str(args.out), "model": result.name}
+        print(json.dumps(out, indent=2, default=jsonable))
+    else:
+        if limit_lines:
+            left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""
+            print(f"poses at the end of a leg's stroke or a joint's limit{left}:")
+            print("\n".join(f"  {line}" for line in limit_lines))
+            if not args.exclude_at_limits:
+                print(
+                    "  a leg against its end stop does not follow the model: give leg_range_mm in "
+                    "robot.json, or leave these poses out with --exclude-at-limits"
+                )
+            print()
+        for d in steps:
+            print(diagnosis_text(d, inp.label))
+            print()
+        print(before_after_text(steps))
+        if args.plots:
+            print(f"plots written to {args.plots}/")
+        if args.report:
+            print(f"report written to {args.report}")
+        if result is not None and not mismatch:
+            print(f"calibrated model ({result.name}) written to {args.out}")
+    return report_mismatch(mismatch, args)

@@ -1,0 +1,82 @@
+"""``hexcal run``: the operator's text UI (guided clamping and recording, result, diagnosis, export)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from hexcal.app.commands.common import COUNT, POSITIVE_COUNT, SECONDS, SEED
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``run`` command and its options."""
+    rn = sub.add_parser(
+        "run",
+        help="the operator's text UI: guided clamping and recording, result, diagnosis, export",
+    )
+    rn.add_argument("--mock", action="store_true", help="simulated devices (no hardware)")
+    rn.add_argument("--config", type=Path, help="the rig's device configuration (TOML)")
+    rn.add_argument("--robot", type=Path, help="the robot's design, robot.json")
+    rn.add_argument("--session", type=Path, help="session file to propose (new or to resume)")
+    rn.add_argument(
+        "--procedure",
+        default="model42-direction-length",
+        choices=["model42-direction-length", "model36-direction", "free-validation"],
+    )
+    rn.add_argument(
+        "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"
+    )
+    rn.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
+    rn.add_argument("--seed", type=SEED, default=1, help="--mock: the simulated robot")
+    rn.add_argument(
+        "--effect",
+        choices=["gain", "backlash", "leadscrew"],
+        help="--mock: the effect the robot hides (default: drawn by the seed)",
+    )
+    rn.add_argument("--window-s", type=SECONDS, default=0.25, help="--mock: still window, s")
+    rn.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from hexcal.tui.app import HexcalApp
+    from hexcal.tui.backend import MockBackend, RealBackend, mock_backend
+
+    backend: MockBackend | RealBackend
+    if args.mock:
+        backend = mock_backend(args.seed, args.effect, args.window_s)
+        if args.robot:
+            raise SystemExit("hexcal run: --robot goes with --config (the mock rig has its own)")
+    else:
+        if not args.config:
+            print(
+                "hexcal run: give the rig's device configuration (--config rig.toml, see "
+                "`hexcal devices check`) and its design (--robot robot.json), or --mock to run "
+                "on simulated hardware",
+                file=sys.stderr,
+            )
+            return 2
+        from hexcal.acquire.devices import load_devices_config
+        from hexcal.estimate.model_file import load_robot
+
+        load_devices_config(args.config)  # refuse a bad file before the UI starts
+        if not args.robot:
+            # A real rig is never the paper's robot: calibrating against the wrong drawing
+            # would start from centimetres off, and nothing would say so.
+            print(
+                "hexcal run: a real rig needs its design: --robot robot.json (the drawing's "
+                "attachment points and leg offsets; the format is in docs/formats.md)",
+                file=sys.stderr,
+            )
+            return 2
+        design = load_robot(args.robot)
+        backend = RealBackend(design, f"rig from {args.config}", config_path=args.config)
+    app = HexcalApp(
+        backend,
+        session_path=args.session,
+        procedure=args.procedure,
+        poses_per_step=args.poses_per_step,
+        free_poses=args.free_poses,
+    )
+    app.run()
+    return 0

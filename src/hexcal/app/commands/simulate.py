@@ -1,0 +1,97 @@
+"""``hexcal simulate``: write a simulated session (robot, measurements, instruments, truth)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hexcal.app.commands.common import COUNT, SEED, SIGMA, number, refuse_existing
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``simulate`` command and its options."""
+    m = sub.add_parser(
+        "simulate", help="write a simulated session (robot, measurements, instruments, truth)"
+    )
+    m.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="directory for robot.json, measurements.csv, instruments.json, truth.json",
+    )
+    m.add_argument("--force", action="store_true", help="replace those files if they exist")
+    m.add_argument("--robot", type=Path, help="design robot.json (default: the paper's Left Hand)")
+    m.add_argument(
+        "--seed", type=SEED, default=1, help="draws the robot: its true geometry and hidden effect"
+    )
+    m.add_argument(
+        "--pose-seed",
+        type=SEED,
+        help="draws the poses and the noise (default: --seed); another value with the same "
+        "--seed is a second session of the same robot, to validate a calibration on",
+    )
+    m.add_argument("--n-type-i", type=COUNT, default=8)
+    m.add_argument("--n-type-ii", type=COUNT, default=8)
+    m.add_argument("--n-type-iii", type=COUNT, default=8)
+    m.add_argument("--n-free", type=COUNT, default=40)
+    m.add_argument("--sigma-p-mm", type=SIGMA, default=0.01)
+    m.add_argument("--sigma-a-deg", type=SIGMA, default=0.002)
+    m.add_argument("--sigma-l-mm", type=SIGMA, default=0.002)
+    m.add_argument(
+        "--effect",
+        choices=("offset", "gain", "backlash", "thermal", "compliance", "leadscrew"),
+        help="hide this catalogue effect at a realistic size",
+    )
+    m.add_argument(
+        "--effect-scale",
+        type=number(float, 0.0, 100.0),
+        default=1.0,
+        help="multiply the effect's size (0.3: near detection)",
+    )
+    m.add_argument(
+        "--mass-kg",
+        type=number(float, 0.0, 1e6, lo_open=True),
+        help="platform mass written to robot.json (compliance needs it)",
+    )
+    m.add_argument(
+        "--temperature-rise-k",
+        type=number(float, -100.0, 100.0),
+        default=1.5,
+        help="structure temperature rise over the session, K",
+    )
+    m.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from hexcal.estimate.model_file import load_robot
+    from hexcal.sim.robots import left_hand
+    from hexcal.sim.session_sim import SessionPlan, write_session_dir
+    from hexcal.sim.simulate import NoiseModel
+
+    design = load_robot(args.robot) if args.robot else left_hand()
+    if args.mass_kg is not None:
+        design = design.model_copy(update={"platform_mass_kg": args.mass_kg})
+    plan = SessionPlan(
+        n_type_i=args.n_type_i,
+        n_type_ii=args.n_type_ii,
+        n_type_iii=args.n_type_iii,
+        n_free=args.n_free,
+        noise=NoiseModel(args.sigma_p_mm, args.sigma_a_deg, args.sigma_l_mm),
+        temperature_rise_k=args.temperature_rise_k,
+    )
+    if args.effect == "compliance" and not design.platform_mass_kg:
+        raise ValueError(
+            "--effect compliance needs the platform mass: pass --mass-kg (or a robot.json with platform_mass_kg)"
+        )
+    names = ["robot.json", "measurements.csv", "instruments.json", "truth.json"]
+    refuse_existing(args.out, names, args.force)
+    if args.robot and Path(args.robot).resolve() == (Path(args.out) / "robot.json").resolve():
+        raise ValueError(f"{args.robot}: this is the robot input; choose another --out")
+    out = write_session_dir(
+        args.out, design, args.seed, plan, args.effect, args.effect_scale, args.pose_seed
+    )
+    hidden = f", hidden effect: {args.effect}" if args.effect else ""
+    print(
+        f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json{hidden})"
+    )
+    return 0

@@ -1,0 +1,72 @@
+"""``hexcal validate``: a model on poses it was not fitted on."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hexcal.app.commands.common import jsonable
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``validate`` command and its options."""
+    v = sub.add_parser(
+        "validate",
+        help="a model on poses it was not fitted on: leg-length residual, pose error, verdict",
+    )
+    v.add_argument(
+        "model", type=Path, help="calibrated.json, or a plain robot.json (e.g. the drawing)"
+    )
+    v.add_argument(
+        "measurements", type=Path, help="measurements.csv or a session file of other poses"
+    )
+    v.add_argument(
+        "--instruments",
+        type=Path,
+        help="instruments.json: the noise of these poses (default: a session file's own, else "
+        "the model's, else estimated from the poses and said so)",
+    )
+    v.add_argument("--json", action="store_true", help="print one JSON object")
+    v.add_argument(
+        "--rehome",
+        action="store_true",
+        help="also re-estimate the six offsets alone on these poses (after the encoders were "
+        "homed again) and report that beside the plain figure",
+    )
+    v.set_defaults(func=run, robot=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from hexcal.app.workflow import read_inputs
+    from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, load_model, model_label
+    from hexcal.estimate.model_validation import validate_model
+
+    loaded = load_model(args.model)
+    model = leg_model_of(loaded)
+    # The robot of the table is the model's own (a session file's design is not used).
+    inp = read_inputs(args.measurements, args.model, args.instruments)
+    sig, source = inp.sigmas, inp.noise_source
+    if args.instruments is None and isinstance(loaded, CalibratedRobot):
+        from hexcal.procedure.session import looks_like_session
+
+        noise = loaded.calibration.noise
+        if noise is not None and not looks_like_session(args.measurements):
+            from hexcal.model.noise import NoiseSigmas
+
+            sig = NoiseSigmas.from_instruments(noise)
+            source = f"the model's own ({args.model}: {loaded.calibration.noise_source})"
+    v = validate_model(model, model_label(loaded), inp.meas, sig, source)
+    if args.rehome:
+        from hexcal.estimate.model_validation import estimated_noise, rehome
+
+        sig_r = sig if sig is not None else estimated_noise(model, inp.meas)[0]
+        moved, shift = rehome(model, inp.meas, sig_r)
+        v.rehomed = validate_model(moved, f"{v.model} re-homed", inp.meas, sig_r, source)
+        v.offset_shift_mm = shift
+    if args.json:
+        print(json.dumps(v.to_dict(), indent=2, default=jsonable))
+    else:
+        print(v.text(inp.label))
+    return 0

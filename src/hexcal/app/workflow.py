@@ -1,0 +1,494 @@
+"""The calibration workflow, one layer under the command line, the demo and the text UI.
+
+session or files → noise → calibrate → diagnose → add an effect → store → export. Every front
+end calls these functions and only formats what they return; nothing here prints or draws.
+
+- :func:`read_inputs` / :func:`session_inputs`: the measurement table, the design robot, the
+  noise (stated, from the session's recorded still windows, or to be estimated) and the input
+  files (for provenance). A calibrated.json given as the robot brings its effects along.
+- :func:`calibrate_model`: the calibration with its effects (clamp rows included), its pose
+  accuracy on held-out poses beside the drawing's, and the calibrated model file.
+- :func:`diagnose_chain`: the diagnosis, and with ``auto`` the named effect added until nothing
+  identifiable is missing; :func:`model_of` turns any step into a calibrated model.
+- :func:`store`: the model (geometry and effects) of a calibration or diagnosis step into the
+  session file; :func:`export` writes the session's latest model as calibrated.json.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hexcal.errors import RefusedError
+from hexcal.estimate.accuracy import PoseAccuracy
+from hexcal.estimate.calibrate import Calibration, calibrate
+from hexcal.estimate.model_file import (
+    CalibratedRobot,
+    CalibrationBlock,
+    FitRecord,
+    Provenance,
+    effect_records,
+    input_records,
+    load_model,
+    save_model,
+)
+from hexcal.estimate.refine import FitStalled
+from hexcal.estimate.solvers.whole_robot import Form
+from hexcal.io.measurements import Measurements
+from hexcal.io.measurements_csv import read_measurements
+from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas
+from hexcal.model.robot import Robot
+
+#: The most effects ``diagnose --auto`` adds before it stops.
+MAX_AUTO_STEPS = 8
+
+
+@dataclass
+class Inputs:
+    """What a calibration reads: the table ``meas``, the ``design`` robot, the ``instruments``'
+    noise (None: estimated from the residual), where the noise came from, a label for reports,
+    the input files by role (for provenance and so that no output overwrites one), and the
+    effects of a calibrated model given as the robot (its model, to start from)."""
+
+    meas: Measurements
+    design: Robot
+    instruments: Instruments | None
+    noise_source: str
+    label: str
+    files: dict[str, Path] = field(default_factory=dict)
+    model_effects: tuple[str, ...] = ()
+    #: What reading did that the user must hear (poses set aside on load, …)
+    notices: list[str] = field(default_factory=list)
+
+    @property
+    def sigmas(self) -> NoiseSigmas | None:
+        return None if self.instruments is None else NoiseSigmas.from_instruments(self.instruments)
+
+    def without(self, pose_ids: Sequence[int]) -> Inputs:
+        """The same inputs with the poses ``pose_ids`` left out (an unknown id is refused)."""
+        ids = {int(i) for i in pose_ids}
+        known = set(self.meas.pose_id.tolist())
+        unknown = sorted(ids - known)
+        if unknown:
+            raise ValueError(
+                f"{self.label}: no pose with id {', '.join(map(str, unknown))} to exclude"
+            )
+        keep = ~np.isin(self.meas.pose_id, sorted(ids))
+        meas = self.meas.subset(keep)
+        label = f"{self.label.rsplit(' (', 1)[0]} ({len(meas)} poses; {len(ids)} excluded)"
+        return replace(self, meas=meas, label=label)
+
+
+class FitFailed(RefusedError, ValueError):
+    """The refinement did not converge: the message names the poses pulling it."""
+
+
+def pose_names(meas: Measurements, rows: Iterable[int]) -> str:
+    """'pose 40 (step leg2-length, t 536.3 s), …' for 0-based rows."""
+    return ", ".join(
+        f"pose {int(meas.pose_id[i])} (step {meas.step[i]}, t {float(meas.t[i]):g} s)" for i in rows
+    )
+
+
+def screen_outliers(inp: Inputs) -> None:
+    """Refuse gross outlier poses before any fit (:func:`hexcal.estimate.sanity.gross_outliers`): a typo
+    or a pose taken mid-move would otherwise pull the geometry off by metres."""
+    from hexcal.estimate.sanity import gross_outliers, outlier_message
+
+    found = gross_outliers(inp.meas, inp.design)
+    if found:
+        raise ValueError(outlier_message(found, inp.label))
+
+
+def _stall_message(inp: Inputs, exc: Exception) -> FitFailed:
+    rows = getattr(exc, "rows", [])
+    pulling = f"; the poses pulling it: {pose_names(inp.meas, rows)}" if rows else ""
+    return FitFailed(
+        f"{inp.label}: the calibration did not converge ({exc}){pulling}. Check those poses "
+        "(a typo, a pose taken mid-move, a swapped column), leave them out with "
+        "--exclude-poses, or check the robot description"
+    )
+
+
+def check_drawing(inp: Inputs, cal: Calibration, tolerance: float | None = None) -> list[str]:
+    """The calibration against the drawing (:func:`hexcal.estimate.sanity.check_against_drawing`): one
+    line per leg that does not match, with the poses that pull it most; empty when it does."""
+    from hexcal.estimate.sanity import DRAWING_TOLERANCE, check_against_drawing
+
+    tol = DRAWING_TOLERANCE if tolerance is None else tolerance
+    found = check_against_drawing(cal.robot.a, cal.robot.b, inp.design, tol)
+    lines = []
+    for f in found:
+        worst = np.argsort(-np.abs(cal.residuals[:, f.legs[0] - 1]))[:3]
+        lines.append(
+            f"{f.text}; the poses that pull leg {f.legs[0]} most: {pose_names(inp.meas, worst)}"
+        )
+    return lines
+
+
+def read_inputs(
+    measurements: Path, robot: Path | None = None, instruments: Path | None = None
+) -> Inputs:
+    """Inputs from a measurements.csv (needs ``robot``) or a session file (carries its own
+    robot and, once recorded, its noise); ``robot`` may be a calibrated.json, whose effects
+    become :attr:`Inputs.model_effects`."""
+    from hexcal.procedure.session import load_session, looks_like_session
+
+    files: dict[str, Path] = {"measurements": Path(measurements)}
+    effects: tuple[str, ...] = ()
+    design: Robot | None = None
+    if robot is not None:
+        files["robot"] = Path(robot)
+        loaded = load_model(robot)
+        if isinstance(loaded, CalibratedRobot):
+            effects = tuple(e.name for e in loaded.calibration.effects)
+            design = loaded.plain_robot()
+        else:
+            design = loaded
+    inst, source = None, "estimated from the residual"
+    if instruments is not None:
+        files["instruments"] = Path(instruments)
+        inst, source = load_instruments(instruments), f"stated in {instruments}"
+    notices: list[str] = []
+    if looks_like_session(measurements):
+        session = load_session(measurements, notices)
+        meas = session.measurements()
+        design = design or session.robot
+        if inst is None and session.instruments is not None:
+            inst = session.instruments
+            how = getattr(session.instruments, "source", None) or "the session's noise"
+            source = f"from {measurements}: {how}"
+    else:
+        if design is None:
+            raise ValueError(
+                f"{measurements}: a measurement table needs the robot description: pass "
+                "--robot robot.json (a session file carries its own)"
+            )
+        meas = read_measurements(measurements)
+    label = f"{measurements} ({len(meas)} poses)"
+    return Inputs(meas, design, inst, source, label, files, effects, notices)
+
+
+def session_instruments(session: Any) -> Instruments | None:
+    """The noise of a recorded session's poses, from the scatter in their still windows
+    (None when the poses carry no raw samples, e.g. an imported table)."""
+    from hexcal.procedure.guided import pose_from_record
+    from hexcal.procedure.recording import window_instruments
+
+    return window_instruments([pose_from_record(r) for r in session.poses])
+
+
+def session_inputs(session: Any, path: Path | str) -> Inputs:
+    """Inputs of a session being recorded (the text UI, the demo): its table, its design and
+    the noise of its own still windows."""
+    meas = session.measurements()
+    inst = session_instruments(session)
+    if inst is None:
+        source = "estimated from the residual"
+    else:
+        source = inst.stated_source() or "estimated from the still windows of the recorded poses"
+    return Inputs(
+        meas,
+        session.robot,
+        inst,
+        source,
+        f"{path} ({len(meas)} poses)",
+        {"session": Path(path)},
+    )
+
+
+def procedure_steps(proc: Any, poses_per_step: int | None, free_poses: int | None) -> list:
+    """The procedure's steps with the operator's pose counts: ``poses_per_step`` for clamped
+    steps, ``free_poses`` for free ones (None: the procedure's recommended counts), never below
+    a step's minimum; steps at home keep theirs."""
+
+    def count(s: Any) -> int:
+        if s.at_home:
+            return int(s.n_poses)
+        n = free_poses if s.leg == 0 else poses_per_step
+        return max(int(n), int(s.min_poses)) if n else int(s.n_poses)
+
+    return [replace(s, n_poses=count(s)) for s in proc.expand()]
+
+
+# -- calibration ------------------------------------------------------------------------------
+@dataclass
+class ModelResult:
+    """A calibrated model: the ``calibration`` (clamp rows included), its pose ``accuracy``
+    (the drawing on every pose, then each model on held-out poses, the last one this model's),
+    and the calibrated model ``file``."""
+
+    calibration: Calibration
+    accuracy: list[PoseAccuracy]
+    file: CalibratedRobot
+
+    @property
+    def name(self) -> str:
+        return self.calibration.model_name
+
+
+def _floor_sigmas(inp: Inputs, chi2_per_dof: float) -> NoiseSigmas:
+    """The noise that sets the pose-error floor: the stated one, or the typical tracker and
+    encoder scaled to the fit's residual."""
+    if inp.sigmas is not None:
+        return inp.sigmas
+    s = float(np.sqrt(max(chi2_per_dof, 0.0)))
+    d = DEFAULT_SIGMAS
+    return NoiseSigmas(s * d.position_mm, s * d.orientation_rad, s * d.reading_mm)
+
+
+def _noise_record(inp: Inputs, cal: Calibration) -> tuple[Instruments | None, str]:
+    if inp.instruments is not None:
+        return inp.instruments, inp.noise_source
+    r = cal.refinement
+    if r is None:
+        return None, "not known (linear methods only)"
+    sig = _floor_sigmas(inp, r.chi2 / r.dof)
+    if not (sig.position_mm <= 1000.0 and np.degrees(sig.orientation_rad) <= 180.0):
+        return None, "estimated from the residual, beyond any instrument's noise: not recorded"
+    source = "estimated from the residual (a typical tracker and encoder, scaled to χ²/dof)"
+    inst = Instruments(
+        tracker=TrackerNoise(
+            position_sigma_mm=sig.position_mm,
+            orientation_sigma_deg=float(np.degrees(sig.orientation_rad)),
+        ),
+        encoders=EncoderNoise(reading_sigma_mm=sig.reading_mm),
+        source=source,
+    )
+    return inst, source
+
+
+def build_file(
+    inp: Inputs,
+    cal: Calibration,
+    accuracy: list[PoseAccuracy],
+    heldout_rms_mm: float | None,
+    noise_floor_mm: float | None,
+) -> CalibratedRobot:
+    """The calibrated model file of a calibration (see :mod:`hexcal.estimate.model_file`)."""
+    r = cal.refinement
+    model = cal.leg_model()
+    noise, source = _noise_record(inp, cal)
+    name = cal.model_name
+    if cal.session_effects:
+        shipped = f"Model {cal.model}" + model.name
+        name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
+    block = CalibrationBlock(
+        model=name,
+        kind=cal.model,
+        effects=effect_records(model, cal.sigmas()),
+        noise=noise,
+        noise_source=source,
+        fit=FitRecord(
+            poses=len(inp.meas),
+            chi2_per_dof=None if r is None else float(r.chi2 / r.dof),
+            rms_mm=cal.rms_mm,
+            heldout_rms_mm=heldout_rms_mm,
+            noise_floor_mm=noise_floor_mm,
+            clamps=None if cal.clamp_check is None else cal.clamp_check.text,
+        ),
+        accuracy=[_record(a) for a in accuracy],
+        provenance=Provenance(poses=len(inp.meas), inputs=input_records(dict(inp.files))),
+    )
+    data = cal.robot.model_dump(exclude_none=True)
+    data.pop("calibration", None)
+    data["name"] = f"{inp.design.name}-calibrated"
+    data["calibration"] = block
+    return CalibratedRobot.model_validate(data)
+
+
+def _record(a: PoseAccuracy):
+    from hexcal.estimate.model_file import AccuracyRecord
+
+    d = a.to_dict()
+    return AccuracyRecord.model_validate(
+        {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()}
+    )
+
+
+def calibrate_model(
+    inp: Inputs,
+    model: int = 42,
+    effects: Sequence[str] = (),
+    clamps: bool = True,
+    form: Form = "paper",
+    do_refine: bool = True,
+) -> ModelResult:
+    """Calibrate Model ``model`` with ``effects`` (and the model file's own, when the robot
+    given was a calibrated.json), then measure its pose accuracy on held-out poses against the
+    drawing's and, with effects, the geometry alone."""
+    from hexcal.estimate.effect_fit import (
+        Problem,
+        design_accuracy,
+        fit_model,
+        heldout_accuracy,
+        noise_floor,
+    )
+
+    effects = tuple(dict.fromkeys((*inp.model_effects, *effects)))
+    screen_outliers(inp)
+    try:
+        cal = calibrate(
+            inp.meas,
+            inp.design,
+            model=model,
+            instruments=inp.instruments,
+            form=form,
+            do_refine=do_refine,
+            effects=effects,
+            clamps=clamps,
+        )
+    except FitStalled as exc:
+        raise _stall_message(inp, exc) from None
+    problem = Problem.build(inp.meas, inp.design, inp.sigmas)
+    base = ("offset",) if model == 42 else ()
+    chain = [base] if not cal.effects else [base, (*base, *cal.effects)]
+    try:
+        fits = [fit_model(problem, c) for c in chain]
+    except FitStalled as exc:
+        raise _stall_message(inp, exc) from None
+    r = cal.refinement
+    sig = _floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
+    # Without stated noise the only level is the fit's own residual: a floor from it would put
+    # every model at its floor by construction, so none is shown.
+    floor_sig = sig if inp.sigmas is not None else None
+    accuracy = [design_accuracy(problem, floor_sig)] + [
+        heldout_accuracy(problem, f, floor_sig) for f in fits
+    ]
+    floor = None
+    if inp.sigmas is not None:
+        floor = float(np.sqrt(np.mean(noise_floor(problem, fits[-1]) ** 2)))
+    file = build_file(inp, cal, accuracy, fits[-1].cv_rms_mm, floor)
+    return ModelResult(cal, accuracy, file)
+
+
+# -- diagnosis --------------------------------------------------------------------------------
+def diagnose_chain(
+    inp: Inputs,
+    model: int = 42,
+    add: Sequence[str] = (),
+    auto: bool = False,
+    on_step: Callable[[Any], None] | None = None,
+    previous: Any = None,
+) -> list:
+    """Diagnose Model ``model`` + ``add`` (and the model file's effects); with ``auto``, add
+    the named effect and diagnose again until the verdict is ``none`` or ``unexplained`` (at
+    most :data:`MAX_AUTO_STEPS`). ``previous``: an earlier diagnosis of the same inputs, whose
+    precomputed problem is reused. ``on_step`` is called with each diagnosis as it is done."""
+    from hexcal.diagnosis import diagnose
+
+    added = list(dict.fromkeys((*inp.model_effects, *add)))
+    problem = None if previous is None else previous.problem
+    if previous is None:
+        screen_outliers(inp)
+    steps = []
+    while True:
+        try:
+            d = diagnose(
+                inp.meas,
+                inp.design,
+                model,
+                add=list(added),
+                instruments=inp.instruments,
+                problem=problem,
+            )
+        except FitStalled as exc:
+            raise _stall_message(inp, exc) from None
+        problem = d.problem
+        steps.append(d)
+        if on_step is not None:
+            on_step(d)
+        if not auto or d.verdict in ("none", "unexplained") or len(steps) >= MAX_AUTO_STEPS:
+            return steps
+        added.append(d.verdict)
+
+
+def model_of(
+    inp: Inputs, chain: Sequence[Any], model: int = 42, clamps: bool = True
+) -> ModelResult:
+    """The calibrated model of a diagnosis chain's last step: calibrated with its effects
+    (clamp rows included); the pose accuracy of every step, from the diagnoses' own held-out
+    folds, after the drawing's."""
+    last = chain[-1]
+    effects = tuple(e for e in last.effects if e != "offset")
+    outliers = getattr(last, "outlier_ids", [])
+    if outliers:  # the diagnosis set them aside: the model is calibrated without them too
+        inp = inp.without(outliers)
+    try:
+        cal = calibrate(
+            inp.meas,
+            inp.design,
+            model=model,
+            instruments=inp.instruments,
+            effects=effects,
+            clamps=clamps,
+        )
+    except FitStalled as exc:
+        raise _stall_message(inp, exc) from None
+    accuracy = [last.design_accuracy] + [d.accuracy for d in chain]
+    floor = last.noise_floor_mm if last.problem.sigmas is not None else None
+    file = build_file(inp, cal, accuracy, last.fit.cv_rms_mm, floor)
+    return ModelResult(cal, accuracy, file)
+
+
+# -- session and files ------------------------------------------------------------------------
+def result_record(
+    kind: str, result: ModelResult, meas: Measurements, summary: dict | None = None
+) -> Any:
+    """A session ``results`` entry holding the whole model (geometry and effects)."""
+    from hexcal.procedure.session import ResultRecord
+
+    cal = result.calibration
+    base = {
+        "model": result.name,
+        "rms_mm": cal.rms_mm,
+        "pose_accuracy": [_record(a).model_dump() for a in result.accuracy],
+    }
+    return ResultRecord(
+        kind=kind,
+        model=cal.model,
+        effects=list(cal.effects),
+        pose_ids=[int(i) for i in meas.pose_id],
+        robot=cal.robot,
+        calibrated=result.file,
+        summary=base | (summary or {}),
+    )
+
+
+def store(
+    sf: Any, kind: str, result: ModelResult, meas: Measurements, summary: dict | None = None
+) -> None:
+    """Keep a calibration or diagnosis step's model in the session file (saved at once)."""
+    sf.add_result(result_record(kind, result, meas, summary))
+
+
+def refuse_overwrite(out: Path, inp: Inputs, force: bool = False) -> None:
+    """An output path that is one of the inputs is refused; an existing file needs ``force``."""
+    out_r = Path(out).resolve()
+    for role, p in inp.files.items():
+        if Path(p).resolve() == out_r:
+            raise ValueError(f"{out}: this is the {role} input; write the output to another file")
+    if Path(out).exists() and not force:
+        raise ValueError(
+            f"{out}: the file exists; pass --force to replace it, or choose another name"
+        )
+
+
+def save_result(result: ModelResult, out: Path, inp: Inputs, force: bool = False) -> None:
+    """Write the calibrated model file, never over an input (nor an existing file unless
+    ``force``)."""
+    refuse_overwrite(out, inp, force)
+    save_model(result.file, out)
+
+
+def export(session: Any, out: Path | str) -> list[str]:
+    """The session as plain files (measurements.csv, robot.json and the latest model as
+    calibrated.json, see :func:`hexcal.procedure.session.export_session`)."""
+    from hexcal.procedure.session import export_session
+
+    return export_session(session, out)

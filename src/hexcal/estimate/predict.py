@@ -1,0 +1,344 @@
+"""A calibrated robot as a predictor: readings → pose and pose → readings, effects included.
+
+The model is the one the fit uses: the geometric length of leg k, ``|P + R b_k − a_k|``, equals
+``ρ_k + offset_k + Σ basis(data) @ θ`` — the reading, its offset and every catalogue effect
+(gain, backlash with the motion history, thermal with the temperature, compliance with the leg
+forces at the pose, lead screw). So:
+
+- **readings → pose** (what the platform does when the encoders read ρ): the pose whose legs have
+  those lengths. The effects that depend on the pose (compliance) are re-evaluated at each
+  Newton step, so the pose and its predicted lengths agree.
+- **pose → readings** (what the encoders must read for a wanted pose: the compensation a
+  controller applies): the readings that, with their own effects (a gain scales the reading, the
+  backlash state follows the readings' motion), give the pose's lengths.
+
+Both take poses in recording / motion order: backlash depends on the direction each leg last
+moved, so the first pose of a sequence has no known direction (its backlash term is 0) until a
+leg moves by more than the dead band.
+
+Limits: readings outside ``leg_range_mm`` (the stroke, on readings), lengths no pose closes (out
+of the workspace) and legs beyond ``joint_limit_deg`` (each joint's cone about the leg's
+direction at home) are refused with the row named (:class:`PredictionError`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hexcal.effects import EffectData, ParamSpec, get_effect
+from hexcal.errors import InputError
+from hexcal.model.kinematics import ForwardKinematicsError, forward_kinematics
+from hexcal.model.robot import Robot
+
+#: Newton steps stop when every leg closes to this, mm.
+CLOSE_MM = 1e-10
+#: A pose is refused when its legs do not close to this after the iterations, mm.
+REFUSE_MM = 1e-7
+MAX_NEWTON = 60
+#: Fixed-point iterations of pose → readings (each contracts by the effects' slope, e.g. a gain).
+MAX_FIXED_POINT = 400
+
+
+class PredictionError(InputError):
+    """A reading or pose the model cannot serve: out of the stroke, the workspace or a joint's
+    range; the message names the rows (1-based, in the order given) and what to do."""
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Platform poses: ``position`` (N, 3) mm and ``rotation`` (N, 3, 3), measurement frame."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        """(N, 4) unit quaternions, scalar first, qw ≥ 0."""
+        q = Rotation.from_matrix(self.rotation).as_quat(scalar_first=True)
+        return q * np.where(q[:, :1] < 0, -1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class LegModel:
+    """A robot's geometry (``robot``: a, b, offsets and its other keys) with catalogue
+    ``effects`` (``offset`` excluded: the offsets are the robot's) and their ``values`` (q,) in
+    their spec units (ppm, mm, ppm/K, µm/N), in the effects' parameter order."""
+
+    robot: Robot
+    effects: tuple[str, ...] = ()
+    values: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "effects", tuple(e for e in self.effects if e != "offset"))
+        object.__setattr__(self, "values", np.asarray(self.values, float).reshape(-1))
+        n = len(self.specs)
+        if self.values.shape != (n,):
+            raise ValueError(
+                f"the model's effects ({', '.join(self.effects) or 'none'}) take {n} parameter "
+                f"values, got {self.values.size}"
+            )
+
+    @property
+    def specs(self) -> list[ParamSpec]:
+        return [s for e in self.effects for s in get_effect(e).params(self.robot)]
+
+    @property
+    def name(self) -> str:
+        """e.g. ``"+ gain + backlash"``: the effects beyond the geometry (empty without)."""
+        return "".join(f" + {e}" for e in self.effects)
+
+    # -- lengths -------------------------------------------------------------------------------
+    def data(
+        self,
+        readings: np.ndarray,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        t: np.ndarray | None = None,
+        temperature: np.ndarray | None = None,
+    ) -> EffectData:
+        """The effects' inputs for N poses at this model's geometry."""
+        readings = np.asarray(readings, float)
+        n = len(readings)
+        t = np.arange(n, dtype=float) if t is None else np.asarray(t, float)
+        temp = None if temperature is None else np.asarray(temperature, float)
+        r = self.robot
+        return EffectData(readings, np.asarray(position, float), rotation, t, temp, r, r.a, r.b)
+
+    def effect_lengths(self, data: EffectData) -> np.ndarray:
+        """(N, 6) mm the effects add to ``reading + offset``."""
+        if not self.effects:
+            return np.zeros_like(data.readings)
+        for e in self.effects:
+            why = get_effect(e).cannot_predict(data)
+            if why:
+                raise PredictionError(f"the model includes {e}: {why}")
+        basis = np.concatenate([get_effect(e).basis(data) for e in self.effects], axis=-1)
+        return basis @ self.values
+
+    def lengths(
+        self,
+        readings: np.ndarray,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        t: np.ndarray | None = None,
+        temperature: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """(N, 6) mm: the legs' geometric lengths the model infers from the readings (N, 6) mm
+        at poses (N, 3) mm, (N, 3, 3) (the pose matters only to pose-dependent effects)."""
+        data = self.data(readings, position, rotation, t, temperature)
+        return data.readings + self.robot.offsets + self.effect_lengths(data)
+
+    def geometric(self, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """(N, 6) mm ``|P + R b_k − a_k|`` at this model's geometry."""
+        v = _leg_vectors(self.robot.a, self.robot.b, position, rotation)
+        return np.linalg.norm(v, axis=-1)
+
+    def residuals(self, meas) -> np.ndarray:
+        """(N, 6) mm on a measurement table: the length the readings say (reading + offset +
+        effects) − the length of the measured pose; the fit's ``residuals`` convention."""
+        rot = meas.rotations.as_matrix()
+        lengths = self.lengths(meas.readings, meas.position, rot, meas.t, meas.temperature)
+        return lengths - self.geometric(meas.position, rot)
+
+    # -- readings → pose -----------------------------------------------------------------------
+    def poses(
+        self,
+        readings: np.ndarray,
+        t: np.ndarray | None = None,
+        temperature: np.ndarray | None = None,
+        guess: Poses | None = None,
+        check_limits: bool = True,
+    ) -> Poses:
+        """The platform poses (N) that readings (N, 6) mm, in motion order, put it in.
+
+        ``guess``: poses to start from (the tracker's, when comparing with it); default the
+        robot's home. Raises :class:`PredictionError` naming the rows out of the stroke, the
+        workspace or a joint's range."""
+        readings = np.atleast_2d(np.asarray(readings, float))
+        if check_limits:
+            self._check_stroke(readings, "readings")
+        out, closed = self.solve_poses(readings, t, temperature, guess)
+        if not closed.all():
+            rows = np.where(~closed)[0]
+            raise PredictionError(
+                f"readings of {_rows(rows)} are outside the workspace: no pose of the platform "
+                "gives those six lengths; check the readings (units, leg order) and the model"
+            )
+        if check_limits:
+            self._check_joints(out, "readings")
+        return out
+
+    def solve_poses(
+        self,
+        readings: np.ndarray,
+        t: np.ndarray | None = None,
+        temperature: np.ndarray | None = None,
+        guess: Poses | None = None,
+    ) -> tuple[Poses, np.ndarray]:
+        """Like :meth:`poses` without refusing: (poses, closed (N,) bool) — a row whose legs
+        do not close (out of the workspace) is left at its best attempt."""
+        readings = np.atleast_2d(np.asarray(readings, float))
+        n = len(readings)
+        if guess is None:
+            guess = self.home(n)
+        P, R = _newton(self, readings, t, temperature, guess.position, guess.rotation)
+        err = self._closure(readings, t, temperature, P, R)
+        bad = np.where(~(err < REFUSE_MM))[0]
+        # Newton from a poor guess may stall or reach another assembly mode: the library
+        # solver with restarts gives a better start for those rows.
+        for i in bad:
+            lengths = self.lengths(readings, P, R, t, temperature)[i]
+            try:
+                p, rot = forward_kinematics(
+                    self.robot.a,
+                    self.robot.b,
+                    lengths,
+                    guess.position[i],
+                    Rotation.from_matrix(guess.rotation[i]),
+                )
+            except ForwardKinematicsError:
+                continue
+            P[i], R[i] = p, rot.as_matrix()
+        if len(bad):
+            P, R = _newton(self, readings, t, temperature, P, R)
+            err = self._closure(readings, t, temperature, P, R)
+        return Poses(P, R), err < REFUSE_MM
+
+    def _closure(self, readings, t, temperature, P, R) -> np.ndarray:
+        lengths = self.lengths(readings, P, R, t, temperature)
+        return np.max(np.abs(self.geometric(P, R) - lengths), axis=1)
+
+    def home(self, n: int = 1) -> Poses:
+        """The robot's home pose, repeated n times."""
+        h = self.robot.home
+        rot = Rotation.from_quat(h.quaternion, scalar_first=True).as_matrix()
+        return Poses(np.tile(h.position, (n, 1)), np.tile(rot, (n, 1, 1)))
+
+    # -- pose → readings -----------------------------------------------------------------------
+    def readings(
+        self,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        t: np.ndarray | None = None,
+        temperature: np.ndarray | None = None,
+        check_limits: bool = True,
+    ) -> np.ndarray:
+        """(N, 6) mm: what the encoders must read for the platform to be at the poses
+        (N, 3) mm, (N, 3, 3), in motion order — the compensation a controller applies."""
+        P = np.atleast_2d(np.asarray(position, float))
+        R = np.asarray(rotation, float).reshape(-1, 3, 3)
+        if check_limits:
+            self._check_joints(Poses(P, R), "poses")
+        target = self.geometric(P, R)
+        rho = target - self.robot.offsets
+        for _ in range(MAX_FIXED_POINT):
+            extra = self.effect_lengths(self.data(rho, P, R, t, temperature))
+            new = target - self.robot.offsets - extra
+            step = np.max(np.abs(new - rho)) if len(rho) else 0.0
+            rho = new
+            if step < CLOSE_MM:
+                break
+        else:
+            raise PredictionError(
+                "the readings for these poses did not settle (a leg's move sits at the backlash "
+                "dead band, or an effect's slope is near 1); give the poses in motion order with "
+                "clear moves between them"
+            )
+        if check_limits:
+            self._check_stroke(rho, "poses")
+        return rho
+
+    # -- limits --------------------------------------------------------------------------------
+    def _check_stroke(self, readings: np.ndarray, what: str) -> None:
+        rng = self.robot.leg_range_mm
+        if rng is None:
+            return
+        lo, hi = rng
+        out = (readings < lo) | (readings > hi)
+        if out.any():
+            rows, legs = np.where(out)
+            i, k = rows[0], legs[0]
+            raise PredictionError(
+                f"{what}: {_rows(np.unique(rows))} put a leg beyond its stroke (leg_range_mm "
+                f"[{lo:g}, {hi:g}] mm on readings; first: leg {k + 1} reads "
+                f"{readings[i, k]:.4f} mm); choose poses within the stroke"
+            )
+
+    def joint_angles(self, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 6) deg each: the angle of every leg at its base joint and at its platform joint
+        from the leg's direction at home (the joints' neutral axis)."""
+        home = self.home(1)
+        v0 = _leg_vectors(self.robot.a, self.robot.b, home.position, home.rotation)[0]
+        u0 = v0 / np.linalg.norm(v0, axis=-1, keepdims=True)
+        u0_platform = np.einsum("ji,kj->ki", home.rotation[0], u0)
+        v = _leg_vectors(self.robot.a, self.robot.b, poses.position, poses.rotation)
+        u = v / np.linalg.norm(v, axis=-1, keepdims=True)
+        u_platform = np.einsum("nji,nkj->nki", poses.rotation, u)
+        base = np.degrees(np.arccos(np.clip(np.einsum("nki,ki->nk", u, u0), -1, 1)))
+        plat = np.degrees(
+            np.arccos(np.clip(np.einsum("nki,ki->nk", u_platform, u0_platform), -1, 1))
+        )
+        return base, plat
+
+    def _check_joints(self, poses: Poses, what: str) -> None:
+        limit = getattr(self.robot, "joint_limit_deg", None)
+        if limit is None:
+            return
+        base, plat = self.joint_angles(poses)
+        worst = np.maximum(base, plat)
+        out = worst > limit
+        if out.any():
+            rows, legs = np.where(out)
+            i, k = rows[0], legs[0]
+            raise PredictionError(
+                f"{what}: {_rows(np.unique(rows))} put a joint beyond its range (joint_limit_deg "
+                f"{limit:g}°; first: leg {k + 1} at {worst[i, k]:.1f}° from its direction at "
+                "home); choose poses nearer home"
+            )
+
+
+def _rows(rows: np.ndarray) -> str:
+    shown = ", ".join(str(int(r) + 1) for r in rows[:10])
+    more = f" and {len(rows) - 10} more" if len(rows) > 10 else ""
+    return ("row " if len(rows) == 1 else "rows ") + shown + more
+
+
+def _leg_vectors(a, b, position, rotation) -> np.ndarray:
+    P = np.atleast_2d(np.asarray(position, float))
+    R = np.asarray(rotation, float).reshape(-1, 3, 3)
+    return P[:, None, :] + np.einsum("nij,kj->nki", R, b) - a[None]
+
+
+def _newton(model: LegModel, readings, t, temperature, P0, R0) -> tuple[np.ndarray, np.ndarray]:
+    """Batched Newton on the six leg lengths of every pose at once (an N-pose table solves in
+    a few vectorised steps rather than N library calls). The model's lengths are re-evaluated at
+    each step, so pose-dependent effects (compliance) converge with the pose."""
+    a, b = model.robot.a, model.robot.b
+    P = np.array(P0, float).reshape(-1, 3).copy()
+    R = np.array(R0, float).reshape(-1, 3, 3).copy()
+    active = np.ones(len(P), bool)
+    for _ in range(MAX_NEWTON):
+        lengths = model.lengths(readings, P, R, t, temperature)
+        v = _leg_vectors(a, b, P, R)
+        norm = np.linalg.norm(v, axis=-1)
+        f = norm - lengths
+        active = np.max(np.abs(f), axis=1) >= CLOSE_MM
+        if not active.any():
+            break
+        n = v / norm[..., None]
+        rb = np.einsum("nij,kj->nki", R, b)
+        jac = np.concatenate([n, np.cross(rb, n)], axis=-1)[active]
+        step = np.zeros((len(P), 6))
+        ok = np.abs(np.linalg.det(jac)) > 1e-12
+        idx = np.where(active)[0]
+        step[idx[ok]] = np.linalg.solve(jac[ok], -f[active][ok][..., None])[..., 0]
+        # Damp steps that would jump across the workspace (a poor guess): Newton then stays in
+        # the guess's assembly mode.
+        size = np.linalg.norm(step[:, :3], axis=1) / 50.0 + np.linalg.norm(step[:, 3:], axis=1)
+        step *= np.minimum(1.0, 1.0 / np.maximum(size, 1e-300))[:, None]
+        P += step[:, :3]
+        R = Rotation.from_rotvec(step[:, 3:]).as_matrix() @ R
+    return P, R

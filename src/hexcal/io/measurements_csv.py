@@ -1,0 +1,729 @@
+"""Reading ``measurements.csv`` (docs/formats.md): the rules a row must keep
+(:class:`MeasurementRow`, pydantic v2) and the streaming reader (:func:`read_measurements`).
+
+Reading streams the file row by row into typed arrays, so memory stays about the file's size
+(a 200 MB table reads in well under 1 GB); rows are checked a block at a time against the rules
+of :class:`MeasurementRow`, which validates every row of a block that breaks one, so that *all*
+bad rows are reported in one :class:`~hexcal.io.measurements.MeasurementError` naming the file,
+the line and the column. Values are held to the ranges of :mod:`hexcal.io.safe_read` (positions
+and readings ±1 km, times ±1e9 s, temperatures −273.15..1000 degC, pose ids 1 .. 2**53 − 1).
+
+The table itself, its errors and the writer are in :mod:`hexcal.io.measurements`, which also
+offers this module's public names.
+"""
+
+from __future__ import annotations
+
+import codecs
+import csv
+import io
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
+from pydantic_core import PydanticCustomError
+
+from hexcal.io.measurements import (
+    _KNOWN_COLUMNS,
+    CONSTRAINTS,
+    MAX_MESSAGES,
+    POSITION_COLUMNS,
+    QUATERNION_COLUMNS,
+    QUATERNION_TOLERANCE,
+    READING_COLUMNS,
+    REQUIRED_COLUMNS,
+    Issue,
+    MeasurementError,
+    Measurements,
+    _object_array,
+    _raise_issues,
+)
+from hexcal.io.safe_read import (
+    MAX_COORDINATE_MM,
+    MAX_POSE_ID,
+    MAX_TEMPERATURE_C,
+    MAX_TIME_S,
+    MIN_TEMPERATURE_C,
+    open_binary,
+)
+
+_ROW_HINT = "fix the value or remove the row"
+
+
+# --------------------------------------------------------------------------------------------
+# Row validation (pydantic)
+
+# Error types whose message this module writes itself; pydantic's own messages get a generic hint.
+_OWN_ERRORS = frozenset(
+    {
+        "empty_field",
+        "not_a_number",
+        "not_finite",
+        "not_an_integer",
+        "not_text",
+        "leg_range",
+        "unknown_constraint",
+        "leg_constraint",
+        "quaternion_norm",
+        "out_of_range",
+    }
+)
+_INTEGER_RE = re.compile(r"[+-]?[0-9]+(?:\.0*)?")
+
+
+def _empty() -> PydanticCustomError:
+    return PydanticCustomError(
+        "empty_field", "the field is empty; fill in the value or remove the row"
+    )
+
+
+def _parse_number(value: Any) -> float:
+    """A finite float from a CSV field (or a Python number)."""
+    if isinstance(value, str):
+        text = value.strip()
+        if not text:
+            raise _empty()
+        # float() also takes '1_000' and non-ASCII digits; other CSV readers do not, so refuse
+        # them here rather than write files only this reader understands.
+        try:
+            if "_" in text or not text.isascii():
+                raise ValueError
+            x = float(text)
+        except ValueError:
+            raise PydanticCustomError(
+                "not_a_number", f"{text!r} is not a number; {_ROW_HINT}"
+            ) from None
+    elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
+        text, x = repr(value), float(value)
+    else:
+        raise PydanticCustomError("not_a_number", f"{value!r} is not a number; {_ROW_HINT}")
+    if not math.isfinite(x):
+        raise PydanticCustomError(
+            "not_finite",
+            f"{text!r} is not a finite number (NaN and infinity are not allowed); {_ROW_HINT}",
+        )
+    return x
+
+
+def _parse_integer(value: Any) -> int:
+    """An int from a CSV field; ``'3'`` and ``'3.0'`` (spreadsheet exports) are accepted."""
+    if isinstance(value, str):
+        text = value.strip()
+        if not text:
+            raise _empty()
+        if not _INTEGER_RE.fullmatch(text):
+            raise PydanticCustomError("not_an_integer", f"{text!r} is not an integer; {_ROW_HINT}")
+        return int(text.split(".")[0])
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        return int(value)
+    if isinstance(value, (float, np.floating)) and math.isfinite(value) and value == int(value):
+        return int(value)
+    raise PydanticCustomError("not_an_integer", f"{value!r} is not an integer; {_ROW_HINT}")
+
+
+def _parse_text(value: Any) -> str:
+    if not isinstance(value, str):
+        raise PydanticCustomError("not_text", f"{value!r} is not text; {_ROW_HINT}")
+    text = value.strip()
+    if not text:
+        raise _empty()
+    return text
+
+
+def _check_leg(leg: int) -> int:
+    if not 0 <= leg <= 6:
+        raise PydanticCustomError(
+            "leg_range",
+            f"leg {leg} is outside 0..6; give the clamped leg 1..6, or 0 for a free pose",
+        )
+    return leg
+
+
+def _check_constraint(text: str) -> str:
+    if text not in CONSTRAINTS:
+        case = " (constraint names are lower case)" if text.lower() in CONSTRAINTS else ""
+        raise PydanticCustomError(
+            "unknown_constraint",
+            f"{text!r} is not a known constraint{case}; use one of: {', '.join(CONSTRAINTS)}",
+        )
+    return text
+
+
+def _check_range(x: float, low: float, high: float, unit: str) -> float:
+    if not low <= x <= high:
+        raise PydanticCustomError(
+            "out_of_range", f"{x!r} {unit} is outside {low:g}..{high:g} {unit}; {_ROW_HINT}"
+        )
+    return x
+
+
+def _within(low: float, high: float, unit: str) -> AfterValidator:
+    """An after-validator refusing values outside [low, high] ``unit``."""
+    return AfterValidator(lambda x: _check_range(x, low, high, unit))
+
+
+def _check_pose_id(pose_id: int) -> int:
+    if not 1 <= pose_id <= MAX_POSE_ID:
+        raise PydanticCustomError(
+            "out_of_range",
+            f"pose_id {pose_id} is outside 1..{MAX_POSE_ID} (2**53 - 1); renumber the poses from 1",
+        )
+    return pose_id
+
+
+Number = Annotated[float, BeforeValidator(_parse_number)]
+#: A position or reading, mm, within ±MAX_COORDINATE_MM.
+Millimetres = Annotated[
+    float, BeforeValidator(_parse_number), _within(-MAX_COORDINATE_MM, MAX_COORDINATE_MM, "mm")
+]
+#: A time, s, within ±MAX_TIME_S.
+Seconds = Annotated[float, BeforeValidator(_parse_number), _within(-MAX_TIME_S, MAX_TIME_S, "s")]
+Integer = Annotated[int, BeforeValidator(_parse_integer)]
+PoseId = Annotated[int, BeforeValidator(_parse_integer), AfterValidator(_check_pose_id)]
+Text = Annotated[str, BeforeValidator(_parse_text)]
+Leg = Annotated[int, BeforeValidator(_parse_integer), AfterValidator(_check_leg)]
+Constraint = Annotated[str, BeforeValidator(_parse_text), AfterValidator(_check_constraint)]
+# Not ``Number | None``: a union would report a bad value once per member, with a mangled location.
+OptionalCelsius = Annotated[
+    float | None,
+    BeforeValidator(lambda v: None if v is None else _parse_number(v)),
+    AfterValidator(
+        lambda v: (
+            None if v is None else _check_range(v, MIN_TEMPERATURE_C, MAX_TEMPERATURE_C, "degC")
+        )
+    ),
+]
+
+
+class MeasurementRow(BaseModel):
+    """One row of measurements.csv, validated.
+
+    Units: ``t`` s; ``x, y, z`` mm (platform origin in the measurement frame); ``qw..qz`` unit
+    quaternion, scalar first (norm within :data:`QUATERNION_TOLERANCE` of 1); ``rho1..rho6`` mm;
+    ``temperature`` degC or None when the file has no such column. Fields accept the raw CSV
+    strings; whitespace around them is ignored. Ranges: ``pose_id`` 1 .. 2**53 − 1; ``t``
+    ±1e9 s; positions and readings ±1e6 mm; temperature −273.15..1000 degC.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    pose_id: PoseId
+    t: Seconds
+    step: Text
+    leg: Leg
+    constraint: Constraint
+    x: Millimetres
+    y: Millimetres
+    z: Millimetres
+    qw: Number
+    qx: Number
+    qy: Number
+    qz: Number
+    rho1: Millimetres
+    rho2: Millimetres
+    rho3: Millimetres
+    rho4: Millimetres
+    rho5: Millimetres
+    rho6: Millimetres
+    temperature: OptionalCelsius = None
+
+    # Field validators rather than one model validator: a row that breaks both rules reports
+    # both, and each is pinned to a column. ``leg`` precedes ``constraint`` and ``qw..qy``
+    # precede ``qz``, so ``info.data`` holds them when they were valid.
+    @field_validator("constraint")
+    @classmethod
+    def _leg_matches_constraint(cls, constraint: str, info: ValidationInfo) -> str:
+        leg = info.data.get("leg")
+        if leg is None:
+            return constraint
+        if leg == 0 and constraint != "free":
+            raise PydanticCustomError(
+                "leg_constraint",
+                f"constraint '{constraint}' needs a clamped leg but leg is 0; set leg to the "
+                "clamped leg (1..6), or the constraint to 'free' for a free pose",
+            )
+        if leg != 0 and constraint == "free":
+            raise PydanticCustomError(
+                "leg_constraint",
+                f"constraint 'free' is for free poses, which have leg 0, but leg is {leg}; set "
+                "leg to 0, or the constraint to the clamp used (direction, direction+length, "
+                "length)",
+            )
+        return constraint
+
+    @field_validator("qz")
+    @classmethod
+    def _unit_quaternion(cls, qz: float, info: ValidationInfo) -> float:
+        parts = [info.data.get(c) for c in QUATERNION_COLUMNS[:3]]
+        if any(p is None for p in parts):
+            return qz
+        q = (*(float(p) for p in parts if p is not None), qz)
+        norm = math.sqrt(sum(c * c for c in q))
+        if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+            raise PydanticCustomError(
+                "quaternion_norm",
+                f"quaternion (qw, qx, qy, qz) = ({', '.join(repr(c) for c in q)}) has norm "
+                f"{norm:.6f}, not within {QUATERNION_TOLERANCE:g} of 1; check the column order "
+                "(scalar first) or renormalise at the source, or remove the row",
+                {"column": "qw"},
+            )
+        return qz
+
+
+def _row_issues(exc: ValidationError, line: int, values: Mapping[str, str]) -> list[Issue]:
+    issues = []
+    for err in exc.errors(include_url=False):
+        ctx = err.get("ctx") or {}
+        column = ctx.get("column") or (str(err["loc"][0]) if err["loc"] else None)
+        if err["type"] in _OWN_ERRORS:
+            message = err["msg"]
+        else:
+            message = f"{values.get(column or '', '')!r}: {err['msg']}; {_ROW_HINT}"
+        issues.append(Issue(message, line=line, column=column))
+    return issues
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+
+#: Rows checked together: enough for numpy to pay off, few enough that a block's text (about
+#: 50 bytes a field as Python strings) stays a few MB.
+_BLOCK_ROWS = 4096
+
+
+#: Bytes read at a time when looking for an undecodable byte.
+_DECODE_BLOCK = 1 << 20
+
+
+class _Slow(Exception):
+    """A block breaks a rule: validate it row by row for the messages."""
+
+
+def _undecodable(path: Path) -> MeasurementError:
+    """The error for the file's first byte that is not UTF-8: its offset, line and column.
+
+    Called only once decoding failed, so reading pays nothing for it: the file is read again
+    in binary, a block at a time, through an incremental decoder."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    offset = lines = 0  # bytes and line ends before the block
+    tail = b""  # the current line's bytes before the block (its last MB at most)
+    first_line: bytes | None = None
+    with path.open("rb") as fh:
+        while True:
+            block = fh.read(_DECODE_BLOCK)
+            buffered = len(decoder.getstate()[0])  # an incomplete character's first bytes
+            try:
+                decoder.decode(block, final=not block)
+            except UnicodeDecodeError as exc:
+                at = offset - buffered + exc.start  # in the file
+                break
+            if not block:  # pragma: no cover - the text reader found a bad byte
+                return MeasurementError.single(path, None, None, "is not UTF-8 text")
+            data = tail + block
+            if first_line is None and b"\n" in data:
+                first_line = data.split(b"\n", 1)[0]
+            lines += block.count(b"\n")
+            tail = data[data.rfind(b"\n") + 1 :][-_DECODE_BLOCK:]
+            offset += len(block)
+    data = tail + block
+    i = at - (offset - len(tail))  # the bad byte in data
+    line = lines + data.count(b"\n", 0, i) + 1
+    if first_line is None:
+        first_line = data.split(b"\n", 1)[0]
+    column = None
+    if line > 1:  # best effort: the header name of the field holding the byte
+        before = data[data.rfind(b"\n", 0, i) + 1 : i].decode("utf-8", "replace")
+        try:
+            header = next(csv.reader([first_line.decode("utf-8", "replace").strip()]), [])
+            index = max(len(next(csv.reader([before]), [])) - 1, 0)
+        except csv.Error:
+            header, index = [], 0
+        if index < len(header):
+            column = header[index].strip().lstrip("\ufeff")
+    return MeasurementError.single(
+        path,
+        line,
+        column,
+        f"byte {at} (0x{data[i]:02x}) is not UTF-8 text; save the file as UTF-8 (e.g. 'CSV UTF-8')",
+    )
+
+
+def _header_issues(header: list[str], line: int) -> list[Issue]:
+    issues = []
+    seen: dict[str, int] = {}
+    for k, name in enumerate(header):
+        if not name:
+            issues.append(
+                Issue(
+                    f"header column {k + 1} has no name; name it or delete the column "
+                    "(a trailing comma?)",
+                    line=line,
+                )
+            )
+        elif name in seen:
+            issues.append(
+                Issue(
+                    f"column name '{name}' appears twice (columns {seen[name] + 1} and {k + 1}); "
+                    "rename or delete one",
+                    line=line,
+                    column=name,
+                )
+            )
+        else:
+            seen[name] = k
+    missing = [c for c in REQUIRED_COLUMNS if c not in seen]
+    if missing:
+        lower = {name.lower(): name for name in seen}
+        named = [
+            f"'{c}'" + (f" (found '{lower[c]}': names are lower case)" if c in lower else "")
+            for c in missing
+        ]
+        issues.append(
+            Issue(
+                f"required column(s) {', '.join(named)} missing from the header; the header "
+                f"must name {','.join(REQUIRED_COLUMNS)} (temperature and extra columns "
+                "optional)",
+                line=line,
+                column=missing[0],
+            )
+        )
+    return issues
+
+
+def _count_issue(fields: list[str], header: list[str], line: int) -> Issue:
+    n, ncol = len(fields), len(header)
+    if n < ncol:
+        return Issue(
+            f"{n} fields but the header has {ncol} columns: '{header[n]}' and after are missing; "
+            "complete the row or remove it",
+            line=line,
+            column=header[n],
+        )
+    trailing = " (a trailing comma?)" if not any(fields[ncol:]) else ""
+    return Issue(
+        f"{n} fields but the header has {ncol} columns: {n - ncol} field(s) after the last "
+        f"column '{header[-1]}'{trailing}; remove them, or name them in the header",
+        line=line,
+    )
+
+
+@dataclass
+class _Block:
+    """Consecutive valid rows of the file, typed (units as in :class:`Measurements`)."""
+
+    line: np.ndarray  #: (k,) the line each row starts on
+    pose_id: np.ndarray
+    t: np.ndarray
+    step: list[str]
+    leg: np.ndarray
+    constraint: list[str]
+    position: np.ndarray
+    quaternion: np.ndarray
+    readings: np.ndarray
+    temperature: np.ndarray | None
+    extra: list[list[str]]  #: per extra column, in header order
+
+
+class _TableReader:
+    """Turns the file's data rows into typed arrays a block at a time.
+
+    A block that keeps every rule is converted with numpy (the common case, and what keeps a
+    200 MB file fast); a block that breaks one is validated row by row with
+    :class:`MeasurementRow`, whose messages the error reports. Once a row is bad the values
+    are no longer kept (the read will fail), only the ids and lines that duplicates are checked
+    against."""
+
+    def __init__(self, header: list[str], path: Path):
+        self.header = header
+        self.path = path
+        self.at = {c: k for k, c in enumerate(header)}
+        self.fields = [c for c in header if c in _KNOWN_COLUMNS]
+        self.extra_names = [c for c in header if c not in _KNOWN_COLUMNS]
+        self.has_temperature = "temperature" in self.at
+        self.blocks: list[_Block] = []
+        self.ids: list[np.ndarray] = []
+        self.lines: list[np.ndarray] = []
+        self.issues: list[Issue] = []  # the first MAX_MESSAGES row problems
+        self.problems = 0  # all of them
+        self.rows = 0
+        self.texts: dict[str, str] = {}  # one str object per distinct step/constraint
+
+    def flush(self, rows: list[tuple[int, list[str]]]) -> None:
+        """Take a block of data rows: (line, fields as read, not stripped)."""
+        if not rows:
+            return
+        self.rows += len(rows)
+        try:
+            block = self._fast(rows)
+        except _Slow:
+            block = self._slow(rows)
+        self.ids.append(block.pose_id)
+        self.lines.append(block.line)
+        if self.problems:
+            self.blocks.clear()
+        else:
+            self.blocks.append(block)
+
+    # -- the fast path: a block with no problem, checked by columns --------------------------
+
+    def _column(self, cols: list[tuple[str, ...]], name: str) -> tuple[str, ...]:
+        col = cols[self.at[name]]
+        joined = "".join(col)
+        # As _parse_number/_parse_integer: no empty field, ASCII only, no digit separators
+        # (float() and int() would take '1_000' and non-ASCII digits).
+        if "" in col or "_" in joined or not joined.isascii():
+            raise _Slow
+        return col
+
+    def _floats(self, cols: list[tuple[str, ...]], names: Sequence[str]) -> np.ndarray:
+        try:
+            out = np.array([list(map(float, self._column(cols, c))) for c in names]).T
+        except ValueError:
+            raise _Slow from None
+        return out
+
+    def _ints(self, cols: list[tuple[str, ...]], name: str, low: int, high: int) -> np.ndarray:
+        try:
+            values = np.array(list(map(int, self._column(cols, name))), dtype=np.int64)
+        except (ValueError, OverflowError):  # '3.0' is valid: the slow path reads it
+            raise _Slow from None
+        if not np.all((values >= low) & (values <= high)):
+            raise _Slow
+        return values
+
+    def _within(self, values: np.ndarray, low: float, high: float) -> np.ndarray:
+        if not np.all((values >= low) & (values <= high)):  # False for NaN too
+            raise _Slow
+        return values
+
+    def _texts(self, col: Sequence[str]) -> list[str]:
+        """Stripped text, one str object per distinct value (a step name is shared by many
+        rows: memory)."""
+        col = list(map(str.strip, col))
+        cache = self.texts
+        if len(cache) > 10_000:  # steps are a few dozen names; do not hoard unique ones
+            return col
+        return [cache.setdefault(v, v) for v in col]
+
+    def _fast(self, rows: list[tuple[int, list[str]]]) -> _Block:
+        ncol = len(self.header)
+        if any(len(fields) != ncol for _, fields in rows):
+            raise _Slow
+        cols = list(zip(*(fields for _, fields in rows), strict=True))
+        pose_id = self._ints(cols, "pose_id", 1, MAX_POSE_ID)
+        leg = self._ints(cols, "leg", 0, 6)
+        t = self._within(self._floats(cols, ["t"])[:, 0], -MAX_TIME_S, MAX_TIME_S)
+        position = self._floats(cols, POSITION_COLUMNS)
+        readings = self._floats(cols, READING_COLUMNS)
+        self._within(position, -MAX_COORDINATE_MM, MAX_COORDINATE_MM)
+        self._within(readings, -MAX_COORDINATE_MM, MAX_COORDINATE_MM)
+        quaternion = self._floats(cols, QUATERNION_COLUMNS)
+        with np.errstate(over="ignore", invalid="ignore"):
+            norm = np.sqrt(np.sum(quaternion * quaternion, axis=1))
+        # A hair inside the tolerance: a row at its very edge goes to MeasurementRow, whose
+        # sum (in another order) has the last word.
+        edge = QUATERNION_TOLERANCE * (1 - 1e-9)
+        self._within(norm, 1.0 - edge, 1.0 + edge)
+        temperature = None
+        if self.has_temperature:
+            temperature = self._floats(cols, ["temperature"])[:, 0]
+            self._within(temperature, MIN_TEMPERATURE_C, MAX_TEMPERATURE_C)
+        # Text may hold any character ('leg1_direction', 'Bein 1'): stripped, never empty.
+        step = self._texts(cols[self.at["step"]])
+        constraint = self._texts(cols[self.at["constraint"]])
+        if "" in step or not set(constraint) <= set(CONSTRAINTS):
+            raise _Slow
+        free = np.array([c == "free" for c in constraint], dtype=bool)
+        if np.any(free != (leg == 0)):
+            raise _Slow
+        return _Block(
+            line=np.array([line for line, _ in rows], dtype=np.int64),
+            pose_id=pose_id,
+            t=t,
+            step=step,
+            leg=leg,
+            constraint=constraint,
+            position=position,
+            quaternion=quaternion,
+            readings=readings,
+            temperature=temperature,
+            extra=[list(map(str.strip, cols[self.at[c]])) for c in self.extra_names],
+        )
+
+    # -- the slow path: row by row, every problem named ----------------------------------------
+
+    def _issue(self, issue: Issue) -> None:
+        self.problems += 1
+        if len(self.issues) < MAX_MESSAGES:
+            self.issues.append(issue)
+
+    def _slow(self, rows: list[tuple[int, list[str]]]) -> _Block:
+        header, order = self.header, self.at
+        valid: list[tuple[int, MeasurementRow, list[str]]] = []
+        for line, fields in rows:
+            values = [f.strip() for f in fields]
+            if len(values) != len(header):
+                self._issue(_count_issue(values, header, line))
+                continue
+            by_name = dict(zip(header, values, strict=True))
+            try:
+                row = MeasurementRow.model_validate({c: by_name[c] for c in self.fields})
+            except ValidationError as exc:
+                found = _row_issues(exc, line, by_name)
+                for issue in sorted(found, key=lambda i: order.get(i.column or "", len(order))):
+                    self._issue(issue)
+                continue
+            valid.append((line, row, [by_name[c] for c in self.extra_names]))
+        rs = [r for _, r, _ in valid]
+        return _Block(
+            line=np.array([line for line, _, _ in valid], dtype=np.int64),
+            pose_id=np.array([r.pose_id for r in rs], dtype=np.int64),
+            t=np.array([r.t for r in rs], dtype=float),
+            step=self._texts([r.step for r in rs]),
+            leg=np.array([r.leg for r in rs], dtype=np.int64),
+            constraint=self._texts([r.constraint for r in rs]),
+            position=np.array([[r.x, r.y, r.z] for r in rs], dtype=float).reshape(-1, 3),
+            quaternion=np.array([[r.qw, r.qx, r.qy, r.qz] for r in rs], dtype=float).reshape(-1, 4),
+            readings=np.array(
+                [[r.rho1, r.rho2, r.rho3, r.rho4, r.rho5, r.rho6] for r in rs], dtype=float
+            ).reshape(-1, 6),
+            temperature=(
+                np.array([r.temperature for r in rs], dtype=float) if self.has_temperature else None
+            ),
+            extra=[[e[k] for _, _, e in valid] for k in range(len(self.extra_names))],
+        )
+
+    # -- the table ------------------------------------------------------------------------------
+
+    def finish(self) -> Measurements:
+        ids = np.concatenate(self.ids) if self.ids else np.zeros(0, np.int64)
+        lines = np.concatenate(self.lines) if self.lines else np.zeros(0, np.int64)
+        duplicates, repeated = _repeated_ids(ids, lines)
+        if self.problems or repeated:
+            # Both lists are in line order and hold the first MAX_MESSAGES of their kind, so
+            # the first MAX_MESSAGES of the merge are the file's first problems.
+            issues = sorted(self.issues + duplicates, key=lambda i: i.line or 0)[:MAX_MESSAGES]
+            total = self.problems + repeated
+            raise MeasurementError(issues, self.path, omitted=total - len(issues))
+        b = self.blocks
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(x, name) for x in b])
+
+        def texts(values: list[str]) -> np.ndarray:
+            return _object_array(values)
+
+        return Measurements(
+            pose_id=ids,
+            t=cat("t"),
+            step=texts([s for x in b for s in x.step]),
+            leg=cat("leg"),
+            constraint=texts([s for x in b for s in x.constraint]),
+            position=cat("position"),
+            quaternion=cat("quaternion"),
+            readings=cat("readings"),
+            temperature=cat("temperature") if self.has_temperature else None,
+            extra={
+                c: texts([s for x in b for s in x.extra[k]]) for k, c in enumerate(self.extra_names)
+            },
+            columns=tuple(self.header),
+            source=str(self.path),
+        )
+
+
+def _repeated_ids(ids: np.ndarray, lines: np.ndarray) -> tuple[list[Issue], int]:
+    """The rows whose pose_id an earlier row already has (the first MAX_MESSAGES, in line
+    order), and how many there are; ``ids`` and ``lines`` in file order."""
+    if len(ids) < 2:
+        return [], 0
+    _, first, group = np.unique(ids, return_index=True, return_inverse=True)
+    group = group.reshape(-1)
+    repeats = np.flatnonzero(first[group] != np.arange(len(ids)))
+    issues = [
+        Issue(
+            f"pose_id {int(ids[i])} was already used on line {int(lines[first[group[i]]])}; "
+            "pose ids must be unique: renumber or remove the row",
+            line=int(lines[i]),
+            column="pose_id",
+        )
+        for i in repeats[:MAX_MESSAGES]
+    ]
+    return issues, len(repeats)
+
+
+def read_measurements(path: str | Path) -> Measurements:
+    """Read and validate measurements.csv (docs/formats.md).
+
+    Raises :class:`MeasurementError` listing every bad row (up to :data:`MAX_MESSAGES`), each
+    with file, line (header = line 1) and column; also for a missing, unreadable, non-UTF-8,
+    empty or too large (:data:`hexcal.io.safe_read.KINDS`) file. Floats keep the exact value
+    written; extra columns keep their text. The file is streamed: memory stays about its size.
+    """
+    path = Path(path)
+
+    def error(message: str) -> MeasurementError:
+        return MeasurementError.single(path, None, None, message.removeprefix(f"{path}: "))
+
+    with open_binary(path, "measurements", error) as fh:
+        # utf-8-sig drops a leading byte-order mark (spreadsheet exports); newline="" keeps
+        # line ends as they are, as the csv module wants.
+        stream = io.TextIOWrapper(fh, encoding="utf-8-sig", newline="")
+        try:
+            return _read_table(stream, path)
+        except UnicodeDecodeError:
+            raise _undecodable(path) from None
+        except OSError as exc:
+            raise error(f"cannot be read ({exc.strerror or exc})") from None
+
+
+def _read_table(stream: io.TextIOWrapper, path: Path) -> Measurements:
+    reader = csv.reader(stream)
+    table: _TableReader | None = None
+    pending: list[tuple[int, list[str]]] = []
+    header_line = 1
+    start = 1
+    try:
+        for fields in reader:
+            line, start = start, reader.line_num + 1
+            # Blank lines and the all-comma rows spreadsheets append hold no data at all.
+            # (Fields are stripped where they are used: the fast path leaves numbers as they
+            # are, since float() and int() ignore the same spaces str.strip() removes.)
+            if not fields or (not fields[0].strip() and not "".join(fields).strip()):
+                continue
+            if table is not None:
+                pending.append((line, fields))
+                if len(pending) >= _BLOCK_ROWS:
+                    table.flush(pending)
+                    pending = []
+                continue
+            header_line = line
+            header = [f.strip() for f in fields]
+            _raise_issues(_header_issues(header, line), path)
+            table = _TableReader(header, path)
+    except csv.Error as exc:
+        raise MeasurementError.single(
+            path, reader.line_num, None, f"not valid CSV ({exc}); fix the line or remove it"
+        ) from None
+    if table is None:
+        raise MeasurementError.single(
+            path, 1, None, f"the file is empty; it needs the header {','.join(REQUIRED_COLUMNS)}"
+        )
+    table.flush(pending)
+    if table.rows == 0:
+        raise MeasurementError.single(
+            path, header_line + 1, None, "no data rows after the header; record at least one pose"
+        )
+    return table.finish()

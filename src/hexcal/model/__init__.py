@@ -1,0 +1,3 @@
+"""The robot as drawn and as measured against: geometry, kinematics, instrument noise, reachable
+poses.
+"""

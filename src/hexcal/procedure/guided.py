@@ -1,0 +1,653 @@
+"""The guided session: one procedure step after another, driven by an operator (or a script).
+
+This is the text UI's engine, kept free of any UI so that it is tested on its own and a
+different front end can drive it. It owns the session file (saved after every change), the
+procedure's steps and where the operator is in them, and the acquisition to record from:
+
+* :meth:`GuidedSession.record` records one pose of the current step (the step's clamp checks
+  run on it: a length clamp that gave way refuses the pose), :meth:`undo` sets the last one
+  aside, :meth:`finish_step` runs the end-of-step check and moves on (or sets the step's poses
+  aside and asks for it again), :meth:`skip_step` moves on without it;
+* :meth:`live` reads the devices' latest samples without waiting, and says whether the clamp
+  holds *now*: the clamped leg's encoder against the step's first pose for a length clamp, the
+  live pose against the line or point the step's poses fit so far for a direction clamp;
+* :meth:`conditioning` tells how well the step's poses so far determine the leg's points: the
+  predicted 1σ of the platform and base points from the linear system and the noise, and the
+  motion the poses have varied least; :meth:`suggestion` gives the next best pose
+  (:mod:`hexcal.estimate.nbp`) on the geometry the step's poses estimate, once they determine it.
+
+With a motion controller (the mock rig's), :meth:`clamp`, :meth:`move` and :meth:`release` do
+the operator's hands' work; on a real robot the operator clamps and moves, and confirms.
+
+A resumed session starts at the first step not marked done or skipped in the file, with the
+poses already recorded for it — under the operator's clamp, which is still on. With a motion
+controller (a simulated rig restarted) the clamp is gone, so a partly recorded clamped step is
+set aside and starts again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hexcal.acquire.acquisition import LegSample, PoseRefused, RecordedPose, TrackerSample
+from hexcal.errors import HexcalError
+from hexcal.estimate import nbp
+from hexcal.estimate.solvers.direct import type_i_system, type_ii_system
+from hexcal.estimate.solvers.linalg import lstsq
+from hexcal.estimate.solvers.paper import platform_point_positions
+from hexcal.model.noise import NoiseSigmas
+from hexcal.model.robot import Robot
+from hexcal.model.workspace import Workspace
+from hexcal.procedure.recording import (
+    ClampSlipped,
+    Mover,
+    NoiseLevels,
+    Recorder,
+    Step,
+    StepCheck,
+    StepRecorder,
+    per_pose_noise,
+)
+from hexcal.procedure.session import PoseRecord, SessionFile, StepProgress
+
+#: Noise assumed for the live predictions until the step's own still windows tell (1σ of a
+#: recorded pose): a good optical tracker and encoder, averaged over a still window.
+DEFAULT_POSE_NOISE = NoiseLevels(0.003, 0.0006, 0.0006)
+
+#: What a pose of each constraint can vary, for the motion hint: rotations (about x, y, z) and
+#: translations (along x, y, z). A clamped point leaves only rotations.
+_HINT_DOFS = {
+    "direction+length": (0, 1, 2),
+    "direction": (0, 1, 2, 3, 4, 5),
+    "length": (0, 1, 2, 3, 4, 5),
+    "free": (0, 1, 2, 3, 4, 5),
+}
+#: How far an operator can typically vary each: deg for rotations, mm for translations.
+_HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
+
+
+class GuidedError(HexcalError):
+    """The operator asked for something the step does not allow now; the message says why."""
+
+
+@dataclass
+class Live:
+    """What the devices say now, and whether the clamp holds.
+
+    ``position`` (3,) mm and ``rotvec_deg`` (3,) of the platform, None when the tracker has
+    no pose; ``readings`` (6,) mm (NaN where missing); ``tracker_status`` and ``bus_status``
+    one line each; ``clamp`` one line on the constraint (empty for a free step);
+    ``clamp_ok`` False when the clamp is seen to give way."""
+
+    position: np.ndarray | None
+    rotvec_deg: np.ndarray | None
+    readings: np.ndarray
+    tracker_status: str
+    bus_status: str
+    clamp: str
+    clamp_ok: bool
+
+
+@dataclass
+class Conditioning:
+    """How well the step's poses determine the leg: ``sigma_b_mm`` and ``sigma_a_mm`` (largest
+    predicted 1σ of a coordinate of the platform point and of the base point or clamped point;
+    NaN when not yet determined), the scaled system's condition number, the pose-noise the
+    prediction used, and ``hint``: the motion that the poses have varied least."""
+
+    poses: int
+    sigma_b_mm: float
+    sigma_a_mm: float
+    condition: float
+    hint: str
+
+
+def pose_from_record(rec: PoseRecord) -> RecordedPose:
+    """A :class:`RecordedPose` rebuilt from its session record (for a resumed step's checks)."""
+    ts = [
+        TrackerSample(
+            s.t,
+            None if s.position is None else np.array(s.position),
+            None if s.quaternion is None else np.array(s.quaternion),
+            float("nan") if s.rms_mm is None else s.rms_mm,
+            s.fault,
+        )
+        for s in rec.tracker_samples
+    ]
+    ls = [
+        LegSample(
+            s.t,
+            np.array([np.nan if v is None else v for v in s.readings], float),
+            tuple(s.faults),
+        )
+        for s in rec.leg_samples
+    ]
+    return RecordedPose(
+        rec.t,
+        np.array(rec.position),
+        np.array(rec.quaternion),
+        np.array(rec.readings),
+        ts,
+        ls,
+        notes=tuple(rec.notes),
+    )
+
+
+class GuidedSession:
+    """A procedure run by an operator, step by step, into ``sf`` (see module docstring).
+
+    ``steps``: the expanded procedure; ``acquisition``: where poses come from (``record()`` and
+    ``latest()``); ``mover``: a motion controller, or None when the operator moves the robot;
+    ``platform_radius_mm``: |b_k| of the design, to scale orientation noise into mm;
+    ``encoders``: the leg-encoder driver, for the bus status line (optional); ``clock_start``:
+    the monotonic time session times count from."""
+
+    def __init__(
+        self,
+        sf: SessionFile,
+        steps: Sequence[Step],
+        acquisition: Recorder,
+        *,
+        platform_radius_mm: float,
+        mover: Mover | None = None,
+        encoders: object | None = None,
+        clamp_tolerance_mm: float = 0.02,
+        clock_start: float = 0.0,
+        on_event: Callable[[str], None] = lambda message: None,
+        thermometer: Callable[[], float] | None = None,
+    ):
+        self.sf = sf
+        self.thermometer = thermometer
+        self._suggested: tuple | None = None  # (what it was computed for, the suggestion)
+        #: The structure temperature the operator last entered (degC), for rigs without a
+        #: thermometer: every pose recorded after it carries it, until the next entry.
+        self.temperature_c: float | None = None
+        self.steps = list(steps)
+        self.acquisition = acquisition
+        self.mover = mover
+        self.encoders = encoders
+        self.platform_radius_mm = platform_radius_mm
+        self.clamp_tolerance_mm = clamp_tolerance_mm
+        self.on_event = on_event
+        self._sink = sf.recording_sink(clock_start)
+        self.clamped = False
+        self._clamp_reading: float | None = None  # the clamped leg's encoder when clamped
+        self.index = 0
+        self.recorder = StepRecorder(self.steps[0], clamp_tolerance_mm) if self.steps else None
+        self._restore()
+
+    # -- where we are -----------------------------------------------------------------------
+    def _restore(self) -> None:
+        """Skip the steps the file marks done or skipped; reload the current step's poses."""
+        finished = {p.step for p in self.sf.session.progress}
+        self.index = next(
+            (i for i, s in enumerate(self.steps) if s.name not in finished), len(self.steps)
+        )
+        if self.finished:
+            self.recorder = None
+            return
+        self.recorder = StepRecorder(self.step, self.clamp_tolerance_mm)
+        mine = [r for r in self.sf.session.poses if r.step == self.step.name]
+        held = getattr(self.mover, "clamp_state", None)
+        still_clamped = held is not None and (held.leg, held.constraint) == (
+            self.step.leg,
+            self.step.constraint,
+        )
+        if mine and self.step.leg and self.mover is not None and not still_clamped:
+            # A motion controller starts unclamped (a simulated rig starts afresh): the step's
+            # poses were taken under a clamp that is gone, so the step starts again.
+            self.sf.set_aside_step(
+                self.step.name,
+                "the session was resumed on a motion controller that no longer holds this "
+                "step's clamp: the step starts again",
+            )
+            return
+        for rec in mine:
+            self.recorder.accept(pose_from_record(rec))
+        if self.recorder.poses and self.step.leg:
+            self.clamped = True  # the operator's clamp is still on, as the poses were taken
+
+    @property
+    def finished(self) -> bool:
+        return self.index >= len(self.steps)
+
+    @property
+    def step(self) -> Step:
+        if self.finished:
+            raise GuidedError("the procedure is finished: every step is done or skipped")
+        return self.steps[self.index]
+
+    @property
+    def _rec(self) -> StepRecorder:
+        """The current step's recorder (none once the procedure is finished)."""
+        if self.recorder is None:
+            raise GuidedError("the procedure is finished: every step is done or skipped")
+        return self.recorder
+
+    @property
+    def n_poses(self) -> int:
+        """Poses recorded in the current step."""
+        return len(self.recorder.poses) if self.recorder else 0
+
+    @property
+    def can_finish(self) -> bool:
+        return not self.finished and self.n_poses >= self.step.min_poses
+
+    # -- the operator's actions -----------------------------------------------------------------
+    def clamp(self) -> str:
+        """The leg is clamped (by the mock controller, or as the operator confirms)."""
+        st = self.step
+        if not st.leg:
+            raise GuidedError(f"{st.name} clamps no leg")
+        if not self.clamped:
+            if self.mover is not None:
+                self.mover.clamp(st.leg, st.constraint)
+            self.clamped = True
+            _, legs = self._latest()
+            if legs is not None and np.isfinite(legs.readings[st.leg - 1]):
+                self._clamp_reading = float(legs.readings[st.leg - 1])
+        return self._say(f"leg {st.leg} clamped ({st.constraint})")
+
+    def release(self) -> None:
+        if self.mover is not None and self.clamped:
+            self.mover.release()
+        self.clamped = False
+        self._clamp_reading = None
+
+    def move(self) -> str:
+        """Move the platform to the step's next pose (motion controller only)."""
+        if self.mover is None:
+            raise GuidedError("no motion controller: move the platform with the robot's own")
+        st = self.step
+        if st.leg and not self.clamped:
+            raise GuidedError(f"clamp leg {st.leg} ({st.constraint}) first")
+        if st.at_home:
+            self.mover.home()
+        else:
+            self.mover.next_pose()
+        return "moved"
+
+    def record(self) -> tuple[bool, str]:
+        """Record one pose of the current step: (recorded, operator message). Blocks for the
+        still window. Refused poses are kept in the session file with their reason; record
+        again *at the same pose* (the motion history between recorded poses is what
+        direction-dependent effects such as backlash are fitted from)."""
+        st = self.step
+        if st.leg and not self.clamped:
+            raise GuidedError(f"clamp leg {st.leg} ({st.constraint}) before recording")
+        try:
+            pose = replace(self.acquisition.record(), temperature=self.temperature())
+        except PoseRefused as exc:
+            self._sink("refused", st, None, str(exc))
+            return False, self._say(f"pose refused: {exc}")
+        try:
+            self._rec.accept(pose)
+        except ClampSlipped as exc:
+            self._sink("refused", st, pose, str(exc))
+            return False, self._say(str(exc))
+        self._sink("pose", st, pose, "")
+        # The notes name each flagged sample in full in the session file; here, how many.
+        left_out = "; ".join(n.split(":")[0] for n in pose.notes)
+        return True, self._say(
+            f"{st.name}: pose {self.n_poses} recorded" + (f" ({left_out})" if left_out else "")
+        )
+
+    def undo(self) -> str:
+        """Set the current step's last pose aside (kept in the file, out of the calibration)."""
+        if not self.n_poses:
+            raise GuidedError(f"{self.step.name} has no pose to undo")
+        self._rec.poses.pop()
+        if not self._rec.poses:
+            self.recorder = StepRecorder(self.step, self.clamp_tolerance_mm)
+        self.sf.undo_last_pose()
+        return self._say(f"{self.step.name}: last pose set aside ({self.n_poses} left)")
+
+    def finish_step(self) -> StepCheck:
+        """End the step: its check runs; passed, the step is done and the next one starts;
+        failed, its poses are set aside (kept, with the reason) and the step starts again."""
+        st = self.step
+        if self.n_poses < st.min_poses:
+            raise GuidedError(
+                f"{st.name} needs at least {st.min_poses} poses ({self.n_poses} so far)"
+            )
+        rec = self._rec
+        check = rec.finish(per_pose_noise(rec.poses), self.platform_radius_mm)
+        self.release()
+        if not check.ok:
+            for p in rec.poses:
+                self._sink("set-aside", st, p, check.message)
+            self.recorder = StepRecorder(st, self.clamp_tolerance_mm)
+            self._say(check.message)
+            return check
+        words = (
+            f"fit {check.rms_mm:.4f} mm RMS, noise predicts {check.expected_mm:.4f} mm"
+            if np.isfinite(check.rms_mm)
+            else ""
+        )
+        self.sf.add_progress(
+            StepProgress(step=st.name, status="done", poses=self.n_poses, check=words)
+        )
+        self._say(f"{st.name} done: {self.n_poses} poses" + (f" ({words})" if words else ""))
+        self._advance()
+        return check
+
+    def skip_step(self, reason: str = "skipped by the operator") -> str:
+        """Move on without this step (its poses so far stay in the session)."""
+        st = self.step
+        self.release()
+        self.sf.add_progress(
+            StepProgress(step=st.name, status="skipped", poses=self.n_poses, check=reason)
+        )
+        self._advance()
+        return self._say(f"{st.name} skipped")
+
+    def _advance(self) -> None:
+        self.index += 1
+        self.recorder = None if self.finished else StepRecorder(self.step, self.clamp_tolerance_mm)
+
+    def _say(self, message: str) -> str:
+        self.on_event(message)
+        return message
+
+    # -- live ---------------------------------------------------------------------------------
+    def _latest(self) -> tuple[TrackerSample | None, LegSample | None]:
+        latest = getattr(self.acquisition, "latest", None)
+        return latest() if latest else (None, None)
+
+    def live(self) -> Live:
+        """The devices' latest samples and the clamp monitor (never blocks)."""
+        trk, legs = self._latest()
+        pos = rv = None
+        if trk is None:
+            t_status = "no sample yet"
+        elif trk.fault or trk.position is None:
+            t_status = f"FAULT: {trk.fault or 'no pose'}"
+        else:
+            pos = np.asarray(trk.position)
+            rv = Rotation.from_quat(trk.quaternion, scalar_first=True).as_rotvec(degrees=True)
+            t_status = "tracking"
+        readings = np.full(6, np.nan) if legs is None else np.asarray(legs.readings, float)
+        if legs is None:
+            b_status = "no reading set yet"
+        elif legs.faults:
+            b_status = f"FLAGGED: {legs.faults[0]}"
+        else:
+            b_status = "six positions"
+        st = self.encoders.status() if hasattr(self.encoders, "status") else None
+        if st is not None:
+            b_status = f"{st['bus_state']}, {st['sets']} sets ({st['incomplete_sets']} flagged); {b_status}"
+        clamp, ok = self._clamp_monitor(pos, rv, readings)
+        return Live(pos, rv, readings, t_status, b_status, clamp, ok)
+
+    def _clamp_monitor(
+        self, pos: np.ndarray | None, rv: np.ndarray | None, readings: np.ndarray
+    ) -> tuple[str, bool]:
+        if self.finished:
+            return "", True
+        st = self.step
+        if not st.leg:
+            return "", True
+        if not self.clamped:
+            return f"leg {st.leg} not clamped yet", True
+        k = st.leg - 1
+        parts, ok = [], True
+        rec = self._rec
+        tol = rec.clamp_tolerance_mm
+        if "length" in st.constraint:
+            ref = float(rec.poses[0].readings[k]) if rec.poses else self._clamp_reading
+            if ref is not None and np.isfinite(readings[k]):
+                d = float(readings[k] - ref)
+                ok = abs(d) <= tol
+                parts.append(
+                    f"length {d:+.4f} mm since {'the first pose' if rec.poses else 'clamped'}"
+                    f" (±{tol:g})" + ("" if ok else " — SLIPPING")
+                )
+        if "direction" in st.constraint and pos is not None and len(rec.poses) >= 4:
+            off = self._direction_offset(pos, Rotation.from_rotvec(rv, degrees=True), readings[k])
+            limit = max(4 * self._noise_mm(), 0.03)
+            good = off <= limit
+            ok = ok and good
+            what = "line" if st.constraint == "direction" else "point"
+            parts.append(
+                f"{what} {off:.3f} mm off the step's fit (≤ {limit:.3f})"
+                + ("" if good else " — CLAMP MOVED?")
+            )
+        return "; ".join(parts) or f"leg {st.leg} clamped ({st.constraint})", ok
+
+    def _noise_mm(self) -> float:
+        n = self._noise()
+        return float(
+            np.sqrt(
+                n.position_mm**2 + (np.deg2rad(n.orientation_deg) * self.platform_radius_mm) ** 2
+            )
+        )
+
+    def _noise(self) -> NoiseLevels:
+        poses = self.recorder.poses if self.recorder else []
+        if len(poses) >= 2:
+            try:
+                n = per_pose_noise(poses)
+                if np.isfinite([n.position_mm, n.orientation_deg, n.reading_mm]).all():
+                    return n
+            except (ValueError, ZeroDivisionError):
+                pass
+        return DEFAULT_POSE_NOISE
+
+    def _arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current step's poses: P (n, 3), R (n, 3, 3), the clamped leg's readings (n,)."""
+        st = self.step
+        if not st.leg:
+            raise GuidedError(f"{st.name} clamps no leg: its poses make no leg's system")
+        poses = self._rec.poses
+        P = np.array([p.position for p in poses])
+        R = Rotation.from_quat(np.array([p.quaternion for p in poses]), scalar_first=True)
+        rho = np.array([p.readings[st.leg - 1] for p in poses])
+        return P, R.as_matrix(), rho
+
+    def _direction_offset(self, pos: np.ndarray, rot: Rotation, reading: float) -> float:
+        """How far (mm) the live pose lies from the line (Type I) or point (Type II) that the
+        step's poses fit."""
+        P, R, rho = self._arrays()
+        Rl = rot.as_matrix()
+        if self.step.constraint == "direction":
+            x = lstsq(*type_i_system(P, R, rho))
+            b, a, u = x[:3], x[3:6], x[6:]
+            if not np.isfinite(reading):
+                return float("nan")
+            return float(np.linalg.norm(pos + Rl @ b - a - reading * u))
+        x = lstsq(*type_ii_system(P, R))
+        return float(np.linalg.norm(pos + Rl @ x[:3] - x[3:]))
+
+    def conditioning(self, design_b: np.ndarray | None = None) -> Conditioning:
+        """The predicted uncertainty of the current step's linear system (see module docstring).
+
+        ``design_b`` (6, 3) mm: the platform points to use for a length step's sphere fit (the
+        previous direction+length step's result is not known here; the design is close enough
+        for a prediction)."""
+        st = self.step
+        n = self.n_poses
+        nan = float("nan")
+        if not st.leg or n == 0:
+            return Conditioning(n, nan, nan, nan, self._hint())
+        P, R, rho = self._arrays()
+        noise = self._noise()
+        sig_row = np.sqrt(
+            noise.position_mm**2
+            + (np.deg2rad(noise.orientation_deg) * self.platform_radius_mm) ** 2
+            + (noise.reading_mm**2 if st.constraint == "direction" else 0.0)
+        )
+        groups: tuple[slice | None, slice]
+        if st.constraint == "direction":
+            A, _ = type_i_system(P, R, rho)
+            groups = (slice(0, 3), slice(3, 6))
+        elif st.constraint == "direction+length":
+            A, _ = type_ii_system(P, R)
+            groups = (slice(0, 3), slice(3, 6))
+        else:
+            b = np.zeros(3) if design_b is None else np.asarray(design_b)[st.leg - 1]
+            V = platform_point_positions(P, R, b)
+            w = V - V.mean(axis=0)
+            # Sphere fit rows 2 (V − V̄)·a + c = |V − V̄|²: a row's noise is 2 |V − V̄| σ.
+            A = np.concatenate([2.0 * w, np.ones((n, 1))], axis=1)
+            sig_row = 2.0 * float(np.linalg.norm(w, axis=1).mean()) * sig_row
+            groups = (None, slice(0, 3))
+        if A.shape[0] < A.shape[1]:
+            return Conditioning(n, nan, nan, float("inf"), self._hint())
+        scale = np.linalg.norm(A, axis=0)
+        scale[scale == 0] = 1.0
+        s = np.linalg.svd(A / scale, compute_uv=False)
+        cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+        if A.shape[0] == A.shape[1] or not np.isfinite(cond) or cond > 1e12:
+            return Conditioning(n, nan, nan, cond, self._hint())
+        cov = sig_row**2 * np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale)
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        sb = nan if groups[0] is None else float(sd[groups[0]].max())
+        sa = float(sd[groups[1]].max())
+        return Conditioning(n, sb, sa, cond, self._hint())
+
+    def _hint(self) -> str:
+        """The motion the step's poses have varied least, relative to what an operator can."""
+        st = self.step
+        poses = self.recorder.poses if self.recorder else []
+        if st.at_home:
+            return "record the home pose"
+        if len(poses) < 2:
+            return {
+                "direction+length": "tilt the platform about the clamped point",
+                "direction": "move the platform along and about the clamped leg",
+                "length": "swing the clamped leg to the sides, forwards and back",
+                "free": "spread the poses over the workspace",
+            }[st.constraint]
+        rv = Rotation.from_quat(
+            np.array([p.quaternion for p in poses]), scalar_first=True
+        ).as_rotvec(degrees=True)
+        P = np.array([p.position for p in poses])
+        span = np.concatenate([np.ptp(rv, axis=0), np.ptp(P, axis=0)]) / _HINT_SCALE
+        dofs = _HINT_DOFS[st.constraint]
+        d = min(dofs, key=lambda i: span[i])
+        axis = "xyz"[d % 3]
+        half = span[d] * _HINT_SCALE[d] / 2
+        if d < 3:
+            return f"tilt the platform about {axis} (its poses span only ±{half:.1f}° so far)"
+        return f"move the platform along {axis} (its poses span only ±{half:.1f} mm so far)"
+
+    def suggestion(self, design: Robot, n_candidates: int = 300) -> nbp.Suggestion | None:
+        """The next best pose of the current clamped step (None before its poses determine the
+        clamp, or on a free step). Every 5th is a space-filling one. Seeded by the pose count,
+        so the same poses give the same suggestion — computed once for them (the screen, the
+        target check and the mock operator all ask)."""
+        poses = self.recorder.poses if self.recorder else []
+        key = (self.index, self.step, len(poses), poses[-1].t if poses else None, id(design))
+        if self._suggested is None or self._suggested[0] != (key, n_candidates):
+            self._suggested = ((key, n_candidates), self._suggest(design, n_candidates))
+        return self._suggested[1]
+
+    def _suggest(self, design: Robot, n_candidates: int) -> nbp.Suggestion | None:
+        st = self.step
+        n = self.n_poses
+        if not st.leg or n < 4:
+            return None
+        k = st.leg - 1
+        P, R, rho = self._arrays()
+        noise = self._noise()
+        sig = NoiseSigmas(noise.position_mm, np.deg2rad(noise.orientation_deg), noise.reading_mm)
+        try:
+            geo = nbp.estimate_geometry(st.constraint, k, P, R, rho, design)
+            a_all, b_all = design.a.copy(), design.b.copy()
+            a_all[k], b_all[k] = geo.a, geo.b
+            sim = Workspace(design.with_geometry(a_all, b_all, design.offsets))
+            return nbp.suggest(
+                st.constraint,
+                geo,
+                P,
+                R,
+                sig,
+                sim,
+                np.random.default_rng(n),
+                n_candidates=n_candidates,
+                space_filling=n % 5 == 4,
+                target_mm=st.target_sigma_mm or 0.0,
+            )
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
+            return None  # a degenerate fit or no feasible candidate: no suggestion this time
+
+    def target_met(self, design: Robot) -> bool:
+        """The step has its minimum count and its poses already predict the step's target 1σ
+        (``Step.target_sigma_mm``): more poses are not needed."""
+        st = self.step
+        if st.target_sigma_mm is None or self.n_poses < st.min_poses:
+            return False
+        s = self.suggestion(design)
+        return s is not None and s.done
+
+    def move_to_suggestion(self, s: nbp.Suggestion) -> str:
+        """Follow a suggestion with the motion controller (the mock's: it holds the clamp)."""
+        if self.mover is None or not hasattr(self.mover, "move_near"):
+            raise GuidedError("no motion controller that can follow a suggestion")
+        self.mover.move_near(s.position, s.rotation)
+        return "moved to the suggested pose"
+
+    # -- what was recorded ------------------------------------------------------------------------
+    def set_aside_count(self) -> int:
+        return len(self.sf.session.set_aside)
+
+    def note(self, text: str) -> str:
+        """Keep the operator's note in the session file (with the time)."""
+        text = text.strip()
+        if not text:
+            raise GuidedError("the note is empty: type what you want to keep, then Enter")
+        self.sf.add_note(text)
+        return self._say(f"note kept: {text}")
+
+    def temperature(self) -> float | None:
+        """The structure temperature for the next pose (degC): the thermometer's reading, else
+        what the operator last entered, else None (unknown)."""
+        if self.thermometer is not None:
+            return float(self.thermometer())
+        return self.temperature_c
+
+    def set_temperature(self, text: str) -> str:
+        """The operator read the structure's temperature (degC, as typed): every pose from now
+        on carries it, so the diagnosis can see thermal expansion."""
+        try:
+            value = float(text.strip().replace(",", "."))
+        except ValueError:
+            raise GuidedError(
+                f"{text.strip()!r} is not a temperature: type degrees Celsius, e.g. 21.5"
+            ) from None
+        if not -40.0 <= value <= 80.0:
+            raise GuidedError(
+                f"{value:g} °C is outside -40..80 °C: type the structure's temperature in degrees Celsius"
+            )
+        if self.thermometer is not None:
+            raise GuidedError("this rig reads its own thermometer: the typed value is not used")
+        self.temperature_c = value
+        self.sf.add_note(f"structure temperature {value:g} °C (entered by the operator)")
+        before = sum(r.temperature is None for r in self.sf.session.poses)
+        return self._say(
+            f"structure temperature {value:g} °C: the next poses carry it"
+            + (
+                f" ({before} pose{'s' if before > 1 else ''} before it "
+                f"{'have' if before > 1 else 'has'} none, so the measurement table leaves "
+                "temperature out: enter it before the first pose to fit thermal expansion)"
+                if before
+                else ""
+            )
+        )
+
+    def summary(self) -> list[tuple[str, str, int, int, int]]:
+        """(step, state, poses, min, recommended) for every step; state 'done', 'skipped',
+        'now' or ''."""
+        prog = {p.step: p for p in self.sf.session.progress}
+        counts: dict[str, int] = {}
+        for r in self.sf.session.poses:
+            counts[r.step] = counts.get(r.step, 0) + 1
+        out: list[tuple[str, str, int, int, int]] = []
+        for i, s in enumerate(self.steps):
+            state = prog[s.name].status if s.name in prog else ("now" if i == self.index else "")
+            out.append((s.name, state, counts.get(s.name, 0), s.min_poses, s.n_poses))
+        return out
