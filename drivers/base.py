@@ -6,11 +6,24 @@ children name the device and what to check)."""
 
 from __future__ import annotations
 
+import logging
 from abc import ABC, abstractmethod
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hexcal.errors import DeviceError
+
+if TYPE_CHECKING:
+    import serial
+
+try:  # a hung-up tty makes tcflush raise termios.error, which is not an OSError
+    import termios
+
+    SERIAL_IO_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
+except ImportError:  # pragma: no cover - Windows
+    SERIAL_IO_ERRORS = (OSError,)
+
+log = logging.getLogger(__name__)
 
 
 class Device(ABC):
@@ -44,4 +57,24 @@ class Device(ABC):
         self.close()
 
 
-__all__ = ["Device", "DeviceError"]
+class SerialDevice(Device):
+    """A device on a pyserial port (``url`` as :func:`serial.serial_for_url` takes it): open
+    while it holds a port; :meth:`_close_port` lets go of the port and never raises."""
+
+    url: str
+    port: serial.Serial | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self.port is not None
+
+    def _close_port(self) -> None:
+        port, self.port = self.port, None
+        if port is not None:
+            try:
+                port.close()
+            except SERIAL_IO_ERRORS as exc:  # closing a vanished port: nothing left to do
+                log.debug("closing %s: %s", self.url, exc)
+
+
+__all__ = ["SERIAL_IO_ERRORS", "Device", "DeviceError", "SerialDevice"]

@@ -42,7 +42,7 @@ import numpy as np
 import serial
 
 from hexcal.acquire.acquisition import TrackerSample
-from hexcal.drivers.base import Device
+from hexcal.drivers.base import SERIAL_IO_ERRORS, SerialDevice
 from hexcal.drivers.limits import check_duration
 from hexcal.drivers.ndi_protocol import TrackerDisconnected, TrackerFormatError, TrackerTimeout
 
@@ -51,12 +51,7 @@ MAX_LINE = 1024
 QUATERNION_NORM_TOLERANCE = 1e-3
 FORMAT = "t x y z qw qx qy qz [rms]"
 
-try:
-    import termios
-
-    _IO_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
-except ImportError:  # pragma: no cover - Windows
-    _IO_ERRORS = (OSError,)
+_IO_ERRORS = SERIAL_IO_ERRORS
 #: What opening the port may raise: a bad URL or setting, or the OS refusing the device.
 _OPEN_ERRORS: tuple[type[BaseException], ...] = (ValueError, *_IO_ERRORS)
 
@@ -194,7 +189,7 @@ def format_missing(t: float) -> str:
     return f"MISSING {float(t):.9g}\n"
 
 
-class LineTracker(Device):
+class LineTracker(SerialDevice):
     """Reads the line protocol from a pyserial port (``url`` for :func:`serial.serial_for_url`).
 
     :meth:`read_pose` returns the next record; :meth:`sample` the next one as a
@@ -211,10 +206,6 @@ class LineTracker(Device):
         self.lineno = 0
         self._buf = bytearray()
 
-    @property
-    def is_open(self) -> bool:
-        return self.port is not None
-
     def open(self) -> LineTracker:
         self.close()
         try:
@@ -230,12 +221,7 @@ class LineTracker(Device):
         return self
 
     def close(self) -> None:
-        port, self.port = self.port, None
-        if port is not None:
-            try:
-                port.close()
-            except _IO_ERRORS:
-                pass
+        self._close_port()
 
     def read_line(self) -> tuple[bytes, float]:
         """The next raw line (without LF) and its host arrival time (monotonic s)."""

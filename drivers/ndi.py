@@ -25,7 +25,7 @@ from typing import Literal, NamedTuple, cast
 import serial
 
 from hexcal.acquire.acquisition import TrackerSample
-from hexcal.drivers.base import Device
+from hexcal.drivers.base import SERIAL_IO_ERRORS, SerialDevice
 from hexcal.drivers.crc import crc16
 from hexcal.drivers.limits import check_duration
 from hexcal.drivers.ndi_clock import FrameClock
@@ -91,12 +91,7 @@ from hexcal.drivers.ndi_protocol import UnoccupiedPort as UnoccupiedPort
 from hexcal.drivers.ndi_protocol import error_text as error_text
 from hexcal.drivers.ndi_protocol import pose_defect as pose_defect
 
-try:  # a hung-up tty makes tcflush raise termios.error, which is not an OSError
-    import termios
-
-    _IO_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
-except ImportError:  # pragma: no cover - Windows
-    _IO_ERRORS = (OSError,)
+_IO_ERRORS = SERIAL_IO_ERRORS
 #: What opening or reconfiguring the port raises for a bad name or a dead line.
 _PORT_ERRORS: tuple[type[BaseException], ...] = (ValueError, *_IO_ERRORS)
 
@@ -119,7 +114,7 @@ class _Exchange(NamedTuple):
 # ------------------------------------------------------------------------------------------------
 # The driver
 # ------------------------------------------------------------------------------------------------
-class NDITracker(Device):
+class NDITracker(SerialDevice):
     """An NDI Combined API tracker on a pyserial port (``url``: a device path, ``socket://``,
     a pty, ``ndimock://``...).
 
@@ -239,10 +234,6 @@ class NDITracker(Device):
         return f"NDITracker({self.url!r}, {self.baudrate} baud, {state})"
 
     # -- connection -----------------------------------------------------------------------------
-    @property
-    def is_open(self) -> bool:
-        return self.port is not None
-
     def open(self) -> NDITracker:
         """Open the port, reset the tracker, set the baud rate (COMM) and initialise it (INIT)."""
         with self._lock:
@@ -761,11 +752,3 @@ class NDITracker(Device):
             return True
         log.info("tracker on %s: unexpected answer to %s: %s", self.url, command, _preview(reply))
         return False
-
-    def _close_port(self) -> None:
-        port, self.port = self.port, None
-        if port is not None:
-            try:
-                port.close()
-            except _IO_ERRORS as exc:  # closing a vanished port: nothing left to do
-                log.debug("closing %s: %s", self.url, exc)

@@ -14,19 +14,19 @@ the device's cable (:meth:`MockNDITracker.unplug`) makes every operation raise
 
 from __future__ import annotations
 
-import numbers
 import time
 from typing import TYPE_CHECKING
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+from serial.serialutil import PortNotOpenError, SerialException
 
 from hexcal.mock_hw.ndi_tracker import MockNDITracker, device_for_url
+from hexcal.mock_hw.serial_port import MockSerialBase
 
 if TYPE_CHECKING:
     from typing_extensions import Buffer
 
 
-class Serial(SerialBase):
+class Serial(MockSerialBase):
     """A pyserial port connected to a mock NDI tracker."""
 
     BAUDRATES = (9600, 14400, 19200, 38400, 57600, 115200, 230400, 921600, 1228739)
@@ -38,11 +38,7 @@ class Serial(SerialBase):
 
     # -- open / close ---------------------------------------------------------------------------------
     def open(self) -> None:
-        if self.is_open:
-            raise SerialException("Port is already open.")
-        port = self.portstr
-        if port is None:
-            raise SerialException("Port must be configured before it can be used.")
+        port = self._port_to_open()
         try:
             device = device_for_url(port)
         except (ValueError, KeyError) as exc:
@@ -61,11 +57,6 @@ class Serial(SerialBase):
         self.is_open = False
         self._device = None
         super().close()
-
-    def _reconfigure_port(self) -> None:
-        baud: object = self.baudrate  # as set: pyserial's setter lets a float through
-        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2**32:
-            raise ValueError(f"invalid baudrate: {baud!r}")
 
     def _live(self) -> MockNDITracker:
         if not self.is_open or self._device is None:
@@ -112,33 +103,10 @@ class Serial(SerialBase):
         self._live()
         return 0
 
-    # -- modem lines and break --------------------------------------------------------------------------
+    # -- modem lines and break (the lines: MockSerialBase) --------------------------------------
+    def _line_check(self) -> None:
+        self._live()
+
     def _update_break_state(self) -> None:
         if self.break_condition:  # the tracker resets on the BREAK's start
             self._live().on_break()
-
-    def _update_rts_state(self) -> None:
-        pass
-
-    def _update_dtr_state(self) -> None:
-        pass
-
-    @property
-    def cts(self) -> bool:
-        self._live()
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        self._live()
-        return True
-
-    @property
-    def ri(self) -> bool:
-        self._live()
-        return False
-
-    @property
-    def cd(self) -> bool:
-        self._live()
-        return True

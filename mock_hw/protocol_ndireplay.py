@@ -49,7 +49,6 @@ capture in which a reply came late or was cut off by a timeout replays as a prom
 from __future__ import annotations
 
 import bisect
-import numbers
 import re
 import threading
 import time
@@ -57,7 +56,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import serial
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+from serial.serialutil import SerialException
+
+from hexcal.mock_hw.serial_port import MockSerialBase
 
 if TYPE_CHECKING:
     from typing_extensions import Buffer
@@ -241,7 +242,7 @@ def _shown(data: bytes) -> str:
     return repr(data[:_SHOWN]) + (f"... ({len(data)} bytes)" if len(data) > _SHOWN else "")
 
 
-class Serial(SerialBase):
+class Serial(MockSerialBase):
     """A pyserial port that replays a spy capture (see the module docstring)."""
 
     BAUDRATES = (9600, 14400, 19200, 38400, 57600, 115200, 921600, 1228739)
@@ -256,11 +257,7 @@ class Serial(SerialBase):
 
     # -- open / close ---------------------------------------------------------------------------
     def open(self) -> None:
-        if self.is_open:
-            raise SerialException("Port is already open.")
-        port = self.portstr
-        if port is None:
-            raise SerialException("Port must be configured before it can be used.")
+        port = self._port_to_open()
         path = capture_path(port)
         chunks = load_capture(path)
         with self._cond:
@@ -274,15 +271,8 @@ class Serial(SerialBase):
         self.is_open = False
         super().close()
 
-    def _reconfigure_port(self) -> None:
-        # No line to configure: any valid baud rate is accepted (spy records no rate changes).
-        baud: object = self.baudrate  # as set: pyserial's setter lets a float through
-        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2**32:
-            raise ValueError(f"invalid baudrate: {baud!r}")
-
     def _check_open(self) -> None:
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._line_check()
 
     # -- the capture ----------------------------------------------------------------------------
     def _next(self, index: int, direction: str) -> int:
@@ -401,36 +391,6 @@ class Serial(SerialBase):
     def out_waiting(self) -> int:
         self._check_open()
         return 0
-
-    # -- modem lines and break (no line: accepted and ignored) ----------------------------------
-    def _update_break_state(self) -> None:
-        self._check_open()
-
-    def _update_rts_state(self) -> None:
-        pass
-
-    def _update_dtr_state(self) -> None:
-        pass
-
-    @property
-    def cts(self) -> bool:
-        self._check_open()
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        self._check_open()
-        return True
-
-    @property
-    def ri(self) -> bool:
-        self._check_open()
-        return False
-
-    @property
-    def cd(self) -> bool:
-        self._check_open()
-        return True
 
 
 def install_replay_handler() -> None:

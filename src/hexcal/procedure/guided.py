@@ -43,6 +43,7 @@ from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.model.workspace import Workspace
 from hexcal.procedure.recording import (
+    BusStatus,
     ClampSlipped,
     Mover,
     NoiseLevels,
@@ -154,7 +155,7 @@ class GuidedSession:
         *,
         platform_radius_mm: float,
         mover: Mover | None = None,
-        encoders: object | None = None,
+        encoders: BusStatus | None = None,
         clamp_tolerance_mm: float = 0.02,
         clock_start: float = 0.0,
         on_event: Callable[[str], None] = lambda message: None,
@@ -377,7 +378,7 @@ class GuidedSession:
             b_status = f"FLAGGED: {legs.faults[0]}"
         else:
             b_status = "six positions"
-        st = self.encoders.status() if hasattr(self.encoders, "status") else None
+        st = self.encoders.status() if self.encoders is not None else None
         if st is not None:
             b_status = f"{st['bus_state']}, {st['sets']} sets ({st['incomplete_sets']} flagged); {b_status}"
         clamp, ok = self._clamp_monitor(pos, rv, readings)

@@ -24,12 +24,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hexcal.acquire.acquisition import PoseRefused, RecordedPose
+from hexcal.acquire.acquisition import LegSample, PoseRefused, RecordedPose, TrackerSample
 from hexcal.errors import DeviceError
 from hexcal.estimate.solvers.direct import type_i_system, type_ii_system
 from hexcal.estimate.solvers.linalg import lstsq
@@ -271,9 +271,22 @@ class Recorder(Protocol):
     def record(self) -> RecordedPose: ...
 
 
+class LiveRecorder(Recorder, Protocol):
+    """A recorder that also shows the last samples as they arrive (the operator's live view)."""
+
+    def latest(self) -> tuple[TrackerSample | None, LegSample | None]: ...
+
+
 class MotionError(DeviceError):
     """The motion controller (a :class:`Mover`) cannot do what was asked; the message says
     why. Raised by any controller — the mock's (:mod:`hexcal.mock_hw.motion`) or a real one."""
+
+
+class BusStatus(Protocol):
+    """A leg-encoder driver that reports its bus: ``status()`` holds at least ``bus_state``,
+    ``sets`` and ``incomplete_sets`` (see :meth:`hexcal.drivers.can_encoders.LegEncoders.status`)."""
+
+    def status(self) -> dict[str, Any]: ...
 
 
 class Mover(Protocol):

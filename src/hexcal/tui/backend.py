@@ -5,13 +5,15 @@ rig (simulated devices behind the real drivers, a robot hiding an effect), or an
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from hexcal.acquire.acquisition import StillWindow
+from hexcal.acquire.devices import DevicesConfig
 from hexcal.model.robot import Robot
+from hexcal.procedure.recording import BusStatus, LiveRecorder, Mover
 
 
 @dataclass
@@ -20,15 +22,15 @@ class Rig:
     status (or None), a motion controller (mock only, else None), the device configuration to
     store in the session, and, on a simulated rig, the ``truth`` and the ``hidden`` effect."""
 
-    acquisition: Any
-    encoders: Any = None
-    mover: Any = None
-    devices: Any = None
+    acquisition: LiveRecorder
+    encoders: BusStatus | None = None
+    mover: Mover | None = None
+    devices: DevicesConfig | None = None
     truth: Robot | None = None
     hidden: dict[str, Any] | None = None
     #: Reads the structure temperature (degC), when the rig has a thermometer; else the
     #: operator types it (key t in the recording screen).
-    thermometer: Any = None
+    thermometer: Callable[[], float] | None = None
 
 
 @dataclass
