@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hexcal.estimate.clamp_rows import ROWS, ClampModel, ClampSteps, Nuisance
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.refine import refine
 from hexcal.model.noise import NoiseSigmas
 from hexcal.sim.session_efficiency import session_efficiency
@@ -65,10 +66,12 @@ def test_derivatives_match_finite_differences(design, fit_offsets):
     basis = rng.normal(size=(len(P), 6, 2))
     nu = Nuisance.seed(steps, truth.a, truth.b, P, R)
     model = ClampModel(steps, P, R, rho, truth.offsets, fit_offsets, basis, nu.u + 0.01)
+    assert model.layout == ParameterLayout(fit_offsets, 2)
     x = np.concatenate(
-        [truth.a.ravel(), truth.b.ravel()]
-        + ([truth.offsets] if fit_offsets else [])
-        + [[0.1, -0.2], model.nuisance_vector(nu) + rng.normal(0, 0.01, steps.n_nuisance)]
+        [
+            model.layout.pack(truth.a, truth.b, truth.offsets, [0.1, -0.2]),
+            model.nuisance_vector(nu) + rng.normal(0, 0.01, steps.n_nuisance),
+        ]
     )
     res, jac, jz = model.evaluate(x)
     assert not res[~model.mask].any() and not jac[~model.mask].any()
@@ -111,9 +114,10 @@ def test_noise_free_refinement_with_clamps_is_exact(design):
         SIG,
         clamps=steps,
     )
-    true_x = np.concatenate([truth.a.ravel(), truth.b.ravel(), truth.offsets])
+    model42 = ParameterLayout.for_model(42)
+    true_x = model42.pack(truth.a, truth.b, truth.offsets)
     assert np.max(np.abs(ref.x - true_x)) < 1e-9 * 200
-    assert len(ref.names) == 42 and ref.cov.shape == (42, 42)
+    assert len(ref.names) == model42.size and ref.cov.shape == (model42.size, model42.size)
     assert ref.residuals.shape == (len(meas), 6)
     # Each step's nuisance value is the clamp's truth: the Type II points are the platform
     # point's position in space.

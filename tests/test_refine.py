@@ -8,6 +8,7 @@ import pytest
 from scipy import stats
 
 from hexcal.estimate.calibrate import calibrate
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.refine import refine
 from hexcal.model.noise import NoiseSigmas
 from hexcal.sim.session_sim import SessionPlan, simulate_session
@@ -15,10 +16,11 @@ from hexcal.sim.simulate import NoiseModel, PoseRanges, Simulator
 
 SIG = NoiseSigmas(0.01, np.deg2rad(0.002), 0.002)
 SMALL = SessionPlan(n_type_i=0, n_type_ii=6, n_type_iii=6, n_free=30)
+MODEL42 = ParameterLayout.for_model(42)
 
 
 def _truth_vector(t):
-    return np.concatenate([t.a.ravel(), t.b.ravel(), t.offsets])
+    return MODEL42.pack(t.a, t.b, t.offsets)
 
 
 def test_noise_free_refinement_is_exact(design):
@@ -77,7 +79,7 @@ def test_refined_beats_linear(design):
         meas, truth = simulate_session(design, 2000 + seed, SMALL)
         cal = calibrate(meas, design, 42)
         t = _truth_vector(truth)
-        lin = np.concatenate([cal.linear.a.ravel(), cal.linear.b.ravel(), cal.linear.offsets])
+        lin = MODEL42.pack(cal.linear.a, cal.linear.b, cal.linear.offsets)
         lin_err.append(np.sqrt(np.mean((lin - t) ** 2)))
         ref_err.append(np.sqrt(np.mean((cal.refinement.x - t) ** 2)))
     assert np.median(ref_err) < 0.5 * np.median(lin_err)

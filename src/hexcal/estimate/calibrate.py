@@ -15,6 +15,7 @@ import numpy as np
 from scipy import stats
 
 from hexcal.estimate.clamp_rows import ClampSteps
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.predict import LegModel
 from hexcal.estimate.refine import FitStalled, Refinement, refine
 from hexcal.estimate.solvers.whole_robot import Form, LinearCalibration, calibrate_linear
@@ -58,7 +59,7 @@ class Calibration:
         from hexcal.effects import get_effect
 
         r = self.refinement
-        i = 42 if self.model == 42 else 36
+        i = ParameterLayout(fit_offsets=self.model == 42).n_geometry
         keep: list[str] = []
         values: list[float] = []
         for e in self.effects:
@@ -158,7 +159,7 @@ def with_clamps(
     if not len(steps):
         return lengths, None
     q = 0 if basis is None else basis.shape[-1]
-    p0 = 36 + (6 if fit_offsets else 0)
+    p0 = ParameterLayout(fit_offsets).n_geometry
     ref = refine(
         meas.position,
         meas.rotations.as_matrix(),

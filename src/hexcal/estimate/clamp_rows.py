@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hexcal.estimate.layout import ParameterLayout
+
 #: Rows per pose in the fixed layout: six leg lengths and up to three clamp rows.
 ROWS = 9
 #: Nuisance unknowns per step, by constraint.
@@ -142,8 +144,9 @@ def _skew(b: np.ndarray) -> np.ndarray:
 class ClampModel:
     """Residuals, parameter Jacobian and measurement Jacobian of every pose in the 9-row frame.
 
-    The parameter vector is ``x = [geometry (36), offsets (6 if fitted), θ (q), nuisance]``; the
-    nuisance block holds each step's unknowns in step order, Type I's as tangent coordinates
+    The parameter vector is ``x = [geometry (36), offsets (6 if fitted), θ (q), nuisance]``
+    (:attr:`layout`, then the nuisance after its :attr:`~ParameterLayout.size`); the nuisance
+    block holds each step's unknowns in step order, Type I's as tangent coordinates
     about ``u0`` (so a pass re-centres them at zero).
     """
 
@@ -174,6 +177,11 @@ class ClampModel:
         mask[t1 | t2, 6:9] = True
         mask[t3, 6] = True
         self.mask = mask
+
+    @property
+    def layout(self) -> ParameterLayout:
+        """The blocks of x before the nuisance: a, b, the offsets when fitted, θ (q)."""
+        return ParameterLayout(self.fit_offsets, self.basis.shape[-1])
 
     @property
     def n_rows(self) -> int:
@@ -211,13 +219,14 @@ class ClampModel:
         derivatives not asked for come back as None."""
         m = len(self.P)
         q = self.basis.shape[-1]
-        ng = self.steps.n_nuisance
         p = len(x)
-        a = x[:18].reshape(6, 3)
-        b = x[18:36].reshape(6, 3)
-        off = x[36:42] if self.fit_offsets else self.fixed_offsets
-        i_theta = p - ng - q
-        theta = x[i_theta : p - ng]
+        lay = self.layout
+        if p != lay.size + self.steps.n_nuisance:
+            raise ValueError(f"x has {p} entries, not {lay.size} + {self.steps.n_nuisance}")
+        a, b = lay.a(x), lay.b(x)
+        off = lay.offsets(x, self.fixed_offsets)
+        eff = lay.effects_slice  # θ's columns; the nuisance follows from lay.size
+        theta = x[eff]
         legs = np.arange(6)
         rb = np.einsum("mij,kj->mki", self.R, b)  # (M, 6, 3)
         v = self.P[:, None, :] + rb - a[None]
@@ -234,12 +243,12 @@ class ClampModel:
         rtn = np.einsum("mji,mkj->mki", self.R, n)
         if want_jac:
             for axis in range(3):
-                jac[:, legs, 3 * legs + axis] = -n[:, :, axis]
-                jac[:, legs, 18 + 3 * legs + axis] = rtn[:, :, axis]
+                jac[:, legs, lay.a_column(legs, axis)] = -n[:, :, axis]
+                jac[:, legs, lay.b_column(legs, axis)] = rtn[:, :, axis]
             if self.fit_offsets:
-                jac[:, legs, 36 + legs] = -1.0
+                jac[:, legs, lay.offset_column(legs)] = -1.0
             if q:
-                jac[:, :6, i_theta : p - ng] = -self.basis
+                jac[:, :6, eff] = -self.basis
         g_rows = np.cross(b[None], rtn)  # dL/dθ body, (M, 6, 3)
         if want_jz:
             jz[:, :6, 0:3] = n
@@ -253,8 +262,8 @@ class ClampModel:
             if not len(sel):
                 continue
             k = self.steps.leg[s]
-            col = i_theta + q + self.offset_of[s]
-            geo_a, geo_b = slice(3 * k, 3 * k + 3), slice(18 + 3 * k, 21 + 3 * k)
+            col = lay.size + self.offset_of[s]
+            geo_a, geo_b = lay.a_of_leg(k), lay.b_of_leg(k)
             if want_jz and c != "length":
                 jz[sel, 6:9, 0:3] = np.eye(3)
                 jz[sel, 6:9, 3:6] = -self.R[sel] @ _skew(b[k])  # d(R b)/dθ body
@@ -269,11 +278,9 @@ class ClampModel:
                     jac[sel, 6:9, geo_a] = -np.eye(3)
                     jac[sel, 6:9, geo_b] = self.R[sel]
                     if self.fit_offsets:
-                        jac[sel, 6:9, 36 + k] = -u
+                        jac[sel, 6:9, lay.offset_column(k)] = -u
                     if q:
-                        jac[sel, 6:9, i_theta : p - ng] = (
-                            -u[None, :, None] * self.basis[sel, k][:, None, :]
-                        )
+                        jac[sel, 6:9, eff] = -u[None, :, None] * self.basis[sel, k][:, None, :]
                     w = self.u0[s] + self.tangent[s] @ x[col : col + 2]
                     du = (np.eye(3) - np.outer(u, u)) / np.linalg.norm(w) @ self.tangent[s]
                     jac[sel, 6:9, col : col + 2] = -s_len[:, None, None] * du[None]

@@ -10,6 +10,7 @@ import numpy as np
 from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
 from hexcal.effects.backlash import deadband_for_noise
 from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors, pose_errors, pose_floor
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.predict import LegModel
 from hexcal.estimate.refine import Refinement, _model, refine
 from hexcal.estimate.solvers.whole_robot import LinearCalibration, calibrate_linear
@@ -127,13 +128,12 @@ class ModelFit:
 
 
 def leg_model(design: Robot, effects: tuple[str, ...], x: np.ndarray) -> LegModel:
-    """A predictor from a parameter vector laid out as the refinement's: a (18), b (18), the
-    offsets (6) when ``offset`` is among ``effects``, then the other effects' parameters."""
-    fit_offsets = "offset" in effects
-    p0 = 42 if fit_offsets else 36
-    off = x[36:42] if fit_offsets else design.offsets
-    robot = design.with_geometry(x[:18].reshape(6, 3), x[18:36].reshape(6, 3), off)
-    return LegModel(robot, effects, x[p0:])
+    """A predictor from a parameter vector laid out as the refinement's
+    (:class:`~hexcal.estimate.layout.ParameterLayout`): a (18), b (18), the offsets (6) when
+    ``offset`` is among ``effects``, then the other effects' parameters."""
+    lay = ParameterLayout.of_vector(x, "offset" in effects)
+    robot = design.with_geometry(lay.a(x), lay.b(x), lay.offsets(x, design.offsets))
+    return LegModel(robot, effects, lay.effects(x))
 
 
 @dataclass
@@ -310,7 +310,6 @@ def _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names):
         basis = new
         if change < GEOMETRY_TOL:
             break
-        q = basis.shape[-1]
         ref = refine(
             problem.meas.position,
             problem.R,
@@ -322,7 +321,7 @@ def _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names):
             problem.sigmas,
             basis=basis,
             basis_names=names,
-            theta0=ref.x[len(ref.x) - q :],
+            theta0=ref.layout.effects(ref.x),
             passes=1,
         )
     return ref, basis
@@ -379,9 +378,8 @@ def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None
         held = np.zeros((m, 6))
         for test in _folds(m, blocked):
             train = np.setdiff1d(np.arange(m), test)
-            x0 = ref.x
-            a0, b0 = x0[:18].reshape(6, 3), x0[18:36].reshape(6, 3)
-            off0 = x0[36:42] if fit_offsets else fixed
+            x0, lay = ref.x, ParameterLayout.of_vector(ref.x, fit_offsets)
+            a0, b0, off0 = lay.a(x0), lay.b(x0), lay.offsets(x0, fixed)
             q = basis.shape[-1]
             r = refine(
                 P[train],
@@ -394,7 +392,7 @@ def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None
                 problem.sigmas,
                 basis=basis[train],
                 basis_names=fit.basis_names,
-                theta0=x0[len(x0) - q :] if q else None,
+                theta0=lay.effects(x0) if q else None,
                 passes=1,
             )
             res, _ = _model(r.x, P[test], R[test], rho[test], fixed, fit_offsets, basis[test])

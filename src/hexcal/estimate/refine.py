@@ -21,6 +21,7 @@ from scipy.optimize import least_squares
 
 from hexcal.errors import RefusedError
 from hexcal.estimate.clamp_rows import ClampModel, ClampSteps, Nuisance
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 
 #: Function evaluations one least-squares pass may take (a converging fit takes about 10): a
@@ -57,11 +58,7 @@ VIF_LIMIT = 1e6
 
 def parameter_names(fit_offsets: bool) -> list[str]:
     """a1.x … a6.z, b1.x … b6.z, then offset1 … offset6 when fitted."""
-    names = [f"a{k}.{c}" for k in range(1, 7) for c in "xyz"]
-    names += [f"b{k}.{c}" for k in range(1, 7) for c in "xyz"]
-    if fit_offsets:
-        names += [f"offset{k}" for k in range(1, 7)]
-    return names
+    return ParameterLayout(fit_offsets).names()
 
 
 @dataclass
@@ -116,17 +113,23 @@ class Refinement:
         )
 
     @property
+    def layout(self) -> ParameterLayout:
+        """Where a, b, the offsets (when fitted) and the effect parameters sit in :attr:`x`."""
+        return ParameterLayout.of_vector(self.x, "offset1" in self.names)
+
+    @property
     def a(self) -> np.ndarray:
-        return self.x[:18].reshape(6, 3)
+        """The fitted base points (6, 3) mm."""
+        return self.layout.a(self.x)
 
     @property
     def b(self) -> np.ndarray:
-        return self.x[18:36].reshape(6, 3)
+        """The fitted platform points (6, 3) mm."""
+        return self.layout.b(self.x)
 
     def offsets(self, fixed: np.ndarray) -> np.ndarray:
-        if "offset1" in self.names:
-            return self.x[36:42]
-        return np.asarray(fixed, float)
+        """The leg offsets (6,) mm: fitted, else ``fixed`` (6,) mm (the drawing's)."""
+        return self.layout.offsets(self.x, np.asarray(fixed, float))
 
     @property
     def rms_mm(self) -> float:
@@ -145,17 +148,18 @@ def _whiteners(a, b, P, R, sig: NoiseSigmas) -> np.ndarray:
 
 
 def _unpack(x: np.ndarray, fixed_offsets: np.ndarray, fit_offsets: bool):
-    a = x[:18].reshape(6, 3)
-    b = x[18:36].reshape(6, 3)
-    off = x[36:42] if fit_offsets else fixed_offsets
-    return a, b, off, x[42 if fit_offsets else 36 :]
+    """(a (6, 3) mm, b (6, 3) mm, offsets (6,) mm, θ (q,)) of ``x``: views, the offsets
+    ``fixed_offsets`` when not fitted, θ everything after the geometry."""
+    lay = ParameterLayout.of_vector(x, fit_offsets)
+    return lay.a(x), lay.b(x), lay.offsets(x, fixed_offsets), lay.effects(x)
 
 
 def _model(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
     """Residual (M, 6) and raw Jacobian (M, 6, p): geometric length − predicted length, where the
     prediction is ``reading + offset + basis @ θ`` (θ the effect parameters)."""
     if fit_offsets is None:
-        fit_offsets = len(x) > 36
+        fit_offsets = len(x) > ParameterLayout(False).size
+    lay = ParameterLayout.of_vector(x, fit_offsets)
     a, b, off, theta = _unpack(x, fixed_offsets, fit_offsets)
     v = P[:, None, :] + np.einsum("mij,kj->mki", R, b) - a[None]
     length = np.linalg.norm(v, axis=-1)
@@ -167,15 +171,15 @@ def _model(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
     jac = np.zeros((m, 6, len(x)))
     legs = np.arange(6)
     for c in range(3):
-        jac[:, legs, 3 * legs + c] = -n[:, :, c]
-    jac[:, legs, 18 + 3 * legs] = 0.0
+        jac[:, legs, lay.a_column(legs, c)] = -n[:, :, c]
+    jac[:, legs, lay.b_column(legs, 0)] = 0.0
     rtn = np.einsum("mji,mkj->mki", R, n)  # Rᵀ n: d|v|/db
     for c in range(3):
-        jac[:, legs, 18 + 3 * legs + c] = rtn[:, :, c]
+        jac[:, legs, lay.b_column(legs, c)] = rtn[:, :, c]
     if fit_offsets:
-        jac[:, legs, 36 + legs] = -1.0
+        jac[:, legs, lay.offset_column(legs)] = -1.0
     if basis is not None and basis.shape[-1]:
-        jac[:, :, len(x) - basis.shape[-1] :] = -basis
+        jac[:, :, lay.effects_slice] = -basis
     return res, jac
 
 
@@ -225,7 +229,7 @@ def refine(
     fixed = np.asarray(offsets0, float)
     q = 0 if basis is None else basis.shape[-1]
     th = np.zeros(q) if theta0 is None else np.asarray(theta0, float)
-    x = np.concatenate([np.ravel(a0), np.ravel(b0)] + ([fixed] if fit_offsets else []) + [th])
+    x = ParameterLayout(fit_offsets, q).pack(a0, b0, fixed, th)
     nfev = 0
     for _ in range(passes):
         a, b, _off, _ = _unpack(x, fixed, fit_offsets)
@@ -254,7 +258,7 @@ def refine(
         x, nfev = sol.x, nfev + sol.nfev
     res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
     jw = jac(x)
-    names = parameter_names(fit_offsets) + list(basis_names or [f"theta{i}" for i in range(q)])
+    names = ParameterLayout(fit_offsets, q).names(basis_names)
     out = _statistics(x, res, jw, sol.fun, known, names, nfev, bool(sol.success))
     out.whitened_jacobian = jw
     out.whitened_residual = sol.fun
@@ -297,9 +301,10 @@ def _refine_with_clamps(
     basis = np.zeros((m, 6, 0)) if basis is None else basis
     q = basis.shape[-1]
     th = np.zeros(q) if theta0 is None else np.asarray(theta0, float)
-    x = np.concatenate([np.ravel(a0), np.ravel(b0)] + ([fixed] if fit_offsets else []) + [th])
-    p0 = len(x)
-    nu = Nuisance.seed(clamps, x[:18].reshape(6, 3), x[18:36].reshape(6, 3), P, R)
+    lay = ParameterLayout(fit_offsets, q)
+    x = lay.pack(a0, b0, fixed, th)
+    p0 = lay.size  # the steps' nuisance unknowns follow
+    nu = Nuisance.seed(clamps, lay.a(x), lay.b(x), P, R)
     nfev = 0
     for _ in range(passes):
         model = ClampModel(clamps, P, R, rho, fixed, fit_offsets, basis, nu.u)
@@ -331,7 +336,7 @@ def _refine_with_clamps(
         x, nu = sol.x[:p0], model.nuisance_values(sol.x)
     res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis if q else None)
     jw = jac(sol.x)
-    names = parameter_names(fit_offsets) + list(basis_names or [f"theta{i}" for i in range(q)])
+    names = ParameterLayout(fit_offsets, q).names(basis_names)
     full = _statistics(
         sol.x, res, jw, sol.fun, known, names + clamps.nuisance_names, nfev, bool(sol.success)
     )

@@ -16,14 +16,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hexcal.estimate.clamp_rows import ClampSteps
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.refine import refine
 from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.sim.session_sim import SessionPlan, simulate_session
 from hexcal.sim.simulate import NoiseModel
 
+#: The fitted vector: Model 42, no effects.
+LAYOUT = ParameterLayout.for_model(42)
 #: Parameter blocks reported: base points, platform points, leg offsets (Model 42 order).
-BLOCKS = {"base": slice(0, 18), "platform": slice(18, 36), "offset": slice(36, 42)}
+BLOCKS = {"base": LAYOUT.a_slice, "platform": LAYOUT.b_slice, "offset": LAYOUT.offsets_slice}
 METHODS = ("lengths", "clamps")
 
 
@@ -58,7 +61,7 @@ def session_efficiency(
     P, R, rho = meas.position, meas.rotations.as_matrix(), meas.readings
     steps = ClampSteps.from_table(meas.leg, meas.constraint, meas.step)
     sig = NoiseSigmas(noise.sigma_position_mm, noise.sigma_orientation_rad, noise.sigma_reading_mm)
-    true_x = np.concatenate([truth.a.ravel(), truth.b.ravel(), truth.offsets])
+    true_x = LAYOUT.pack(truth.a, truth.b, truth.offsets)
     exact = refine(P, R, rho, truth.a, truth.b, truth.offsets, True, sig, clamps=steps)
     bound = np.diag(exact.cov)
 

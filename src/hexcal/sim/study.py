@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 
 from hexcal.estimate import bound
+from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.solvers import direct, paper, weighted
 from hexcal.estimate.solvers.linalg import METHOD as lstsq_method
 from hexcal.model.noise import NoiseSigmas
@@ -334,7 +335,8 @@ def _sweep_free(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> 
     sw = _Sweep(config, robot)
     sim, k = sw.sim, sw.k
     T = config.trials_free
-    x_true = np.concatenate([robot.a.ravel(), robot.b.ravel(), robot.offsets])
+    lay = ParameterLayout.for_model(42)
+    x_true = lay.pack(robot.a, robot.b, robot.offsets)
     # A lab's drawing is off the real robot by about a millimetre: the fallback start of a fit
     # that fails from the linear seed (as hexcal calibrate does).
     design = robot.with_geometry(
@@ -351,23 +353,23 @@ def _sweep_free(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> 
             a0 = np.array([s[1] for s in lin])
             b0 = np.array([s[0] for s in lin])
             off0 = np.array([s[2] for s in lin])
-            seeds.append(np.concatenate([a0.ravel(), b0.ravel(), off0]))
+            seeds.append(lay.pack(a0, b0, off0))
             if sw.noisy:
                 fit = refine_from_seeds(P[t], R[t], rho[t], a0, b0, off0, design, True, sw.sig)
-                fits.append(fit.x[:42])
+                fits.append(fit.x[lay.geometry_slice])
             else:
                 fits.append(seeds[-1])
             if sw.bound_ok():
                 w = _whiteners(robot.a, robot.b, Pt[t], Rt[t], sw.sig)
                 true_rho = sim.true_lengths(Pt[t], Rt[t]) - robot.offsets
                 _, jac = _model(x_true, Pt[t], Rt[t], true_rho, robot.offsets, True)
-                jw = np.einsum("mij,mjp->mip", w, jac).reshape(-1, 42)
+                jw = np.einsum("mij,mjp->mip", w, jac).reshape(-1, lay.size)
                 bounds.append(np.linalg.pinv(jw.T @ jw, hermitian=True))
         seeds_a, fits_a = np.array(seeds), np.array(fits)
         extra: dict = {}
         if bounds:
             cov = np.mean(bounds, axis=0)
-            ia, ib, io = slice(3 * k, 3 * k + 3), slice(18 + 3 * k, 21 + 3 * k), 36 + k
+            ia, ib, io = lay.a_of_leg(k), lay.b_of_leg(k), lay.offset_column(k)
             extra = {
                 "bound_a": float(np.trace(cov[ia, ia])),
                 "bound_b": float(np.trace(cov[ib, ib])),
@@ -383,9 +385,9 @@ def _sweep_free(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> 
                 "free",
                 n,
                 method,
-                x[:, 3 * k : 3 * k + 3],
-                x[:, 18 + 3 * k : 21 + 3 * k],
-                x[:, 36 + k],
+                x[:, lay.a_of_leg(k)],
+                x[:, lay.b_of_leg(k)],
+                x[:, lay.offset_column(k)],
                 all_efficiency=all_eff,
                 **extra,
             )
