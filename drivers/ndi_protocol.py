@@ -452,7 +452,9 @@ def _pose_report(
     )
 
 
-def _unit_quaternion(q: tuple[float, float, float, float], port: str, command: str, reply: bytes):
+def _unit_quaternion(
+    q: tuple[float, float, float, float], port: str, command: str, reply: bytes
+) -> np.ndarray:
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise _format_error(port, command, reply, f"quaternion norm {norm:.5f} is not 1")

@@ -42,7 +42,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -330,7 +330,7 @@ class Acquisition:
         self._waiting: dict[str, float | None] = {}
         self.buffer_s = buffer_s
 
-    def _pump(self, source, buf: deque, name: str) -> None:
+    def _pump(self, source: PoseSource | LegSource, buf: deque[Any], name: str) -> None:
         while not self._stop.is_set():
             self._waiting[name] = self.clock()
             try:
@@ -371,7 +371,7 @@ class Acquisition:
     def __enter__(self) -> Acquisition:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
     def latest(self) -> tuple[TrackerSample | None, LegSample | None]:

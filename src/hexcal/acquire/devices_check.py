@@ -7,6 +7,8 @@ the real drivers talk to them through their real transports.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from hexcal.acquire.devices import DevicesConfig
@@ -18,7 +20,7 @@ N_CHECK_SETS = 50
 MAX_FLAGGED_SHARE = 0.10
 
 
-def scale_mismatch(counts_per_mm: float, node: dict | None) -> str | None:
+def scale_mismatch(counts_per_mm: float, node: dict[str, Any] | None) -> str | None:
     """A note when the rig file's counts_per_mm disagrees with a linear encoder's own step
     (0x6005, nm per count) by more than 1 % — a note, not a failure: gearing or a deliberate
     calibration may explain it."""
@@ -70,7 +72,7 @@ def list_devices() -> list[str]:
 CAN_INTERFACES = ["socketcan", "pcan", "kvaser", "vector", "ixxat", "gs_usb", "systec", "neovi"]
 
 
-def node_lines(node: dict | None) -> list[str]:
+def node_lines(node: dict[str, Any] | None) -> list[str]:
     """What the configuration step read from and set on one node, for the report."""
     if node is None:
         return ["not set up by hexcal (can.configure = false): taken as configured"]
@@ -105,7 +107,8 @@ def node_lines(node: dict | None) -> list[str]:
 def check_devices(cfg: DevicesConfig) -> tuple[bool, list[str]]:
     """(all good, report lines): connect to the tracker and the encoders and read from both."""
     from hexcal.drivers.can_encoders import EncoderError, LegEncoders
-    from hexcal.drivers.ndi import NDITracker, TrackerError
+    from hexcal.drivers.ndi import NDITracker
+    from hexcal.drivers.ndi_protocol import TrackerError
 
     ok = True
     lines = [f"tracker ({cfg.tracker.kind}) at {cfg.tracker.url}, {cfg.tracker.baudrate} baud:"]

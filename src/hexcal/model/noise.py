@@ -12,8 +12,12 @@ with N (6, 3) the unit leg vectors (position noise), G (6, 3) the rows ``b_k × 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from hexcal.model.instruments import Instruments
 
 
 @dataclass(frozen=True)
@@ -26,7 +30,7 @@ class NoiseSigmas:
     reading_mm: float
 
     @classmethod
-    def from_instruments(cls, inst) -> NoiseSigmas:
+    def from_instruments(cls, inst: Instruments) -> NoiseSigmas:
         """From a :class:`hexcal.model.instruments.Instruments`."""
         return cls(
             float(inst.tracker.position_sigma_mm),
@@ -40,7 +44,9 @@ class NoiseSigmas:
 DEFAULT_SIGMAS = NoiseSigmas(position_mm=0.01, orientation_rad=np.deg2rad(0.002), reading_mm=0.002)
 
 
-def pose_sensitivities(a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray):
+def pose_sensitivities(
+    a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Unit leg vectors N (M, 6, 3) and orientation rows G (M, 6, 3) for poses P (M, 3) mm,
     R (M, 3, 3): ``dL = N dP + G dθ`` with dθ in the platform frame."""
     v = P[:, None, :] + np.einsum("mij,kj->mki", R, b) - a[None]

@@ -28,6 +28,9 @@ from scipy.spatial.transform import Rotation
 
 from hexcal.model.robot import Robot
 
+#: A pose drawer: ``draw(rng, shape) -> (P (*shape, 3) mm, R (*shape, 3, 3))``.
+Draw = Callable[[np.random.Generator, tuple[int, ...]], tuple[np.ndarray, np.ndarray]]
+
 
 @dataclass(frozen=True)
 class PoseRanges:
@@ -58,7 +61,9 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _cone(rng: np.random.Generator, axis: np.ndarray, half_deg: float, shape: tuple[int, ...]):
+def _cone(
+    rng: np.random.Generator, axis: np.ndarray, half_deg: float, shape: tuple[int, ...]
+) -> np.ndarray:
     """Unit vectors (*shape, 3) uniform in solid angle within ``half_deg`` of ``axis`` (3,)."""
     cos_max = np.cos(np.deg2rad(half_deg))
     z = rng.uniform(cos_max, 1.0, shape)
@@ -116,7 +121,7 @@ class Workspace:
         return ok.all(axis=-1)
 
     def _fill(
-        self, rng: np.random.Generator, shape: tuple[int, ...], draw: Callable
+        self, rng: np.random.Generator, shape: tuple[int, ...], draw: Draw
     ) -> tuple[np.ndarray, np.ndarray]:
         """Draw poses with ``draw(rng, shape) -> (P, R)`` until every slot is feasible."""
         p, r = draw(rng, shape)
@@ -143,7 +148,7 @@ class Workspace:
         a, b = self.robot.a[k], self.robot.b[k]
         s = self.ranges.stroke_mm
 
-        def draw(g, sh):
+        def draw(g: np.random.Generator, sh: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
             r = _rotations(g, self.ranges.tilt_deg, sh) @ self.home_rotation
             length = g.uniform(l0 - s, l0 + s, sh)
             return a + length[..., None] * u - r @ b, r
@@ -163,7 +168,7 @@ class Workspace:
         c = self.robot.a[k] + l0 * u if point is None else np.asarray(point, float)
         b = self.robot.b[k]
 
-        def draw(g, sh):
+        def draw(g: np.random.Generator, sh: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
             r = _rotations(g, self.ranges.tilt_deg, sh) @ self.home_rotation
             return c - r @ b, r
 
@@ -184,7 +189,7 @@ class Workspace:
         u0 = u0 if axis is None else _unit(np.asarray(axis, float))
         a, b = self.robot.a[k], self.robot.b[k]
 
-        def draw(g, sh):
+        def draw(g: np.random.Generator, sh: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
             r = _rotations(g, self.ranges.tilt_deg, sh) @ self.home_rotation
             u = _cone(g, u0, self.ranges.cone_deg, sh)
             return a + l0 * u - r @ b, r
@@ -197,7 +202,7 @@ class Workspace:
         """Free poses: position in the box about home, rotation as the others. (P, R)."""
         box = np.asarray(self.ranges.box_mm, float)
 
-        def draw(g, sh):
+        def draw(g: np.random.Generator, sh: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
             r = _rotations(g, self.ranges.tilt_deg, sh) @ self.home_rotation
             return self.home_position + g.uniform(-1, 1, (*sh, 3)) * box, r
 
