@@ -273,3 +273,13 @@ def test_validate_json_has_the_contract(session, capsys):
     ):
         assert key in v
     assert v["model"].startswith("design") and v["verdict"] != "none"
+
+
+@pytest.mark.parametrize("group", ["devices", "session"])
+def test_a_command_group_alone_prints_its_subcommands(group, capsys):
+    from hexcal.app.cli import main
+
+    assert main([group]) == 0
+    out = capsys.readouterr().out
+    assert f"usage: hexcal {group}" in out
+    assert ("can-setup" in out) if group == "devices" else ("export" in out)

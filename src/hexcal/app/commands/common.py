@@ -133,3 +133,13 @@ def add_pose_selection(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="do not compare the calibration with the drawing (swapped legs go unnoticed)",
     )
+
+
+def print_help_of(parser: argparse.ArgumentParser) -> None:
+    """A command group given no subcommand prints its subcommands (exit 0) instead of an error."""
+
+    def show(args: argparse.Namespace) -> int:
+        parser.print_help()
+        return 0
+
+    parser.set_defaults(func=show)

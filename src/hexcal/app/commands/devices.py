@@ -9,6 +9,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from hexcal.app.commands.common import print_help_of
+
 if TYPE_CHECKING:
     from hexcal.acquire.devices import DevicesConfig
 
@@ -16,7 +18,8 @@ if TYPE_CHECKING:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``devices`` group: ``check``, ``list``, ``can-setup``."""
     dv = sub.add_parser("devices", help="the rig's devices")
-    dv_sub = dv.add_subparsers(dest="devices_command", required=True)
+    dv_sub = dv.add_subparsers(dest="devices_command", metavar="{check,list,can-setup}")
+    print_help_of(dv)
     chk = dv_sub.add_parser(
         "check", help="connect to the tracker and the encoders and report what answers"
     )

@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.app.commands.common import refuse_existing
+from hexcal.app.commands.common import print_help_of, refuse_existing
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``session`` group: ``export``, ``import``."""
     se = sub.add_parser("session", help="export a session file, or make one from a CSV")
-    se_sub = se.add_subparsers(dest="session_command", required=True)
+    se_sub = se.add_subparsers(dest="session_command", metavar="{export,import}")
+    print_help_of(se)
     ex = se_sub.add_parser("export", help="measurements.csv, robot.json, calibrated.json")
     ex.add_argument("session", type=Path)
     ex.add_argument("--out", type=Path, required=True, help="directory to write")
