@@ -283,3 +283,22 @@ def test_a_command_group_alone_prints_its_subcommands(group, capsys):
     out = capsys.readouterr().out
     assert f"usage: hexcal {group}" in out
     assert ("can-setup" in out) if group == "devices" else ("export" in out)
+
+
+def test_every_option_of_every_command_has_a_help_line():
+    import argparse
+
+    from hexcal.app.cli import build_parser
+
+    missing = []
+
+    def walk(parser: argparse.ArgumentParser, path: str) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, child in action.choices.items():
+                    walk(child, f"{path} {name}")
+            elif not isinstance(action, argparse._HelpAction) and not action.help:
+                missing.append(f"{path} {'/'.join(action.option_strings) or action.dest}")
+
+    walk(build_parser(), "hexcal")
+    assert missing == []

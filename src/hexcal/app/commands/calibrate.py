@@ -25,7 +25,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=Path,
         help="robot.json: design values, known offsets (a session file carries its own)",
     )
-    c.add_argument("--model", type=int, choices=(36, 42), default=42)
+    c.add_argument(
+        "--model",
+        type=int,
+        choices=(36, 42),
+        default=42,
+        help="36: base and platform points; 42: and each leg's length offset (default 42)",
+    )
     c.add_argument(
         "--instruments", type=Path, help="instruments.json: the noise that weights the fit"
     )

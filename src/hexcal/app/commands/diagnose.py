@@ -17,7 +17,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"
     )
     d.add_argument("--robot", type=Path, help="robot.json (a session file carries its own)")
-    d.add_argument("--model", type=int, choices=(36, 42), default=42)
+    d.add_argument(
+        "--model",
+        type=int,
+        choices=(36, 42),
+        default=42,
+        help="36: base and platform points; 42: and each leg's length offset (default 42)",
+    )
     d.add_argument(
         "--instruments", type=Path, help="instruments.json: the noise that sets the floor"
     )

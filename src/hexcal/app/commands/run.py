@@ -23,6 +23,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--procedure",
         default="model42-direction-length",
         choices=["model42-direction-length", "model36-direction", "free-validation"],
+        help="the procedure to walk through (procedures/*.toml; default: Model 42 by "
+        "direction and length, then length clamping)",
     )
     rn.add_argument(
         "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"

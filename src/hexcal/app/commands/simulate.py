@@ -30,13 +30,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="draws the poses and the noise (default: --seed); another value with the same "
         "--seed is a second session of the same robot, to validate a calibration on",
     )
-    m.add_argument("--n-type-i", type=COUNT, default=8)
-    m.add_argument("--n-type-ii", type=COUNT, default=8)
-    m.add_argument("--n-type-iii", type=COUNT, default=8)
-    m.add_argument("--n-free", type=COUNT, default=40)
-    m.add_argument("--sigma-p-mm", type=SIGMA, default=0.01)
-    m.add_argument("--sigma-a-deg", type=SIGMA, default=0.002)
-    m.add_argument("--sigma-l-mm", type=SIGMA, default=0.002)
+    m.add_argument(
+        "--n-type-i", help="poses of each Type I (direction-clamped) step", type=COUNT, default=8
+    )
+    m.add_argument(
+        "--n-type-ii",
+        help="poses of each Type II (direction-and-length) step",
+        type=COUNT,
+        default=8,
+    )
+    m.add_argument(
+        "--n-type-iii", help="poses of each Type III (length-clamped) step", type=COUNT, default=8
+    )
+    m.add_argument("--n-free", help="free poses (no clamp)", type=COUNT, default=40)
+    m.add_argument("--sigma-p-mm", help="tracker position noise σ, mm", type=SIGMA, default=0.01)
+    m.add_argument(
+        "--sigma-a-deg", help="tracker orientation noise σ, deg", type=SIGMA, default=0.002
+    )
+    m.add_argument("--sigma-l-mm", help="encoder reading noise σ, mm", type=SIGMA, default=0.002)
     m.add_argument(
         "--effect",
         choices=("offset", "gain", "backlash", "thermal", "compliance", "leadscrew"),

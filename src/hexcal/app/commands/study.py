@@ -14,7 +14,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser(
         "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"
     )
-    s.add_argument("--trials", type=POSITIVE_COUNT, default=1000)
+    s.add_argument(
+        "--trials", type=POSITIVE_COUNT, default=1000, help="Monte-Carlo trials per point"
+    )
     s.add_argument(
         "--err-p-mm",
         type=SIGMA,
@@ -23,7 +25,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     s.add_argument("--err-a-deg", type=SIGMA, default=0.01, help="orientation noise, deg")
     s.add_argument("--err-l-mm", type=SIGMA, default=0.1, help="reading noise, mm")
-    s.add_argument("--noise", choices=("uniform", "gaussian"), default="uniform")
+    s.add_argument(
+        "--noise",
+        choices=("uniform", "gaussian"),
+        default="uniform",
+        help="noise distribution: uniform (the paper's, ± the --err values) or gaussian (σ)",
+    )
     s.add_argument(
         "--stroke-mm",
         type=number(float, 0.0, 10_000.0, lo_open=True),
@@ -42,7 +49,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=30.0,
         help="Type III leg-direction cone half-angle, deg",
     )
-    s.add_argument("--seed", type=SEED, default=0)
+    s.add_argument(
+        "--seed", type=SEED, default=0, help="random seed (the same seed, the same study)"
+    )
     s.add_argument(
         "--out", default="study-out", help="directory for study.csv, study.json and the PNGs"
     )
