@@ -105,7 +105,8 @@ def test_sections_have_stable_ids_in_a_fixed_order(report):
         plots = [x for x in got if x.startswith("plot-")]
         assert plots == ["plot-" + n.removesuffix(".png") for n, _, _ in REPORT_PLOTS]
     top = [x for x in ids if not x.startswith("step-") and not x.startswith("change-")]
-    assert top[:3] == ["verdict", "contents", "provenance"]
+    assert top[:4] == ["verdict", "summary", "contents", "provenance"]
+    assert top[-1] == "glossary"
     assert ids.index("step-1") < ids.index("change-1-2") < ids.index("step-2")
 
 
@@ -170,3 +171,33 @@ def test_flagged_parameters_are_red_with_their_note():
 def test_no_diagnosis_is_refused(tmp_path):
     with pytest.raises(ValueError, match="at least one"):
         write_report([], tmp_path / "r.html", {})
+
+
+def test_report_opens_in_plain_words_before_any_statistic(report):
+    """The verdict card says what the robot has (the fitted play per leg, in µm) and where the
+    platform then is, before χ², ΔBIC or any other statistic; a glossary closes the page."""
+    _, _, text = report
+    summary = text[
+        text.index('<div id="summary">') : text.index("</div>", text.index('<div id="summary">'))
+    ]
+    assert re.search(r"leg \d has [\d.]+ µm of play when it reverses", summary)
+    assert re.search(
+        r"the platform is within \d+ µm of where the controller believes it is", summary
+    )
+    assert "χ²" not in summary and "BIC" not in summary
+    assert text.index('id="summary"') < text.index("χ²")
+    glossary = text[text.index('<section id="glossary">') :]
+    for term in ("held-out", "noise floor", "χ²/dof", "ΔBIC", "identifiable"):
+        assert f"<dt>{term}</dt>" in glossary
+
+
+def test_gain_in_words_says_which_way_the_encoder_reads():
+    """gain g > 0: the true length is (1 + g)·reading, so the encoder reads short."""
+    from hexcal.diagnosis.summary import _in_words
+
+    row = ParamRow("gain.g3", 2000.0, 100.0, 196.0, "ppm", None, "")
+    assert _in_words(row) == "leg 3's encoder reads 0.2 % short"
+    assert _in_words(ParamRow("gain.g1", -870.0, 50.0, 98.0, "ppm", None, "")) == (
+        "leg 1's encoder reads 0.087 % long"
+    )
+    assert _in_words(ParamRow("a3.x", 1.0, 0.1, 0.2, "mm", None, "")) is None

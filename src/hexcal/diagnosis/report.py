@@ -26,6 +26,7 @@ import numpy as np
 import hexcal
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
+from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.estimate.effect_fit import ParamRow
 from hexcal.io.fileio import write_text_atomic
 
@@ -103,7 +104,8 @@ h2 { font-size: 22px; } h3 { font-size: 17px; margin-top: 18px; }
 .verdict { border-left: 14px solid; }
 .verdict .label { text-transform: uppercase; letter-spacing: .08em; font-size: 13px; color: #555; }
 .verdict .big { font-size: 56px; font-weight: 700; line-height: 1.05; margin: 4px 0 10px; }
-.verdict .why { font-size: 18px; margin: 0 0 12px; }
+.verdict .why { font-size: 18px; margin: 0 0 10px; }
+#statistics { margin: 10px 0 0; }
 .v-none { border-color: #2e7d32; } .v-none .big { color: #2e7d32; }
 .v-effect { border-color: #e69500; } .v-effect .big { color: #b86e00; }
 .v-unexplained { border-color: #c62828; } .v-unexplained .big { color: #c62828; }
@@ -114,10 +116,11 @@ h2 { font-size: 22px; } h3 { font-size: 17px; margin-top: 18px; }
 .chip.v-unexplained { background: #c62828; }
 .arrow { color: #888; }
 nav ol { margin: 0; padding-left: 20px; columns: 2; }
-table { width: 100%; border-collapse: collapse; table-layout: fixed; font-size: 14px; margin: 6px 0 4px; }
+table { width: 100%; border-collapse: collapse; table-layout: auto; font-size: 14px; margin: 6px 0 4px; }
 th, td { padding: 4px 8px; border-bottom: 1px solid #e3e5e8; text-align: left; vertical-align: top;
          overflow-wrap: anywhere; }
-th { background: #f0f2f5; font-weight: 600; }
+th { background: #f0f2f5; font-weight: 600; overflow-wrap: normal; word-break: normal; }
+dl.glossary dt { font-weight: 600; margin-top: 6px; } dl.glossary dd { margin: 0 0 0 16px; }
 td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }
 tr.win td { background: #fff4dc; font-weight: 600; }
 tr.off td { color: #888; }
@@ -263,8 +266,9 @@ def _header(diags: Sequence[Diagnosis]) -> str:
         f'<header id="verdict" class="verdict {_verdict_class(d.verdict)}">'
         f'<div class="label">{_e(label)} · {_e(d.fit.model_name)}</div>'
         f'<div class="big">{_e(d.verdict)}</div>'
-        f'<p class="why">{_e(explanation(diags))}</p>'
-        f'<ol class="path" id="path">{"".join(chips)}</ol></header>'
+        f"{_plain(diags)}"
+        f'<ol class="path" id="path">{"".join(chips)}</ol>'
+        f'<p class="muted" id="statistics">In statistics: {_e(explanation(diags))}</p></header>'
     )
 
 
@@ -315,6 +319,17 @@ def _accuracy(diags: Sequence[Diagnosis], tmp: Path | None) -> str:
     )
 
 
+def _plain(diags: Sequence[Diagnosis]) -> str:
+    """The findings in plain words (:mod:`hexcal.diagnosis.summary`), before any statistic."""
+    body = "".join(f'<p class="why">{_e(s)}</p>' for s in plain_summary(diags))
+    return f'<div id="summary">{body}</div>'
+
+
+def _glossary() -> str:
+    items = "".join(f"<dt>{_e(term)}</dt><dd>{_e(text)}</dd>" for term, text in GLOSSARY.items())
+    return f'<section id="glossary"><h2>Glossary</h2><dl class="glossary">{items}</dl></section>'
+
+
 def _nav(diags: Sequence[Diagnosis]) -> str:
     items = [
         '<li><a href="#provenance">Provenance</a></li>',
@@ -326,6 +341,7 @@ def _nav(diags: Sequence[Diagnosis]) -> str:
         )
         if i < len(diags):
             items.append(f'<li><a href="#change-{i}-{i + 1}">Change {i} → {i + 1}</a></li>')
+    items.append('<li><a href="#glossary">Glossary</a></li>')
     return f'<nav id="contents" class="muted"><ol>{"".join(items)}</ol></nav>'
 
 
@@ -675,6 +691,7 @@ def render_report(
             if i > 1:
                 parts.append(_change(diags[i - 2], step, i - 1, tmp))
             parts.append(_step(step, i, tmp))
+    parts.append(_glossary())
     parts.append(
         f'<footer id="footer" class="muted">hexcal {_e(hexcal.__version__)} · residual = reading − '
         "predicted reading; held-out = predicted by a fit that did not see the pose.</footer>"
