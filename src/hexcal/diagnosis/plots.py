@@ -599,7 +599,11 @@ _PLOTS: dict[str, Callable[[_View, Path, str], Path]] = {
 
 
 def write_plots(
-    diag: Diagnosis, outdir: Path, prefix: str = "", only: Iterable[str] | None = None
+    diag: Diagnosis,
+    outdir: Path,
+    prefix: str = "",
+    only: Iterable[str] | None = None,
+    on_plot: Callable[[str], None] | None = None,
 ) -> list[Path]:
     """Write the residual plots of ``diag``'s current fit as PNGs into ``outdir`` (created if
     needed), each named ``prefix`` + one of :data:`PLOT_NAMES`; return the paths written, in
@@ -607,6 +611,7 @@ def write_plots(
 
     ``residuals_vs_temperature.png`` is skipped when the measurements have no temperature; the
     periodogram is drawn without the pitch marker when robot.json has no lead-screw pitch.
+    ``on_plot`` is called with each plot's name once it is drawn (a progress bar).
     """
     wanted = set(PLOT_NAMES if only is None else only)
     unknown = wanted - set(PLOT_NAMES)
@@ -624,6 +629,8 @@ def write_plots(
         if name == "residuals_vs_temperature.png" and view.meas.temperature is None:
             continue
         paths.append(plot(view, outdir, prefix + name))
+        if on_plot is not None:
+            on_plot(name)
     return paths
 
 

@@ -16,7 +16,7 @@ import hashlib
 import html
 import re
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TypeGuard
@@ -662,6 +662,7 @@ def render_report(
     inputs: Mapping[str, Path],
     plots: bool = True,
     limits: Sequence[str] = (),
+    on_step: Callable[[], None] | None = None,
 ) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     if not diags:
@@ -691,6 +692,8 @@ def render_report(
             if i > 1:
                 parts.append(_change(diags[i - 2], step, i - 1, tmp))
             parts.append(_step(step, i, tmp))
+            if on_step is not None:
+                on_step()
     parts.append(_glossary())
     parts.append(
         f'<footer id="footer" class="muted">hexcal {_e(hexcal.__version__)} · residual = reading − '
@@ -706,14 +709,16 @@ def write_report(
     inputs: Mapping[str, Path],
     plots: bool = True,
     limits: Sequence[str] = (),
+    on_step: Callable[[], None] | None = None,
 ) -> Path:
     """Write ONE self-contained HTML report of a diagnosis sequence to ``path`` (atomically).
 
     ``diags``: the steps in order (e.g. Model 42, then + backlash, … until the verdict is
     ``none``); between consecutive steps a before/after figure is drawn. ``inputs``: label →
     input file, listed with its SHA-256. ``plots=False`` leaves the figures out (a quick,
-    tables-only page). Returns ``path``.
+    tables-only page). ``on_step`` is called as each step's section is done (a progress bar).
+    Returns ``path``.
     """
     path = Path(path)
-    write_text_atomic(path, render_report(diags, inputs, plots, limits))
+    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_step))
     return path

@@ -4,8 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hexcal.app.commands.common import add_pose_selection, jsonable, read_inputs, report_mismatch
+from hexcal.app.progress import Progress, progress, wanted
+
+if TYPE_CHECKING:
+    from hexcal.app.workflow import Inputs, ModelResult
+    from hexcal.diagnosis.diagnose import Diagnosis
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -59,7 +65,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from hexcal.app.workflow import diagnose_chain, model_of, refuse_overwrite, save_result
+    from hexcal.app.workflow import refuse_overwrite
     from hexcal.diagnosis.text import before_after_text, diagnosis_text
 
     inp = read_inputs(args)
@@ -76,34 +82,8 @@ def run(args: argparse.Namespace) -> int:
     limits_json = limits.to_dict(inp.meas)
     if args.exclude_at_limits and limits.rows:
         inp = inp.without([int(inp.meas.pose_id[r]) for r in limits.rows])
-    steps = diagnose_chain(inp, args.model, add=tuple(args.add or ()), auto=args.auto)
-    result = model_of(inp, steps, args.model) if args.out else None
-    mismatch = []
-    if not args.no_drawing_check:
-        from hexcal.estimate.sanity import check_against_drawing
-
-        ref = steps[0].fit.refinement
-        found = check_against_drawing(ref.a, ref.b, inp.design, args.drawing_tolerance)
-        mismatch = [f.text for f in found]
-    if result is not None and not mismatch:
-        save_result(result, args.out, inp, args.force)
-    if args.plots:
-        from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
-
-        out = Path(args.plots)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = write_plots(steps[-1], out)
-        paths.append(pose_error_map(steps, out))
-        for i in range(1, len(steps)):
-            paths.append(before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png"))
-    if args.residuals:
-        from hexcal.io.fileio import write_text_atomic
-
-        write_text_atomic(args.residuals, steps[-1].residual_table())
-    if args.report:
-        from hexcal.diagnosis.report import write_report
-
-        write_report(steps, Path(args.report), dict(inp.files), limits=limit_lines)
+    with progress(wanted(args.json)) as bar:
+        steps, result, mismatch = _diagnose_and_write(inp, args, bar, limit_lines)
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
@@ -146,3 +126,55 @@ def run(args: argparse.Namespace) -> int:
         if result is not None and not mismatch:
             print(f"calibrated model ({result.name}) written to {args.out}")
     return report_mismatch(mismatch, args)
+
+
+def _diagnose_and_write(
+    inp: Inputs, args: argparse.Namespace, bar: Progress, limit_lines: list[str]
+) -> tuple[list[Diagnosis], ModelResult | None, list[str]]:
+    """The diagnosis chain, the calibrated model, the drawing check and the files asked for,
+    each stage shown on ``bar``: (steps, the model to write or None, drawing mismatches)."""
+    from hexcal.app.workflow import diagnose_chain, model_of, save_result
+
+    def next_step(d: Diagnosis) -> None:
+        if args.auto and d.verdict not in ("none", "unexplained"):
+            bar.stage(f"diagnosing {d.fit.model_name} + {d.verdict}")
+
+    added = "".join(f" + {e}" for e in args.add or ())
+    bar.stage(f"diagnosing Model {args.model}{added}")
+    steps = diagnose_chain(
+        inp, args.model, add=tuple(args.add or ()), auto=args.auto, on_step=next_step
+    )
+    result = model_of(inp, steps, args.model) if args.out else None
+    mismatch = []
+    if not args.no_drawing_check:
+        from hexcal.estimate.sanity import check_against_drawing
+
+        ref = steps[0].fit.refinement
+        found = check_against_drawing(ref.a, ref.b, inp.design, args.drawing_tolerance)
+        mismatch = [f.text for f in found]
+    if result is not None and not mismatch:
+        save_result(result, args.out, inp, args.force)
+    if args.plots:
+        from hexcal.diagnosis.plots import PLOT_NAMES, before_after, pose_error_map, write_plots
+
+        out = Path(args.plots)
+        out.mkdir(parents=True, exist_ok=True)
+        bar.stage("drawing the plots", total=len(PLOT_NAMES) + len(steps))
+        write_plots(steps[-1], out, on_plot=lambda name: bar.advance())
+        pose_error_map(steps, out)
+        bar.advance()
+        for i in range(1, len(steps)):
+            before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png")
+            bar.advance()
+    if args.residuals:
+        from hexcal.io.fileio import write_text_atomic
+
+        write_text_atomic(args.residuals, steps[-1].residual_table())
+    if args.report:
+        from hexcal.diagnosis.report import write_report
+
+        bar.stage("writing the report", total=len(steps))
+        write_report(
+            steps, Path(args.report), dict(inp.files), limits=limit_lines, on_step=bar.advance
+        )
+    return steps, result, mismatch

@@ -1,0 +1,86 @@
+"""Progress of long jobs: drawn on a terminal, never with ``--json`` or into a pipe; stdout
+stays the results' alone."""
+
+from __future__ import annotations
+
+import io
+import os
+import pty
+import select
+import subprocess
+import sys
+from pathlib import Path
+
+from hexcal.app.progress import progress, wanted
+
+EXAMPLE = Path(__file__).parents[1] / "examples" / "left-hand-sim"
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_drawn_only_on_a_terminal_and_never_for_json():
+    assert wanted(False, _Terminal())
+    assert not wanted(True, _Terminal())
+    assert not wanted(False, io.StringIO())
+
+
+def test_stages_are_drawn_and_removed_when_the_job_ends():
+    screen = _Terminal()
+    with progress(True, screen) as bar:
+        bar.stage("diagnosing Model 42")
+        bar.stage("drawing the plots", total=3)
+        bar.advance()
+    assert "diagnosing Model 42" in screen.getvalue() or "drawing the plots" in screen.getvalue()
+    with progress(False, screen) as quiet:
+        quiet.stage("nothing")
+        assert not quiet.shown
+
+
+def _run_on_a_terminal(args: list[str], cwd: Path) -> tuple[str, str]:
+    """Run ``hexcal args`` with stderr on a pseudo-terminal: (stdout, what the terminal got)."""
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hexcal.app.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=slave,
+        cwd=cwd,
+        text=True,
+    )
+    os.close(slave)
+    screen = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], 0.2)
+        if ready:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # the child closed the terminal
+                break
+            if not chunk:
+                break
+            screen += chunk
+        elif proc.poll() is not None:
+            break
+    out = proc.stdout.read() if proc.stdout else ""
+    assert proc.wait(timeout=300) == 0, screen.decode(errors="replace")
+    os.close(master)
+    return out, screen.decode(errors="replace")
+
+
+def test_diagnose_auto_report_shows_progress_on_a_terminal_and_none_with_json(tmp_path):
+    inputs = [
+        "diagnose",
+        str(EXAMPLE / "measurements.csv"),
+        "--robot",
+        str(EXAMPLE / "robot.json"),
+        "--instruments",
+        str(EXAMPLE / "instruments.json"),
+        "--auto",
+    ]
+    out, screen = _run_on_a_terminal([*inputs, "--report", "r.html"], tmp_path)
+    assert "diagnosing Model 42" in screen and "writing the report" in screen
+    assert "diagnosing" not in out and "report written to r.html" in out
+    out, screen = _run_on_a_terminal([*inputs, "--json"], tmp_path)
+    assert screen == "" and out.lstrip().startswith("{")
