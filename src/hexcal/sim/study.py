@@ -26,6 +26,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -114,20 +115,29 @@ def _limit(est: np.ndarray | None, true: np.ndarray, bound_mm2: float) -> tuple[
     return mse, bound_mm2, bound_mm2 / mse if mse > 0 else nan, bias
 
 
-def run_study(config: StudyConfig = StudyConfig(), robot: Robot | None = None) -> StudyResult:
-    """Run the whole grid. Every trial of one N is drawn and solved in one batch; the three
-    pose-set sweeps run on their own threads (numpy releases the GIL) with independent random
-    streams, so the result does not depend on the scheduling."""
-    from concurrent.futures import ThreadPoolExecutor
+def run_study(
+    config: StudyConfig = StudyConfig(),
+    robot: Robot | None = None,
+    on_sweep: Callable[[], None] | None = None,
+) -> StudyResult:
+    """Run the whole grid. Every trial of one N is drawn and solved in one batch; the pose-set
+    sweeps (:data:`SWEEPS` of them) run on their own threads (numpy releases the GIL) with
+    independent random streams, so the result does not depend on the scheduling. ``on_sweep``
+    is called as each sweep ends (a progress bar)."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
 
     robot = robot or left_hand()
     streams = np.random.SeedSequence(config.seed).spawn(5)
-    sweeps = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii, _sweep_type_iii_known_b, _sweep_free)
+    sweeps = _SWEEPS
     with ThreadPoolExecutor(max_workers=min(5, os.cpu_count() or 1)) as pool:
         futures = [
             pool.submit(f, config, robot, np.random.default_rng(s))
             for f, s in zip(sweeps, streams, strict=True)
         ]
+        for done in as_completed(futures):
+            done.result()  # a sweep's error surfaces at once
+            if on_sweep is not None:
+                on_sweep()
         rows = [row for f in futures for row in f.result()]
     return StudyResult(config, rows)
 
@@ -617,3 +627,8 @@ def factor_table(result: StudyResult, n: int = 7) -> str:
             vals = "".join(f"{f[pose_set][m].get(q, float('nan')):>10.2f}" for m in METHODS)
             lines.append(f"  {label:<28}{q:<10}{ref_txt:>11}{vals}")
     return "\n".join(lines)
+
+
+#: The study's sweeps, one per pose set, each on its own thread.
+_SWEEPS = (_sweep_type_i, _sweep_type_ii, _sweep_type_iii, _sweep_type_iii_known_b, _sweep_free)
+SWEEPS = len(_SWEEPS)

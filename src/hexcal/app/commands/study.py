@@ -62,8 +62,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hexcal.app.progress import progress, wanted
     from hexcal.sim.simulate import PoseRanges
     from hexcal.sim.study import (
+        SWEEPS,
         StudyConfig,
         efficiency_table,
         factor_table,
@@ -85,13 +87,17 @@ def run(args: argparse.Namespace) -> int:
     )
     refuse_existing(Path(args.out), ["study.csv", "study.json"], args.force)
     t0 = time.perf_counter()
-    result = run_study(cfg)
-    elapsed = time.perf_counter() - t0
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(result, out / "study.csv")
-    (out / "study.json").write_text(to_json(result), encoding="utf-8")
-    pngs = [] if args.no_plots else [*plot(result, out), plot_efficiency(result, out)]
+    with progress(wanted(args.json)) as bar:
+        bar.stage(f"the study: {cfg.trials} trials per point, pose-set sweeps", total=SWEEPS)
+        result = run_study(cfg, on_sweep=bar.advance)
+        elapsed = time.perf_counter() - t0
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_csv(result, out / "study.csv")
+        (out / "study.json").write_text(to_json(result), encoding="utf-8")
+        if not args.no_plots:
+            bar.stage("drawing the plots")
+        pngs = [] if args.no_plots else [*plot(result, out), plot_efficiency(result, out)]
     if args.json:
         print(to_json(result))
     else:
