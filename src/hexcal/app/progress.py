@@ -54,19 +54,25 @@ def progress(show: bool, stream: TextIO | None = None) -> Iterator[Progress]:
     from rich.console import Console
     from rich.progress import (
         BarColumn,
-        MofNCompleteColumn,
+        ProgressColumn,
         SpinnerColumn,
         TextColumn,
         TimeElapsedColumn,
     )
     from rich.progress import Progress as Bar
+    from rich.text import Text
+
+    class Count(ProgressColumn):  # "3/12", or nothing for a stage of unknown length
+        def render(self, task: Any) -> Text:
+            known = task.total is not None
+            return Text(f"{int(task.completed)}/{int(task.total)}" if known else "")
 
     console = Console(file=sys.stderr if stream is None else stream, force_terminal=True)
     bar = Bar(
         SpinnerColumn(),
         TextColumn("{task.description}"),
         BarColumn(),
-        MofNCompleteColumn(),
+        Count(),
         TimeElapsedColumn(),
         console=console,
         transient=True,
