@@ -9,14 +9,14 @@ from each session's seed. Reported: the share of right verdicts, the false-alarm
 sessions, and, after adding the named effect, the held-out RMS against the noise floor.
 """
 
+# ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
 from __future__ import annotations
 
-import os
+from hexcal.app.cli import single_thread_blas
 
-# One BLAS thread per worker: the workers already fill the cores, and BLAS threads on top of
-# them oversubscribe the machine (diagnose went from 0.8 s to 7 s when they did).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+# As the CLI does, one BLAS thread per worker: the workers already fill the cores, and BLAS
+# threads on top of them oversubscribe the machine (diagnose went from 0.8 s to 7 s when they did).
+single_thread_blas()
 
 import argparse
 import json

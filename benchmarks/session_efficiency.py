@@ -11,11 +11,12 @@ the Cramér–Rao bound of the full likelihood (RMS), each refinement's RMS erro
 bound / mean squared error, and bias (largest |mean error| of a coordinate over its σ).
 """
 
+# ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
 from __future__ import annotations
 
-import os
+from hexcal.app.cli import single_thread_blas
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+single_thread_blas()  # as the CLI does
 
 import argparse
 import time

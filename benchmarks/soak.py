@@ -50,9 +50,10 @@ from __future__ import annotations
 
 import os
 
+from hexcal.app.cli import single_thread_blas
+
 # As the CLI does: one BLAS thread; the rig's threads already share two cores.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+single_thread_blas()
 
 import argparse
 import json

@@ -8,13 +8,15 @@ README and the closing note.
 
 from __future__ import annotations
 
+from collections import Counter
+
 import pytest
 
 from hexcal.estimate.calibrate import calibrate
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.sim.robots import left_hand
 from hexcal.sim.session_sim import SessionPlan, simulate_session
-from hexcal.sim.study import StudyConfig, run_study
+from hexcal.sim.study import METHODS, StudyConfig, run_study
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
@@ -37,10 +39,30 @@ def test_bench_calibrate_model42(benchmark, session_7_7_40):
     assert cal.refinement is not None and cal.refinement.success
 
 
+def expected_rows(config: StudyConfig) -> Counter[tuple[str, int, str]]:
+    """The rows a study writes, as (pose set, N, method): every N of the clamped sweeps by each
+    method (Type III twice: with the estimated and with the true b), and every free-pose set by
+    the direct linear seed and the refinement (the paper has no free-pose method)."""
+
+    def grid(pose_set: str, lo_hi: tuple[int, int], methods: tuple[str, ...] = METHODS):
+        return [(pose_set, n, m) for n in range(lo_hi[0], lo_hi[1] + 1) for m in methods]
+
+    return Counter(
+        grid("type_i", config.n_type_i)
+        + grid("type_ii", config.n_type_ii)
+        + grid("type_iii", config.n_type_iii)
+        + grid("type_iii_known_b", config.n_type_iii)
+        + [("free", n, m) for n in config.n_free for m in ("direct", "refined")]
+    )
+
+
 def test_bench_study_full_grid(benchmark):
-    """`hexcal study` at its defaults: the full N grid, 1000 trials per N."""
-    res = benchmark.pedantic(run_study, args=(StudyConfig(),), rounds=1, iterations=1)
-    assert len(res.rows) == 3 * (47 + 27 + 26)
+    """`hexcal study` at its defaults: the full N grid, 1000 trials per N, and the free-pose
+    sets."""
+    config = StudyConfig()
+    res = benchmark.pedantic(run_study, args=(config,), rounds=1, iterations=1)
+    # At the defaults: 3 methods × (47 + 27 + 26 + 26) N + 2 methods × 2 free-pose sets = 382.
+    assert Counter((r["set"], r["n"], r["method"]) for r in res.rows) == expected_rows(config)
 
 
 def test_bench_predict_poses_from_readings(benchmark):

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import os
 
+from hexcal.app.cli import single_thread_blas
+
 # As the CLI does: one BLAS thread; these problems are too small to gain from more.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+single_thread_blas()
 
 from pathlib import Path
 

@@ -35,14 +35,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: The thread-count variables of the BLAS libraries numpy may be built with.
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def single_thread_blas() -> bool:
+    """One BLAS thread, as every ``hexcal`` command runs (the benchmarks and the tests apply
+    this too). The problems here are small (a few hundred poses): BLAS threads cost more than
+    they give (measured: diagnose 0.81 s with one thread, 0.91 s with two), and they
+    oversubscribe the cores when several hexcal processes run. The user's own setting wins.
+
+    BLAS reads these variables when it loads: False when numpy was imported already (then the
+    setting applies only to the processes started from here)."""
+    import os
+
+    for var in BLAS_THREAD_VARS:
+        os.environ.setdefault(var, "1")
+    return "numpy" not in sys.modules
+
+
 def main(argv: list[str] | None = None) -> int:
     import os
 
-    # The problems here are small (a few hundred poses): BLAS threads cost more than they give
-    # (measured: diagnose 0.81 s with one thread, 0.91 s with two), and they oversubscribe the
-    # cores when several hexcal processes run. The user's own setting wins.
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+    single_thread_blas()
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

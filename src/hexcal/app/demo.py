@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import stats
+
+from hexcal.estimate.quantiles import chi2_sf
 
 if TYPE_CHECKING:
     from hexcal.procedure.session import SessionFile
@@ -72,7 +73,7 @@ def against_truth(ref, truth) -> dict[str, Any]:
         "outside_95": int(np.sum(np.abs(err) > 1.96 * np.sqrt(np.diag(cov)))),
         "parameters": len(idx),
         "mahalanobis2": d2,
-        "mahalanobis2_p": float(stats.chi2.sf(d2, len(idx))),
+        "mahalanobis2_p": float(chi2_sf(d2, len(idx))),
     }
 
 

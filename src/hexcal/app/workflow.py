@@ -137,7 +137,7 @@ def read_inputs(
     """Inputs from a measurements.csv (needs ``robot``) or a session file (carries its own
     robot and, once recorded, its noise); ``robot`` may be a calibrated.json, whose effects
     become :attr:`Inputs.model_effects`."""
-    from hexcal.procedure.session import load_session, looks_like_session
+    from hexcal.procedure import looks_like_session
 
     files: dict[str, Path] = {"measurements": Path(measurements)}
     effects: tuple[str, ...] = ()
@@ -156,6 +156,8 @@ def read_inputs(
         inst, source = load_instruments(instruments), f"stated in {instruments}"
     notices: list[str] = []
     if looks_like_session(measurements):
+        from hexcal.procedure.session import load_session
+
         session = load_session(measurements, notices)
         meas = session.measurements()
         design = design or session.robot

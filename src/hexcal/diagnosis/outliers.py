@@ -27,11 +27,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import stats
 
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.effects.drift import T_MID
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
+from hexcal.estimate.quantiles import chi2_isf, chi2_ppf
 from hexcal.estimate.refine import _model
 from hexcal.model.noise import DEFAULT_SIGMAS, leg_covariance
 
@@ -142,7 +142,7 @@ class OutlierSearch:
 
 def outlier_threshold(m: int, alpha: float = OUTLIER_ALPHA) -> float:
     """χ²(6) quantile a pose must exceed among ``m`` (Bonferroni at family-wise ``alpha``)."""
-    return float(stats.chi2.isf(alpha / max(m, 1), 6))
+    return float(chi2_isf(alpha / max(m, 1), 6))
 
 
 def pose_residuals(problem: Problem, fit: ModelFit) -> np.ndarray:
@@ -189,7 +189,7 @@ def _noise_level(chi2: np.ndarray, n_params: int, stated: bool) -> float:
     noise: a pose must stand out from the other poses, and from the instruments' noise."""
     n = len(chi2)
     shrink = max(1.0 - n_params / (6.0 * n), 0.5)
-    s2 = float(np.median(chi2) / (stats.chi2.median(6) * shrink))
+    s2 = float(np.median(chi2) / (chi2_ppf(0.5, 6) * shrink))
     return max(s2, 1.0) if stated else s2
 
 

@@ -29,10 +29,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import NullFormatter
 from scipy.signal import lombscargle
-from scipy.stats import norm
 
 from hexcal.effects.backlash import deadband_mm, motion_state
 from hexcal.effects.compliance import leg_forces
+from hexcal.estimate.quantiles import norm_pdf, norm_ppf
 
 if TYPE_CHECKING:
     from hexcal.diagnosis.diagnose import Diagnosis
@@ -538,7 +538,7 @@ def _plot_normalised(view: _View, outdir: Path, name: str) -> Path:
         label=f"held-out (SD {np.std(z_cv):.2f})",
     )
     g = np.linspace(-lim, lim, 400)
-    ax.plot(g, norm.pdf(g), "k-", lw=1.6, label="N(0, 1): noise only")
+    ax.plot(g, norm_pdf(g), "k-", lw=1.6, label="N(0, 1): noise only")
     ax.set_xlabel("normalised residual r / σ_floor (1)")
     ax.set_ylabel("probability density (1/σ)")
     ax.set_title(
@@ -547,7 +547,7 @@ def _plot_normalised(view: _View, outdir: Path, name: str) -> Path:
     ax.legend(fontsize=9)
     ax.grid(True, alpha=0.25)
     zs = np.sort(z_in)
-    q = norm.ppf((np.arange(1, len(zs) + 1) - 0.5) / len(zs))
+    q = norm_ppf((np.arange(1, len(zs) + 1) - 0.5) / len(zs))
     qq.plot(q, zs, "o", ms=2.5, color="C0", alpha=0.5, mec="none")
     qq.plot(q, q, "k-", lw=1.2)
     qq.set_xlabel("N(0, 1) quantile (1)")

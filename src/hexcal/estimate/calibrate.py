@@ -12,11 +12,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from hexcal.estimate.clamp_rows import ClampSteps
 from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.predict import LegModel
+from hexcal.estimate.quantiles import chi2_ppf
 from hexcal.estimate.refine import FitStalled, Refinement, refine
 from hexcal.estimate.solvers.whole_robot import Form, LinearCalibration, calibrate_linear
 from hexcal.io.measurements import Measurements
@@ -186,7 +186,7 @@ def with_clamps(
         scale = max(1.0, scale)
     excess = ref.chi2 - lengths.chi2
     ratio = excess / max(df, 1) / scale
-    limit = float(stats.chi2.ppf(1.0 - CLAMP_TEST_P, max(df, 1)) / max(df, 1))
+    limit = float(chi2_ppf(1.0 - CLAMP_TEST_P, max(df, 1)) / max(df, 1))
     used = bool(np.isfinite(ratio) and ratio <= limit)
     misfit = lengths.exceeds_stated_noise
     check = ClampCheck(

@@ -16,12 +16,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 from scipy.optimize import least_squares
 
 from hexcal.errors import RefusedError
 from hexcal.estimate.clamp_rows import ClampModel, ClampSteps, Nuisance
 from hexcal.estimate.layout import ParameterLayout
+from hexcal.estimate.quantiles import norm_ppf, t_ppf
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 
 #: Function evaluations one least-squares pass may take (a converging fit takes about 10): a
@@ -414,7 +414,7 @@ def _statistics(x, res, jw, wres, known, names, nfev, success) -> Refinement:
             "that change the legs' directions more"
         )
 
-    q = stats.norm.ppf(0.975) if known else stats.t.ppf(0.975, dof)
+    q = norm_ppf(0.975) if known else t_ppf(0.975, dof)
     iu = np.triu_indices(p, 1)
     order = np.argsort(-np.abs(corr[iu]))
     strong = [

@@ -58,6 +58,7 @@ from hexcal.io.safe_read import (
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot
+from hexcal.procedure import looks_like_session as looks_like_session
 
 log = logging.getLogger(__name__)
 # The notices are returned to the interface; logging is for an application that configures it
@@ -479,19 +480,6 @@ def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
 def session_to_text(session: Session) -> str:
     """The session file's text (indented JSON)."""
     return session.model_dump_json(indent=1, exclude_none=False) + "\n"
-
-
-def looks_like_session(path: str | Path) -> bool:
-    """True when ``path`` is a JSON file whose first bytes open a session object."""
-    path = Path(path)
-    if path.suffix.lower() != ".json":
-        return False
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(4096)
-    except OSError:
-        return False
-    return b'"schema_version"' in head
 
 
 class SessionFile:

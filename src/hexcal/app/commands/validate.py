@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     inp = read_inputs(args.measurements, args.model, args.instruments)
     sig, source = inp.sigmas, inp.noise_source
     if args.instruments is None and isinstance(loaded, CalibratedRobot):
-        from hexcal.procedure.session import looks_like_session
+        from hexcal.procedure import looks_like_session
 
         noise = loaded.calibration.noise
         if noise is not None and not looks_like_session(args.measurements):
