@@ -9,9 +9,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from hexcal.diagnosis.compare_plots import before_after
 from hexcal.diagnosis.plots import (
     PLOT_NAMES,
-    before_after,
     leg_direction_angles,
     periodogram,
     write_plots,

@@ -24,8 +24,9 @@ from typing import TypeGuard
 import numpy as np
 
 import hexcal
+from hexcal.diagnosis.compare_plots import before_after, pose_error_map
 from hexcal.diagnosis.diagnose import Diagnosis
-from hexcal.diagnosis.plots import before_after, pose_error_map, write_plots
+from hexcal.diagnosis.plots import write_plots
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.estimate.effect_fit import ParamRow
 from hexcal.io.fileio import write_text_atomic

@@ -155,7 +155,8 @@ def _diagnose_and_write(
     if result is not None and not mismatch:
         save_result(result, args.out, inp, args.force)
     if args.plots:
-        from hexcal.diagnosis.plots import PLOT_NAMES, before_after, pose_error_map, write_plots
+        from hexcal.diagnosis.compare_plots import before_after, pose_error_map
+        from hexcal.diagnosis.plots import PLOT_NAMES, write_plots
 
         out = Path(args.plots)
         out.mkdir(parents=True, exist_ok=True)
