@@ -114,6 +114,22 @@ class _Exchange(NamedTuple):
 # ------------------------------------------------------------------------------------------------
 # The driver
 # ------------------------------------------------------------------------------------------------
+#: A timing warning that clears and comes back is given again after this long at the soonest, s.
+WARNING_REPEAT_S = 60.0
+
+
+def jitter_suspects(url: str) -> str:
+    """What to check when replies on ``url`` come at irregular delays: the USB hub or adapter
+    of a serial device, the network of a socket, the host alone for a simulated tracker (a
+    pyserial URL handler such as ``ndimock://`` runs on this computer)."""
+    scheme = url.split("://", 1)[0].lower() if "://" in url else ""
+    if not scheme:
+        return "the host load or the USB hub/adapter"
+    if scheme in ("socket", "rfc2217"):
+        return "the host load or the network"
+    return "the host load (the tracker behind this URL handler runs on this computer)"
+
+
 class NDITracker(SerialDevice):
     """An NDI Combined API tracker on a pyserial port (``url``: a device path, ``socket://``,
     a pty, ``ndimock://``...).
@@ -202,6 +218,7 @@ class NDITracker(SerialDevice):
         # did, False once it refused it (then polls go without it until the next open()).
         self._all_transforms: dict[str, bool | None] = {"TX": None, "BX": None}
         self._last_notice = 0  # the system status notice bits of the previous frame
+        self._warned_at = -math.inf  # when the timing warning was last given (monotonic s)
         self.max_jitter_s = check_duration("max_jitter_s", max_jitter_s)
         self.resync_s = check_duration("resync_s", resync_s, allow_zero=True)
         self.port: serial.Serial | None = None
@@ -552,14 +569,16 @@ class NDITracker(SerialDevice):
             return
         st = self.latency_stats()
         if st["spread_s"] > self.max_jitter_s:
-            if self.timing_warning is None:
+            now = time.monotonic()
+            if self.timing_warning is None and now - self._warned_at >= WARNING_REPEAT_S:
+                self._warned_at = now
                 self.timing_warning = (
                     f"the tracker on {self.url} answers with an irregular delay: "
                     f"{st['min_s'] * 1e3:.1f} to {st['max_s'] * 1e3:.1f} ms over the last {st['n']} "
                     f"polls (jitter {st['spread_s'] * 1e3:.1f} ms > {self.max_jitter_s * 1e3:.0f} ms), "
                     "so host receive times are uncertain by that much. Samples are stamped from the "
                     "tracker's frame numbers (clock_stats()), which this does not upset, but check "
-                    "the host load or the USB hub/adapter"
+                    f"{jitter_suspects(self.url)}"
                 )
                 log.warning(self.timing_warning)
         elif st["spread_s"] < 0.5 * self.max_jitter_s:

@@ -1162,3 +1162,33 @@ def test_reopening_restarts_the_frame_clock(mock_link):
         stats = trk.clock_stats()
         assert stats["frames"] == 0 and stats["state"] == "warming up"
         assert stats["command_delay_s"] == pytest.approx(12 * 10 / trk.baudrate)
+
+
+def test_the_timing_warning_names_what_to_check_for_the_port_kind():
+    from hexcal.drivers.ndi import jitter_suspects
+
+    assert "USB hub" in jitter_suspects("/dev/ttyUSB0")
+    assert "network" in jitter_suspects("socket://192.168.1.20:8765")
+    simulated = jitter_suspects("ndimock://left-hand")
+    assert "USB" not in simulated and "runs on this computer" in simulated
+
+
+def test_a_timing_warning_that_comes_back_is_not_repeated_within_a_minute(tracking, monkeypatch):
+    import hexcal.drivers.ndi as ndi
+
+    link, trk = tracking
+    link.device.configure(jitter_s=0.04)
+    for _ in range(12):
+        trk.poll()
+    assert trk.timing_warning is not None
+    link.device.configure(jitter_s=0.0)
+    for _ in range(60):  # the window of 50 latencies forgets the jitter
+        trk.poll()
+    assert trk.timing_warning is None
+    link.device.configure(jitter_s=0.04)
+    for _ in range(12):
+        trk.poll()
+    assert trk.timing_warning is None  # back within a minute: not said again
+    monkeypatch.setattr(ndi, "WARNING_REPEAT_S", 0.0)
+    trk.poll()
+    assert trk.timing_warning is not None
