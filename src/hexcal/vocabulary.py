@@ -21,7 +21,7 @@ from __future__ import annotations
 from enum import Enum, IntEnum
 from typing import Annotated, Any, TypeAlias
 
-from pydantic import BeforeValidator
+from pydantic import PlainSerializer, PlainValidator, WithJsonSchema
 from pydantic_core import PydanticCustomError
 
 
@@ -116,22 +116,49 @@ def _expected(kind: type[Enum]) -> str:
     return ", ".join(values[:-1]) + " or " + values[-1]
 
 
-def _as_literal(kind: type[Enum], refused: tuple[type, ...]) -> BeforeValidator:
-    """Refuse, before pydantic's enum validation, the inputs that validation would coerce but
-    a ``Literal`` of the values did not accept (``"42"`` for 42, ``b"free"`` for "free"),
-    with pydantic's own message."""
+def _as_literal(kind: type[Enum], refused: tuple[type, ...]) -> PlainValidator:
+    """Validate a field of enum ``kind`` as the ``Literal`` of its values it replaces: the same
+    inputs accepted (a value, an equal number such as ``42.0``, the member; not ``"42"`` for 42
+    nor ``b"free"``: the ``refused`` types) and the same message for a bad one."""
+    members: dict[Any, Any] = {m.value: m for m in kind}
+    values = [repr(v) for v in members]
+    expected = ", ".join(values[:-1]) + " or " + values[-1]
 
     def check(value: Any) -> Any:
-        if isinstance(value, refused) and not isinstance(value, kind):
-            raise PydanticCustomError(
-                "enum", "Input should be {expected}", {"expected": _expected(kind)}
-            )
-        return value
+        if isinstance(value, kind):
+            return value
+        if not isinstance(value, (bool, *refused)):
+            try:
+                return members[value]
+            except (KeyError, TypeError):  # not a value, or unhashable
+                pass
+        raise PydanticCustomError(
+            "literal_error", "Input should be {expected}", {"expected": expected}
+        )
 
-    return BeforeValidator(check)
+    return PlainValidator(check)
 
+
+def _values_schema(kind: type[Enum], json_type: str) -> WithJsonSchema:
+    """The JSON Schema of the ``Literal`` of the values, inline and titled by the field, as
+    before the enum: ``hexcal schema`` is unchanged."""
+    return WithJsonSchema({"enum": [m.value for m in kind], "type": json_type})
+
+
+#: Dumped as the plain value, in Python mode too: a dump is what it was with the ``Literal``.
+_AS_VALUE = PlainSerializer(lambda member: member.value)
 
 #: A pydantic field holding a :class:`Constraint` (given as its value or the member).
-ConstraintField = Annotated[Constraint, _as_literal(Constraint, (bytes, bytearray))]
+ConstraintField = Annotated[
+    Constraint,
+    _as_literal(Constraint, (bytes, bytearray)),
+    _AS_VALUE,
+    _values_schema(Constraint, "string"),
+]
 #: A pydantic field holding a :class:`ModelKind` (given as 36/42 or the member).
-ModelKindField = Annotated[ModelKind, _as_literal(ModelKind, (str, bytes, bytearray))]
+ModelKindField = Annotated[
+    ModelKind,
+    _as_literal(ModelKind, (str, bytes, bytearray)),
+    _AS_VALUE,
+    _values_schema(ModelKind, "integer"),
+]

@@ -25,6 +25,7 @@ from hexcal.estimate.solvers.checks import (
     check_type_ii,
     check_type_iii,
 )
+from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
 
 Form = Literal["paper", "direct"]
 
@@ -95,13 +96,13 @@ def _solve_leg(
 ) -> tuple[LegResult | None, list[str]]:
     """Try the methods in order for leg k (1-based); return the result or the reasons."""
     reasons: list[str] = []
-    sets = {c: (leg == k) & (constraint == c) for c in ("direction", "direction+length", "length")}
+    sets = {c: (leg == k) & (constraint == c) for c in LEG_CONSTRAINTS}
     n = {c: int(m.sum()) for c, m in sets.items()}
     r = rho[:, k - 1]
 
     if model == 36:
-        m = sets["direction"]
-        if n["direction"]:
+        m = sets[Constraint.DIRECTION]
+        if n[Constraint.DIRECTION]:
             try:
                 check_type_i(k, P[m], R[m], r[m] + design_offset)
                 length = r[m] + design_offset
@@ -110,15 +111,16 @@ def _solve_leg(
                 else:
                     b, a, _ = direct.type_i_direct(P[m], R[m], length)
                 return LegResult(
-                    k, "§3.2", f"{n['direction']} Type I poses", a, b, design_offset
+                    k, "§3.2", f"{n[Constraint.DIRECTION]} Type I poses", a, b, design_offset
                 ), []
             except DegenerateSet as exc:
                 reasons.append(str(exc))
         else:
             reasons.append("no Type I (direction-clamped) poses for §3.2")
 
-    m2, m3 = sets["direction+length"], sets["length"]
-    if n["direction+length"] and n["length"]:
+    n2, n3 = n[Constraint.DIRECTION_LENGTH], n[Constraint.LENGTH]
+    m2, m3 = sets[Constraint.DIRECTION_LENGTH], sets[Constraint.LENGTH]
+    if n2 and n3:
         try:
             check_type_ii(k, P[m2], R[m2])
             b = (
@@ -133,10 +135,10 @@ def _solve_leg(
                 a = direct.type_iii_direct(P[m3], R[m3], b)[0]
             if model == 42:
                 offset = float(paper.offset_eq19(P, R, b, a, r))
-                detail = f"{n['direction+length']} Type II + {n['length']} Type III poses, offset by eq. 19 over {len(P)} poses"
+                detail = f"{n2} Type II + {n3} Type III poses, offset by eq. 19 over {len(P)} poses"
             else:
                 offset = design_offset
-                detail = f"{n['direction+length']} Type II + {n['length']} Type III poses"
+                detail = f"{n2} Type II + {n3} Type III poses"
             return LegResult(k, "§3.3", detail, a, b, offset), []
         except DegenerateSet as exc:
             reasons.append(str(exc))
@@ -144,8 +146,8 @@ def _solve_leg(
         missing = [
             name
             for c, name in (
-                ("direction+length", "Type II (direction and length clamped)"),
-                ("length", "Type III (length clamped)"),
+                (Constraint.DIRECTION_LENGTH, "Type II (direction and length clamped)"),
+                (Constraint.LENGTH, "Type III (length clamped)"),
             )
             if not n[c]
         ]
