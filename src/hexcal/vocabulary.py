@@ -105,11 +105,6 @@ class ModelKind(IntEnum):
     def __format__(self, spec: str) -> str:
         return format(self.value, spec)
 
-    @property
-    def fits_offsets(self) -> bool:
-        """The leg offsets are fitted (Model 42)."""
-        return self is ModelKind.M42
-
 
 def _expected(kind: type[Enum]) -> str:
     values = [repr(m.value) for m in kind]

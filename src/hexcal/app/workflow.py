@@ -43,6 +43,7 @@ from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas
 from hexcal.model.robot import Robot
+from hexcal.vocabulary import ModelKind
 
 #: The most effects ``diagnose --auto`` adds before it stops.
 MAX_AUTO_STEPS = 8
@@ -313,7 +314,7 @@ def _record(a: PoseAccuracy):
 
 def calibrate_model(
     inp: Inputs,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     effects: Sequence[str] = (),
     clamps: bool = True,
     form: Form = "paper",
@@ -346,7 +347,7 @@ def calibrate_model(
     except FitStalled as exc:
         raise _stall_message(inp, exc) from None
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
-    base = ("offset",) if model == 42 else ()
+    base = ("offset",) if model == ModelKind.M42 else ()
     chain = [base] if not cal.effects else [base, (*base, *cal.effects)]
     try:
         fits = [fit_model(problem, c) for c in chain]
@@ -370,7 +371,7 @@ def calibrate_model(
 # -- diagnosis --------------------------------------------------------------------------------
 def diagnose_chain(
     inp: Inputs,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     add: Sequence[str] = (),
     auto: bool = False,
     on_step: Callable[[Any], None] | None = None,
@@ -409,7 +410,7 @@ def diagnose_chain(
 
 
 def model_of(
-    inp: Inputs, chain: Sequence[Any], model: int = 42, clamps: bool = True
+    inp: Inputs, chain: Sequence[Any], model: ModelKind = ModelKind.M42, clamps: bool = True
 ) -> ModelResult:
     """The calibrated model of a diagnosis chain's last step: calibrated with its effects
     (clamp rows included); the pose accuracy of every step, from the diagnoses' own held-out

@@ -56,6 +56,7 @@ from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import Instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.model.robot import Robot
+from hexcal.vocabulary import ModelKind
 
 #: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
 BIC_STRONG = -10.0
@@ -379,7 +380,7 @@ def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
 def diagnose(
     meas: Measurements,
     design: Robot,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     add: list[str] | tuple[str, ...] = (),
     instruments: Instruments | None = None,
     problem: Problem | None = None,
@@ -398,8 +399,8 @@ def diagnose(
     problem = session_problem(problem) if problem is not None else Problem.build(meas, design, sig)
     acknowledged = OUTLIERS in add
     add = [e for e in add if e != OUTLIERS]
-    effects = (("offset",) if model == 42 else ()) + tuple(
-        e for e in add if not (e == "offset" and model == 42)
+    effects = (("offset",) if model == ModelKind.M42 else ()) + tuple(
+        e for e in add if not (e == "offset" and model == ModelKind.M42)
     )
     notes: list[str] = []
     outliers: list[Outlier] = []

@@ -23,6 +23,7 @@ from hexcal.effects import CATALOGUE, get_effect
 from hexcal.estimate.accuracy import PoseAccuracy, pose_errors, pose_floor
 from hexcal.estimate.predict import LegModel
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+from hexcal.vocabulary import ModelKind
 
 #: χ²/dof above 1 + EXCESS_Z·√(2/dof) is above the noise floor (as in the diagnosis).
 EXCESS_Z = 4.0
@@ -246,7 +247,7 @@ def estimated_noise(model: LegModel, meas) -> tuple[NoiseSigmas, str]:
     typical tracker and encoder scaled to its χ²/dof)."""
     from hexcal.estimate.calibrate import calibrate
 
-    cal = calibrate(meas, model.robot, 42, None, effects=model.effects, clamps=False)
+    cal = calibrate(meas, model.robot, ModelKind.M42, None, effects=model.effects, clamps=False)
     r = cal.refinement
     s = float(np.sqrt(r.chi2 / r.dof)) if r is not None else 1.0
     d = DEFAULT_SIGMAS

@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     from hexcal.app.workflow import diagnose_chain, model_of, refuse_overwrite, save_result
     from hexcal.diagnosis.text import before_after_text, diagnosis_text
+    from hexcal.vocabulary import ModelKind
 
     inp = read_inputs(args)
     for out_path in (args.out, args.residuals, args.report):
@@ -70,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
     limits_json = limits.to_dict(inp.meas)
     if args.exclude_at_limits and limits.rows:
         inp = inp.without([int(inp.meas.pose_id[r]) for r in limits.rows])
-    steps = diagnose_chain(inp, args.model, add=tuple(args.add or ()), auto=args.auto)
-    result = model_of(inp, steps, args.model) if args.out else None
+    model = ModelKind(args.model)
+    steps = diagnose_chain(inp, model, add=tuple(args.add or ()), auto=args.auto)
+    result = model_of(inp, steps, model) if args.out else None
     mismatch = []
     if not args.no_drawing_check:
         from hexcal.estimate.sanity import check_against_drawing

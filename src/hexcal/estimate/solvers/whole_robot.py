@@ -25,7 +25,7 @@ from hexcal.estimate.solvers.checks import (
     check_type_ii,
     check_type_iii,
 )
-from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
+from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint, ModelKind
 
 Form = Literal["paper", "direct"]
 
@@ -50,7 +50,7 @@ class LegResult:
 class LinearCalibration:
     """The linear stage's geometry: a (6, 3), b (6, 3), offsets (6,) mm, and per-leg methods."""
 
-    model: int
+    model: ModelKind
     form: str
     legs: tuple[LegResult, ...]
 
@@ -90,7 +90,7 @@ def _solve_leg(
     rho: np.ndarray,
     leg: np.ndarray,
     constraint: np.ndarray,
-    model: int,
+    model: ModelKind,
     design_offset: float,
     form: Form,
 ) -> tuple[LegResult | None, list[str]]:
@@ -100,7 +100,7 @@ def _solve_leg(
     n = {c: int(m.sum()) for c, m in sets.items()}
     r = rho[:, k - 1]
 
-    if model == 36:
+    if model == ModelKind.M36:
         m = sets[Constraint.DIRECTION]
         if n[Constraint.DIRECTION]:
             try:
@@ -133,7 +133,7 @@ def _solve_leg(
                 a = paper.type_iii_paper(P[m3], R[m3], b)
             else:
                 a = direct.type_iii_direct(P[m3], R[m3], b)[0]
-            if model == 42:
+            if model == ModelKind.M42:
                 offset = float(paper.offset_eq19(P, R, b, a, r))
                 detail = f"{n2} Type II + {n3} Type III poses, offset by eq. 19 over {len(P)} poses"
             else:
@@ -157,10 +157,10 @@ def _solve_leg(
     if len(P) >= free.MIN_POSES:
         from hexcal.estimate.solvers.linalg import scaled_singular_values
 
-        mat, _ = free.free_system(P, R, r, None if model == 42 else design_offset)
+        mat, _ = free.free_system(P, R, r, None if model == ModelKind.M42 else design_offset)
         s = scaled_singular_values(mat)
         if s[0] / max(s[-1], 1e-300) < 1e8:
-            b, a, off = free.free_linear(P, R, r, None if model == 42 else design_offset)
+            b, a, off = free.free_linear(P, R, r, None if model == ModelKind.M42 else design_offset)
             return LegResult(k, "free-linear", f"{len(P)} poses, all types", a, b, off), []
         reasons.append(
             f"the {len(P)} poses are too alike for the free-pose linear form: move and tilt the platform more widely"
@@ -178,7 +178,7 @@ def calibrate_linear(
     readings: np.ndarray,
     leg: np.ndarray,
     constraint: np.ndarray,
-    model: int,
+    model: ModelKind,
     design_offsets: np.ndarray,
     form: Form = "paper",
 ) -> LinearCalibration:
@@ -188,7 +188,7 @@ def calibrate_linear(
     constraint (N,) str; design_offsets (6,) mm are used as known offsets for Model 36.
     Raises :class:`CalibrationRefused` naming every leg that no method could serve and why.
     """
-    if model not in (36, 42):
+    if model not in tuple(ModelKind):
         raise ValueError(f"model must be 36 or 42, not {model}")
     constraint = np.asarray(constraint, dtype=object)
     leg = np.asarray(leg)
