@@ -43,7 +43,7 @@ from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas
 from hexcal.model.robot import Robot
-from hexcal.vocabulary import ModelKind
+from hexcal.vocabulary import ModelKind, names_an_addition
 
 #: The most effects ``diagnose --auto`` adds before it stops.
 MAX_AUTO_STEPS = 8
@@ -404,7 +404,7 @@ def diagnose_chain(
         steps.append(d)
         if on_step is not None:
             on_step(d)
-        if not auto or d.verdict in ("none", "unexplained") or len(steps) >= MAX_AUTO_STEPS:
+        if not auto or not names_an_addition(d.verdict) or len(steps) >= MAX_AUTO_STEPS:
             return steps
         added.append(d.verdict)
 
