@@ -106,11 +106,6 @@ class ModelKind(IntEnum):
         return format(self.value, spec)
 
 
-def _expected(kind: type[Enum]) -> str:
-    values = [repr(m.value) for m in kind]
-    return ", ".join(values[:-1]) + " or " + values[-1]
-
-
 def _as_literal(kind: type[Enum], refused: tuple[type, ...]) -> PlainValidator:
     """Validate a field of enum ``kind`` as the ``Literal`` of its values it replaces: the same
     inputs accepted (a value, an equal number such as ``42.0``, the member; not ``"42"`` for 42

@@ -548,7 +548,7 @@ class _TableReader:
         constraint = self._texts(cols[self.at["constraint"]])
         if "" in step or not set(constraint) <= set(CONSTRAINTS):
             raise _Slow
-        free_ = Constraint.FREE  # looked up once: an enum member is slow to reach
+        free_ = Constraint.FREE.value  # once, as plain text: the fastest comparison
         free = np.array([c == free_ for c in constraint], dtype=bool)
         if np.any(free != (leg == 0)):
             raise _Slow
