@@ -25,9 +25,10 @@ from scipy.spatial.transform import Rotation
 from hexcal.mock_hw.robot import MockRobot
 from hexcal.procedure.recording import MotionError
 from hexcal.sim.simulate import PoseRanges, Simulator
+from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
 
 #: The clamp kinds, as the measurement table names the constraint they impose.
-CLAMPS = ("direction", "direction+length", "length")
+CLAMPS = LEG_CONSTRAINTS
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class Clamp:
     ``length`` mm (|B_k − A_k|), ``point`` (3,) mm (B_k in the tracker frame)."""
 
     leg: int
-    constraint: str
+    constraint: Constraint
     direction: np.ndarray
     length: float
     point: np.ndarray
@@ -84,7 +85,7 @@ class MockMotionController:
         length = float(np.linalg.norm(v))
         return v / length, length, point
 
-    def clamp(self, leg: int, constraint: str) -> Clamp:
+    def clamp(self, leg: int, constraint: Constraint | str) -> Clamp:
         """Clamp leg ``leg`` (1..6) as it stands: ``constraint`` one of :data:`CLAMPS`."""
         if constraint not in CLAMPS:
             raise MotionError(f"unknown clamp {constraint!r}; use one of {', '.join(CLAMPS)}")
@@ -96,7 +97,7 @@ class MockMotionController:
                 "release it first"
             )
         u, length, point = self._leg_now(leg - 1)
-        self.clamp_state = Clamp(leg, constraint, u, length, point)
+        self.clamp_state = Clamp(leg, Constraint(constraint), u, length, point)
         self._slip = None
         return self.clamp_state
 
@@ -113,7 +114,7 @@ class MockMotionController:
         # A fixed creep direction, perpendicular to the leg for a direction slip.
         axis = self._rng.normal(size=3)
         u = self.clamp_state.direction
-        if self.clamp_state.constraint != "length":  # the direction part gives way
+        if self.clamp_state.constraint != Constraint.LENGTH:  # the direction part gives way
             axis -= (axis @ u) * u
         self._slip_axis = axis / np.linalg.norm(axis)
 
@@ -121,9 +122,9 @@ class MockMotionController:
         c, s = self.clamp_state, self._slip
         if c is None or s is None:
             return
-        if c.constraint == "length":
+        if c.constraint == Constraint.LENGTH:
             c = replace(c, length=c.length + s.mm_per_move)
-        elif c.constraint == "direction":
+        elif c.constraint == Constraint.DIRECTION:
             rot = Rotation.from_rotvec(np.deg2rad(s.deg_per_move) * self._slip_axis)
             c = replace(c, direction=rot.apply(c.direction))
         else:
@@ -139,9 +140,9 @@ class MockMotionController:
         k = c.leg - 1
         point = np.asarray(position, float) + np.asarray(rotation, float) @ self.robot.truth.b[k]
         v = point - self.robot.truth.a[k]
-        if c.constraint == "length":
+        if c.constraint == Constraint.LENGTH:
             return abs(float(np.linalg.norm(v)) - c.length)
-        if c.constraint == "direction":
+        if c.constraint == Constraint.DIRECTION:
             return float(np.linalg.norm(v - (v @ c.direction) * c.direction))
         return float(np.linalg.norm(point - c.point))
 
@@ -167,9 +168,9 @@ class MockMotionController:
         c = self.clamp_state
         if c is None:
             P, R = self.sim.free((1,), self._rng)
-        elif c.constraint == "direction":
+        elif c.constraint == Constraint.DIRECTION:
             P, R = self.sim.type_i(c.leg - 1, (1,), self._rng, direction=c.direction)
-        elif c.constraint == "length":
+        elif c.constraint == Constraint.LENGTH:
             P, R = self.sim.type_iii(c.leg - 1, (1,), self._rng, length=c.length, axis=c.direction)
         else:
             P, R = self.sim.type_ii(c.leg - 1, (1,), self._rng, point=c.point)
@@ -193,10 +194,10 @@ class MockMotionController:
             k = c.leg - 1
             rb = R @ self.robot.truth.b[k]
             a = self.robot.truth.a[k]
-            if c.constraint == "direction":
+            if c.constraint == Constraint.DIRECTION:
                 rho = float((P + rb - a) @ c.direction)
                 P = a + rho * c.direction - rb
-            elif c.constraint == "length":
+            elif c.constraint == Constraint.LENGTH:
                 v = P + rb - a
                 P = a + c.length * v / np.linalg.norm(v) - rb
             else:

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hexcal.estimate.quantiles import chi2_sf
+from hexcal.vocabulary import names_an_addition
 
 if TYPE_CHECKING:
     from hexcal.procedure.session import SessionFile
@@ -139,7 +140,7 @@ def run_demo(
     store(sf, "calibration", first, meas)
     chain = diagnose_chain(inp, proc.model)
     base = chain[0]
-    if base.verdict not in ("none", "unexplained"):
+    if names_an_addition(base.verdict):
         chain += diagnose_chain(inp, proc.model, add=[base.verdict], previous=base)
     final = model_of(inp, chain, proc.model)
     store(sf, "diagnosis", final, meas, summary=base.to_dict())

@@ -7,6 +7,7 @@ import json
 import numpy as np
 
 from hexcal.estimate.calibrate import Calibration
+from hexcal.vocabulary import ModelKind
 
 
 def _fmt(value: float, ci: float, status: str) -> str:
@@ -29,19 +30,19 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
     lines.append("")
     lines.append("calibrated geometry, mm (value ± 95 % interval; * = not separable, see notes):")
     header = "  leg" + "".join(f"{h:>19}" for h in ("a.x", "a.y", "a.z", "b.x", "b.y", "b.z"))
-    if cal.model == 42:
+    if cal.model == ModelKind.M42:
         header += f"{'offset':>19}"
     lines.append(header)
     idx = {n: i for i, n in enumerate(ref.names)} if ref else {}
     for k in range(6):
         cells = []
         names = [f"a{k + 1}.{c}" for c in "xyz"] + [f"b{k + 1}.{c}" for c in "xyz"]
-        if cal.model == 42:
+        if cal.model == ModelKind.M42:
             names.append(f"offset{k + 1}")
         values = (
             list(cal.robot.a[k])
             + list(cal.robot.b[k])
-            + ([cal.robot.offsets[k]] if cal.model == 42 else [])
+            + ([cal.robot.offsets[k]] if cal.model == ModelKind.M42 else [])
         )
         for name, v in zip(names, values, strict=False):
             if ref:
@@ -50,7 +51,7 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
             else:
                 cells.append(f"{v:19.4f}")
         lines.append(f"  {k + 1:>3}" + "".join(cells))
-    if cal.model == 36:
+    if cal.model == ModelKind.M36:
         lines.append(
             f"  offsets (known, from the robot file): {np.array2string(cal.robot.offsets, precision=4)}"
         )
@@ -114,7 +115,7 @@ def calibration_json(cal: Calibration, source: str, noise_source: str) -> str:
         out["platform_points_ci95"] = block("b", (6, 3))
         out["leg_offsets_ci95"] = (
             [float(ref.ci95[ref.names.index(f"offset{k}")]) for k in range(1, 7)]
-            if cal.model == 42
+            if cal.model == ModelKind.M42
             else [0.0] * 6
         )
         out["chi2_per_dof"] = ref.chi2 / ref.dof

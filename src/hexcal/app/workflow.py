@@ -43,6 +43,7 @@ from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas
 from hexcal.model.robot import Robot
+from hexcal.vocabulary import ModelKind, names_an_addition
 
 #: The most effects ``diagnose --auto`` adds before it stops.
 MAX_AUTO_STEPS = 8
@@ -315,7 +316,7 @@ def _record(a: PoseAccuracy):
 
 def calibrate_model(
     inp: Inputs,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     effects: Sequence[str] = (),
     clamps: bool = True,
     form: Form = "paper",
@@ -348,7 +349,7 @@ def calibrate_model(
     except FitStalled as exc:
         raise _stall_message(inp, exc) from None
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
-    base = ("offset",) if model == 42 else ()
+    base = ("offset",) if model == ModelKind.M42 else ()
     chain = [base] if not cal.effects else [base, (*base, *cal.effects)]
     try:
         fits = [fit_model(problem, c) for c in chain]
@@ -372,7 +373,7 @@ def calibrate_model(
 # -- diagnosis --------------------------------------------------------------------------------
 def diagnose_chain(
     inp: Inputs,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     add: Sequence[str] = (),
     auto: bool = False,
     on_step: Callable[[Any], None] | None = None,
@@ -405,13 +406,13 @@ def diagnose_chain(
         steps.append(d)
         if on_step is not None:
             on_step(d)
-        if not auto or d.verdict in ("none", "unexplained") or len(steps) >= MAX_AUTO_STEPS:
+        if not auto or not names_an_addition(d.verdict) or len(steps) >= MAX_AUTO_STEPS:
             return steps
         added.append(d.verdict)
 
 
 def model_of(
-    inp: Inputs, chain: Sequence[Any], model: int = 42, clamps: bool = True
+    inp: Inputs, chain: Sequence[Any], model: ModelKind = ModelKind.M42, clamps: bool = True
 ) -> ModelResult:
     """The calibrated model of a diagnosis chain's last step: calibrated with its effects
     (clamp rows included); the pose accuracy of every step, from the diagnoses' own held-out

@@ -56,6 +56,7 @@ from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import Instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.model.robot import Robot
+from hexcal.vocabulary import ModelKind, Outcome, Verdict
 
 #: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
 BIC_STRONG = -10.0
@@ -75,7 +76,7 @@ EXCESS_Z = 4.0
 N_LEADERS = 3
 #: The verdict when gross outliers are the whole story, and the name that, among the added
 #: effects, acknowledges them (they stay set aside, no longer a verdict).
-OUTLIERS = "outliers"
+OUTLIERS = Outcome.OUTLIERS
 
 
 @dataclass
@@ -109,7 +110,7 @@ class Diagnosis:
     floor_source: str
     chi2_per_dof: float
     excess_significant: bool
-    verdict: str
+    verdict: Verdict  #: an Outcome, or the name of the missing catalogue effect
     candidates: list[Candidate]
     where: dict
     floor_per_residual: np.ndarray
@@ -379,7 +380,7 @@ def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
 def diagnose(
     meas: Measurements,
     design: Robot,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     add: list[str] | tuple[str, ...] = (),
     instruments: Instruments | None = None,
     problem: Problem | None = None,
@@ -398,8 +399,8 @@ def diagnose(
     problem = session_problem(problem) if problem is not None else Problem.build(meas, design, sig)
     acknowledged = OUTLIERS in add
     add = [e for e in add if e != OUTLIERS]
-    effects = (("offset",) if model == 42 else ()) + tuple(
-        e for e in add if not (e == "offset" and model == 42)
+    effects = (("offset",) if model == ModelKind.M42 else ()) + tuple(
+        e for e in add if not (e == "offset" and model == ModelKind.M42)
     )
     notes: list[str] = []
     outliers: list[Outlier] = []
@@ -423,7 +424,7 @@ def diagnose(
     )
     if outliers:
         story = ""
-        if verdict == "none":
+        if verdict == Outcome.NONE:
             story = "without them the model is at the noise floor"
             if acknowledged:
                 story += " (they were acknowledged: set aside, no longer a verdict)"
@@ -573,6 +574,7 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
     best = min(winners, key=lambda c: c.delta_bic) if winners else None
     if best is not None and _of_the_session(best.effect):
         best = _robot_before_session(best, candidates, winners, excess, notes)
+    verdict: Verdict
     if best is not None:
         verdict = best.effect
         if best.with_effect:
@@ -581,7 +583,7 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
                 f"add {best.effect}, then diagnose again"
             )
     elif excess:
-        verdict = "unexplained"
+        verdict = Outcome.UNEXPLAINED
         helpful = [
             (c, c.refit) for c in candidates if c.refit is not None and c.delta_bic < BIC_STRONG
         ]
@@ -596,7 +598,7 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
                 )
             )
     else:
-        verdict = "none"
+        verdict = Outcome.NONE
     return verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof
 
 

@@ -30,6 +30,7 @@ from hexcal.diagnosis.plots import write_plots
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.estimate.effect_fit import ParamRow
 from hexcal.io.fileio import write_text_atomic
+from hexcal.vocabulary import Outcome, Verdict
 
 UM = 1e3
 
@@ -179,8 +180,16 @@ def _value_ci(p: ParamRow) -> str:
     return f"{p.value:.{dec}f} ± {p.ci95:.{dec}f}".replace("-", "−")
 
 
-def _verdict_class(verdict: str) -> str:
-    return {"none": "v-none", "unexplained": "v-unexplained"}.get(verdict, "v-effect")
+#: The verdict's CSS class and header label; any other verdict names an effect (or outliers).
+_VERDICT_CLASS: dict[Verdict, str] = {Outcome.NONE: "v-none", Outcome.UNEXPLAINED: "v-unexplained"}
+_VERDICT_LABEL: dict[Verdict, str] = {
+    Outcome.NONE: "verdict — nothing missing",
+    Outcome.UNEXPLAINED: "verdict — unexplained residual",
+}
+
+
+def _verdict_class(verdict: Verdict) -> str:
+    return _VERDICT_CLASS.get(verdict, "v-effect")
 
 
 def _sha256(path: Path) -> str:
@@ -212,7 +221,7 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
     d = diags[-1]
     fit = d.fit
     floor = f"{_um(d.noise_floor_mm)} µm"
-    if d.verdict == "none":
+    if d.verdict == Outcome.NONE:
         text = (
             f"{fit.model_name} describes these data to the noise floor: held-out RMS "
             f"{_um(fit.cv_rms_mm)} µm against a floor of {floor} (χ²/dof {d.chi2_per_dof:.2f})"
@@ -226,13 +235,13 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
                     f"{_um(first.fit.cv_rms_mm)} µm"
                 )
         return text + "."
-    if d.verdict == "unexplained":
+    if d.verdict == Outcome.UNEXPLAINED:
         return (
             f"{fit.model_name} leaves a residual above the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, "
             f"floor {floor}, χ²/dof {d.chi2_per_dof:.2f}) that no catalogue effect explains; "
             f"{d.where.get('summary', '')}."
         )
-    if d.verdict == "outliers":
+    if d.verdict == Outcome.OUTLIERS:
         return (
             f"{len(d.outliers)} poses are gross outliers no model explains; without them "
             f"{fit.model_name} is at the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, floor "
@@ -259,10 +268,7 @@ def _header(diags: Sequence[Diagnosis]) -> str:
             f'<li class="chip {_verdict_class(s.verdict)}"><a href="#step-{i}" style="color:inherit">'
             f"{_e(s.fit.model_name)}</a>: {_e(s.verdict)} · {_um(s.fit.cv_rms_mm)} µm</li>"
         )
-    label = {
-        "none": "verdict — nothing missing",
-        "unexplained": "verdict — unexplained residual",
-    }.get(d.verdict, "verdict — effect missing from the model")
+    label = _VERDICT_LABEL.get(d.verdict, "verdict — effect missing from the model")
     return (
         f'<header id="verdict" class="verdict {_verdict_class(d.verdict)}">'
         f'<div class="label">{_e(label)} · {_e(d.fit.model_name)}</div>'

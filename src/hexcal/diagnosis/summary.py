@@ -13,6 +13,7 @@ from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.effects import get_effect
 from hexcal.effects.base import leg_of
 from hexcal.estimate.effect_fit import ParamRow
+from hexcal.vocabulary import Outcome
 
 #: A parameter is told in words when its value is at least this many σ from zero.
 SIGNIFICANT_SIGMAS = 3.0
@@ -101,19 +102,19 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
         out.append(
             "The robot differs from its drawing beyond the geometry: " + "; ".join(clauses) + "."
         )
-    if d.verdict == "none":
+    if d.verdict == Outcome.NONE:
         out.append(
             "Nothing else is missing: what remains is the instruments' own noise "
             f"({1000 * d.fit.cv_rms_mm:.0f} µm per leg against a floor of "
             f"{1000 * d.noise_floor_mm:.0f} µm)."
         )
-    elif d.verdict == "unexplained":
+    elif d.verdict == Outcome.UNEXPLAINED:
         out.append(
             "Something no catalogue effect describes remains: the model misses the legs by "
             f"{1000 * d.fit.cv_rms_mm:.0f} µm where the noise alone gives "
             f"{1000 * d.noise_floor_mm:.0f} µm. " + str(d.where.get("summary", "")).capitalize()
         )
-    elif d.verdict == "outliers":
+    elif d.verdict == Outcome.OUTLIERS:
         out.append(
             f"{len(d.outliers)} poses disagree grossly with every model (mis-recorded, knocked, "
             "or against an end stop): look at them before trusting the calibration."

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from hexcal.diagnosis.diagnose import Diagnosis
+from hexcal.vocabulary import Outcome
 
 
 def _um(x: float) -> str:
@@ -61,16 +62,16 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         )
     lines.append("")
     v = d.verdict
-    if v == "none":
+    if v == Outcome.NONE:
         lines.append(
             "verdict: none — the residual is at the noise floor; nothing in the catalogue is missing"
         )
-    elif v == "unexplained":
+    elif v == Outcome.UNEXPLAINED:
         lines.append(
             "verdict: unexplained — the residual is above the noise floor but no catalogue effect explains most of it"
         )
         lines.append(f"  look at: {d.where['summary']}")
-    elif v == "outliers":
+    elif v == Outcome.OUTLIERS:
         lines.append(
             f"verdict: outliers — {len(d.outliers)} poses no model explains (a bumped tracker, a "
             "pose taken mid-move); without them the model is at the noise floor. They stay in the "

@@ -23,6 +23,7 @@ from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import Instruments
 from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
+from hexcal.vocabulary import ModelKind
 
 
 @dataclass
@@ -33,7 +34,7 @@ class Calibration:
     ``methods`` says which linear method served each leg.
     """
 
-    model: int
+    model: ModelKind
     robot: Robot
     linear: LinearCalibration
     refinement: Refinement | None
@@ -59,7 +60,7 @@ class Calibration:
         from hexcal.effects import get_effect
 
         r = self.refinement
-        i = ParameterLayout(fit_offsets=self.model == 42).n_geometry
+        i = ParameterLayout(fit_offsets=self.model == ModelKind.M42).n_geometry
         keep: list[str] = []
         values: list[float] = []
         for e in self.effects:
@@ -240,7 +241,7 @@ def refine_from_seeds(P, R, rho, lin_a, lin_b, lin_off, design: Robot, fit_offse
 def calibrate(
     meas: Measurements,
     design: Robot,
-    model: int = 42,
+    model: ModelKind = ModelKind.M42,
     instruments: Instruments | None = None,
     form: Form = "paper",
     do_refine: bool = True,
@@ -257,7 +258,7 @@ def calibrate(
     clamped steps' own constraints to the refinement (:func:`with_clamps`; False: leg lengths
     only).
     """
-    effects = tuple(e for e in effects if not (e == "offset" and model == 42))
+    effects = tuple(e for e in effects if not (e == "offset" and model == ModelKind.M42))
     if effects:
         return _calibrate_with_effects(meas, design, model, instruments, effects, clamps)
     R = meas.rotations.as_matrix()
@@ -269,10 +270,10 @@ def calibrate(
     if do_refine:
         sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
         ref = refine_from_seeds(
-            meas.position, R, meas.readings, a, b, off, design, model == 42, sig
+            meas.position, R, meas.readings, a, b, off, design, model == ModelKind.M42, sig
         )
         if clamps:
-            ref, check = with_clamps(meas, ref, model == 42, sig, design.offsets)
+            ref, check = with_clamps(meas, ref, model == ModelKind.M42, sig, design.offsets)
         a, b, off = ref.a, ref.b, ref.offsets(off)
     robot = design.with_geometry(a, b, off)
     return Calibration(
@@ -298,11 +299,13 @@ def _calibrate_with_effects(meas, design, model, instruments, effects, clamps) -
 
     sig = NoiseSigmas.from_instruments(instruments) if instruments is not None else None
     problem = Problem.build(meas, design, sig)
-    full = (("offset",) if model == 42 else ()) + tuple(effects)
+    full = (("offset",) if model == ModelKind.M42 else ()) + tuple(effects)
     fit = fit_model(problem, full, cross_validate=False)
     ref, check, basis = fit.refinement, None, fit.basis
     if clamps:
-        ref, check = with_clamps(meas, fit.refinement, model == 42, sig, design.offsets, basis)
+        ref, check = with_clamps(
+            meas, fit.refinement, model == ModelKind.M42, sig, design.offsets, basis
+        )
         # The clamp rows move the geometry: effects that use it are evaluated there again, so
         # the calibrated model predicts exactly what this fit did.
         if ref is not fit.refinement and any(get_effect(e).uses_geometry for e in effects):
@@ -313,9 +316,9 @@ def _calibrate_with_effects(meas, design, model, instruments, effects, clamps) -
                     break
                 basis = new
                 ref, check = with_clamps(
-                    meas, fit.refinement, model == 42, sig, design.offsets, basis
+                    meas, fit.refinement, model == ModelKind.M42, sig, design.offsets, basis
                 )
-    lin = problem.linear42 if model == 42 else problem.linear36
+    lin = problem.linear42 if model == ModelKind.M42 else problem.linear36
     # problem.design: the design with the backlash dead band the fit used (from the stated
     # noise), so the calibrated model evaluates backlash as the fit did.
     robot = problem.design.with_geometry(ref.a, ref.b, ref.offsets(design.offsets))

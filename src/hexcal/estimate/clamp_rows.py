@@ -24,15 +24,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexcal.estimate.layout import ParameterLayout
+from hexcal.vocabulary import Constraint
 
 #: Rows per pose in the fixed layout: six leg lengths and up to three clamp rows.
 ROWS = 9
 #: Nuisance unknowns per step, by constraint.
-N_NUISANCE = {"direction": 2, "direction+length": 3, "length": 1}
+N_NUISANCE = {Constraint.DIRECTION: 2, Constraint.DIRECTION_LENGTH: 3, Constraint.LENGTH: 1}
 _NUISANCE_LABELS = {
-    "direction": ("u.t1", "u.t2"),
-    "direction+length": ("C.x", "C.y", "C.z"),
-    "length": ("r",),
+    Constraint.DIRECTION: ("u.t1", "u.t2"),
+    Constraint.DIRECTION_LENGTH: ("C.x", "C.y", "C.z"),
+    Constraint.LENGTH: ("r",),
 }
 
 
@@ -46,7 +47,7 @@ class ClampSteps:
 
     group: np.ndarray
     leg: np.ndarray
-    kind: tuple[str, ...]
+    kind: tuple[Constraint, ...]
     label: tuple[str, ...]
 
     @classmethod
@@ -68,7 +69,7 @@ class ClampSteps:
         return cls(
             group,
             np.array([k - 1 for k, _, _ in ordered], int),
-            tuple(c for _, c, _ in ordered),
+            tuple(Constraint(c) for _, c, _ in ordered),
             tuple(s or f"leg{k}-{c}" for k, c, s in ordered),
         )
 
@@ -108,10 +109,10 @@ class Nuisance:
             k = steps.leg[s]
             p = P[m] + R[m] @ b[k]
             v = p - a[k]
-            if steps.kind[s] == "direction":
+            if steps.kind[s] == Constraint.DIRECTION:
                 d = np.mean(v / np.linalg.norm(v, axis=-1, keepdims=True), axis=0)
                 u[s] = d / np.linalg.norm(d)
-            elif steps.kind[s] == "direction+length":
+            elif steps.kind[s] == Constraint.DIRECTION_LENGTH:
                 C[s] = p.mean(axis=0)
             else:
                 r[s] = np.linalg.norm(v, axis=-1).mean()
@@ -167,12 +168,16 @@ class ClampModel:
         m = len(self.P)
         g = self.steps.group
         k = np.where(g >= 0, self.steps.leg[np.maximum(g, 0)], -1)
-        kind = np.array([self.steps.kind[s] if s >= 0 else "free" for s in g], dtype=object)
+        kind = np.array(
+            [self.steps.kind[s] if s >= 0 else Constraint.FREE for s in g], dtype=object
+        )
         self.pose_leg = k
         self.pose_kind = kind
         mask = np.zeros((m, ROWS), bool)
         mask[:, :6] = True
-        t1, t2, t3 = kind == "direction", kind == "direction+length", kind == "length"
+        t1 = kind == Constraint.DIRECTION
+        t2 = kind == Constraint.DIRECTION_LENGTH
+        t3 = kind == Constraint.LENGTH
         mask[np.where(t1)[0], k[t1]] = False
         mask[t1 | t2, 6:9] = True
         mask[t3, 6] = True
@@ -190,9 +195,9 @@ class ClampModel:
     def nuisance_vector(self, nu: Nuisance) -> np.ndarray:
         out: list[np.ndarray] = []
         for s, c in enumerate(self.steps.kind):
-            if c == "direction":
+            if c == Constraint.DIRECTION:
                 out.append(np.zeros(2))
-            elif c == "direction+length":
+            elif c == Constraint.DIRECTION_LENGTH:
                 out.append(nu.C[s])
             else:
                 out.append(np.array([nu.r[s]]))
@@ -204,10 +209,10 @@ class ClampModel:
         z = x[len(x) - self.steps.n_nuisance :] if self.steps.n_nuisance else x[:0]
         for s, c in enumerate(self.steps.kind):
             blk = z[self.offset_of[s] : self.offset_of[s + 1]]
-            if c == "direction":
+            if c == Constraint.DIRECTION:
                 w = self.u0[s] + self.tangent[s] @ blk
                 u[s] = w / np.linalg.norm(w)
-            elif c == "direction+length":
+            elif c == Constraint.DIRECTION_LENGTH:
                 C[s] = blk
             else:
                 r[s] = blk[0]
@@ -264,10 +269,10 @@ class ClampModel:
             k = self.steps.leg[s]
             col = lay.size + self.offset_of[s]
             geo_a, geo_b = lay.a_of_leg(k), lay.b_of_leg(k)
-            if want_jz and c != "length":
+            if want_jz and c != Constraint.LENGTH:
                 jz[sel, 6:9, 0:3] = np.eye(3)
                 jz[sel, 6:9, 3:6] = -self.R[sel] @ _skew(b[k])  # d(R b)/dθ body
-            if c == "direction":
+            if c == Constraint.DIRECTION:
                 u = nu.u[s]
                 s_len = pred[sel, k]  # (n,)
                 res[sel, 6:9] = v[sel, k] - s_len[:, None] * u
@@ -287,7 +292,7 @@ class ClampModel:
                 if want_jz:
                     jz[sel, k] = 0.0
                     jz[sel, 6:9, 6 + k] = -u
-            elif c == "direction+length":
+            elif c == Constraint.DIRECTION_LENGTH:
                 res[sel, 6:9] = self.P[sel] + rb[sel, k] - x[col : col + 3]
                 if want_jac:
                     jac[sel, 6:9, geo_b] = self.R[sel]

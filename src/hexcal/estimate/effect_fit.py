@@ -17,6 +17,7 @@ from hexcal.estimate.solvers.whole_robot import LinearCalibration, calibrate_lin
 from hexcal.io.measurements import Measurements
 from hexcal.model.noise import NoiseSigmas, leg_covariance
 from hexcal.model.robot import Robot
+from hexcal.vocabulary import ModelKind
 
 #: Folds of the random k-fold and of the time-blocked cross-validation.
 K_FOLDS = 5
@@ -160,8 +161,8 @@ class Problem:
         design = with_deadband(design, sigmas)
         R = meas.rotations.as_matrix()
         args = (meas.position, R, meas.readings, meas.leg, meas.constraint)
-        lin36 = calibrate_linear(*args, 36, design.offsets)
-        lin42 = calibrate_linear(*args, 42, design.offsets)
+        lin36 = calibrate_linear(*args, ModelKind.M36, design.offsets)
+        lin42 = calibrate_linear(*args, ModelKind.M42, design.offsets)
         data = EffectData(
             meas.readings, meas.position, R, meas.t, meas.temperature, design, lin42.a, lin42.b
         )

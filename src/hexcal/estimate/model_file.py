@@ -31,6 +31,7 @@ from hexcal.io.safe_read import Count
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot, RobotFileError, json_text, read_robot_json
+from hexcal.vocabulary import ModelKindField
 
 #: Largest magnitude of a fitted parameter or its σ, in its unit (ppm, mm, µm/N...).
 MAX_PARAMETER = 1e12
@@ -122,7 +123,7 @@ class CalibrationBlock(BaseModel):
     format: Literal["hexcal-calibrated-model"] = FORMAT
     format_version: int = Field(FORMAT_VERSION, ge=1, le=FORMAT_VERSION)
     model: str = Field(description="e.g. 'Model 42 + gain + backlash'")
-    kind: Literal[36, 42]
+    kind: ModelKindField
     effects: list[EffectRecord] = Field(default_factory=list)
     noise: Instruments | None = Field(None, description="the noise the model was fitted with")
     noise_source: str = ""

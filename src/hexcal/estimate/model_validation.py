@@ -23,6 +23,7 @@ from hexcal.effects import CATALOGUE, get_effect
 from hexcal.estimate.accuracy import PoseAccuracy, pose_errors, pose_floor
 from hexcal.estimate.predict import LegModel
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+from hexcal.vocabulary import ModelKind, Outcome, Verdict
 
 #: χ²/dof above 1 + EXCESS_Z·√(2/dof) is above the noise floor (as in the diagnosis).
 EXCESS_Z = 4.0
@@ -43,7 +44,7 @@ class Validation:
     noise_source: str
     chi2_per_dof: float
     excess_significant: bool
-    verdict: str
+    verdict: Verdict  #: an Outcome (none, unexplained), or the effect the model lacks
     accuracy: PoseAccuracy
     explained: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
@@ -106,9 +107,9 @@ class Validation:
         ]
         if a.failed:
             lines.append(f"{a.failed} poses' readings are outside the model's workspace")
-        if self.verdict == "none":
+        if self.verdict == Outcome.NONE:
             lines.append("verdict: none — the model holds on these poses (at the noise floor)")
-        elif self.verdict == "unexplained":
+        elif self.verdict == Outcome.UNEXPLAINED:
             lines.append(
                 "verdict: unexplained — above the noise floor, and no catalogue effect fitted to "
                 "the residual explains most of it"
@@ -174,9 +175,9 @@ def validate_model(
         pose_floor(model.robot.a, model.robot.b, meas, sig),
     )
     explained: dict[str, float] = {}
-    verdict = "none"
+    verdict: Verdict = Outcome.NONE
     if excess:
-        verdict = "unexplained"
+        verdict = Outcome.UNEXPLAINED
         best, best_bic = None, BIC_STRONG
         for name in CATALOGUE:
             if name in model.effects:
@@ -246,7 +247,7 @@ def estimated_noise(model: LegModel, meas) -> tuple[NoiseSigmas, str]:
     typical tracker and encoder scaled to its χ²/dof)."""
     from hexcal.estimate.calibrate import calibrate
 
-    cal = calibrate(meas, model.robot, 42, None, effects=model.effects, clamps=False)
+    cal = calibrate(meas, model.robot, ModelKind.M42, None, effects=model.effects, clamps=False)
     r = cal.refinement
     s = float(np.sqrt(r.chi2 / r.dof)) if r is not None else 1.0
     d = DEFAULT_SIGMAS

@@ -28,13 +28,18 @@ from hexcal.model.kinematics import condition_number
 from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.model.workspace import Workspace
+from hexcal.vocabulary import Constraint
 
 #: Candidates whose dimensionless leg Jacobian has a larger condition number are dropped: near
 #: a singularity the legs do not hold the platform rigidly (about 5 at home, at most 13 over
 #: ± 45° tilts and ± 60 mm for the Left Hand robot; 50 is a rotation of 85° about the vertical).
 MAX_CONDITION = 50.0
 #: Parameters of each clamp type's constraint and which block is "the point that matters".
-_POINT = {"direction": slice(3, 6), "direction+length": slice(0, 3), "length": slice(0, 3)}
+_POINT = {
+    Constraint.DIRECTION: slice(3, 6),
+    Constraint.DIRECTION_LENGTH: slice(0, 3),
+    Constraint.LENGTH: slice(0, 3),
+}
 
 
 @dataclass
@@ -67,18 +72,18 @@ class LegGeometry:
 
 
 def information(
-    constraint: str, geo: LegGeometry, P: np.ndarray, R: np.ndarray, sig: NoiseSigmas
+    constraint: Constraint, geo: LegGeometry, P: np.ndarray, R: np.ndarray, sig: NoiseSigmas
 ) -> np.ndarray:
     """Information (p, p) of poses P (N, 3), R (N, 3, 3) about the step's unknowns, evaluated
     on the geometry ``geo``."""
-    if constraint == "direction":
+    if constraint == Constraint.DIRECTION:
         lengths = np.linalg.norm(P + R @ geo.b - geo.a, axis=-1)
         return bound.information_type_i(P, R, lengths, geo.b, geo.a, geo.direction, sig)
-    if constraint == "direction+length":
+    if constraint == Constraint.DIRECTION_LENGTH:
         return bound.information_type_ii(P, R, geo.b, sig)
-    if constraint == "length":
+    if constraint == Constraint.LENGTH:
         return bound.information_type_iii(P, R, geo.b, geo.a, sig)
-    raise ValueError(f"no next-best pose for a {constraint!r} step")
+    raise ValueError(f"no next-best pose for a '{constraint}' step")
 
 
 def _rows(constraint, geo, P, R, sig) -> tuple[np.ndarray, np.ndarray]:
@@ -86,7 +91,7 @@ def _rows(constraint, geo, P, R, sig) -> tuple[np.ndarray, np.ndarray]:
     constraint, so that its information is Jᵀ S⁻¹ J."""
     from hexcal.estimate.solvers.weighted import _point_cov, _tangent_basis
 
-    if constraint == "length":
+    if constraint == Constraint.LENGTH:
         v = P + R @ geo.b
         d = v - geo.a
         n = d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -95,7 +100,7 @@ def _rows(constraint, geo, P, R, sig) -> tuple[np.ndarray, np.ndarray]:
         return J, var[:, None, None]
     cov = _point_cov(R, geo.b, sig)
     eye = np.broadcast_to(np.eye(3), R.shape)
-    if constraint == "direction+length":
+    if constraint == Constraint.DIRECTION_LENGTH:
         return np.concatenate([R, -eye], axis=-1), cov
     u = geo.direction / np.linalg.norm(geo.direction)
     cov = cov + sig.reading_mm**2 * np.outer(u, u)
@@ -105,29 +110,29 @@ def _rows(constraint, geo, P, R, sig) -> tuple[np.ndarray, np.ndarray]:
     return J, cov
 
 
-def predicted_sigma_mm(constraint: str, info: np.ndarray) -> float:
+def predicted_sigma_mm(constraint: Constraint, info: np.ndarray) -> float:
     """RMS predicted 1σ (mm) of a coordinate of the point that matters, from the information."""
     cov = np.linalg.inv(info)
     blk = _POINT[constraint]
     return float(np.sqrt(np.trace(cov[blk, blk]) / 3))
 
 
-def _prior(constraint: str, prior_mm: float) -> np.ndarray:
-    p = {"direction": 8, "direction+length": 6, "length": 4}[constraint]
+def _prior(constraint: Constraint, prior_mm: float) -> np.ndarray:
+    p = {Constraint.DIRECTION: 8, Constraint.DIRECTION_LENGTH: 6, Constraint.LENGTH: 4}[constraint]
     return np.eye(p) / prior_mm**2
 
 
 def candidates(
-    sim: Workspace, constraint: str, geo: LegGeometry, n: int, rng: np.random.Generator
+    sim: Workspace, constraint: Constraint, geo: LegGeometry, n: int, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
     """``n`` feasible poses (P (n, 3), R (n, 3, 3)) on the step's manifold of ``sim``'s robot,
     away from singularities (:data:`MAX_CONDITION`; fewer than ``n`` only if most of the
     manifold is near one)."""
 
     def draw(m: int):
-        if constraint == "direction":
+        if constraint == Constraint.DIRECTION:
             return sim.type_i(geo.k, (m,), rng, direction=geo.direction)
-        if constraint == "direction+length":
+        if constraint == Constraint.DIRECTION_LENGTH:
             return sim.type_ii(geo.k, (m,), rng, point=geo.point)
         return sim.type_iii(geo.k, (m,), rng, length=geo.length, axis=geo.direction)
 
@@ -146,7 +151,7 @@ def candidates(
 
 
 def suggest(
-    constraint: str,
+    constraint: Constraint,
     geo: LegGeometry,
     P_done: np.ndarray,
     R_done: np.ndarray,
@@ -197,7 +202,7 @@ def suggest(
 
 
 def estimate_geometry(
-    constraint: str, k: int, P: np.ndarray, R: np.ndarray, rho: np.ndarray, design: Robot
+    constraint: Constraint, k: int, P: np.ndarray, R: np.ndarray, rho: np.ndarray, design: Robot
 ) -> LegGeometry:
     """The step's clamp and leg k's points (0-based) as its own poses so far estimate them (the
     direct linear forms; at least 4 poses): P (N, 3) mm, R (N, 3, 3), rho (N,) leg k's readings
@@ -207,10 +212,10 @@ def estimate_geometry(
     from hexcal.estimate.solvers.linalg import lstsq
     from hexcal.estimate.solvers.paper import platform_point_positions
 
-    if constraint == "direction":
+    if constraint == Constraint.DIRECTION:
         x = lstsq(*type_i_system(P, R, rho + design.offsets[k]))
         return LegGeometry(k, x[3:6], x[:3], direction=x[6:] / np.linalg.norm(x[6:]))
-    if constraint == "direction+length":
+    if constraint == Constraint.DIRECTION_LENGTH:
         x = lstsq(*type_ii_system(P, R))
         return LegGeometry(k, design.a[k], x[:3], point=x[3:])
     b = design.b[k]

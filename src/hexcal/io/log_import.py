@@ -46,6 +46,7 @@ from hexcal.errors import InputError
 from hexcal.io.measurements import CONSTRAINTS, Measurements
 from hexcal.io.safe_read import MB, FileKind, read_text, read_toml
 from hexcal.io.validation import format_validation_error
+from hexcal.vocabulary import Constraint
 
 #: The files this module reads (sizes: a mapping is a few lines; a log is read whole).
 MAP_KIND = FileKind("log mapping file", 1 * MB, "no such mapping file; pass it with --map")
@@ -240,7 +241,9 @@ def import_log(log_path: str | Path, mapping: LogMap | str | Path) -> Measuremen
         t = log.numbers(c.time) * (1e-3 if c.time_unit == "ms" else 1.0)
     leg = np.zeros(n, int) if not c.leg else log.numbers(c.leg).astype(int)
     constraint = (
-        np.array(["free"] * n, dtype=object) if not c.constraint else log.text(c.constraint)
+        np.array([Constraint.FREE.value] * n, dtype=object)
+        if not c.constraint
+        else log.text(c.constraint)
     )
     unknown = sorted(set(constraint.tolist()) - set(CONSTRAINTS))
     if unknown:

@@ -37,9 +37,11 @@ from hexcal.io.safe_read import (
     MAX_TIME_S,
     MIN_TEMPERATURE_C,
 )
+from hexcal.vocabulary import Constraint
 
-#: Type I, Type II, Type III, and no constraint.
-CONSTRAINTS = ("direction", "direction+length", "length", "free")
+#: Type I, Type II, Type III, and no constraint: the values of :class:`Constraint`, as the
+#: table writes them.
+CONSTRAINTS = tuple(c.value for c in Constraint)
 POSITION_COLUMNS = ("x", "y", "z")
 QUATERNION_COLUMNS = ("qw", "qx", "qy", "qz")
 READING_COLUMNS = ("rho1", "rho2", "rho3", "rho4", "rho5", "rho6")
@@ -148,7 +150,7 @@ def _object_array(values: Sequence[Any]) -> np.ndarray:
 def _to_text(value: Any) -> str:
     """Text of one extra/step value: strings as they are, floats in round-trip form."""
     if isinstance(value, str):
-        return value
+        return str(value)  # a Constraint (a str) as its value
     if isinstance(value, (float, np.floating)):
         return repr(float(value))
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
@@ -276,7 +278,8 @@ def _value_issues(m: Measurements) -> list[Issue]:
     )
     in_range = (m.leg >= 0) & (m.leg <= 6)
     add(~in_range, "leg", lambda i: f"leg {m.leg[i]} is outside 0..6 (0 = free pose)")
-    free = np.array([c == "free" for c in m.constraint.tolist()], dtype=bool)
+    free_ = Constraint.FREE.value  # once, as plain text: the fastest comparison
+    free = np.array([c == free_ for c in m.constraint.tolist()], dtype=bool)
     add(
         known & in_range & ((m.leg == 0) != free),
         "constraint",
@@ -321,7 +324,7 @@ class Measurements:
     t: np.ndarray  #: (N,) s since the session started
     step: np.ndarray  #: (N,) object (str), procedure step, e.g. "leg3-direction"
     leg: np.ndarray  #: (N,) int, 0 = free pose, 1..6 = clamped leg
-    constraint: np.ndarray  #: (N,) object (str), one of CONSTRAINTS
+    constraint: np.ndarray  #: (N,) object (str), one of CONSTRAINTS (a Constraint's value)
     position: np.ndarray  #: (N, 3) mm, platform origin in the measurement frame
     quaternion: np.ndarray  #: (N, 4) scalar first, exactly as read (not renormalised)
     readings: np.ndarray  #: (N, 6) mm, encoder readings rho1..rho6
@@ -428,7 +431,7 @@ class Measurements:
             source=self.source,
         )
 
-    def select(self, leg: int, constraint: str) -> Measurements:
+    def select(self, leg: int, constraint: Constraint | str) -> Measurements:
         """The poses with this clamped leg (1..6, 0 for free) and constraint (CONSTRAINTS)."""
         if constraint not in CONSTRAINTS:
             raise ValueError(f"unknown constraint {constraint!r}; use one of {CONSTRAINTS}")
@@ -477,12 +480,13 @@ class Measurements:
                 ) from None
 
         leg_a = np.zeros(n, dtype=np.int64) if leg is None else full("leg", leg, None)
-        con_a = full("constraint", "free" if constraint is None else constraint, object)
+        con_a = full("constraint", Constraint.FREE if constraint is None else constraint, object)
         con_a = _object_array([str(c).strip() for c in con_a.tolist()])
         if step is None:
+            free = Constraint.FREE.value
             step_a = _object_array(
                 [
-                    "free" if c == "free" else f"leg{int(k)}-{c}"
+                    "free" if c == free else f"leg{int(k)}-{c}"
                     for k, c in zip(leg_a.tolist(), con_a.tolist(), strict=True)
                 ]
             )

@@ -54,6 +54,7 @@ from hexcal.procedure.recording import (
     per_pose_noise,
 )
 from hexcal.procedure.session import PoseRecord, SessionFile, StepProgress
+from hexcal.vocabulary import Constraint
 
 #: Noise assumed for the live predictions until the step's own still windows tell (1σ of a
 #: recorded pose): a good optical tracker and encoder, averaged over a still window.
@@ -62,10 +63,10 @@ DEFAULT_POSE_NOISE = NoiseLevels(0.003, 0.0006, 0.0006)
 #: What a pose of each constraint can vary, for the motion hint: rotations (about x, y, z) and
 #: translations (along x, y, z). A clamped point leaves only rotations.
 _HINT_DOFS = {
-    "direction+length": (0, 1, 2),
-    "direction": (0, 1, 2, 3, 4, 5),
-    "length": (0, 1, 2, 3, 4, 5),
-    "free": (0, 1, 2, 3, 4, 5),
+    Constraint.DIRECTION_LENGTH: (0, 1, 2),
+    Constraint.DIRECTION: (0, 1, 2, 3, 4, 5),
+    Constraint.LENGTH: (0, 1, 2, 3, 4, 5),
+    Constraint.FREE: (0, 1, 2, 3, 4, 5),
 }
 #: How far an operator can typically vary each: deg for rotations, mm for translations.
 _HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
@@ -398,7 +399,7 @@ class GuidedSession:
         parts, ok = [], True
         rec = self._rec
         tol = rec.clamp_tolerance_mm
-        if "length" in st.constraint:
+        if st.constraint.clamps_length:
             ref = float(rec.poses[0].readings[k]) if rec.poses else self._clamp_reading
             if ref is not None and np.isfinite(readings[k]):
                 d = float(readings[k] - ref)
@@ -407,12 +408,12 @@ class GuidedSession:
                     f"length {d:+.4f} mm since {'the first pose' if rec.poses else 'clamped'}"
                     f" (±{tol:g})" + ("" if ok else " — SLIPPING")
                 )
-        if "direction" in st.constraint and pos is not None and len(rec.poses) >= 4:
+        if st.constraint.clamps_direction and pos is not None and len(rec.poses) >= 4:
             off = self._direction_offset(pos, Rotation.from_rotvec(rv, degrees=True), readings[k])
             limit = max(4 * self._noise_mm(), 0.03)
             good = off <= limit
             ok = ok and good
-            what = "line" if st.constraint == "direction" else "point"
+            what = "line" if st.constraint == Constraint.DIRECTION else "point"
             parts.append(
                 f"{what} {off:.3f} mm off the step's fit (≤ {limit:.3f})"
                 + ("" if good else " — CLAMP MOVED?")
@@ -454,7 +455,7 @@ class GuidedSession:
         step's poses fit."""
         P, R, rho = self._arrays()
         Rl = rot.as_matrix()
-        if self.step.constraint == "direction":
+        if self.step.constraint == Constraint.DIRECTION:
             x = lstsq(*type_i_system(P, R, rho))
             b, a, u = x[:3], x[3:6], x[6:]
             if not np.isfinite(reading):
@@ -479,13 +480,13 @@ class GuidedSession:
         sig_row = np.sqrt(
             noise.position_mm**2
             + (np.deg2rad(noise.orientation_deg) * self.platform_radius_mm) ** 2
-            + (noise.reading_mm**2 if st.constraint == "direction" else 0.0)
+            + (noise.reading_mm**2 if st.constraint == Constraint.DIRECTION else 0.0)
         )
         groups: tuple[slice | None, slice]
-        if st.constraint == "direction":
+        if st.constraint == Constraint.DIRECTION:
             A, _ = type_i_system(P, R, rho)
             groups = (slice(0, 3), slice(3, 6))
-        elif st.constraint == "direction+length":
+        elif st.constraint == Constraint.DIRECTION_LENGTH:
             A, _ = type_ii_system(P, R)
             groups = (slice(0, 3), slice(3, 6))
         else:
@@ -518,10 +519,10 @@ class GuidedSession:
             return "record the home pose"
         if len(poses) < 2:
             return {
-                "direction+length": "tilt the platform about the clamped point",
-                "direction": "move the platform along and about the clamped leg",
-                "length": "swing the clamped leg to the sides, forwards and back",
-                "free": "spread the poses over the workspace",
+                Constraint.DIRECTION_LENGTH: "tilt the platform about the clamped point",
+                Constraint.DIRECTION: "move the platform along and about the clamped leg",
+                Constraint.LENGTH: "swing the clamped leg to the sides, forwards and back",
+                Constraint.FREE: "spread the poses over the workspace",
             }[st.constraint]
         rv = Rotation.from_quat(
             np.array([p.quaternion for p in poses]), scalar_first=True

@@ -35,9 +35,10 @@ from hexcal.estimate.solvers.direct import type_i_system, type_ii_system
 from hexcal.estimate.solvers.linalg import lstsq
 from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
 
 #: The clamped steps of one leg, in the order an operator records them.
-LEG_STEPS = ("direction", "direction+length", "length")
+LEG_STEPS = LEG_CONSTRAINTS
 
 #: A step fails its end check when its fit residual RMS exceeds this many times what the noise
 #: predicts *and* ``MIN_SLIP_MM``: the ratio alone would flag unmodelled millimicron effects on
@@ -48,16 +49,16 @@ MIN_SLIP_MM = 0.03
 
 @dataclass(frozen=True)
 class Step:
-    """One step of a procedure: ``leg`` 1..6 clamped as ``constraint`` (0 and "free": none),
+    """One step of a procedure: ``leg`` 1..6 clamped as ``constraint`` (0 and free: none),
     ``n_poses`` poses to record (the recommended count), at least ``min_poses``.
 
     ``instruction`` is the operator's text; ``tolerance_mm`` how far the length clamp may give
     (None: the recorder's default); ``checks`` which clamp checks run (None: every check the
     constraint allows — ``clamp-length`` for a length clamp, ``step-fit`` for a direction
-    clamp)."""
+    clamp). ``constraint`` may be given as its text ("direction"...)."""
 
     leg: int
-    constraint: str
+    constraint: Constraint
     n_poses: int
     instruction: str = ""
     min_poses: int = 1
@@ -68,9 +69,13 @@ class Step:
     #: next-best-pose suggestions stop there (None: no target, suggest until the count).
     target_sigma_mm: float | None = None
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "constraint", Constraint(self.constraint))
+
     def runs(self, check: str) -> bool:
         """Whether ``check`` runs for this step."""
-        allowed = {"clamp-length": "length", "step-fit": "direction"}[check] in self.constraint
+        c = self.constraint
+        allowed = {"clamp-length": c.clamps_length, "step-fit": c.clamps_direction}[check]
         return allowed and (self.checks is None or check in self.checks)
 
     @property
@@ -84,10 +89,14 @@ def standard_procedure(
     n_direction: int = 8, n_both: int = 8, n_length: int = 8, n_free: int = 40
 ) -> list[Step]:
     """Every leg's three clamped steps, then the free poses (steps with 0 poses left out)."""
-    counts = {"direction": n_direction, "direction+length": n_both, "length": n_length}
+    counts = {
+        Constraint.DIRECTION: n_direction,
+        Constraint.DIRECTION_LENGTH: n_both,
+        Constraint.LENGTH: n_length,
+    }
     steps = [Step(leg, c, counts[c]) for leg in range(1, 7) for c in LEG_STEPS if counts[c] > 0]
     if n_free > 0:
-        steps.append(Step(0, "free", n_free))
+        steps.append(Step(0, Constraint.FREE, n_free))
     return steps
 
 
@@ -201,7 +210,7 @@ class StepRecorder:
         R = Rotation.from_quat(
             np.array([p.quaternion for p in self.poses]), scalar_first=True
         ).as_matrix()
-        if c == "direction":
+        if c == Constraint.DIRECTION:
             rho = np.array([p.readings[self.step.leg - 1] for p in self.poses])
             A, y = type_i_system(P, R, rho)
             what = "one clamped direction"
@@ -216,7 +225,7 @@ class StepRecorder:
             np.sqrt(
                 noise.position_mm**2
                 + (np.deg2rad(noise.orientation_deg) * platform_radius_mm) ** 2
-                + (noise.reading_mm**2 if c == "direction" else 0.0)
+                + (noise.reading_mm**2 if c == Constraint.DIRECTION else 0.0)
             )
         )
         ok = not (rms > SLIP_RATIO * expected and rms > MIN_SLIP_MM)

@@ -59,6 +59,7 @@ from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot
 from hexcal.procedure import looks_like_session as looks_like_session
+from hexcal.vocabulary import Constraint, ConstraintField, ModelKindField
 
 log = logging.getLogger(__name__)
 # The notices are returned to the interface; logging is for an application that configures it
@@ -162,7 +163,7 @@ class PoseRecord(BaseModel):
     t: Seconds
     step: str
     leg: int = Field(ge=0, le=6)
-    constraint: Literal["direction", "direction+length", "length", "free"]
+    constraint: ConstraintField
     position: list[Millimetres] = Field(min_length=3, max_length=3)
     quaternion: list[QuaternionPart] = Field(min_length=4, max_length=4)
     readings: list[Millimetres] = Field(min_length=6, max_length=6)
@@ -213,7 +214,7 @@ class ResultRecord(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Literal["calibration", "diagnosis"]
     at: datetime = Field(default_factory=_now)
-    model: Literal[36, 42]
+    model: ModelKindField
     effects: list[str] = Field(default_factory=list)
     pose_ids: list[PoseId] = Field(default_factory=list, description="the poses it used")
     robot: Robot | None = None
@@ -267,7 +268,7 @@ class Session(BaseModel):
             t=np.asarray([r.t for r in p], float),
             step=np.asarray([r.step for r in p], object),
             leg=np.asarray([r.leg for r in p]),
-            constraint=np.asarray([r.constraint for r in p], object),
+            constraint=np.asarray([r.constraint.value for r in p], object),
             position=np.asarray([r.position for r in p], float),
             quaternion=np.asarray([r.quaternion for r in p], float),
             readings=np.asarray([r.readings for r in p], float),
@@ -312,7 +313,7 @@ class Session(BaseModel):
         pose: RecordedPose,
         step: str,
         leg: int,
-        constraint: str,
+        constraint: Constraint,
         t: float,
         temperature: float | None = None,
     ) -> PoseRecord:

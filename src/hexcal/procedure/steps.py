@@ -45,6 +45,7 @@ from hexcal.errors import InputError
 from hexcal.io.safe_read import KINDS, FileKind, parse_toml, read_text
 from hexcal.io.validation import format_validation_error
 from hexcal.procedure.recording import Step
+from hexcal.vocabulary import Constraint, ConstraintField, ModelKindField
 
 #: The procedures shipped with hexcal, by short name.
 BUILTIN = {
@@ -72,7 +73,7 @@ class ProcedureStep(BaseModel):
     model_config = ConfigDict(extra="forbid")
     id: str = Field(min_length=1, max_length=MAX_ID_CHARS)
     legs: list[int] | None = Field(None, max_length=6)
-    constraint: Literal["direction", "direction+length", "length", "free"]
+    constraint: ConstraintField
     instruction: str = Field(min_length=1)
     tolerance_mm: float = Field(0.02, gt=0, le=MAX_TOLERANCE_MM, allow_inf_nan=False)
     min_poses: int = Field(ge=1, le=MAX_POSES_PER_STEP)
@@ -97,19 +98,20 @@ class ProcedureStep(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> ProcedureStep:
-        if self.at_home and self.constraint != "free":
+        free = self.constraint == Constraint.FREE
+        if self.at_home and not free:
             raise ValueError("at_home = true is for a free step (the home pose clamps nothing)")
-        if self.constraint == "free" and self.legs is not None:
+        if free and self.legs is not None:
             raise ValueError("a free step clamps no leg: remove 'legs'")
-        if self.constraint != "free" and self.legs is None:
+        if not free and self.legs is None:
             raise ValueError(f"a '{self.constraint}' step needs 'legs' (which legs to clamp)")
         if self.recommended_poses < self.min_poses:
             raise ValueError(
                 f"recommended_poses ({self.recommended_poses}) is below min_poses ({self.min_poses})"
             )
-        if "clamp-length" in self.checks and "length" not in self.constraint:
+        if "clamp-length" in self.checks and not self.constraint.clamps_length:
             raise ValueError(f"check 'clamp-length' needs a length clamp, not '{self.constraint}'")
-        if "step-fit" in self.checks and "direction" not in self.constraint:
+        if "step-fit" in self.checks and not self.constraint.clamps_direction:
             raise ValueError(f"check 'step-fit' needs a direction clamp, not '{self.constraint}'")
         return self
 
@@ -120,7 +122,7 @@ class Procedure(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
     schema_version: Literal[1] = Field(1, alias="schema")
     name: str = Field(min_length=1, max_length=MAX_ID_CHARS)
-    model: Literal[36, 42]
+    model: ModelKindField
     reference: str = ""
     description: str = ""
     steps: list[ProcedureStep] = Field(min_length=1)

@@ -18,10 +18,11 @@ from hexcal.estimate.nbp import (
 from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.sim.simulate import NoiseModel, PoseRanges, Simulator
+from hexcal.vocabulary import Constraint
 
 
 def sequence(
-    constraint: str,
+    constraint: Constraint | str,
     robot: Robot,
     k: int,
     sig: NoiseSigmas,
@@ -44,7 +45,12 @@ def sequence(
     (:func:`estimate_geometry`, ``design`` filling in what the step cannot tell; before that,
     with ``design``'s), while the poses stay on the true clamp (the clamp holds the robot)."""
     sim = Simulator(robot, ranges=ranges or PoseRanges())
-    constraint_kind = {"direction": "type_i", "direction+length": "type_ii", "length": "type_iii"}
+    constraint = Constraint(constraint)
+    constraint_kind = {
+        Constraint.DIRECTION: "type_i",
+        Constraint.DIRECTION_LENGTH: "type_ii",
+        Constraint.LENGTH: "type_iii",
+    }
     P0, R0 = getattr(sim, constraint_kind[constraint])(k, (1,), rng)
     geo = _clamp_geometry(robot, k, P0[0], R0[0])
     noise = NoiseModel(sig.position_mm, np.rad2deg(sig.orientation_rad), sig.reading_mm)

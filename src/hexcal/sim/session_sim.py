@@ -21,9 +21,14 @@ from hexcal.io.measurements import Measurements, write_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, save_instruments
 from hexcal.model.robot import Robot, save_robot
 from hexcal.sim.simulate import LengthEffect, NoiseModel, PoseContext, PoseRanges, Simulator
+from hexcal.vocabulary import Constraint
 
 #: (constraint, Simulator method) in the order a leg's procedure records them.
-PROCEDURE = (("direction", "type_i"), ("direction+length", "type_ii"), ("length", "type_iii"))
+PROCEDURE = (
+    (Constraint.DIRECTION, "type_i"),
+    (Constraint.DIRECTION_LENGTH, "type_ii"),
+    (Constraint.LENGTH, "type_iii"),
+)
 
 
 @dataclass(frozen=True)
@@ -75,14 +80,14 @@ def simulate_session(
             Ps.append(P)
             Rs.append(R)
             legs += [k + 1] * n
-            cons += [constraint] * n
+            cons += [constraint.value] * n
             steps += [f"leg{k + 1}-{constraint}"] * n
     if plan.n_free:
         P, R = sim.free((plan.n_free,), rng)
         Ps.append(P)
         Rs.append(R)
         legs += [0] * plan.n_free
-        cons += ["free"] * plan.n_free
+        cons += [Constraint.FREE.value] * plan.n_free
         steps += ["free"] * plan.n_free
     P, R = np.concatenate(Ps), np.concatenate(Rs)
     m = len(P)

@@ -21,6 +21,7 @@ from hexcal.procedure.guided import GuidedError, GuidedSession
 from hexcal.procedure.recording import MotionError
 from hexcal.tui.app import HexcalScreen
 from hexcal.tui.prompt import TextPrompt
+from hexcal.vocabulary import Constraint
 
 
 def _fmt(v: np.ndarray | None, digits: int = 3) -> str:
@@ -144,7 +145,7 @@ class RecordScreen(HexcalScreen):
         text = ""
         if st.leg and np.isfinite(c.sigma_a_mm):
             b = "" if np.isnan(c.sigma_b_mm) else f"platform point ±{c.sigma_b_mm:.3f} mm   "
-            a = "clamped point" if st.constraint == "direction+length" else "base point"
+            a = "clamped point" if st.constraint == Constraint.DIRECTION_LENGTH else "base point"
             text = f"predicted 1σ: {b}{a} ±{c.sigma_a_mm:.3f} mm   (condition {c.condition:.0f})\n"
         s = self.suggested
         if s is not None and s.done and n >= st.min_poses:

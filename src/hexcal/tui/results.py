@@ -24,6 +24,7 @@ from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.steps import Procedure
 from hexcal.tui.app import HexcalScreen
 from hexcal.tui.backend import Rig
+from hexcal.vocabulary import Outcome, names_an_addition
 
 
 def _app_state(screen: HexcalScreen) -> tuple[GuidedSession, Procedure, Rig | None]:
@@ -172,7 +173,7 @@ class DiagnosisScreen(HexcalScreen):
         if action == "add":
             if self.busy or not self.history:
                 return None
-            return self.history[-1].verdict not in ("none", "unexplained") or None
+            return names_an_addition(self.history[-1].verdict) or None
         return True
 
     @work(thread=True, exclusive=True, group="compute")
@@ -216,9 +217,9 @@ class DiagnosisScreen(HexcalScreen):
             *(_history_line(h) for h in self.history),
             "",
         ]
-        if d.verdict == "none":
+        if d.verdict == Outcome.NONE:
             lines.append("[green]the residual is at the noise floor: nothing is missing[/green]")
-        elif d.verdict == "unexplained":
+        elif d.verdict == Outcome.UNEXPLAINED:
             lines.append(
                 "[yellow]a structured residual no catalogue effect explains[/yellow]: "
                 + escape(d.where["summary"])

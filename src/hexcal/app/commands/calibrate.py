@@ -68,13 +68,14 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.app.report_text import calibration_json, calibration_text
     from hexcal.app.workflow import calibrate_model, refuse_overwrite, save_result
     from hexcal.estimate.accuracy import accuracy_table
+    from hexcal.vocabulary import ModelKind
 
     inp = read_inputs(args)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)
     result = calibrate_model(
         inp,
-        model=args.model,
+        model=ModelKind(args.model),
         effects=tuple(args.add or ()),
         clamps=not args.lengths_only,
         form=args.form,

@@ -134,17 +134,17 @@ def _diagnose_and_write(
     """The diagnosis chain, the calibrated model, the drawing check and the files asked for,
     each stage shown on ``bar``: (steps, the model to write or None, drawing mismatches)."""
     from hexcal.app.workflow import diagnose_chain, model_of, save_result
+    from hexcal.vocabulary import ModelKind, names_an_addition
 
     def next_step(d: Diagnosis) -> None:
-        if args.auto and d.verdict not in ("none", "unexplained"):
+        if args.auto and names_an_addition(d.verdict):
             bar.stage(f"diagnosing {d.fit.model_name} + {d.verdict}")
 
+    model = ModelKind(args.model)
     added = "".join(f" + {e}" for e in args.add or ())
-    bar.stage(f"diagnosing Model {args.model}{added}")
-    steps = diagnose_chain(
-        inp, args.model, add=tuple(args.add or ()), auto=args.auto, on_step=next_step
-    )
-    result = model_of(inp, steps, args.model) if args.out else None
+    bar.stage(f"diagnosing Model {int(model)}{added}")
+    steps = diagnose_chain(inp, model, add=tuple(args.add or ()), auto=args.auto, on_step=next_step)
+    result = model_of(inp, steps, model) if args.out else None
     mismatch = []
     if not args.no_drawing_check:
         from hexcal.estimate.sanity import check_against_drawing

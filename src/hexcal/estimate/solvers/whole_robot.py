@@ -25,6 +25,7 @@ from hexcal.estimate.solvers.checks import (
     check_type_ii,
     check_type_iii,
 )
+from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint, ModelKind
 
 Form = Literal["paper", "direct"]
 
@@ -49,7 +50,7 @@ class LegResult:
 class LinearCalibration:
     """The linear stage's geometry: a (6, 3), b (6, 3), offsets (6,) mm, and per-leg methods."""
 
-    model: int
+    model: ModelKind
     form: str
     legs: tuple[LegResult, ...]
 
@@ -89,19 +90,19 @@ def _solve_leg(
     rho: np.ndarray,
     leg: np.ndarray,
     constraint: np.ndarray,
-    model: int,
+    model: ModelKind,
     design_offset: float,
     form: Form,
 ) -> tuple[LegResult | None, list[str]]:
     """Try the methods in order for leg k (1-based); return the result or the reasons."""
     reasons: list[str] = []
-    sets = {c: (leg == k) & (constraint == c) for c in ("direction", "direction+length", "length")}
+    sets = {c: (leg == k) & (constraint == c) for c in LEG_CONSTRAINTS}
     n = {c: int(m.sum()) for c, m in sets.items()}
     r = rho[:, k - 1]
 
-    if model == 36:
-        m = sets["direction"]
-        if n["direction"]:
+    if model == ModelKind.M36:
+        m = sets[Constraint.DIRECTION]
+        if n[Constraint.DIRECTION]:
             try:
                 check_type_i(k, P[m], R[m], r[m] + design_offset)
                 length = r[m] + design_offset
@@ -110,15 +111,16 @@ def _solve_leg(
                 else:
                     b, a, _ = direct.type_i_direct(P[m], R[m], length)
                 return LegResult(
-                    k, "§3.2", f"{n['direction']} Type I poses", a, b, design_offset
+                    k, "§3.2", f"{n[Constraint.DIRECTION]} Type I poses", a, b, design_offset
                 ), []
             except DegenerateSet as exc:
                 reasons.append(str(exc))
         else:
             reasons.append("no Type I (direction-clamped) poses for §3.2")
 
-    m2, m3 = sets["direction+length"], sets["length"]
-    if n["direction+length"] and n["length"]:
+    n2, n3 = n[Constraint.DIRECTION_LENGTH], n[Constraint.LENGTH]
+    m2, m3 = sets[Constraint.DIRECTION_LENGTH], sets[Constraint.LENGTH]
+    if n2 and n3:
         try:
             check_type_ii(k, P[m2], R[m2])
             b = (
@@ -131,12 +133,12 @@ def _solve_leg(
                 a = paper.type_iii_paper(P[m3], R[m3], b)
             else:
                 a = direct.type_iii_direct(P[m3], R[m3], b)[0]
-            if model == 42:
+            if model == ModelKind.M42:
                 offset = float(paper.offset_eq19(P, R, b, a, r))
-                detail = f"{n['direction+length']} Type II + {n['length']} Type III poses, offset by eq. 19 over {len(P)} poses"
+                detail = f"{n2} Type II + {n3} Type III poses, offset by eq. 19 over {len(P)} poses"
             else:
                 offset = design_offset
-                detail = f"{n['direction+length']} Type II + {n['length']} Type III poses"
+                detail = f"{n2} Type II + {n3} Type III poses"
             return LegResult(k, "§3.3", detail, a, b, offset), []
         except DegenerateSet as exc:
             reasons.append(str(exc))
@@ -144,8 +146,8 @@ def _solve_leg(
         missing = [
             name
             for c, name in (
-                ("direction+length", "Type II (direction and length clamped)"),
-                ("length", "Type III (length clamped)"),
+                (Constraint.DIRECTION_LENGTH, "Type II (direction and length clamped)"),
+                (Constraint.LENGTH, "Type III (length clamped)"),
             )
             if not n[c]
         ]
@@ -155,10 +157,10 @@ def _solve_leg(
     if len(P) >= free.MIN_POSES:
         from hexcal.estimate.solvers.linalg import scaled_singular_values
 
-        mat, _ = free.free_system(P, R, r, None if model == 42 else design_offset)
+        mat, _ = free.free_system(P, R, r, None if model == ModelKind.M42 else design_offset)
         s = scaled_singular_values(mat)
         if s[0] / max(s[-1], 1e-300) < 1e8:
-            b, a, off = free.free_linear(P, R, r, None if model == 42 else design_offset)
+            b, a, off = free.free_linear(P, R, r, None if model == ModelKind.M42 else design_offset)
             return LegResult(k, "free-linear", f"{len(P)} poses, all types", a, b, off), []
         reasons.append(
             f"the {len(P)} poses are too alike for the free-pose linear form: move and tilt the platform more widely"
@@ -176,7 +178,7 @@ def calibrate_linear(
     readings: np.ndarray,
     leg: np.ndarray,
     constraint: np.ndarray,
-    model: int,
+    model: ModelKind,
     design_offsets: np.ndarray,
     form: Form = "paper",
 ) -> LinearCalibration:
@@ -186,7 +188,7 @@ def calibrate_linear(
     constraint (N,) str; design_offsets (6,) mm are used as known offsets for Model 36.
     Raises :class:`CalibrationRefused` naming every leg that no method could serve and why.
     """
-    if model not in (36, 42):
+    if model not in tuple(ModelKind):
         raise ValueError(f"model must be 36 or 42, not {model}")
     constraint = np.asarray(constraint, dtype=object)
     leg = np.asarray(leg)
