@@ -329,12 +329,14 @@ class GuidedSession:
     def move(self) -> str:
         """Move the platform to the step's next pose (motion controller only)."""
         self._refuse("move")
-        st = self.step
+        mover, st = self.mover, self.step
+        if mover is None:  # refused above: for the type checker
+            raise GuidedError("no motion controller")
         if st.at_home:
-            self.mover.home()
-        else:
-            self.mover.next_pose()
-        return "moved"
+            mover.home()
+            return "moved home"
+        mover.next_pose()
+        return "moved to the next pose"
 
     def record(self) -> tuple[bool, str]:
         """Record one pose of the current step: (recorded, operator message). Blocks for the
@@ -396,7 +398,7 @@ class GuidedSession:
             StepProgress(step=st.name, status="done", poses=self.n_poses, check=words)
         )
         said = self._say(
-            f"{st.name} done: {self.n_poses} poses"
+            f"{st.name} done: {self.n_poses} pose{'s' if self.n_poses != 1 else ''}"
             + (f" ({words})" if words else "")
             + (f" — {short}" if short else "")
         )
