@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -249,3 +250,40 @@ def test_suggestions_stop_at_the_steps_target(tmp_path):
     s = g.suggestion(hr.design)
     assert s.done and s.sigma_before_mm <= target and g.n_poses < 20
     assert g.finish_step().ok
+
+
+def test_every_refused_action_says_why_and_what_lifts_it(tmp_path):
+    """``refusal`` names why an action cannot run now and the action that would allow it; the
+    action itself raises with the same text."""
+    g, *_ = _setup(tmp_path)
+    assert g.refusal("clamp").text == "home clamps no leg: move the platform and record"
+    assert g.refusal("finish").text == "home needs at least 1 pose (0 so far): record one more"
+    assert g.refusal("finish").remedy == "record" and g.refusal("record") is None
+    _run_step(g)
+    why = g.refusal("record")
+    assert why.text == "clamp leg 1 (direction+length) before recording" and why.remedy == "clamp"
+    assert g.refusal("suggest").text == "the next best pose needs 4 poses of this step (0 so far)"
+    g.clamp()
+    assert g.refusal("clamp").text == "leg 1 is already clamped (direction+length)"
+    g.move()
+    g.record()
+    why = g.refusal("finish")
+    assert why.text.endswith("needs at least 4 poses (1 so far): record 3 more")
+    with pytest.raises(GuidedError, match=re.escape(why.text)):
+        g.finish_step()
+    assert g.refusal("temperature") is None and g.refusal("note") is None
+    while not g.finished:
+        g.skip_step()
+    assert g.refusal("record").remedy == "calibrate"
+
+
+def test_a_step_ended_below_its_recommended_count_says_so(tmp_path):
+    g, hr, *_ = _setup(tmp_path, n=8)
+    _run_step(g)
+    g.clamp()
+    while g.n_poses < 5:
+        g.move()
+        assert g.record()[0]
+    check = g.finish_step(hr.design)
+    assert check.ok and check.message.startswith("leg1-direction+length done: 5 poses")
+    assert "5 of 8 recommended poses" in check.message

@@ -24,6 +24,7 @@ from hexcal.procedure.session import Session, load_session
 from hexcal.sim.robots import left_hand
 from hexcal.tui.app import HexcalApp
 from hexcal.tui.backend import InstantBackend, mock_backend
+from hexcal.tui.keys import KeyBar
 from hexcal.tui.record import RecordScreen
 from hexcal.tui.results import DiagnosisScreen, ResultScreen
 
@@ -219,8 +220,32 @@ def in_tmp(tmp_path, monkeypatch):
     return tmp_path
 
 
+#: The sizes the UI fits: the smallest terminal it supports, a common one, a large one.
+SMALL, MEDIUM, LARGE = (80, 24), (120, 40), (200, 60)
+
+
+def _text(widget) -> str:
+    return str(widget.render())
+
+
+def _assert_fits(pilot) -> None:
+    """Every key the state allows is in the key bar, and no row of live numbers is cut."""
+    screen = pilot.app.screen
+    bar = _text(screen.query_one(KeyBar))
+    allowed = [k for k in screen.query_one(KeyBar).keys() if k.allowed]
+    assert allowed and all(f"{k.shown} {k.description}" in bar for k in allowed), bar
+    if isinstance(screen, RecordScreen):
+        live = screen.query_one("#live")
+        rows = [line for line in _text(live).split("\n") if line.startswith(("pos", "rot", "legs"))]
+        numbers = [r for r in rows if not r.startswith("legs  ")]  # the bus status line is cut
+        assert len(numbers) == 4 and all(len(r) <= live.content_size.width for r in numbers), rows
+
+
 def test_snapshot_start(snap_compare, in_tmp):
-    assert snap_compare(instant_app(Path("session.json")), terminal_size=SIZE)
+    async def fits(pilot) -> None:
+        _assert_fits(pilot)
+
+    assert snap_compare(instant_app(Path("session.json")), terminal_size=SMALL, run_before=fits)
 
 
 async def _record_some(pilot) -> None:
@@ -232,13 +257,16 @@ async def _record_some(pilot) -> None:
     for _ in range(5):
         await pilot.press("m", "r")
         await _settle(pilot)
+    _assert_fits(pilot)
 
 
-def test_snapshot_recording(snap_compare, in_tmp):
-    """Five poses into a step of eight: the next best pose is suggested."""
+@pytest.mark.parametrize("size", [SMALL, MEDIUM, LARGE], ids=lambda s: f"{s[0]}x{s[1]}")
+def test_snapshot_recording(snap_compare, in_tmp, size):
+    """Five poses into a step of eight: the next best pose is suggested; every key the state
+    allows is shown, and the live numbers stand in whole columns."""
     assert snap_compare(
         instant_app(Path("session.json"), poses_per_step=8),
-        terminal_size=SIZE,
+        terminal_size=size,
         run_before=_record_some,
     )
 
@@ -250,11 +278,12 @@ async def _record_all(pilot) -> None:
     await _until(pilot, lambda: pilot.app.guided.finished and not pilot.app.screen.busy, 60)
     await pilot.press("k")
     await _settle(pilot)
+    _assert_fits(pilot)
 
 
 def test_snapshot_result(snap_compare, in_tmp):
     assert snap_compare(
-        instant_app(Path("session.json")), terminal_size=SIZE, run_before=_record_all
+        instant_app(Path("session.json")), terminal_size=SMALL, run_before=_record_all
     )
 
 
@@ -264,12 +293,81 @@ async def _diagnose_and_add(pilot) -> None:
     await _settle(pilot)
     await pilot.press("a")
     await _settle(pilot)
+    assert pilot.app.screen.history[-1].verdict == "none"
+    await pilot.press("a")  # nothing left to add: it says so
+    assert "there is no effect to add" in _text(pilot.app.screen.query_one("#status"))
+    _assert_fits(pilot)
 
 
 def test_snapshot_diagnosis(snap_compare, in_tmp):
     assert snap_compare(
-        instant_app(Path("session.json")), terminal_size=SIZE, run_before=_diagnose_and_add
+        instant_app(Path("session.json")), terminal_size=SMALL, run_before=_diagnose_and_add
     )
+
+
+def test_every_key_the_state_refuses_says_why(tmp_path):
+    """At 80×24, every key pressed when its action cannot run says why in the status line
+    (and what to press instead); every action that changes the session leaves a log line; a
+    step ended below its recommended count says so."""
+    app = instant_app(tmp_path / "session.json", poses_per_step=8)
+
+    async def run() -> None:
+        async with app.run_test(size=SMALL) as pilot:
+
+            async def refused(key: str, why: str) -> None:
+                await pilot.press(key)
+                await pilot.pause()
+                text = _text(app.screen.query_one("#status"))
+                assert why in text, (key, text)
+
+            await refused("ctrl+r", "no such session file")
+            await pilot.click("#new")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 10)
+            await _settle(pilot)
+            screen = app.screen
+            log = screen.query_one("#log")
+            await refused("c", "home clamps no leg: move the platform and record (r)")
+            await refused("n", "home needs at least 1 pose (0 so far): record one more (r)")
+            await refused("u", "home has no pose to undo")
+            await refused("g", "home clamps no leg: no next best pose")
+            await pilot.press("m", "r")
+            await _settle(pilot)
+            await pilot.press("n")
+            await refused("r", "clamp leg 1 (direction+length) before recording (c)")
+            await refused("m", "clamp leg 1 (direction+length) first (c)")
+            await refused("g", "clamp leg 1 (direction+length) first (c)")
+            await refused("n", "needs at least 4 poses (0 so far): record 4 more (r)")
+            await pilot.press("c")
+            for _ in range(3):
+                await pilot.press("m", "r")
+                await _settle(pilot)
+            await refused("n", "needs at least 4 poses (3 so far): record one more (r)")
+            await refused("g", "the next best pose needs 4 poses of this step (3 so far) (r)")
+            await refused("c", "leg 1 is already clamped (direction+length)")
+            screen.guided.thermometer = lambda: 21.0
+            await refused("t", "this rig reads its own thermometer")
+            screen.guided.thermometer = None
+            await pilot.press("m", "r")
+            await _settle(pilot)
+            await pilot.press("g")
+            await pilot.press("n")
+            await _settle(pilot)
+            lines = " ".join(line.text.strip() for line in log.lines)
+            for said in (
+                "moved home",
+                "moved to the next pose",
+                "leg 1 clamped (direction+length)",
+                "moved to the suggested pose",
+                "ended at 4 of 8 recommended poses (minimum 4)",
+            ):
+                assert said in lines, said
+            while not screen.guided.finished:
+                screen.guided.skip_step()
+            screen.show_step()
+            await refused("r", "the procedure is finished: every step is done or skipped (k)")
+            await refused("a", "the procedure is finished")
+
+    asyncio.run(run())
 
 
 # -- a kill while recording ----------------------------------------------------------------------

@@ -68,12 +68,23 @@ _HINT_DOFS = {
     Constraint.LENGTH: (0, 1, 2, 3, 4, 5),
     Constraint.FREE: (0, 1, 2, 3, 4, 5),
 }
+#: Poses a clamped step needs before its geometry is estimated and a next best pose suggested.
+NBP_MIN_POSES = 4
 #: How far an operator can typically vary each: deg for rotations, mm for translations.
 _HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
 
 
 class GuidedError(HexcalError):
     """The operator asked for something the step does not allow now; the message says why."""
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Why an operator's action cannot be done now: ``text``, one sentence, and ``remedy``, the
+    action that would allow it (``"clamp"``, ``"record"``, ``"calibrate"``; None: none now)."""
+
+    text: str
+    remedy: str | None = None
 
 
 @dataclass
@@ -239,6 +250,62 @@ class GuidedSession:
     def can_finish(self) -> bool:
         return not self.finished and self.n_poses >= self.step.min_poses
 
+    def refusal(self, action: str) -> Refusal | None:
+        """Why the operator's ``action`` cannot be done now (None: it can). ``action`` names a
+        method: ``clamp``, ``move``, ``record``, ``undo``, ``finish`` (:meth:`finish_step`),
+        ``skip`` (:meth:`skip_step`), ``note``, ``temperature`` (:meth:`set_temperature`),
+        ``suggest`` (:meth:`suggestion`: whether the step can have one yet). The
+        methods raise :class:`GuidedError` with the same text; a front end greys the action out
+        and says it when asked."""
+        if action == "note":
+            return None
+        if action == "temperature":
+            if self.thermometer is not None:
+                return Refusal("this rig reads its own thermometer: the typed value is not used")
+            return None
+        if self.finished:
+            return Refusal("the procedure is finished: every step is done or skipped", "calibrate")
+        st, n = self.step, self.n_poses
+        if action == "clamp":
+            if not st.leg:
+                return Refusal(f"{st.name} clamps no leg: move the platform and record", "record")
+            if self.clamped:
+                return Refusal(f"leg {st.leg} is already clamped ({st.constraint})")
+        elif action == "move":
+            if self.mover is None:
+                return Refusal("no motion controller: move the platform with the robot's own")
+            if st.leg and not self.clamped:
+                return Refusal(f"clamp leg {st.leg} ({st.constraint}) first", "clamp")
+        elif action == "record":
+            if st.leg and not self.clamped:
+                return Refusal(f"clamp leg {st.leg} ({st.constraint}) before recording", "clamp")
+        elif action == "suggest":
+            if not st.leg:
+                return Refusal(f"{st.name} clamps no leg: no next best pose, spread the poses out")
+            if n < NBP_MIN_POSES:
+                return Refusal(
+                    f"the next best pose needs {NBP_MIN_POSES} poses of this step ({n} so far)",
+                    "record" if self.clamped else "clamp",
+                )
+        elif action == "undo":
+            if not n:
+                return Refusal(f"{st.name} has no pose to undo")
+        elif action == "finish":
+            if n < st.min_poses:
+                more = st.min_poses - n
+                return Refusal(
+                    f"{st.name} needs at least {st.min_poses} pose"
+                    + ("s" if st.min_poses > 1 else "")
+                    + f" ({n} so far): record "
+                    + ("one more" if more == 1 else f"{more} more"),
+                    "record",
+                )
+        return None
+
+    def _refuse(self, action: str) -> None:
+        if (why := self.refusal(action)) is not None:
+            raise GuidedError(why.text)
+
     # -- the operator's actions -----------------------------------------------------------------
     def clamp(self) -> str:
         """The leg is clamped (by the mock controller, or as the operator confirms)."""
@@ -262,25 +329,23 @@ class GuidedSession:
 
     def move(self) -> str:
         """Move the platform to the step's next pose (motion controller only)."""
-        if self.mover is None:
-            raise GuidedError("no motion controller: move the platform with the robot's own")
-        st = self.step
-        if st.leg and not self.clamped:
-            raise GuidedError(f"clamp leg {st.leg} ({st.constraint}) first")
+        self._refuse("move")
+        mover, st = self.mover, self.step
+        if mover is None:  # refused above: for the type checker
+            raise GuidedError("no motion controller")
         if st.at_home:
-            self.mover.home()
-        else:
-            self.mover.next_pose()
-        return "moved"
+            mover.home()
+            return "moved home"
+        mover.next_pose()
+        return "moved to the next pose"
 
     def record(self) -> tuple[bool, str]:
         """Record one pose of the current step: (recorded, operator message). Blocks for the
         still window. Refused poses are kept in the session file with their reason; record
         again *at the same pose* (the motion history between recorded poses is what
         direction-dependent effects such as backlash are fitted from)."""
+        self._refuse("record")
         st = self.step
-        if st.leg and not self.clamped:
-            raise GuidedError(f"clamp leg {st.leg} ({st.constraint}) before recording")
         try:
             pose = replace(self.acquisition.record(), temperature=self.temperature())
         except PoseRefused as exc:
@@ -300,22 +365,22 @@ class GuidedSession:
 
     def undo(self) -> str:
         """Set the current step's last pose aside (kept in the file, out of the calibration)."""
-        if not self.n_poses:
-            raise GuidedError(f"{self.step.name} has no pose to undo")
+        self._refuse("undo")
         self._rec.poses.pop()
         if not self._rec.poses:
             self.recorder = StepRecorder(self.step, self.clamp_tolerance_mm)
         self.sf.undo_last_pose()
         return self._say(f"{self.step.name}: last pose set aside ({self.n_poses} left)")
 
-    def finish_step(self) -> StepCheck:
+    def finish_step(self, design: Robot | None = None) -> StepCheck:
         """End the step: its check runs; passed, the step is done and the next one starts;
-        failed, its poses are set aside (kept, with the reason) and the step starts again."""
+        failed, its poses are set aside (kept, with the reason) and the step starts again. The
+        check's message is the operator's sentence either way; a step ended below its
+        recommended count says so, and why (``design``: to tell whether its poses already
+        predict the step's target 1σ, see :meth:`target_met`)."""
+        self._refuse("finish")
         st = self.step
-        if self.n_poses < st.min_poses:
-            raise GuidedError(
-                f"{st.name} needs at least {st.min_poses} poses ({self.n_poses} so far)"
-            )
+        short = self._short_of_recommended(design)
         rec = self._rec
         check = rec.finish(per_pose_noise(rec.poses), self.platform_radius_mm)
         self.release()
@@ -333,9 +398,33 @@ class GuidedSession:
         self.sf.add_progress(
             StepProgress(step=st.name, status="done", poses=self.n_poses, check=words)
         )
-        self._say(f"{st.name} done: {self.n_poses} poses" + (f" ({words})" if words else ""))
+        said = self._say(
+            f"{st.name} done: {self.n_poses} pose{'s' if self.n_poses != 1 else ''}"
+            + (f" ({words})" if words else "")
+            + (f" — {short}" if short else "")
+        )
         self._advance()
-        return check
+        return replace(check, message=said)
+
+    def _short_of_recommended(self, design: Robot | None) -> str:
+        """Why the step ends below its recommended count, for the operator ("" when it does
+        not)."""
+        st, n = self.step, self.n_poses
+        if n >= st.n_poses:
+            return ""
+        if design is not None and self.target_met(design):
+            s = self.suggestion(design)
+            return (
+                f"{n} of {st.n_poses} recommended poses: the predicted 1σ "
+                f"{s.sigma_before_mm:.3f} mm already meets the step's {st.target_sigma_mm:g} mm "
+                "target"
+                if s is not None
+                else ""
+            )
+        return (
+            f"ended at {n} of {st.n_poses} recommended poses (minimum {st.min_poses}): its "
+            "points are less certain than the procedure plans"
+        )
 
     def skip_step(self, reason: str = "skipped by the operator") -> str:
         """Move on without this step (its poses so far stay in the session)."""
@@ -551,7 +640,7 @@ class GuidedSession:
     def _suggest(self, design: Robot, n_candidates: int) -> nbp.Suggestion | None:
         st = self.step
         n = self.n_poses
-        if not st.leg or n < 4:
+        if not st.leg or n < NBP_MIN_POSES:
             return None
         k = st.leg - 1
         P, R, rho = self._arrays()

@@ -14,22 +14,68 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from textual import on, work
+from textual import events, on, work
 from textual.app import App, ComposeResult
-from textual.containers import Grid, Horizontal, Vertical
+from textual.containers import Grid, Horizontal, Vertical, VerticalScroll
+from textual.content import Content
 from textual.message import Message
 from textual.screen import Screen
-from textual.widgets import Button, Footer, Header, Input, Label, Select, Static
+from textual.widgets import Button, Header, Input, Label, Select, Static
 
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.recording import Step
 from hexcal.procedure.session import Session, SessionFile, SessionFileError
 from hexcal.procedure.steps import BUILTIN, Procedure, load_procedure
 from hexcal.tui.backend import Backend, Rig
+from hexcal.tui.keys import KeyBar
 
 
 class HexcalScreen(Screen):
-    """A screen of hexcal's UI: ``hexcal`` is the app it runs in, as a :class:`HexcalApp`."""
+    """A screen of hexcal's UI: ``hexcal`` is the app it runs in, as a :class:`HexcalApp`.
+
+    Every key answers: a key the state does not allow is greyed out in the key bar
+    (:class:`~hexcal.tui.keys.KeyBar`) and, pressed, says why in the screen's status line
+    (:meth:`why_not`), whether or not the bar shows it (:meth:`hidden`)."""
+
+    #: Narrow and short screens get the classes ``-narrow`` / ``-short``: the CSS tightens them.
+    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (100, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (32, "-tall")]
+
+    def why_not(self, action: str) -> str | None:
+        """Why this screen's ``action`` cannot run now, one line for the operator (None: it
+        can)."""
+        return None
+
+    def hidden(self, action: str) -> bool:
+        """Whether the key bar leaves ``action`` out while it cannot run (pressed, it still
+        says why)."""
+        return False
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if self.why_not(action) is None:
+            return True
+        return False if self.hidden(action) else None
+
+    def on_key(self, event: events.Key) -> None:
+        """A key whose action cannot run says why instead of doing nothing; one that can
+        clears the last reason."""
+        for binding in self._bindings.key_to_bindings.get(event.key, ()):
+            why = self.why_not(binding.action)
+            if why is not None:
+                event.stop()
+                event.prevent_default()
+                self.status(why, "yellow")
+            else:
+                self.status("")
+            return
+
+    def status(self, text: str, style: str = "") -> None:
+        """One line for the operator in the status line, above the key bar."""
+        self.query_one("#status", Static).update(Content.styled(text, style))
+
+    def action_press(self, key: str) -> None:
+        """A click on the key bar: as if the key were pressed."""
+        self.app.simulate_key(key)
 
     @property
     def hexcal(self) -> HexcalApp:
@@ -39,15 +85,32 @@ class HexcalScreen(Screen):
         return app
 
 
+class Foot(Vertical):
+    """The foot of a screen, docked at the bottom: what is given (buttons...), then the status
+    line (``#status``, see :meth:`HexcalScreen.status`), then the keys."""
+
+    DEFAULT_CSS = "Foot { dock: bottom; height: auto; }"
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="status")
+        yield KeyBar()
+
+
 class StartScreen(HexcalScreen):
     """Robot, devices, procedure and session file; start a new session or resume one."""
 
-    BINDINGS = [("ctrl+n", "new", "New session"), ("ctrl+r", "resume", "Resume session")]
+    BINDINGS = [("ctrl+n", "new", "new session"), ("ctrl+r", "resume", "resume session")]
 
     def compose(self) -> ComposeResult:
         app = self.hexcal
         yield Header()
-        with Vertical(id="start"):
+        # The buttons, the status line and the keys are docked at the foot: seen at any
+        # height, the form above them scrolls.
+        with Foot():
+            with Horizontal(id="start-buttons"):
+                yield Button("New session", id="new", variant="primary")
+                yield Button("Resume session", id="resume")
+        with VerticalScroll(id="start"):
             yield Static(
                 "[b]hexcal[/b] — calibrate a Gough–Stewart platform by clamping its legs.\n"
                 "Start a new session or resume one; every pose is saved in the session file "
@@ -68,11 +131,6 @@ class StartScreen(HexcalScreen):
                 )
                 yield Label("Session file")
                 yield Input(str(app.session_path), id="session-path")
-            with Horizontal(id="start-buttons"):
-                yield Button("New session", id="new", variant="primary")
-                yield Button("Resume session", id="resume")
-            yield Static("", id="start-message")
-        yield Footer()
 
     def on_mount(self) -> None:
         self.query_one("#new", Button).focus()  # Enter starts; Tab reaches the fields
@@ -83,8 +141,8 @@ class StartScreen(HexcalScreen):
         else:
             self.action_resume()
 
-    def _say(self, text: str) -> None:
-        self.query_one("#start-message", Static).update(text)
+    def _say(self, text: str, style: str = "") -> None:
+        self.status(text, style)
 
     def action_new(self) -> None:
         app = self.hexcal
@@ -96,7 +154,7 @@ class StartScreen(HexcalScreen):
                 path, Session(robot=app.backend.design, procedure=proc.model_dump(by_alias=True))
             )
         except (SessionFileError, ValueError, OSError) as exc:
-            self._say(f"[red]{exc}[/red]")
+            self._say(str(exc), "red")
             return
         self._say("opening the devices…")
         app.begin(sf, proc)
@@ -113,7 +171,7 @@ class StartScreen(HexcalScreen):
                 )
             proc = Procedure.model_validate(sf.session.procedure)
         except (SessionFileError, ValueError) as exc:
-            self._say(f"[red]{exc}[/red]")
+            self._say(str(exc), "red")
             return
         self._say(f"resuming {path} ({len(sf.session.poses)} poses)… opening the devices…")
         # What loading did (poses set aside, orphan temporary files removed) goes to the log.
@@ -234,7 +292,7 @@ class HexcalApp(App):
     def _start_failed(self, exc: Exception) -> None:
         screen = self.screen
         if isinstance(screen, StartScreen):
-            screen._say(f"[red]could not open the devices: {exc}[/red]")
+            screen._say(f"could not open the devices: {exc}", "red")
 
     def _show_recording(self) -> None:
         from hexcal.tui.record import RecordScreen

@@ -14,44 +14,87 @@ from scipy.spatial.transform import Rotation
 from textual import work
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
-from textual.widgets import Footer, Header, ProgressBar, RichLog, Static
+from textual.content import Content
+from textual.widgets import Header, ProgressBar, RichLog, Static
 
 from hexcal.estimate.nbp import Suggestion, motion_text
-from hexcal.procedure.guided import GuidedError, GuidedSession
+from hexcal.procedure.guided import GuidedError, GuidedSession, Live
 from hexcal.procedure.recording import MotionError
-from hexcal.tui.app import HexcalScreen
+from hexcal.tui.app import Foot, HexcalScreen
 from hexcal.tui.prompt import TextPrompt
 from hexcal.vocabulary import Constraint
 
+#: Width of a live number's column: eight characters and a space (``+219.735``).
+COL = 9
 
-def _fmt(v: np.ndarray | None, digits: int = 3) -> str:
-    if v is None:
-        return "—"
-    return "  ".join(f"{x:+9.{digits}f}" if np.isfinite(x) else "      nan" for x in v)
+
+def _num(x: float) -> str:
+    """``x`` in eight characters, three decimals when they fit, fewer when not."""
+    if not np.isfinite(x):
+        return "     nan"
+    for digits in (3, 2, 1, 0):
+        text = f"{x:+8.{digits}f}"
+        if len(text) <= 8:
+            return text
+    return "   ±huge"
+
+
+def _row(label: str, values: np.ndarray | None, label_width: int) -> str:
+    """A label and numbers in fixed columns (the row never wraps: see :func:`live_text`)."""
+    nums = "—" if values is None else " ".join(_num(float(x)) for x in values)
+    return f"{label:<{label_width}} {nums}"
+
+
+def live_text(lv: Live, structure: str, width: int) -> str:
+    """The live panel at ``width`` columns: every row of numbers in fixed columns that fit —
+    long labels from 40 columns, short ones below; the status lines are cut (…), not wrapped."""
+    wide = width >= 13 + 1 + 3 * COL - 1
+    labels = (
+        ("position mm", "rotation deg", "legs 1-3 mm", "legs 4-6 mm")
+        if wide
+        else ("pos mm", "rot deg", "legs1-3", "legs4-6")
+    )
+    lw = 12 if wide else 7
+    return "\n".join(
+        [
+            f"tracker  {lv.tracker_status}",
+            _row(labels[0], lv.position, lw),
+            _row(labels[1], lv.rotvec_deg, lw),
+            f"legs  {lv.bus_status}",
+            _row(labels[2], lv.readings[:3], lw),
+            _row(labels[3], lv.readings[3:], lw),
+            structure,
+        ]
+    )
+
+
+#: The action that lifts a refusal (:class:`hexcal.procedure.guided.Refusal`), as its key.
+REMEDY_KEYS = {"clamp": "c", "record": "r", "calibrate": "k"}
 
 
 class RecordScreen(HexcalScreen):
     """Guided recording (see module docstring)."""
 
     BINDINGS = [
-        Binding("c", "clamp", "Clamped"),
-        Binding("m", "move", "Move"),
-        Binding("g", "go_suggested", "Go suggested"),
-        Binding("r", "record", "Record"),
-        Binding("u", "undo", "Undo"),
-        Binding("n", "finish", "Next step"),
-        Binding("s", "skip", "Skip"),
-        Binding("a", "auto", "Auto"),
-        Binding("A", "auto_all", "Auto all", show=False),
-        Binding("o", "note", "Note"),
-        Binding("t", "temperature", "Temp °C"),
-        Binding("k", "calibrate", "Calibrate"),
-        Binding("q", "app.quit", "Quit"),
+        Binding("c", "clamp", "clamped"),
+        Binding("m", "move", "move"),
+        Binding("g", "go_suggested", "go there"),
+        Binding("r", "record", "record"),
+        Binding("u", "undo", "undo"),
+        Binding("n", "finish", "next step"),
+        Binding("s", "skip", "skip"),
+        Binding("a", "auto", "auto"),
+        Binding("A", "auto_all", "auto all"),
+        Binding("o", "note", "note"),
+        Binding("t", "temperature", "temp °C"),
+        Binding("k", "calibrate", "calibrate"),
+        Binding("q", "app.quit", "quit"),
     ]
 
     def __init__(self) -> None:
         super().__init__()
         self.busy = False
+        self.auto_running = False
         self._stop_auto = False
         self.suggested: Suggestion | None = None
 
@@ -64,24 +107,27 @@ class RecordScreen(HexcalScreen):
 
     def compose(self):
         yield Header()
+        yield Foot()
         with Horizontal(id="top"):
-            with Vertical(id="step-panel"):
+            # The count and the next best pose first: the instruction below them scrolls.
+            with VerticalScroll(id="step-panel"):
                 yield Static("", id="step-title")
-                yield Static("", id="instruction")
                 yield Static("", id="counts")
                 yield ProgressBar(total=1, show_eta=False, show_percentage=False, id="progress")
                 yield Static("", id="conditioning")
+                yield Static("", id="instruction")
             with Vertical(id="live-panel"):
                 yield Static("", id="live")
                 yield Static("", id="clamp")
         with Horizontal(id="bottom"):
-            yield RichLog(id="log", wrap=True, markup=True)
+            yield RichLog(id="log", wrap=True, markup=True, min_width=20)
             with VerticalScroll(id="steps-box"):
                 yield Static("", id="steps")
-        yield Footer()
 
     def on_mount(self) -> None:
         g = self.guided
+        for box, title in (("#live-panel", "Live"), ("#log", "Log"), ("#steps-box", "Steps")):
+            self.query_one(box).border_title = title
         self.query_one("#log", RichLog).write(
             f"session file [b]{g.sf.path}[/b]: {len(g.sf.session.poses)} poses so far"
         )
@@ -89,16 +135,26 @@ class RecordScreen(HexcalScreen):
         self.refresh_live()
         self.set_interval(0.2, self.refresh_live)
 
+    def on_resize(self) -> None:
+        self.call_after_refresh(self._fit)
+
+    def _fit(self) -> None:
+        """What depends on the panels' widths: the live columns, the steps' names."""
+        self.refresh_live()
+        self._show_steps()
+
     # -- display --------------------------------------------------------------------------------
     def log_line(self, text: str, style: str = "") -> None:
         self.query_one("#log", RichLog).write(f"[{style}]{text}[/{style}]" if style else text)
 
     def show_step(self) -> None:
         g = self.guided
+        self.query_one("#progress").display = not g.finished
         if g.finished:
             self.query_one("#step-title", Static).update(
                 "[b]Procedure complete[/b] — every step is done or skipped"
             )
+            self.query_one("#step-panel").border_title = "Procedure complete"
             self.query_one("#instruction", Static).update(
                 "Press [b]k[/b] to calibrate and see where the model fails."
             )
@@ -107,9 +163,8 @@ class RecordScreen(HexcalScreen):
         else:
             st = g.step
             what = f"leg {st.leg}, {st.constraint} clamped" if st.leg else st.name
-            self.query_one("#step-title", Static).update(
-                f"[b]Step {g.index + 1} of {len(g.steps)}[/b] — {what}"
-            )
+            self.query_one("#step-title", Static).update(f"[b]{what}[/b]")
+            self.query_one("#step-panel").border_title = f"Step {g.index + 1} of {len(g.steps)}"
             keys = (
                 "[b]c[/b] when clamped, then move the platform and press [b]r[/b] at each pose"
                 if st.leg
@@ -117,7 +172,7 @@ class RecordScreen(HexcalScreen):
             )
             if g.mover is not None:
                 keys += " ([b]m[/b] moves the mock platform, [b]a[/b] does the whole step)"
-            self.query_one("#instruction", Static).update(f"{st.instruction}\n\n{keys}")
+            self.query_one("#instruction", Static).update(f"{keys}\n\n{st.instruction}")
             self._show_counts()
         self._show_steps()
         self.refresh_bindings()
@@ -134,7 +189,7 @@ class RecordScreen(HexcalScreen):
             else "[red]below the minimum[/red]"
         )
         self.query_one("#counts", Static).update(
-            f"poses [b]{n}[/b]   minimum {st.min_poses}   recommended {st.n_poses}   {state}"
+            f"poses [b]{n}[/b] of {st.n_poses} recommended, minimum {st.min_poses}: {state}"
         )
         self.query_one("#progress", ProgressBar).update(
             total=st.n_poses, progress=min(n, st.n_poses)
@@ -170,64 +225,106 @@ class RecordScreen(HexcalScreen):
         self.query_one("#conditioning", Static).update(text)
 
     def _show_steps(self) -> None:
+        """One line per step, cut to the box (short names when narrow); the current step kept
+        in view."""
         mark = {"done": "[green]✓[/green]", "skipped": "[yellow]–[/yellow]", "now": "[b]▶[/b]"}
-        lines = [
-            f"{mark.get(state, ' ')} {name:<22} {n:>2}/{rec}"
-            for name, state, n, _, rec in self.guided.summary()
-        ]
-        self.query_one("#steps", Static).update("\n".join(lines))
+        box = self.query_one("#steps", Static)
+        width = box.size.width or 30
+        rows = self.guided.summary()
+        counts = [f"{n:>2}/{rec}" for _, _, n, _, rec in rows]
+        room = max(6, width - 3 - max(len(c) for c in counts))
+        lines, now = [], 0
+        for i, ((name, state, *_), count) in enumerate(zip(rows, counts, strict=True)):
+            if len(name) > room:
+                name = name.replace("direction", "dir").replace("length", "len")
+            if len(name) > room:
+                name = name[: room - 1] + "…"
+            lines.append(f"{mark.get(state, ' ')} {name:<{room}} {count}")
+            now = i if state == "now" or self.guided.finished else now
+        box.update("\n".join(lines))
+        scroll = self.query_one("#steps-box", VerticalScroll)
+        scroll.scroll_to(y=max(0, now - scroll.size.height // 2), animate=False)
 
     def refresh_live(self) -> None:
         g = self.guided
         lv = g.live()
         temp = g.temperature()
         structure = (
-            "structure  temperature unknown ([b]t[/b] to enter it)"
+            "structure  temperature unknown (t)"
             if temp is None
             else f"structure  {temp:.1f} °C ({'thermometer' if g.thermometer else 'entered'})"
         )
-        self.query_one("#live", Static).update(
-            "[b]Live[/b]\n"
-            f"tracker  {lv.tracker_status}\n"
-            f"  position mm  {_fmt(lv.position)}\n"
-            f"  rotation deg {_fmt(lv.rotvec_deg)}\n"
-            f"legs mm  {lv.bus_status}\n"
-            f"  1-3 {_fmt(lv.readings[:3])}\n"
-            f"  4-6 {_fmt(lv.readings[3:])}\n"
-            f"{structure}"
-        )
+        live = self.query_one("#live", Static)
+        live.update(Content(live_text(lv, structure, live.size.width or 40)))
         style = "green" if lv.clamp_ok else "bold red"
         self.query_one("#clamp", Static).update(
-            f"[b]Clamp[/b]\n[{style}]{lv.clamp or 'nothing clamped in this step'}[/{style}]"
+            f"[b]clamp[/b] [{style}]{lv.clamp or 'nothing clamped in this step'}[/{style}]"
         )
 
     # -- actions --------------------------------------------------------------------------------
-    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+    #: The screen's actions as the guided session names them (its refusals say why not).
+    ENGINE_ACTIONS = {
+        "clamp": "clamp",
+        "move": "move",
+        "record": "record",
+        "undo": "undo",
+        "finish": "finish",
+        "skip": "skip",
+        "temperature": "temperature",
+    }
+
+    def why_not(self, action: str) -> str | None:
         g = self.guided
         if action in ("auto", "auto_all"):
-            return g.mover is not None and not g.finished
-        if self.busy and action not in ("calibrate",):
-            # A note or a temperature saves the file, as the recording worker does: not at once.
-            busy_off = ("clamp", "move", "record", "undo", "finish", "skip", "note", "temperature")
-            return None if action in busy_off else True
-        if action == "note":
-            return True
+            if g.mover is None:
+                return "no motion controller: the mock operator needs one — record by hand"
+            if g.finished:
+                return self._refusal("skip")
+            if self.busy and not self.auto_running:
+                return "recording a pose: wait for it"
+            return None  # while it runs, a stops it
+        if action == "calibrate":
+            return None if g.sf.session.poses else "nothing recorded yet: record a pose first (r)"
+        if self.busy and action != "note":
+            # A note saves the file, as the recording worker does, but only once it is typed.
+            if action in self.ENGINE_ACTIONS or action == "go_suggested":
+                return (
+                    "the mock operator is at work: a stops it"
+                    if self.auto_running
+                    else "recording a pose: wait for it"
+                )
+            return None
+        if action == "go_suggested":
+            return self._refusal("move") or self._refusal("suggest") or self._no_suggestion()
+        if action in self.ENGINE_ACTIONS:
+            return self._refusal(self.ENGINE_ACTIONS[action])
+        return None
+
+    def hidden(self, action: str) -> bool:
+        """Out of the key bar: what this rig or this state never allows (pressed, it says
+        why) — the mock's keys without a mock, the temperature with a thermometer, the step's
+        keys once every step is done, clamping and the next best pose on a free step."""
+        g = self.guided
+        if action in ("move", "go_suggested", "auto", "auto_all"):
+            if g.mover is None or g.finished:
+                return True
         if action == "temperature":
-            return g.thermometer is None or None
+            return g.thermometer is not None
         if g.finished:
-            return action in ("calibrate", "app.quit") or None
-        st = g.step
-        if action == "clamp":
-            return (st.leg > 0 and not g.clamped) or None
-        if action == "move":
-            return (g.mover is not None and (st.leg == 0 or g.clamped)) or None
-        if action == "record":
-            return (st.leg == 0 or g.clamped) or None
-        if action == "undo":
-            return g.n_poses > 0 or None
-        if action == "finish":
-            return g.can_finish or None
-        return True
+            return action in ("clamp", "record", "undo", "finish", "skip")
+        return action in ("clamp", "go_suggested") and not g.step.leg
+
+    def _refusal(self, action: str) -> str | None:
+        why = self.guided.refusal(action)
+        if why is None:
+            return None
+        key = REMEDY_KEYS.get(why.remedy or "")
+        return f"{why.text} ({key})" if key else why.text
+
+    def _no_suggestion(self) -> str | None:
+        if self.suggested is not None:
+            return None
+        return "no next best pose for these poses (a degenerate fit): move (m) and record (r)"
 
     def _guard(self, fn, *args):
         try:
@@ -263,7 +360,8 @@ class RecordScreen(HexcalScreen):
         self.show_step()
 
     def action_move(self) -> None:
-        self._guard(self.guided.move)
+        if (msg := self._guard(self.guided.move)) is not None:
+            self.log_line(msg)
         self.refresh_live()
 
     def action_go_suggested(self) -> None:
@@ -278,11 +376,9 @@ class RecordScreen(HexcalScreen):
         self.show_step()
 
     def action_finish(self) -> None:
-        check = self._guard(self.guided.finish_step)
+        check = self._guard(self.guided.finish_step, self.hexcal.backend.design)
         if check is not None:
-            self.log_line(check.message, "red") if not check.ok else self.log_line(
-                "step done", "green"
-            )
+            self.log_line(check.message, "green" if check.ok else "red")
         self.show_step()
 
     def action_skip(self) -> None:
@@ -323,6 +419,13 @@ class RecordScreen(HexcalScreen):
             self.log_line("stopping after this pose…", "yellow")
             return
         self._stop_auto = False
+        self.auto_running = True
+        g = self.guided
+        self.log_line(
+            "the mock operator records "
+            + ("every step left" if all_steps else f"{g.step.name}")
+            + ": a stops it"
+        )
         self._set_busy(True)
         self._auto_worker(all_steps)
 
@@ -362,24 +465,21 @@ class RecordScreen(HexcalScreen):
                         call(self.log_line, "too many refused poses: stopping", "red")
                         break
                     continue
-                check = g.finish_step()
-                call(
-                    self.log_line,
-                    check.message or f"{st.name} done",
-                    "green" if check.ok else "red",
-                )
+                check = g.finish_step(self.hexcal.backend.design)
+                call(self.log_line, check.message, "green" if check.ok else "red")
                 call(self.show_step)
                 if check.ok and not all_steps:
                     break
         except (GuidedError, MotionError) as exc:
             call(self.log_line, str(exc), "red")
-        call(self._set_busy, False)
-        call(self.show_step)
+        call(self._auto_done)
+
+    def _auto_done(self) -> None:
+        self.auto_running = False
+        self._set_busy(False)
+        self.show_step()
 
     def action_calibrate(self) -> None:
         from hexcal.tui.results import ResultScreen
 
-        if len(self.guided.sf.session.poses) < 1:
-            self.log_line("nothing recorded yet", "red")
-            return
         self.app.push_screen(ResultScreen())

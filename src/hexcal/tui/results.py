@@ -9,6 +9,8 @@ session file; ``e`` exports the session as plain files. Computations run in work
 
 from __future__ import annotations
 
+import re
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -17,14 +19,44 @@ from rich.markup import escape
 from textual import work
 from textual.binding import Binding
 from textual.containers import Horizontal, VerticalScroll
-from textual.widgets import Footer, Header, Static
+from textual.widgets import Header, Static
 from textual_plotext import PlotextPlot
 
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.steps import Procedure
-from hexcal.tui.app import HexcalScreen
+from hexcal.tui.app import Foot, HexcalScreen
 from hexcal.tui.backend import Rig
-from hexcal.vocabulary import Outcome, names_an_addition
+from hexcal.vocabulary import Outcome
+
+
+def _gaps(line: str) -> int:
+    return len(re.findall(r"\S {2,}(?=\S)", line.strip()))
+
+
+def reflow(text: str, width: int) -> str:
+    """``text`` with its prose wrapped at ``width`` (at spaces, never inside a number), its
+    tables left whole (they scroll sideways): a table row is a line with two gaps of two
+    spaces or more, next to another such line."""
+    lines = text.split("\n")
+    out = []
+    for i, line in enumerate(lines):
+        if len(line) <= width or (
+            _gaps(line) >= 2
+            and any(_gaps(lines[j]) >= 2 for j in (i - 1, i + 1) if 0 <= j < len(lines))
+        ):
+            out.append(line)
+            continue
+        indent = line[: len(line) - len(line.lstrip())]
+        out.extend(
+            textwrap.wrap(
+                line,
+                max(20, width),
+                subsequent_indent=indent + "  ",
+                break_long_words=False,
+                break_on_hyphens=False,
+            )
+        )
+    return "\n".join(out)
 
 
 def _app_state(screen: HexcalScreen) -> tuple[GuidedSession, Procedure, Rig | None]:
@@ -45,21 +77,31 @@ class ResultScreen(HexcalScreen):
     """The calibrated geometry with its intervals (see :func:`hexcal.app.report_text`)."""
 
     BINDINGS = [
-        Binding("d", "diagnose", "Diagnose"),
-        Binding("e", "export", "Export"),
-        Binding("escape", "back", "Back to recording"),
-        Binding("q", "app.quit", "Quit"),
+        Binding("d", "diagnose", "diagnose"),
+        Binding("e", "export", "export"),
+        Binding("escape", "back", "back to recording"),
+        Binding("q", "app.quit", "quit"),
     ]
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.refused: str | None = None  # why the poses do not calibrate yet
+        self._text = "calibrating…"
 
     def compose(self):
         yield Header()
+        yield Foot()
         with VerticalScroll(id="result-scroll"):
             yield Static("calibrating…", id="result")
-        yield Static("", id="result-message")
-        yield Footer()
 
     def on_mount(self) -> None:
+        self.query_one("#result-scroll").focus()  # the arrows scroll the tables
         self._calibrate()
+
+    def why_not(self, action: str) -> str | None:
+        if action == "diagnose" and self.refused is not None:
+            return "the poses do not calibrate yet: Escape, record more"
+        return None
 
     @work(thread=True, exclusive=True, group="compute")
     def _calibrate(self) -> None:
@@ -72,9 +114,7 @@ class ResultScreen(HexcalScreen):
             inp = session_inputs(guided)
             result = calibrate_model(inp, proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
-            self.hexcal.post(
-                self._show, f"[red]cannot calibrate yet:[/red]\n{exc}\n\nEscape to record more."
-            )
+            self.hexcal.post(self._refused, str(exc))
             return
         cal = result.calibration
         text = escape(calibration_text(cal, inp.label, inp.noise_source))
@@ -97,7 +137,23 @@ class ResultScreen(HexcalScreen):
         self.hexcal.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
     def _show(self, text: str) -> None:
-        self.query_one("#result", Static).update(text)
+        self._text = text
+        self._fit()
+
+    def on_resize(self) -> None:
+        self.call_after_refresh(self._fit)
+
+    def _fit(self) -> None:
+        scroll = self.query_one("#result-scroll", VerticalScroll)
+        width = scroll.size.width - 4
+        self.query_one("#result", Static).update(reflow(self._text, width))
+        if max(len(line) for line in reflow(self._text, width).split("\n")) > width:
+            self.status("a table is wider than the window: ← → scroll it")
+
+    def _refused(self, why: str) -> None:
+        self.refused = why
+        self._show(f"[red]cannot calibrate yet:[/red]\n{escape(why)}\n\nEscape to record more.")
+        self.refresh_bindings()
 
     def action_diagnose(self) -> None:
         self.app.push_screen(DiagnosisScreen())
@@ -106,7 +162,7 @@ class ResultScreen(HexcalScreen):
         self.app.pop_screen()
 
     def action_export(self) -> None:
-        self.query_one("#result-message", Static).update(export_text(self))
+        self.status(*export_text(self))
 
 
 def truth_line(refinement: Any, truth: Any) -> str:
@@ -121,9 +177,9 @@ def truth_line(refinement: Any, truth: Any) -> str:
     )
 
 
-def export_text(screen: HexcalScreen) -> str:
+def export_text(screen: HexcalScreen) -> tuple[str, str]:
     """Export the session next to its file, the latest model as calibrated.json; one line for
-    the operator."""
+    the operator, and its style."""
     from hexcal.app.workflow import export
 
     guided, _, _ = _app_state(screen)
@@ -132,8 +188,8 @@ def export_text(screen: HexcalScreen) -> str:
     try:
         written = export(guided.sf.session, out)
     except (OSError, ValueError) as exc:
-        return f"[red]export failed: {exc}[/red]"
-    return f"[green]exported to {out}/: {', '.join(written)}[/green]"
+        return f"export failed: {exc}", "red"
+    return f"exported to {out}/: {', '.join(written)}", "green"
 
 
 class DiagnosisScreen(HexcalScreen):
@@ -141,10 +197,10 @@ class DiagnosisScreen(HexcalScreen):
     fall (see module docstring)."""
 
     BINDINGS = [
-        Binding("a", "add", "Add the named effect"),
-        Binding("e", "export", "Export"),
-        Binding("escape", "back", "Back"),
-        Binding("q", "app.quit", "Quit"),
+        Binding("a", "add", "add the named effect"),
+        Binding("e", "export", "export"),
+        Binding("escape", "back", "back"),
+        Binding("q", "app.quit", "quit"),
     ]
 
     def __init__(self) -> None:
@@ -154,27 +210,43 @@ class DiagnosisScreen(HexcalScreen):
 
     def compose(self):
         yield Header()
-        with Horizontal(id="diag-top"):
-            yield Static(
-                "diagnosing… (every catalogue effect is scored and the leaders refitted)",
-                id="diag-summary",
-            )
-            yield PlotextPlot(id="diag-plot")
+        yield Foot()
+        # One scroll: the summary beside the chart (above it when narrow), then the details.
         with VerticalScroll(id="diag-scroll"):
+            with Horizontal(id="diag-top"):
+                yield Static(
+                    "diagnosing… (every catalogue effect is scored and the leaders refitted)",
+                    id="diag-summary",
+                )
+                yield PlotextPlot(id="diag-plot")
             yield Static("", id="diag-text")
-        yield Static("", id="diag-message")
-        yield Footer()
 
     def on_mount(self) -> None:
         self.busy = True
+        self._details = ""
+        self.query_one("#diag-scroll").focus()  # the arrows scroll
         self._diagnose(())
 
-    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
-        if action == "add":
-            if self.busy or not self.history:
-                return None
-            return names_an_addition(self.history[-1].verdict) or None
-        return True
+    def on_resize(self) -> None:
+        self.call_after_refresh(self._fit)
+
+    def _fit(self) -> None:
+        width = self.query_one("#diag-scroll").size.width - 4
+        self.query_one("#diag-text", Static).update(escape(reflow(self._details, width)))
+        if self.history:
+            self._plot()
+
+    def why_not(self, action: str) -> str | None:
+        if action != "add":
+            return None
+        if self.busy or not self.history:
+            return "diagnosing: wait for the verdict"
+        d = self.history[-1]
+        if d.verdict == Outcome.NONE:
+            return "the residual is at the noise floor: there is no effect to add"
+        if d.verdict == Outcome.UNEXPLAINED:
+            return "no catalogue effect explains the residual: there is none to add"
+        return None
 
     @work(thread=True, exclusive=True, group="compute")
     def _diagnose(self, add: tuple[str, ...]) -> None:
@@ -204,11 +276,10 @@ class DiagnosisScreen(HexcalScreen):
         self.history.append(d)
         self.busy = False
         guided, _, rig = _app_state(self)
-        self.query_one("#diag-text", Static).update(
-            escape(
-                before_after_text(self.history) + "\n\n" + diagnosis_text(d, str(guided.sf.path))
-            )
+        self._details = (
+            before_after_text(self.history) + "\n\n" + diagnosis_text(d, str(guided.sf.path))
         )
+        self._fit()
         lines = [
             f"[b]verdict: {d.verdict}[/b]   χ²/dof {d.chi2_per_dof:.2f}, "
             f"floor {1000 * d.noise_floor_mm:.2f} µm",
@@ -231,7 +302,7 @@ class DiagnosisScreen(HexcalScreen):
             if d.fit.refinement is not None:
                 lines.append(truth_line(d.fit.refinement, rig.truth))
         self.query_one("#diag-summary", Static).update("\n".join(lines))
-        self.query_one("#diag-message", Static).update("")
+        self.status("")
         self._plot()
         self.refresh_bindings()
 
@@ -240,26 +311,32 @@ class DiagnosisScreen(HexcalScreen):
         plt = plot.plt
         plt.clear_figure()
         legs = [f"leg {k}" for k in range(1, 7)]
+        rms = [(1000 * d.fit.cv_rms_per_leg).tolist() for d in self.history]
         plt.multiple_bar(
             legs,
-            [(1000 * d.fit.cv_rms_per_leg).tolist() for d in self.history],
+            rms,
             # plotext takes ``labels`` (one per series); textual-plotext's stub says ``label``.
             labels=[d.fit.model_name for d in self.history],  # type: ignore[call-arg]
         )
         floor = 1000 * self.history[-1].noise_floor_mm
         plt.hline(floor, "red")
-        plt.title(f"held-out RMS per leg, µm — red line: noise floor {floor:.1f} µm")
+        # The legend sits in the top left rows: the y range leaves them free of bars.
+        rows = max(4, plot.size.height - 5)
+        top = max(floor, *(max(r) for r in rms))
+        free = len(self.history) + 1
+        plt.ylim(0, top * rows / max(1, rows - free))
+        plt.title(f"held-out RMS per leg, µm — red: noise floor {floor:.1f} µm")
         plot.refresh()
 
     def action_add(self) -> None:
         d = self.history[-1]
         self.busy = True
         self.refresh_bindings()
-        self.query_one("#diag-message", Static).update(f"adding {d.verdict} and refitting…")
+        self.status(f"adding {d.verdict} and refitting…")
         self._diagnose(tuple(e for e in d.effects if e != "offset") + (d.verdict,))
 
     def action_export(self) -> None:
-        self.query_one("#diag-message", Static).update(export_text(self))
+        self.status(*export_text(self))
 
     def action_back(self) -> None:
         self.app.pop_screen()
