@@ -908,14 +908,16 @@ def test_fault_unplug_and_replug(tracking):
 def test_fault_reply_jitter_is_reported(tracking, caplog):
     link, trk = tracking
     link.device.configure(jitter_s=0.04)
-    with caplog.at_level(logging.WARNING, logger="hexcal.drivers.ndi"):
+    with caplog.at_level(logging.INFO, logger="hexcal.drivers.ndi"):
         frames = [trk.poll() for _ in range(12)]
     assert all(f.tool().visible for f in frames)  # jitter is a timing problem, not a bad reading
     stats = trk.latency_stats()
     assert stats["spread_s"] > 0.02
     assert trk.timing_warning is not None and link.url in trk.timing_warning
     assert "jitter" in trk.timing_warning and "frame numbers" in trk.timing_warning
-    assert any(link.url in r.getMessage() for r in caplog.records)
+    # noted in the log, not a warning: the frame numbers stamp the samples, not the arrival
+    noted = [r for r in caplog.records if link.url in r.getMessage()]
+    assert noted and all(r.levelno == logging.INFO for r in noted)
     numbers = [f.frame_number for f in frames]
     assert numbers == sorted(numbers)
 

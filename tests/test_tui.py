@@ -439,3 +439,24 @@ def test_a_killed_ui_leaves_a_session_that_resumes_where_it_stopped(tmp_path, de
     assert len(now.poses) == n - restarted + 1
     assert len(now.set_aside) == len(saved.set_aside) + restarted
     assert np.all(np.isfinite(now.measurements().readings))
+
+
+def test_device_warnings_wait_for_the_recording_log_and_never_cover_a_screen(tmp_path):
+    """A driver's warning that comes while another screen shows is said in one status line and
+    kept for the recording log; no notification is drawn over the screen."""
+    import logging
+
+    app = instant_app(tmp_path / "session.json")
+
+    async def run() -> None:
+        async with app.run_test(size=SMALL) as pilot:
+            logging.getLogger("hexcal.drivers.test").warning("leg 4 encoder silent for 2 s")
+            await pilot.pause()
+            assert not app._notifications
+            assert "device: leg 4 encoder silent" in _text(app.screen.query_one("#status"))
+            await pilot.click("#new")
+            await _settle(pilot)
+            log = "\n".join(str(line) for line in app.screen.query_one("#log").lines)
+            assert "leg 4 encoder silent for 2 s" in log
+
+    asyncio.run(run())

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -228,6 +229,8 @@ class HexcalApp(App):
         self.guided: GuidedSession | None = None
         self.procedure: Procedure | None = None
         self.notices: list[str] = []
+        #: Device messages waiting for the recording log (the last 200).
+        self.device_backlog: deque[tuple[str, int]] = deque(maxlen=200)
         self.sub_title = backend.label
 
     def post(self, fn: Callable[..., object], *args: object) -> None:
@@ -250,13 +253,24 @@ class HexcalApp(App):
         self.push_screen(StartScreen())
 
     def device_message(self, text: str, level: int = logging.WARNING) -> None:
-        """A message from the devices: into the recording log, else a notification."""
+        """A message from the devices: into the recording log. Elsewhere it waits for the
+        recording screen (never drawn over the results' charts); a warning says so in the
+        screen's status line."""
         from hexcal.tui.record import RecordScreen
 
         if isinstance(self.screen, RecordScreen):
             self.screen.log_line(text, "yellow" if level >= logging.WARNING else "")
-        elif level >= logging.WARNING:
-            self.notify(text, severity="warning", timeout=8)
+            return
+        self.device_backlog.append((text, level))
+        if level >= logging.WARNING and isinstance(self.screen, HexcalScreen):
+            short = text if len(text) <= 60 else text[:59] + "…"
+            self.screen.status(f"device: {short} (in the recording log)", "yellow")
+
+    def take_device_messages(self) -> list[tuple[str, int]]:
+        """The device messages that came while the recording screen was not shown."""
+        out = list(self.device_backlog)
+        self.device_backlog.clear()
+        return out
 
     def steps(self, proc: Procedure) -> list[Step]:
         from hexcal.app.workflow import procedure_steps

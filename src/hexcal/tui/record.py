@@ -9,6 +9,8 @@ a still window, so it runs in a worker thread and the screen stays live.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from textual import work
@@ -134,6 +136,12 @@ class RecordScreen(HexcalScreen):
         self.show_step()
         self.refresh_live()
         self.set_interval(0.2, self.refresh_live)
+        self.on_screen_resume()
+
+    def on_screen_resume(self) -> None:
+        """Back on the recording screen: the device messages that came meanwhile."""
+        for text, level in self.hexcal.take_device_messages():
+            self.log_line(text, "yellow" if level >= logging.WARNING else "")
 
     def on_resize(self) -> None:
         self.call_after_refresh(self._fit)
