@@ -72,6 +72,7 @@ def test_the_bound_is_the_estimators_covariance_in_the_small_noise_limit(pose_ty
     assert bnd / mse == pytest.approx(1.0, abs=0.1)
 
 
+@pytest.mark.slow
 def test_efficiency_and_bias_at_the_stated_noise():
     """The issue's case: ±30 mm stroke, ±15° rotations (a length-clamped leg swinging ±15°),
     0.1 mm and 0.01° Gaussian noise. For every clamped pose set — Type I, Type II, the paper's

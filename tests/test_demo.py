@@ -25,6 +25,7 @@ def demo(tmp_path_factory):
     return run_demo(settings)
 
 
+@pytest.mark.slow
 def test_the_diagnosis_finds_the_hidden_effect_and_the_error_falls(demo):
     d = demo["diagnosis"]
     assert demo["hidden_effect"]["name"] == "backlash" and d["found_hidden_effect"]
@@ -34,6 +35,7 @@ def test_the_diagnosis_finds_the_hidden_effect_and_the_error_falls(demo):
     assert after["cv_rms_mm"] < 1.3 * after["noise_floor_mm"]
 
 
+@pytest.mark.slow
 def test_with_the_effect_the_geometry_is_the_truth_within_its_uncertainty(demo):
     after = demo["with_effect_vs_truth"]
     assert after["parameters"] == 42
@@ -41,6 +43,7 @@ def test_with_the_effect_the_geometry_is_the_truth_within_its_uncertainty(demo):
     assert after["max_error_mm"] < demo["model_42_vs_truth"]["max_error_mm"]
 
 
+@pytest.mark.slow
 def test_the_session_file_has_everything_and_exports_losslessly(demo, tmp_path, capsys):
     s = load_session(demo["session"])
     assert len(s.poses) == demo["poses"] == 1 + 12 * 4 + 14
@@ -69,6 +72,7 @@ def test_the_session_file_has_everything_and_exports_losslessly(demo, tmp_path, 
     assert out["model"] == 42
 
 
+@pytest.mark.slow
 def test_the_pose_error_falls_to_the_floor(demo):
     """Pose error (the pose from the readings against the tracker): the drawing, Model 42 and
     Model 42 + backlash on held-out poses; the last within 30 % of the noise floor."""
@@ -79,6 +83,7 @@ def test_the_pose_error_falls_to_the_floor(demo):
     assert model42["position_rms_mm"] > 2 * added["floor_position_rms_mm"]
 
 
+@pytest.mark.slow
 def test_demo_text_says_what_happened(demo):
     text = demo_text(demo)
     assert "hidden effect: backlash" in text and "the diagnosis found it" in text

@@ -26,6 +26,7 @@ def _poses_to_reach(curve: np.ndarray, target: float) -> int:
 
 @pytest.mark.parametrize("constraint", ["direction", "direction+length", "length"])
 @pytest.mark.parametrize("scoring", ["oracle", "estimated"])
+@pytest.mark.slow
 def test_suggested_poses_need_at_most_half_the_random_ones(constraint, scoring):
     """The target is what random poses reach, in median, at 30 poses. Seeded: 16 random and 8
     suggested sequences (every 5th suggestion a space-filling one). "oracle": suggestions scored

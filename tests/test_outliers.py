@@ -112,6 +112,7 @@ def test_outliers_are_found_without_stated_noise(design):
     assert sorted(o.index for o in d.outliers) == rows.tolist()
 
 
+@pytest.mark.slow
 def test_no_false_alarm_on_clean_sessions(design):
     """Sessions without outliers (56 seeds, each hiding one catalogue effect at a realistic
     size or none; the noise stated, and for every other session also estimated): at most 5 %

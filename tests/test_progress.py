@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from hexcal.app.progress import progress, wanted
 
 EXAMPLE = Path(__file__).parents[1] / "examples" / "left-hand-sim"
@@ -69,6 +71,7 @@ def _run_on_a_terminal(args: list[str], cwd: Path) -> tuple[str, str]:
     return out, screen.decode(errors="replace")
 
 
+@pytest.mark.slow
 def test_diagnose_auto_report_shows_progress_on_a_terminal_and_none_with_json(tmp_path):
     inputs = [
         "diagnose",

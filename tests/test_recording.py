@@ -160,6 +160,7 @@ def test_slips_on_the_mock_rig_are_caught_and_nothing_is_lost(design):
     assert any("re-tighten it and repeat this step" in e for e in events)
 
 
+@pytest.mark.slow
 def test_scripted_session_through_the_drivers_calibrates_to_the_truth(design):
     """All six legs' procedures recorded from mock hardware through the NDI driver (BX over
     ndimock://), the CANopen driver (virtual bus) and the acquisition; Model 42 then lands on

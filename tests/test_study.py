@@ -32,6 +32,7 @@ def test_noise_free_study_is_exact():
                 assert r[key] < 1e-9, r
 
 
+@pytest.mark.slow
 def test_errors_fall_with_n_and_scale_with_noise():
     res = run_study(StudyConfig(**SMALL))
     for pose_set, key in (
@@ -49,6 +50,7 @@ def test_errors_fall_with_n_and_scale_with_noise():
             assert h["base_err_mm"] == pytest.approx(r["base_err_mm"] / 2, rel=0.02)
 
 
+@pytest.mark.slow
 def test_refined_is_at_least_as_good_as_paper_at_n7():
     res = run_study(
         StudyConfig(
@@ -61,6 +63,7 @@ def test_refined_is_at_least_as_good_as_paper_at_n7():
     assert f["type_ii"]["refined"]["platform"] < f["type_ii"]["paper"]["platform"] * 1.1
 
 
+@pytest.mark.slow
 def test_cli_writes_csv_json_and_plots(tmp_path, capsys):
     rc = main(["study", "--trials", "50", "--out", str(tmp_path)])
     assert rc == 0
