@@ -38,6 +38,12 @@ from hexcal.sim.simulate import Simulator
 SHARED_EXAMPLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "examples" / "left-hand"
 
 
+@pytest.fixture(autouse=True)
+def _sessions_in_tmp(tmp_path_factory, monkeypatch):
+    """No test writes to, or lists, the user's own sessions directory."""
+    monkeypatch.setenv("HEXCAL_SESSIONS", str(tmp_path_factory.mktemp("sessions")))
+
+
 @pytest.fixture
 def design():
     return left_hand()

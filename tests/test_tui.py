@@ -246,7 +246,8 @@ def test_snapshot_start(snap_compare, in_tmp):
     async def fits(pilot) -> None:
         _assert_fits(pilot)
 
-    assert snap_compare(instant_app(Path("session.json")), terminal_size=SMALL, run_before=fits)
+    app = instant_app(Path("session.json"), sessions=Path("sessions"))
+    assert snap_compare(app, terminal_size=SMALL, run_before=fits)
 
 
 async def _record_some(pilot) -> None:
@@ -461,3 +462,47 @@ def test_device_warnings_wait_for_the_recording_log_and_never_cover_a_screen(tmp
             assert "leg 4 encoder silent for 2 s" in log
 
     asyncio.run(run())
+
+
+def test_the_start_screen_lists_the_sessions_and_resumes_one_with_a_key(tmp_path):
+    """A new session goes into the sessions directory (not the current folder); the next start
+    lists it with its robot, poses and last step; ctrl+l, Enter resumes it."""
+    sessions = tmp_path / "sessions"
+    first = HexcalApp(
+        InstantBackend(left_hand(), "instant mock rig", simulated=True, seed=2, effect="gain"),
+        sessions=sessions,
+        poses_per_step=4,
+        free_poses=12,
+    )
+
+    async def record_one() -> None:
+        async with first.run_test(size=SMALL) as pilot:
+            await refused_without_sessions(pilot)
+            await pilot.click("#new")
+            await _until(pilot, lambda: isinstance(first.screen, RecordScreen), 10)
+            await _settle(pilot)
+            await pilot.press("m", "r")
+            await _settle(pilot)
+
+    async def refused_without_sessions(pilot) -> None:
+        await pilot.press("ctrl+l")
+        await pilot.pause()
+        assert "no session in" in _text(pilot.app.screen.query_one("#status"))
+
+    asyncio.run(record_one())
+    [path] = sessions.glob("hexcal-session-*.json")
+    assert load_session(path).poses
+
+    again = instant_app(tmp_path / "unused.json", sessions=sessions)
+
+    async def resume() -> None:
+        async with again.run_test(size=SMALL) as pilot:
+            table = again.screen.query_one("#sessions")
+            row = [str(c) for c in table.get_row_at(0)]
+            assert row[0] == path.name and row[1] == "1" and row[2] == "home"
+            await pilot.press("ctrl+l", "enter")
+            await _until(pilot, lambda: isinstance(again.screen, RecordScreen), 10)
+            assert again.guided.sf.path == path and again.guided.n_poses == 1
+
+    asyncio.run(resume())
+    assert not (tmp_path / "unused.json").exists()

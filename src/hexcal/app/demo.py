@@ -126,7 +126,14 @@ def run_demo(
     truth, effect = hr.truth, hr.effect
 
     proc = load_procedure(st.procedure)
-    path = st.session_path or Path(f"hexcal-demo-{time.strftime('%Y%m%d-%H%M%S')}.json")
+    if st.session_path is None:  # beside the operator's sessions, not in the current folder
+        from hexcal.procedure.sessions_dir import sessions_dir
+
+        folder = sessions_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"hexcal-demo-{time.strftime('%Y%m%d-%H%M%S')}.json"
+    else:
+        path = st.session_path
     sf, t_record = _record_session(st, hr, proc, path, on_event)
     inp = session_inputs(sf.session, path)
     inst = inp.instruments

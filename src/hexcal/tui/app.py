@@ -21,11 +21,17 @@ from textual.containers import Grid, Horizontal, Vertical, VerticalScroll
 from textual.content import Content
 from textual.message import Message
 from textual.screen import Screen
-from textual.widgets import Button, Header, Input, Label, Select, Static
+from textual.widgets import Button, DataTable, Header, Input, Label, Select, Static
 
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.recording import Step
 from hexcal.procedure.session import Session, SessionFile, SessionFileError
+from hexcal.procedure.sessions_dir import (
+    SessionEntry,
+    list_sessions,
+    new_session_path,
+    sessions_dir,
+)
 from hexcal.procedure.steps import BUILTIN, Procedure, load_procedure
 from hexcal.tui.backend import Backend, Rig
 from hexcal.tui.keys import KeyBar
@@ -100,7 +106,11 @@ class Foot(Vertical):
 class StartScreen(HexcalScreen):
     """Robot, devices, procedure and session file; start a new session or resume one."""
 
-    BINDINGS = [("ctrl+n", "new", "new session"), ("ctrl+r", "resume", "resume session")]
+    BINDINGS = [
+        ("ctrl+n", "new", "new session"),
+        ("ctrl+r", "resume", "resume session"),
+        ("ctrl+l", "sessions", "sessions"),
+    ]
 
     def compose(self) -> ComposeResult:
         app = self.hexcal
@@ -132,9 +142,35 @@ class StartScreen(HexcalScreen):
                 )
                 yield Label("Session file")
                 yield Input(str(app.session_path), id="session-path")
+            yield Static(f"Sessions in {app.sessions_dir}", id="sessions-title")
+            yield DataTable(id="sessions", cursor_type="row", zebra_stripes=True)
 
     def on_mount(self) -> None:
         self.query_one("#new", Button).focus()  # Enter starts; Tab reaches the fields
+        table = self.query_one("#sessions", DataTable)
+        table.add_columns(*SessionEntry.COLUMNS)
+        self.entries = list_sessions(self.hexcal.sessions_dir)
+        for entry in self.entries:
+            table.add_row(*entry.row(), key=str(entry.path))
+        if not self.entries:
+            table.display = False
+            self.query_one("#sessions-title", Static).update(
+                f"Sessions are kept in {self.hexcal.sessions_dir} (none yet)"
+            )
+
+    def why_not(self, action: str) -> str | None:
+        if action == "sessions" and not getattr(self, "entries", None):
+            return f"no session in {self.hexcal.sessions_dir} yet: start a new one (ctrl+n)"
+        return None
+
+    def action_sessions(self) -> None:
+        """Move to the list of sessions: arrows choose, Enter resumes."""
+        self.query_one("#sessions", DataTable).focus()
+        self._say("choose a session with ↑ ↓ and press Enter to resume it")
+
+    def on_data_table_row_selected(self, event: DataTable.RowSelected) -> None:
+        self.query_one("#session-path", Input).value = str(event.row_key.value)
+        self.action_resume()
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
         if event.button.id == "new":
@@ -151,6 +187,7 @@ class StartScreen(HexcalScreen):
         name = str(self.query_one("#procedure", Select).value)
         try:
             proc = load_procedure(name)
+            path.parent.mkdir(parents=True, exist_ok=True)
             sf = SessionFile.create(
                 path, Session(robot=app.backend.design, procedure=proc.model_dump(by_alias=True))
             )
@@ -204,7 +241,9 @@ class _ToScreen(logging.Handler):
 class HexcalApp(App):
     """The operator's UI. ``backend`` opens the devices; ``session_path`` is proposed on the
     start screen; ``poses_per_step`` / ``free_poses`` override the procedure's recommended
-    counts (a quick tour, tests)."""
+    counts (a quick tour, tests); ``sessions``: the sessions directory
+    (:mod:`hexcal.procedure.sessions_dir`), listed on the start screen and where a new session
+    goes unless ``session_path`` is given."""
 
     CSS_PATH = "hexcal.tcss"
     TITLE = "hexcal"
@@ -216,11 +255,13 @@ class HexcalApp(App):
         procedure: str = "model42-direction-length",
         poses_per_step: int | None = None,
         free_poses: int | None = None,
+        sessions: str | Path | None = None,
     ):
         super().__init__()
         self.backend = backend
-        self.session_path = Path(
-            session_path or f"hexcal-session-{time.strftime('%Y%m%d-%H%M%S')}.json"
+        self.sessions_dir = sessions_dir(sessions)
+        self.session_path = (
+            Path(session_path) if session_path else new_session_path(self.sessions_dir)
         )
         self.procedure_name = procedure
         self.poses_per_step = poses_per_step

@@ -32,7 +32,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     dm.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
     dm.add_argument("--window-s", type=SECONDS, default=0.25, help="still window per pose, s")
-    dm.add_argument("--session", type=Path, help="session file to write (must not exist)")
+    dm.add_argument(
+        "--session",
+        type=Path,
+        help="session file to write (must not exist; default: hexcal-demo-<time>.json in the "
+        "sessions directory, see hexcal run --sessions)",
+    )
     dm.add_argument("--json", action="store_true", help="print one JSON object")
     dm.set_defaults(func=run)
 

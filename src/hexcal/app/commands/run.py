@@ -20,6 +20,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     rn.add_argument("--robot", type=Path, help="the robot's design, robot.json")
     rn.add_argument("--session", type=Path, help="session file to propose (new or to resume)")
     rn.add_argument(
+        "--sessions",
+        type=Path,
+        help="the sessions directory, listed on the start screen (default: $HEXCAL_SESSIONS, "
+        "else the user's data directory, e.g. ~/.local/share/hexcal/sessions)",
+    )
+    rn.add_argument(
         "--procedure",
         default="model42-direction-length",
         choices=["model42-direction-length", "model36-direction", "free-validation"],
@@ -79,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         procedure=args.procedure,
         poses_per_step=args.poses_per_step,
         free_poses=args.free_poses,
+        sessions=args.sessions,
     )
     app.run()
     return 0
