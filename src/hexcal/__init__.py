@@ -11,6 +11,7 @@ The public API, by stage of the data flow (example in ``docs/library.md``)::
     → calibrate (Model 36 / 42, effects)          → Calibration
     → diagnose (what is missing)                  → Diagnosis
     → calibrated.json: save_model, load_model     → CalibratedRobot, LegModel (predict)
+    the vocabulary: Constraint, ModelKind, Outcome (their values are the files' strings)
 
 The names are loaded on first use, so ``import hexcal`` stays quick.
 """
@@ -42,15 +43,21 @@ _HOMES = {
     "load_model": "hexcal.estimate.model_file",
     "save_model": "hexcal.estimate.model_file",
     "LegModel": "hexcal.estimate.predict",
+    "Constraint": "hexcal.vocabulary",
+    "ModelKind": "hexcal.vocabulary",
+    "Outcome": "hexcal.vocabulary",
 }
 
 __all__ = [
     "CalibratedRobot",
     "Calibration",
+    "Constraint",
     "Diagnosis",
     "Instruments",
     "LegModel",
     "Measurements",
+    "ModelKind",
+    "Outcome",
     "Robot",
     "__version__",
     "calibrate",
@@ -76,6 +83,7 @@ if TYPE_CHECKING:
     from hexcal.io.measurements_csv import read_measurements
     from hexcal.model.instruments import Instruments, load_instruments, save_instruments
     from hexcal.model.robot import Robot, save_robot
+    from hexcal.vocabulary import Constraint, ModelKind, Outcome
 
 
 def __getattr__(name: str) -> Any:
