@@ -284,6 +284,7 @@ class LegEncoders(_ReceivePath, Device):
         """Per-run state: what the bus and the nodes are doing now."""
         self._open: deque[_Pending] = deque()  # sets still taking positions, oldest first
         self._evidence = -math.inf  # latest bus time of a frame handled, s
+        self._position_arrived = -math.inf  # host time the last position frame was handled, s
         self._last_closed_t_bus = -math.inf
         self._late_discarded = 0
         self._skipped_syncs = 0
@@ -689,7 +690,11 @@ class LegEncoders(_ReceivePath, Device):
 
     def _supervise(self, now: float) -> None:
         with self._lock:
-            while self._open and now - self._open[0].t_sync > self._close_after:
+            # By time only while no position comes at all (the bus went quiet): while positions
+            # come, the later ones close the sets (bus time, in order), however late they are
+            # handled — a busy host delays frames that were on time, it does not lose them.
+            quiet = now - self._position_arrived > self._close_after
+            while quiet and self._open and now - self._open[0].t_sync > self._close_after:
                 self._close(now)
             for k in range(6):
                 if not self._silent[k] and self._age(k, now) > self.config.heartbeat_timeout_s:

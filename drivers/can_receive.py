@@ -108,6 +108,7 @@ class _ReceivePath:
     _emcy_count: int
     _index: int
     _evidence: float
+    _position_arrived: float
     _last_closed_t_bus: float
     _incomplete: int
     _discarded: int
@@ -267,6 +268,7 @@ class _ReceivePath:
         cid = msg.arbitration_id
         entry = self.decoder.table.get(cid)
         if entry is not None:
+            self._position_arrived = t
             if trusted:
                 self._on_tpdo(entry, msg.data, ts)
             else:
@@ -275,7 +277,12 @@ class _ReceivePath:
             self._on_bus_sync(msg, t, ts if trusted else None)
         elif cid in self._leg_of_emcy:
             self._on_emcy(self._leg_of_emcy[cid], msg.data, ts if trusted else None)
-        if trusted:  # an untrusted bus time must not close sets
+        # Only positions close sets: a later position (bus time) shows the earlier SYNCs'
+        # answers are all in. Other frames may come from other senders' queues: the echo of
+        # hexcal's own SYNC is queued when sent, a node's heartbeat by its own timer, so where
+        # frames are not queued in wire order (a virtual bus, simulated nodes on a busy host)
+        # they can arrive before answers that were on the bus in time.
+        if trusted and entry is not None:  # an untrusted bus time must not close sets either
             with self._lock:
                 self._close_until(ts)
         if self._bus_state == BUS_OFF:
