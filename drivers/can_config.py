@@ -111,6 +111,11 @@ def default_legs(
     ]
 
 
+#: The shortest SYNC period hexcal produces, s: the SYNC and six 8-byte answers take about
+#: 0.7 ms on the wire at 1 Mbit/s.
+MIN_SYNC_PERIOD_S = 1e-3
+
+
 class CanBusConfig(BaseModel):
     """The bus and its six leg encoders.
 
@@ -201,6 +206,17 @@ class CanBusConfig(BaseModel):
         if self.heartbeat_ms is not None:
             return self.heartbeat_ms
         return max(1, min(65535, round(self.heartbeat_timeout_s * 1000 / 4)))
+
+    @field_validator("sync_period_s")
+    @classmethod
+    def _a_period_the_bus_can_carry(cls, v: float) -> float:
+        if 0 < v < MIN_SYNC_PERIOD_S:
+            raise ValueError(
+                f"sync_period_s is 0 (another master sends SYNC) or at least "
+                f"{MIN_SYNC_PERIOD_S * 1e3:g} ms (six answers take about 0.7 ms at 1 Mbit/s), "
+                f"not {v:g} s"
+            )
+        return v
 
     @model_validator(mode="after")
     def _delay_below_period(self) -> CanBusConfig:

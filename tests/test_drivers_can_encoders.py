@@ -724,3 +724,12 @@ def test_a_stalled_thread_never_puts_a_position_in_the_wrong_set(robot, target, 
     # The robot moved between SYNCs: a position from the neighbouring SYNC would have been seen.
     steps = [np.abs(latched[c % 240 + 1] - latched[c]).max() for c in list(latched)[:-1]]
     assert np.median(steps) > 50 * quantum.max()
+
+
+@pytest.mark.parametrize("period", [5e-324, 1e-6, 0.0009])
+def test_a_sync_period_no_bus_can_carry_is_refused_by_name(period):
+    """Found by the fuzzing pass: a denormal period passed, and half of it (the answers'
+    deadline) was 0. A SYNC period is 0 (another master) or at least 1 ms."""
+    with pytest.raises(ValueError, match=r"sync_period_s is 0 .* or at least 1 ms"):
+        make_config("virtual", "x", sync_period_s=period)
+    assert make_config("virtual", "x", sync_period_s=0.001).tpdo_deadline_s == 0.0005

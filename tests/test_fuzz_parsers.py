@@ -599,6 +599,7 @@ def test_can_config_file_on_arbitrary_bytes(tmp_path, content, name):
 
 
 @given(config_documents())
+@example({"sync_period_s": 5e-324})  # a denormal period: half of it is 0, no deadline at all
 def test_can_config_file_on_mutated_documents(tmp_path, doc):
     _load(tmp_path, "can.json", json.dumps(doc).encode())
 
