@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from hexcal.app.commands.common import (
+    add_model_option,
     add_pose_selection,
     drawing_mismatch,
     jsonable,
@@ -25,13 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=Path,
         help="robot.json: design values, known offsets (a session file carries its own)",
     )
-    c.add_argument(
-        "--model",
-        type=int,
-        choices=(36, 42),
-        default=42,
-        help="36: base and platform points; 42: and each leg's length offset (default 42)",
-    )
+    add_model_option(c)
     c.add_argument(
         "--instruments", type=Path, help="instruments.json: the noise that weights the fit"
     )

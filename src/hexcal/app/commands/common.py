@@ -143,3 +143,14 @@ def print_help_of(parser: argparse.ArgumentParser) -> None:
         return 0
 
     parser.set_defaults(func=show)
+
+
+def add_model_option(parser: argparse.ArgumentParser) -> None:
+    """``--model 36|42``, as calibrate and diagnose take it."""
+    parser.add_argument(
+        "--model",
+        type=int,
+        choices=(36, 42),
+        default=42,
+        help="36: base and platform points; 42: and each leg's length offset (default 42)",
+    )

@@ -6,7 +6,13 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from hexcal.app.commands.common import add_pose_selection, jsonable, read_inputs, report_mismatch
+from hexcal.app.commands.common import (
+    add_model_option,
+    add_pose_selection,
+    jsonable,
+    read_inputs,
+    report_mismatch,
+)
 from hexcal.app.progress import Progress, progress, wanted
 
 if TYPE_CHECKING:
@@ -23,13 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"
     )
     d.add_argument("--robot", type=Path, help="robot.json (a session file carries its own)")
-    d.add_argument(
-        "--model",
-        type=int,
-        choices=(36, 42),
-        default=42,
-        help="36: base and platform points; 42: and each leg's length offset (default 42)",
-    )
+    add_model_option(d)
     d.add_argument(
         "--instruments", type=Path, help="instruments.json: the noise that sets the floor"
     )
