@@ -5,6 +5,11 @@ the devices raised. Nothing is injected, so every refusal or warning is a false 
 
     python benchmarks/mock_session_under_load.py [--runs 3] [--burners 2] [--json]
     python benchmarks/mock_session_under_load.py --burners 0   # beside another load (the suite)
+    python benchmarks/mock_session_under_load.py --tui         # the text UI's A, in-process
+
+``--tui`` runs the operator's text UI instead (headless, through Textual's Pilot): New, then
+``A`` until every step is done — the UI, its workers, the drivers and the simulated devices
+all in one process, as an operator runs it.
 
 ``--burners N`` starts N processes that spin the CPU for the whole run (2 on a 2-core machine:
 every core busy); with 0 the load is whatever else runs (e.g. ``python -m pytest`` beside it).
@@ -62,12 +67,87 @@ def one_session(seed: int) -> dict[str, object]:
     }
 
 
+def one_tui_session(seed: int) -> dict[str, object]:
+    """The text UI's whole mock session (``A``) in a new process (``--one-tui``)."""
+    with tempfile.TemporaryDirectory(prefix="hexcal-load-") as tmp:
+        env = {**os.environ, "HEXCAL_SESSIONS": tmp}
+        t0 = time.monotonic()
+        out = subprocess.run(
+            [sys.executable, __file__, "--one-tui", str(seed), "--dir", tmp],
+            capture_output=True,
+            text=True,
+            env=env,
+            check=False,
+        )
+        elapsed = time.monotonic() - t0
+    if out.returncode != 0:
+        return {"seed": seed, "failed": out.stderr.strip()[-500:]}
+    result = json.loads(out.stdout)
+    return {
+        **result,
+        "seed": seed,
+        "load_average": round(os.getloadavg()[0], 2),
+        "seconds": round(elapsed, 1),
+    }
+
+
+def _tui_session(seed: int, folder: Path) -> dict[str, object]:
+    """New session, ``A``, wait until every step is done; what was recorded, refused, warned."""
+    import asyncio
+    import logging
+
+    from hexcal.tui.app import HexcalApp
+    from hexcal.tui.backend import mock_backend
+    from hexcal.tui.record import RecordScreen
+
+    warnings: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            warnings.append(f"{record.levelname}: {record.getMessage()}")
+
+    logging.getLogger("hexcal").addHandler(Keep(logging.WARNING))
+    app = HexcalApp(mock_backend(seed=seed), session_path=folder / "session.json")
+
+    async def run() -> None:
+        async with app.run_test(size=(120, 40)) as pilot:
+            await pilot.click("#new")
+            while not isinstance(app.screen, RecordScreen):
+                await pilot.pause(0.1)
+            await pilot.press("A")
+            screen = app.screen
+            end = time.monotonic() + 1800
+            while screen.auto_running:  # until the mock operator is done or gives up
+                if time.monotonic() > end:
+                    raise TimeoutError("the session did not finish in 30 min")
+                await pilot.pause(0.5)
+
+    asyncio.run(run())
+    g = app.guided
+    session = g.sf.session
+    refused = [s.reason for s in session.set_aside]
+    if not g.finished:  # the mock operator gave up (too many refusals in a row)
+        refused.append(f"session left unfinished at step {g.step.name}")
+    return {
+        "poses": len(session.poses),
+        "refused": len(refused),
+        "refusals": refused,
+        "warnings": warnings,
+    }
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--runs", type=int, default=3, help="sessions, one after another")
     p.add_argument("--burners", type=int, default=2, help="CPU-spinning processes beside them")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--tui", action="store_true", help="the text UI's A instead of hexcal demo")
+    p.add_argument("--one-tui", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.one_tui is not None:
+        print(json.dumps(_tui_session(args.one_tui, args.dir)))
+        return 0
     burners = [
         multiprocessing.Process(target=_spin, args=(time.monotonic() + 3600,), daemon=True)
         for _ in range(args.burners)
@@ -75,7 +155,8 @@ def main() -> int:
     for b in burners:
         b.start()
     try:
-        rows = [one_session(seed) for seed in range(1, args.runs + 1)]
+        run = one_tui_session if args.tui else one_session
+        rows = [run(seed) for seed in range(1, args.runs + 1)]
     finally:
         for b in burners:
             b.terminate()

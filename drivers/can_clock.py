@@ -97,6 +97,14 @@ class BusClock:
             self._offset_min[0] = lag
         return ts, True, None
 
+    def peek(self, stamp: float | None, t: float) -> float | None:
+        """A frame's bus time (s) if its stamp is on the learnt clock, else None; learns
+        nothing (for the echoes of the driver's own frames)."""
+        offset = min(self._offset_min)
+        if not stamp or not math.isfinite(stamp) or offset == math.inf:
+            return None
+        return stamp if abs(t - stamp - offset) <= self.jump_s else None
+
     def to_bus(self, t: float) -> float:
         """Monotonic time ``t`` on the bus clock (the offset errs early: a frame is never
         placed before the SYNC it answers)."""

@@ -29,8 +29,12 @@ on python-can's virtual bus, hardware time on many adapters); frames without one
 arrival. A position is attributed to the latest SYNC that went on the bus before it, by those
 bus times — not to whatever set is open when the receive thread gets round to it, so a busy
 computer that handles frames late cannot shift a position into the wrong set. The driver's own
-SYNCs are stamped with ``time.monotonic()`` and put on the bus clock by the offset between the
-two clocks (the smallest arrival − bus time seen over the last few seconds). Several sets may
+SYNC goes on the wire some time between two host stamps, taken before sending and once the send
+returned (put on the bus clock by the offset between the two clocks: the smallest arrival − bus
+time seen over the last few seconds); a busy host can stall the sender in between. Its echo
+(the bus is opened with ``receive_own_messages``: SocketCAN's loopback, the virtual bus) gives
+the wire time itself; without one, positions are placed after the first stamp and judged late
+against the second. Several sets may
 be open at once; a set closes once a frame stamped more than ``tpdo_deadline_s`` after its SYNC
 has been handled (frames on one bus arrive in order, so nothing in time for it can still come),
 or, when the bus goes quiet, ``close_after`` after its SYNC. A position for a set already closed
@@ -240,9 +244,13 @@ class LegEncoders(_ReceivePath, Device):
         self._producing = config.sync_period_s > 0 and not listen_only
         self._deadline = config.tpdo_deadline_s
         # A set no later frame closes (the bus went quiet) is closed after this, s: long enough
-        # for a receive thread stalled by a busy computer to catch up on frames that were in time.
-        self._close_after = (
-            2 * config.sync_period_s + 0.1 if self._producing else config.heartbeat_timeout_s
+        # for a receive thread stalled by a busy computer to catch up on frames that were in time
+        # (stalls of 0.15 s were seen on a loaded 2-core machine), and as long as a node may
+        # stay quiet before it is reported silent.
+        # With the bus down no answer can come: sooner.
+        self._close_after_down = 2 * config.sync_period_s + 0.1
+        self._close_after = max(
+            self._close_after_down if self._producing else 0.0, config.heartbeat_timeout_s
         )
         # A new clock offset is believed once frames have shown it for this long (s).
         self._jump_confirm_s = 2 * max(config.sync_period_s, self._deadline)
@@ -350,7 +358,9 @@ class LegEncoders(_ReceivePath, Device):
         net.listeners.append(self._listener)  # type: ignore[arg-type]
         try:
             if self._bus_in is None:
-                net.connect(**cfg.bus_kwargs())
+                # Our own SYNCs echoed back, stamped when they were on the wire (SocketCAN's
+                # loopback, the virtual bus): each set's exact SYNC time (_confirm_sync).
+                net.connect(**cfg.bus_kwargs(), receive_own_messages=self._producing)
             else:
                 net.connect()
         except Exception as exc:  # python-can raises many types for a missing adapter
@@ -640,9 +650,11 @@ class LegEncoders(_ReceivePath, Device):
         overflow = self._sync_overflow
         self._sync_counter = self._sync_counter % overflow + 1 if overflow else 0
         with self._lock:
-            # Open the set before sending: the answers may arrive before send() returns.
+            # Open the set before sending: the answers may arrive before send() returns. The
+            # SYNC goes on the wire between now and then (a busy host can stall this thread in
+            # between): its set is not closed, nor its answers judged late, before that is known.
             t = time.monotonic()
-            self._open_set(t, self._clock.to_bus(t), self._sync_counter)
+            s = self._open_set(t, self._clock.to_bus(t), self._sync_counter, math.inf)
         try:
             # No counter byte for nodes whose 0x1019 is 0: they answer one with EMCY 0x8240.
             net.sync.transmit(self._sync_counter or None)
@@ -652,6 +664,10 @@ class LegEncoders(_ReceivePath, Device):
                 self._note("send", self._bus_message())
                 self._close_all()
             return
+        t_sent = time.monotonic()
+        with self._lock:
+            if not s.echoed:  # the echo gives the exact wire time; without one, a bound
+                s.t_bus_hi = self._clock.to_bus(t_sent)
         self._sync_sent += 1
         if self._bus_state == BUS_ERROR and self._bus_detail.startswith("sending SYNC"):
             with self._lock:
@@ -667,12 +683,12 @@ class LegEncoders(_ReceivePath, Device):
             if period and now >= next_sync:
                 self._send_sync()
                 # A late SYNC must not be followed at once by a catch-up one: the answers to
-                # the first need their deadline before the next SYNC goes on the bus.
-                next_sync = max(next_sync + period, now + self._deadline)
-                behind = time.monotonic() - next_sync
-                if behind > period:  # a stall (busy machine): skip, do not burst SYNCs
-                    missed = int(behind / period)
-                    next_sync += missed * period
+                # the first need their deadline before the next SYNC goes on the bus — counted
+                # from when the send returned, since a busy host can stall it (or this loop).
+                on_time = next_sync + period
+                next_sync = max(on_time, time.monotonic() + self._deadline)
+                missed = int((next_sync - on_time) / period)
+                if missed:  # a stall (busy machine): skipped, no burst of SYNCs
                     # Positions are placed by bus time, so a gap between SYNCs harms no set:
                     # counted and logged, not flagged.
                     with self._lock:
@@ -693,8 +709,11 @@ class LegEncoders(_ReceivePath, Device):
             # By time only while no position comes at all (the bus went quiet): while positions
             # come, the later ones close the sets (bus time, in order), however late they are
             # handled — a busy host delays frames that were on time, it does not lose them.
-            quiet = now - self._position_arrived > self._close_after
-            while quiet and self._open and now - self._open[0].t_sync > self._close_after:
+            # Counted from when the SYNC was sent (a host stall can hold it back after its set
+            # opened: no answer is due before), never for one still being sent.
+            after = self._close_after if self._bus_state == BUS_ACTIVE else self._close_after_down
+            quiet = now - self._position_arrived > after
+            while quiet and self._open and now - self._open[0].t_sent > after:
                 self._close(now)
             for k in range(6):
                 if not self._silent[k] and self._age(k, now) > self.config.heartbeat_timeout_s:

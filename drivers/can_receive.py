@@ -61,17 +61,46 @@ log = logging.getLogger("hexcal.drivers.can_encoders")
 class _Pending:
     """A set being assembled (plain lists: faster per frame than numpy element writes)."""
 
-    __slots__ = ("arrival", "counter", "faults", "index", "n", "readings", "t_bus", "t_sync")
+    __slots__ = (
+        "arrival",
+        "counter",
+        "echoed",
+        "faults",
+        "index",
+        "n",
+        "readings",
+        "stamps",
+        "t_bus",
+        "t_bus_hi",
+        "t_sync",
+    )
+
+    @property
+    def t_sent(self) -> float:
+        """Monotonic s by which the SYNC was on the wire (inf while the driver is sending it)."""
+        return self.t_sync + (self.t_bus_hi - self.t_bus)
 
     def __init__(
-        self, index: int, counter: int, t_sync: float, t_bus: float, faults: dict[str, str]
+        self,
+        index: int,
+        counter: int,
+        t_sync: float,
+        t_bus: float,
+        faults: dict[str, str],
+        t_bus_hi: float | None = None,
     ):
         self.index = index
         self.counter = counter
         self.t_sync = t_sync  # monotonic s
         self.t_bus = t_bus  # the same instant on the bus interface's clock, s
+        # The latest bus time the SYNC can have been on the wire (s): t_bus for a SYNC seen on
+        # the bus; for the driver's own, stamped before sending, inf until the send returned or
+        # its echo came (see _confirm_sync).
+        self.t_bus_hi = t_bus if t_bus_hi is None else t_bus_hi
+        self.echoed = False
         self.readings = [math.nan] * 6
-        self.arrival = [math.nan] * 6
+        self.stamps = [math.nan] * 6  # each position's bus time, s
+        self.arrival = [math.nan] * 6  # the same on the monotonic clock, s (set on closing)
         self.n = 0
         self.faults = faults  # key -> message; a key repeats (error frames) without piling up
 
@@ -155,6 +184,8 @@ class _ReceivePath:
         instant on the new): move the open sets and the closing evidence onto the new clock."""
         for s in self._open:
             s.t_bus += shift
+            s.t_bus_hi += shift
+            s.stamps = [ts + shift for ts in s.stamps]
         self._evidence += shift
         self._last_closed_t_bus += shift
         message = (
@@ -166,18 +197,39 @@ class _ReceivePath:
         self._note("clock_jump", message)
 
     # -- assembling sets (lock held) --------------------------------------------------------------
-    def _open_set(self, t: float, t_bus: float, counter: int) -> None:
+    def _open_set(
+        self, t: float, t_bus: float, counter: int, t_bus_hi: float | None = None
+    ) -> _Pending:
         faults, self._pending_faults = self._pending_faults, {}
         for k, em in enumerate(self._emergencies):
             if em is not None:  # the node still reports an error: its readings are suspect
                 faults[f"emcy{k}"] = em.describe(self._names[k])
-        self._open.append(_Pending(self._index, counter, t, t_bus, faults))
+        s = _Pending(self._index, counter, t, t_bus, faults, t_bus_hi)
+        self._open.append(s)
         self._index += 1
+        return s
+
+    def _confirm_sync(self, counter: int, ts: float) -> None:
+        """The echo of the driver's own SYNC (counter byte ``counter``, 0 without one), on the
+        wire at bus time ``ts``: the set it opened now has its exact SYNC time. Echoes come in
+        the order sent; one that fits no open set (its set closed already) changes nothing.
+        Between the host's two stamps, give or take half the answer deadline for the clocks'
+        offset: the next SYNC goes a whole deadline after this one's send returned."""
+        margin = self._deadline / 2
+        for s in self._open:
+            if s.echoed or (counter and s.counter != counter):
+                continue
+            if not s.t_bus - margin <= ts <= s.t_bus_hi + margin:
+                continue
+            s.t_sync += ts - s.t_bus
+            s.t_bus = s.t_bus_hi = ts
+            s.echoed = True
+            return
 
     def _close_until(self, evidence: float) -> None:
         """Close the open sets whose answers are all due before bus time ``evidence``."""
         self._evidence = max(self._evidence, evidence)
-        while self._open and self._open[0].t_bus + self._deadline < self._evidence:
+        while self._open and self._open[0].t_bus_hi + self._deadline < self._evidence:
             self._close(time.monotonic())
 
     def _close_all(self) -> None:
@@ -192,6 +244,19 @@ class _ReceivePath:
         cfg = self.config
         bus_down = self._bus_state != BUS_ACTIVE
         for k in range(6):
+            ts = s.stamps[k]
+            if ts == ts:
+                s.arrival[k] = s.t_sync + (ts - s.t_bus)
+                # Judged now, against the SYNC's time as finally known: the driver's own SYNC
+                # may have gone on the wire well after it was stamped (a busy host).
+                delay = ts - s.t_bus_hi
+                if delay > self._deadline:
+                    s.faults[f"late{k}"] = (
+                        f"{self._names[k]} position arrived {delay * 1e3:.1f} ms after SYNC "
+                        f"{s.counter} (limit {self._deadline * 1e3:.1f} ms) on {self._bus_name}: "
+                        "timing jitter or bus overload — set flagged; if it repeats reduce the bus "
+                        "load or raise max_tpdo_delay_s"
+                    )
             # The cause (a silent node, a node not started, the bus down) is reported instead
             # of its symptom, the missing position, so the operator reads what to fix.
             cause = False
@@ -252,12 +317,16 @@ class _ReceivePath:
         rec = self._recorder
         if rec is not None:
             with rec.lock:
-                rec.write(msg)
+                if msg.is_rx:  # an echo of our own frame was logged when it was sent
+                    rec.write(msg)
                 self._dispatch(msg, t)
         else:
             self._dispatch(msg, t)
 
     def _dispatch(self, msg: can.Message, t: float) -> None:
+        if not msg.is_rx:
+            self._on_own_frame(msg, t)
+            return
         with self._lock:
             ts, trusted = self._bus_time(msg, t)
         if msg.is_error_frame:
@@ -287,13 +356,24 @@ class _ReceivePath:
                 self._close_until(ts)
         if self._bus_state == BUS_OFF:
             with self._lock:
-                # A frame came through: the controller is receiving again.
+                # A frame from another node came through: the controller is receiving again.
                 self._bus_state, self._bus_detail = BUS_ACTIVE, ""
                 self._note(
                     "recovered",
                     f"{self._bus_name} recovered from BUS-OFF (frames arrive again); sets taken "
                     "while it was off are flagged",
                 )
+
+    def _on_own_frame(self, msg: can.Message, t: float) -> None:
+        """The echo of a frame this driver sent (``receive_own_messages``): only a SYNC's is
+        used, for its wire time. It is read on the bus clock but teaches the clock nothing: its
+        stamp comes from the sending side, which an emulated interface may stamp differently."""
+        if msg.arbitration_id != SYNC_COB_ID or msg.is_error_frame or not self._producing:
+            return
+        with self._lock:
+            ts = self._clock.peek(msg.timestamp, t)
+            if ts is not None:
+                self._confirm_sync(msg.data[0] if len(msg.data) >= 1 else 0, ts)
 
     def _on_tpdo(self, entry: tuple[int, int, float, float], data: bytearray, ts: float) -> None:
         """A position stamped ``ts`` on the bus clock."""
@@ -329,7 +409,7 @@ class _ReceivePath:
                     "SYNC: hexcal sets it when can.configure is true)",
                 )
                 return
-            if s.arrival[k] == s.arrival[k]:
+            if s.stamps[k] == s.stamps[k]:
                 s.faults[f"twice{k}"] = (
                     f"{self._names[k]} sent two positions for SYNC {s.counter} on {self._bus_name} (a "
                     "late frame from the previous SYNC, or a cyclic TPDO?) — set flagged, the later "
@@ -337,16 +417,9 @@ class _ReceivePath:
                 )
             else:
                 s.n += 1
-            delay = ts - s.t_bus
             s.readings[k] = mm
-            s.arrival[k] = s.t_sync + delay
-            if delay > self._deadline:
-                s.faults[f"late{k}"] = (
-                    f"{self._names[k]} position arrived {delay * 1e3:.1f} ms after SYNC {s.counter} "
-                    f"(limit {self._deadline * 1e3:.1f} ms) on {self._bus_name}: timing jitter or bus "
-                    "overload — set flagged; if it repeats reduce the bus load or raise max_tpdo_delay_s"
-                )
-            self._cond.notify_all()
+            s.stamps[k] = ts
+            self._cond.notify_all()  # stop() waits for the last set's answers
 
     def _on_unplaced_tpdo(self, k: int, lag: float) -> None:
         """A position whose bus time is not trusted (it arrived ``lag`` s after it): no SYNC

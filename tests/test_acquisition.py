@@ -180,6 +180,44 @@ def test_threaded_acquisition_against_the_mock_robot():
             acq.record()
 
 
+class _StallingTracker(_Tracker):
+    """A tracker read by a thread the computer holds back now and then: ``stall_next`` s before
+    the next sample (the device itself is fine)."""
+
+    stall_next = 0.0
+
+    def sample(self):
+        stall, self.stall_next = self.stall_next, 0.0
+        time.sleep(stall)
+        return super().sample()
+
+
+def test_a_window_a_busy_computer_left_short_is_taken_again_and_said(caplog):
+    """The tracker's thread is held back for most of the window: the window came short with
+    nothing wrong with the device, so it is taken again (the platform still stands), logged
+    and noted in the pose — not refused as a tracking fault."""
+    robot = MockRobot(left_hand(), seed=1)
+    tracker = _StallingTracker(robot, hz=100.0)
+    with Acquisition(tracker, _Legs(robot), StillWindow(duration_s=0.2)) as acq:
+        time.sleep(0.05)
+        tracker.stall_next = 0.17
+        with caplog.at_level("INFO", logger="hexcal.acquire.acquisition"):
+            pose = acq.record()
+    assert any("taken 2 times" in n and "good samples" in n for n in pose.notes), pose.notes
+    assert any("taking the window again" in r.getMessage() for r in caplog.records)
+    assert len(pose.good_tracker_samples) >= 5
+
+
+def test_a_stream_short_window_after_window_is_refused_saying_so():
+    """A tracker that never gives enough samples in a window (15 Hz against 5 in 0.2 s) is
+    refused after the retakes, saying how many windows came short."""
+    robot = MockRobot(left_hand(), seed=1)
+    with Acquisition(_Tracker(robot, hz=15.0), _Legs(robot), StillWindow(duration_s=0.2)) as acq:
+        time.sleep(0.05)
+        with pytest.raises(PoseRefused, match=r"good samples .*3 windows in a row came short"):
+            acq.record()
+
+
 # -- numbers no pose can have (defence in depth behind the drivers) --------------------------------
 @pytest.mark.parametrize(
     "position, quaternion, said",

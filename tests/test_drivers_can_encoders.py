@@ -726,6 +726,64 @@ def test_a_stalled_thread_never_puts_a_position_in_the_wrong_set(robot, target, 
     assert np.median(steps) > 50 * quantum.max()
 
 
+@pytest.mark.parametrize("echo", [True, False], ids=["echoed", "no echo"])
+@pytest.mark.parametrize("stall_s", [0.7 * SYNC_S, 15 * SYNC_S], ids=["0.7 period", "15 periods"])
+def test_a_sync_sent_late_by_a_busy_host_flags_no_set(robot, target, echo, stall_s):
+    """The SYNC producer stamps its set, then a busy host stalls it before the SYNC goes on the
+    wire: for more than the 5 ms answer deadline, or for longer than a quiet bus takes to close
+    a set by time (0.12 s). Its answers are on time (0.1 ms after the wire time): no set may be
+    flagged. With the SYNC's echo (``receive_own_messages``) the set takes the SYNC's wire
+    time; on a bus without echoes, the time the send returned bounds it."""
+    need_virtual(target)
+    cfg = make_config("virtual", unique_channel())
+    rng = np.random.default_rng(3)
+    bus = None if echo else can.Bus(interface="virtual", channel=cfg.channel)
+    try:
+        with MockEncoderNodes(robot, cfg) as nodes, LegEncoders(cfg, bus=bus) as drv:
+            sync = drv._network.sync
+            inner = sync.transmit
+
+            def stalled(*args, **kwargs):
+                if rng.random() < 0.3:
+                    time.sleep(stall_s)
+                return inner(*args, **kwargs)
+
+            sync.transmit = stalled
+            sets = read_sets(drv, 40)
+            latched = nodes.latched()
+    finally:
+        if bus is not None:
+            bus.shutdown()
+    assert_contiguous(sets)
+    assert [s.faults for s in sets if not s.complete] == []
+    quantum = 0.5 / np.array(CPM) + 1e-9
+    for s in sets:
+        assert np.all(np.abs(s.readings_mm - latched[s.sync_counter]) <= quantum)
+
+
+def test_answers_a_busy_host_holds_back_close_no_set_by_time(robot, target):
+    """The answers to two SYNCs reach the driver 0.3 s late (the simulated nodes' thread held
+    back, as a receive thread on a loaded machine can be), though stamped on time: no set may
+    be closed by time as if the bus had gone quiet — a set waits as long as a node may be
+    quiet before it is reported silent (heartbeat_timeout_s)."""
+    need_virtual(target)
+    cfg = make_config("virtual", unique_channel(), heartbeat_timeout_s=0.5)
+    nodes = MockEncoderNodes(robot, cfg)
+    inner = nodes._on_sync
+    seen = itertools.count()
+
+    def held_back(*args, **kwargs):
+        if next(seen) in (20, 60):
+            time.sleep(0.3)
+        return inner(*args, **kwargs)
+
+    nodes._on_sync = held_back  # type: ignore[method-assign]  # before start() subscribes it
+    with nodes, LegEncoders(cfg) as drv:
+        sets = read_sets(drv, 100)
+    assert_contiguous(sets)
+    assert [s.faults for s in sets if not s.complete] == []
+
+
 @pytest.mark.parametrize("period", [5e-324, 1e-6, 0.0009])
 def test_a_sync_period_no_bus_can_carry_is_refused_by_name(period):
     """Found by the fuzzing pass: a denormal period passed, and half of it (the answers'

@@ -32,8 +32,12 @@ SIZE = (130, 42)
 
 
 async def _settle(pilot) -> None:
+    """Until the workers are done and their results shown: a worker's result reaches the screen
+    as a message after the worker ends, so on a loaded machine the screen can still be busy
+    (and refuse the next key) when the workers are."""
     await pilot.pause()
     await pilot.app.workers.wait_for_complete()
+    await _until(pilot, lambda: not getattr(pilot.app.screen, "busy", False), 10)
     await pilot.pause()
 
 
@@ -253,13 +257,21 @@ def test_snapshot_start(snap_compare, in_tmp):
 async def _record_some(pilot) -> None:
     await pilot.click("#new")
     await _settle(pilot)
-    await pilot.press("r")
-    await _settle(pilot)
+    await _record_and_wait(pilot)
     await pilot.press("n", "c")
     for _ in range(5):
-        await pilot.press("m", "r")
-        await _settle(pilot)
+        await pilot.press("m")
+        await _record_and_wait(pilot)
     _assert_fits(pilot)
+
+
+async def _record_and_wait(pilot) -> None:
+    """``r``, and the pose is in."""
+    g = pilot.app.guided
+    n = len(g.sf.session.poses)
+    await pilot.press("r")
+    await _settle(pilot)
+    assert len(g.sf.session.poses) == n + 1, g.sf.session.set_aside[-1:]
 
 
 @pytest.mark.parametrize("size", [SMALL, MEDIUM, LARGE], ids=lambda s: f"{s[0]}x{s[1]}")

@@ -35,6 +35,7 @@ and CAN encoder drivers implement them, and so do test doubles.
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 import threading
@@ -48,6 +49,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.errors import RefusedError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -146,7 +149,13 @@ class PoseRefused(RefusedError):
 
 
 class StreamShort(PoseRefused):
-    """A stream delivered too few good samples in the window (the device may have stopped)."""
+    """A stream delivered too few good samples in the window (the device may have stopped).
+    ``device_trouble``: its device said why (an error, no reply); else the computer may just
+    have been too busy to read it."""
+
+    def __init__(self, message: str, device_trouble: bool = False):
+        super().__init__(message)
+        self.device_trouble = device_trouble
 
 
 def _by_count(faults: list[str]) -> list[str]:
@@ -309,6 +318,11 @@ class Acquisition:
     waits out a still window (and up to ``late_s`` for samples measured in it to arrive) and
     returns the recorded pose (or raises PoseRefused)."""
 
+    #: How many more still windows :meth:`record` takes when a stream came short while its
+    #: device showed nothing wrong (no error, not waiting on it): the computer was too busy to
+    #: read it in time. A window's samples are never padded or stretched: a whole new one.
+    short_retries: int = 2
+
     def __init__(
         self,
         tracker: PoseSource,
@@ -381,7 +395,33 @@ class Acquisition:
             )
 
     def record(self) -> RecordedPose:
-        """Wait one still window from now and record the pose from it."""
+        """Wait one still window from now and record the pose from it. A window in which a
+        stream came short with nothing wrong with its device is taken again (at most
+        :attr:`short_retries` times; the platform stands still meanwhile), logged at info
+        level and said in the pose's ``notes``."""
+        short: list[str] = []
+        while True:
+            try:
+                pose = self._record_window()
+            except StreamShort as exc:
+                if exc.device_trouble or len(short) >= self.short_retries:
+                    if short:
+                        raise StreamShort(
+                            f"{exc} ({len(short) + 1} windows in a row came short)"
+                        ) from None
+                    raise
+                short.append(str(exc))
+                log.info("%s — taking the window again (a busy computer?)", exc)
+                continue
+            if short:
+                pose.notes = (
+                    *pose.notes,
+                    f"still window taken {len(short) + 1} times, the earlier ones came short: "
+                    + "; ".join(short),
+                )
+            return pose
+
+    def _record_window(self) -> RecordedPose:
         t_start = self.clock()
         t_end = t_start + self.window.duration_s
         while self.clock() < t_end:
@@ -410,5 +450,6 @@ class Acquisition:
             ]
             recent = [f"the device said: {m}" for t, m in list(self._errors) if t >= t_start - 2.0]
             if stalled or recent:
-                raise StreamShort(" — ".join([str(exc), *stalled, *recent[-1:]])) from None
+                message = " — ".join([str(exc), *stalled, *recent[-1:]])
+                raise StreamShort(message, device_trouble=True) from None
             raise
