@@ -392,6 +392,7 @@ class TrackerFrame:
             tool.quaternion,
             tool.rms_mm,
             fault="; ".join(faults) or None,
+            t_uncertainty_s=self.timing_uncertainty_s,
         )
 
 

@@ -138,6 +138,26 @@ def test_where_glitches_are_allowed_one_is_left_out_and_noted():
     )
 
 
+@pytest.mark.parametrize("uncertainty_s, kept", [(0.0, False), (0.004, True)])
+def test_a_sample_that_may_predate_the_window_is_not_in_it(uncertainty_s, kept):
+    """A frame measured just before the window began (the platform still on its way from the
+    last pose) stamped 2 ms into it: stamped exactly, it is in the window and the pose is
+    refused as moving; with its 4 ms timing uncertainty it may predate the window, and is
+    left out."""
+    ts, ls = _samples()
+    before = TrackerSample(
+        0.002, ts[0].position + [3.0, 0.0, 0.0], ts[0].quaternion, 0.01, None, uncertainty_s
+    )
+    samples = [before, *ts[1:]]
+    if kept:
+        pose = record_pose(samples, ls, WINDOW, t_end=0.5)
+        assert before not in pose.tracker_samples
+        assert np.allclose(pose.position, [1.0, 2.0, 200.0], atol=0.01)
+    else:
+        with pytest.raises(PoseRefused, match="moved"):
+            record_pose(samples, ls, WINDOW, t_end=0.5)
+
+
 def test_too_few_samples():
     ts, ls = _samples(n=3)
     with pytest.raises(PoseRefused, match=r"tracker gave 3 good samples"):

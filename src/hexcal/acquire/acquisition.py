@@ -56,13 +56,16 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class TrackerSample:
     """One tracker reading: arrival time t (monotonic s), position (3,) mm, unit quaternion
-    (4,) scalar first, RMS error mm; ``fault`` is None or a sentence (tool missing, CRC...)."""
+    (4,) scalar first, RMS error mm; ``fault`` is None or a sentence (tool missing, CRC...);
+    ``t_uncertainty_s``: half-width (s) of the interval the measurement instant is known to lie
+    in (0: taken as exact)."""
 
     t: float
     position: np.ndarray | None
     quaternion: np.ndarray | None
     rms_mm: float = float("nan")
     fault: str | None = None
+    t_uncertainty_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -218,12 +221,21 @@ def _leg_faults(s: LegSample) -> tuple[str, ...]:
     return (f"leg reading set at t = {s.t:.3f} s: no finite reading from leg {legs}",)
 
 
+def _uncertainty(s: TrackerSample) -> float:
+    u = s.t_uncertainty_s
+    return u if math.isfinite(u) and u > 0 else 0.0
+
+
 def record_pose(
     tracker: list[TrackerSample], legs: list[LegSample], window: StillWindow, t_end: float
 ) -> RecordedPose:
-    """The recorded pose from the samples in ``[t_end − duration, t_end]``, or PoseRefused."""
+    """The recorded pose from the samples in ``[t_end − duration, t_end]``, or PoseRefused. A
+    tracker sample that may have been measured before the window began (its time less its
+    uncertainty) is not in it: the platform may have been moving then."""
     t0 = t_end - window.duration_s
-    ts_all = [checked_tracker_sample(s) for s in tracker if t0 <= s.t <= t_end]
+    ts_all = [
+        checked_tracker_sample(s) for s in tracker if t0 <= s.t - _uncertainty(s) and s.t <= t_end
+    ]
     ls_all = [s for s in legs if t0 <= s.t <= t_end]
     ts = [s for s in ts_all if not s.fault and s.position is not None]
     ls = [s for s in ls_all if s.complete]
