@@ -285,6 +285,17 @@ def test_a_command_group_alone_prints_its_subcommands(group, capsys):
     assert ("can-setup" in out) if group == "devices" else ("export" in out)
 
 
+def test_hexcal_alone_prints_its_commands(capsys):
+    from hexcal.app.cli import COMMANDS, main
+
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: hexcal")
+    assert len(COMMANDS) > 5
+    for command in ("calibrate", "diagnose", "run", "demo", "devices", "session"):
+        assert f"\n    {command}" in out
+
+
 def test_every_option_of_every_command_has_a_help_line():
     import argparse
 

@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="hexcal", description="Calibrate Gough-Stewart platforms (units: mm, deg)."
     )
     p.add_argument("--version", action="version", version=f"hexcal {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", metavar="command")
     for command in COMMANDS:
         command.add_parser(sub)
     return p
@@ -58,7 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     import os
 
     single_thread_blas()
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:  # hexcal alone: what it can do
+        parser.print_help()
+        return 0
     try:
         return args.func(args)
     except KeyboardInterrupt:
