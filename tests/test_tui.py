@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -317,6 +318,53 @@ def test_snapshot_diagnosis(snap_compare, in_tmp):
     assert snap_compare(
         instant_app(Path("session.json")), terminal_size=SMALL, run_before=_diagnose_and_add
     )
+
+
+def test_a_calibration_and_a_diagnosis_under_way_show_a_bar_what_and_how_long(
+    tmp_path, monkeypatch
+):
+    """While the result and diagnosis screens' workers compute, a running progress bar says
+    what is being done and for how long; it is gone once the result is shown. (The workers
+    are held until the test has looked.)"""
+    import threading
+
+    import hexcal.app.workflow as workflow
+    from hexcal.tui.working import Working
+
+    gate = threading.Event()
+    for name in ("calibrate_model", "diagnose_chain"):
+        inner = getattr(workflow, name)
+
+        def held(*args, _inner=inner, **kwargs):
+            assert gate.wait(30)
+            return _inner(*args, **kwargs)
+
+        monkeypatch.setattr(workflow, name, held)
+    app = instant_app(tmp_path / "session.json")
+
+    async def look(pilot, screen_type, said: str) -> None:
+        await _until(pilot, lambda: isinstance(app.screen, screen_type), 10)
+        working = app.screen.query_one(Working)
+        await pilot.pause(0.6)
+        text = _text(working.query_one("#working-text"))
+        assert working.display and re.match(rf" *\d+ s  {said}", text), text
+        gate.set()
+        await _until(pilot, lambda: not working.display, 60)
+        gate.clear()
+
+    async def run() -> None:
+        async with app.run_test(size=SMALL) as pilot:
+            await pilot.click("#new")
+            await _settle(pilot)
+            await pilot.press("A")
+            await _until(pilot, lambda: app.guided.finished and not app.screen.busy, 60)
+            await pilot.press("k")
+            await look(pilot, ResultScreen, "calibrating Model 42")
+            await _settle(pilot)
+            await pilot.press("d")
+            await look(pilot, DiagnosisScreen, "diagnosing Model 42")
+
+    asyncio.run(run())
 
 
 def test_every_key_the_state_refuses_says_why(tmp_path):

@@ -26,6 +26,7 @@ from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.steps import Procedure
 from hexcal.tui.app import Foot, HexcalScreen
 from hexcal.tui.backend import Rig
+from hexcal.tui.working import Working
 from hexcal.vocabulary import Outcome
 
 
@@ -91,11 +92,16 @@ class ResultScreen(HexcalScreen):
     def compose(self):
         yield Header()
         yield Foot()
+        yield Working(id="working")
         with VerticalScroll(id="result-scroll"):
             yield Static("calibrating…", id="result")
 
     def on_mount(self) -> None:
         self.query_one("#result-scroll").focus()  # the arrows scroll the tables
+        _, proc, _ = _app_state(self)
+        self.query_one(Working).start(
+            f"calibrating Model {int(proc.model)}: linear solution, refinement, pose accuracy"
+        )
         self._calibrate()
 
     def why_not(self, action: str) -> str | None:
@@ -137,6 +143,7 @@ class ResultScreen(HexcalScreen):
         self.hexcal.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
     def _show(self, text: str) -> None:
+        self.query_one(Working).stop()
         self._text = text
         self._fit()
 
@@ -211,6 +218,7 @@ class DiagnosisScreen(HexcalScreen):
     def compose(self):
         yield Header()
         yield Foot()
+        yield Working(id="working")
         # One scroll: the summary beside the chart (above it when narrow), then the details.
         with VerticalScroll(id="diag-scroll"):
             with Horizontal(id="diag-top"):
@@ -225,6 +233,8 @@ class DiagnosisScreen(HexcalScreen):
         self.busy = True
         self._details = ""
         self.query_one("#diag-scroll").focus()  # the arrows scroll
+        _, proc, _ = _app_state(self)
+        self.query_one(Working).start(f"diagnosing Model {int(proc.model)}")
         self._diagnose(())
 
     def on_resize(self) -> None:
@@ -257,6 +267,7 @@ class DiagnosisScreen(HexcalScreen):
             inp = session_inputs(guided)
             prev = self.history[-1] if self.history else None
             (d,) = diagnose_chain(inp, proc.model, add=add, previous=prev)
+            self.hexcal.post(self._stage, f"{d.fit.model_name}: the calibrated model")
             # The step's model as a lab ships it: calibrated with its effects, clamps included.
             result = model_of(inp, [*self.history, d], proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:
@@ -265,7 +276,11 @@ class DiagnosisScreen(HexcalScreen):
         store(guided.sf, "diagnosis", result, inp.meas, summary=d.to_dict())
         self.hexcal.post(self._show, d)
 
+    def _stage(self, text: str) -> None:
+        self.query_one(Working).stage(text)
+
     def _failed(self, msg: str) -> None:
+        self.query_one(Working).stop()
         self.busy = False
         self.query_one("#diag-text", Static).update(f"[red]cannot diagnose: {msg}[/red]")
         self.refresh_bindings()
@@ -273,6 +288,7 @@ class DiagnosisScreen(HexcalScreen):
     def _show(self, d: Any) -> None:
         from hexcal.diagnosis.text import before_after_text, diagnosis_text
 
+        self.query_one(Working).stop()
         self.history.append(d)
         self.busy = False
         guided, _, rig = _app_state(self)
@@ -332,7 +348,7 @@ class DiagnosisScreen(HexcalScreen):
         d = self.history[-1]
         self.busy = True
         self.refresh_bindings()
-        self.status(f"adding {d.verdict} and refitting…")
+        self.query_one(Working).start(f"adding {d.verdict} and refitting")
         self._diagnose(tuple(e for e in d.effects if e != "offset") + (d.verdict,))
 
     def action_export(self) -> None:
