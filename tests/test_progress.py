@@ -44,9 +44,12 @@ def test_stages_are_drawn_and_removed_when_the_job_ends():
 def _run_on_a_terminal(args: list[str], cwd: Path) -> tuple[str, str]:
     """Run ``hexcal args`` with stderr on a pseudo-terminal: (stdout, what the terminal got)."""
     master, slave = pty.openpty()
+    # stdout to a file: a pipe read only at the end would block a child that prints more
+    # than the pipe holds (calibrate --json).
+    stdout = (cwd / "stdout.txt").open("w+", encoding="utf-8")
     proc = subprocess.Popen(
         [sys.executable, "-m", "hexcal.app.cli", *args],
-        stdout=subprocess.PIPE,
+        stdout=stdout,
         stderr=slave,
         cwd=cwd,
         text=True,
@@ -65,8 +68,10 @@ def _run_on_a_terminal(args: list[str], cwd: Path) -> tuple[str, str]:
             screen += chunk
         elif proc.poll() is not None:
             break
-    out = proc.stdout.read() if proc.stdout else ""
     assert proc.wait(timeout=300) == 0, screen.decode(errors="replace")
+    stdout.seek(0)
+    out = stdout.read()
+    stdout.close()
     os.close(master)
     return out, screen.decode(errors="replace")
 
@@ -85,5 +90,23 @@ def test_diagnose_auto_report_shows_progress_on_a_terminal_and_none_with_json(tm
     out, screen = _run_on_a_terminal([*inputs, "--report", "r.html"], tmp_path)
     assert "diagnosing Model 42" in screen and "writing the report" in screen
     assert "diagnosing" not in out and "report written to r.html" in out
+    out, screen = _run_on_a_terminal([*inputs, "--json"], tmp_path)
+    assert screen == "" and out.lstrip().startswith("{")
+
+
+def test_calibrate_shows_its_stages_on_a_terminal_and_none_with_json(tmp_path):
+    """``hexcal calibrate`` (over a second on a few thousand poses) names each stage on the
+    terminal; stdout keeps only the results, and ``--json`` draws nothing."""
+    inputs = [
+        "calibrate",
+        str(EXAMPLE / "measurements.csv"),
+        "--robot",
+        str(EXAMPLE / "robot.json"),
+        "--instruments",
+        str(EXAMPLE / "instruments.json"),
+    ]
+    out, screen = _run_on_a_terminal(inputs, tmp_path)
+    assert "calibrating Model 42 on" in screen and "pose accuracy on held-out poses" in screen
+    assert "calibrating Model 42 on" not in out and "pose accuracy" in out
     out, screen = _run_on_a_terminal([*inputs, "--json"], tmp_path)
     assert screen == "" and out.lstrip().startswith("{")

@@ -321,10 +321,12 @@ def calibrate_model(
     clamps: bool = True,
     form: Form = "paper",
     do_refine: bool = True,
+    on_stage: Callable[[str], None] | None = None,
 ) -> ModelResult:
     """Calibrate Model ``model`` with ``effects`` (and the model file's own, when the robot
     given was a calibrated.json), then measure its pose accuracy on held-out poses against the
-    drawing's and, with effects, the geometry alone."""
+    drawing's and, with effects, the geometry alone. ``on_stage`` is told each stage as it
+    starts (a progress display)."""
     from hexcal.estimate.effect_fit import (
         Problem,
         design_accuracy,
@@ -334,7 +336,9 @@ def calibrate_model(
     )
 
     effects = tuple(dict.fromkeys((*inp.model_effects, *effects)))
+    stage = on_stage or (lambda text: None)
     screen_outliers(inp)
+    stage(f"calibrating Model {int(model)} on {len(inp.meas.pose_id)} poses")
     try:
         cal = calibrate(
             inp.meas,
@@ -348,6 +352,7 @@ def calibrate_model(
         )
     except FitStalled as exc:
         raise _stall_message(inp, exc) from None
+    stage("the pose accuracy on held-out poses (5 folds)")
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
     base = ("offset",) if model == ModelKind.M42 else ()
     chain = [base] if not cal.effects else [base, (*base, *cal.effects)]

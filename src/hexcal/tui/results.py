@@ -99,9 +99,7 @@ class ResultScreen(HexcalScreen):
     def on_mount(self) -> None:
         self.query_one("#result-scroll").focus()  # the arrows scroll the tables
         _, proc, _ = _app_state(self)
-        self.query_one(Working).start(
-            f"calibrating Model {int(proc.model)}: linear solution, refinement, pose accuracy"
-        )
+        self.query_one(Working).start(f"calibrating Model {int(proc.model)}")
         self._calibrate()
 
     def why_not(self, action: str) -> str | None:
@@ -118,7 +116,9 @@ class ResultScreen(HexcalScreen):
         guided, proc, rig = _app_state(self)
         try:
             inp = session_inputs(guided)
-            result = calibrate_model(inp, proc.model)
+            result = calibrate_model(
+                inp, proc.model, on_stage=lambda text: self.hexcal.post(self._stage, text)
+            )
         except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
             self.hexcal.post(self._refused, str(exc))
             return
@@ -141,6 +141,9 @@ class ResultScreen(HexcalScreen):
             text += "\n\n" + truth_line(cal.refinement, rig.truth)
         store(guided.sf, "calibration", result, inp.meas)
         self.hexcal.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
+
+    def _stage(self, text: str) -> None:
+        self.query_one(Working).stage(text)
 
     def _show(self, text: str) -> None:
         self.query_one(Working).stop()

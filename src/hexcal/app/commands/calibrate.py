@@ -60,6 +60,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
+    from hexcal.app.progress import progress, wanted
     from hexcal.app.report_text import calibration_json, calibration_text
     from hexcal.app.workflow import calibrate_model, refuse_overwrite, save_result
     from hexcal.estimate.accuracy import accuracy_table
@@ -68,14 +69,16 @@ def run(args: argparse.Namespace) -> int:
     inp = read_inputs(args)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)
-    result = calibrate_model(
-        inp,
-        model=ModelKind(args.model),
-        effects=tuple(args.add or ()),
-        clamps=not args.lengths_only,
-        form=args.form,
-        do_refine=not args.no_refine,
-    )
+    with progress(wanted(args.json)) as bar:
+        result = calibrate_model(
+            inp,
+            model=ModelKind(args.model),
+            effects=tuple(args.add or ()),
+            clamps=not args.lengths_only,
+            form=args.form,
+            do_refine=not args.no_refine,
+            on_stage=bar.stage,
+        )
     cal = result.calibration
     mismatch = drawing_mismatch(args, inp, cal)
     if args.out and not mismatch:
