@@ -28,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -37,58 +38,53 @@ def _spin(stop_at: float) -> None:
         x = (x * 1103515245 + 12345) % 2**31
 
 
-def one_session(seed: int) -> dict[str, object]:
-    """One ``hexcal demo`` in a new process: what it recorded, refused and warned about."""
+def _in_new_process(
+    seed: int, argv: list[str], parse: Callable[[subprocess.CompletedProcess[str]], dict]
+) -> dict[str, object]:
+    """Run ``argv`` (a Python process) with its sessions directory in a temporary folder; its
+    row: what ``parse`` reads of its output (while the folder exists), the seed, the load
+    average and the time taken."""
     with tempfile.TemporaryDirectory(prefix="hexcal-load-") as tmp:
         env = {**os.environ, "HEXCAL_SESSIONS": tmp}
         t0 = time.monotonic()
         out = subprocess.run(
-            [sys.executable, "-m", "hexcal.app.cli", "demo", "--seed", str(seed), "--json"],
-            capture_output=True,
-            text=True,
-            env=env,
-            check=False,
+            [sys.executable, *argv], capture_output=True, text=True, env=env, check=False
         )
         elapsed = time.monotonic() - t0
         if out.returncode != 0:
             return {"seed": seed, "failed": out.stderr.strip()[-500:]}
-        result = json.loads(out.stdout)
-        session = json.loads(Path(result["session"]).read_text(encoding="utf-8"))
-    refused = [s["reason"] for s in session.get("set_aside", [])]
-    warnings = [line for line in out.stderr.splitlines() if line.strip()]
+        row = parse(out)
     return {
+        **row,
         "seed": seed,
-        "poses": result["poses"],
-        "refused": len(refused),
-        "refusals": refused,
-        "warnings": warnings,
         "load_average": round(os.getloadavg()[0], 2),
         "seconds": round(elapsed, 1),
     }
+
+
+def one_session(seed: int) -> dict[str, object]:
+    """One ``hexcal demo`` in a new process: what it recorded, refused and warned about."""
+
+    def parse(out: subprocess.CompletedProcess[str]) -> dict:
+        result = json.loads(out.stdout)
+        session = json.loads(Path(result["session"]).read_text(encoding="utf-8"))
+        refused = [s["reason"] for s in session.get("set_aside", [])]
+        return {
+            "poses": result["poses"],
+            "refused": len(refused),
+            "refusals": refused,
+            "warnings": [line for line in out.stderr.splitlines() if line.strip()],
+        }
+
+    argv = ["-m", "hexcal.app.cli", "demo", "--seed", str(seed), "--json"]
+    return _in_new_process(seed, argv, parse)
 
 
 def one_tui_session(seed: int) -> dict[str, object]:
     """The text UI's whole mock session (``A``) in a new process (``--one-tui``)."""
-    with tempfile.TemporaryDirectory(prefix="hexcal-load-") as tmp:
-        env = {**os.environ, "HEXCAL_SESSIONS": tmp}
-        t0 = time.monotonic()
-        out = subprocess.run(
-            [sys.executable, __file__, "--one-tui", str(seed), "--dir", tmp],
-            capture_output=True,
-            text=True,
-            env=env,
-            check=False,
-        )
-        elapsed = time.monotonic() - t0
-    if out.returncode != 0:
-        return {"seed": seed, "failed": out.stderr.strip()[-500:]}
-    result = json.loads(out.stdout)
-    return {
-        **result,
-        "seed": seed,
-        "load_average": round(os.getloadavg()[0], 2),
-        "seconds": round(elapsed, 1),
-    }
+    return _in_new_process(
+        seed, [__file__, "--one-tui", str(seed)], lambda out: json.loads(out.stdout)
+    )
 
 
 def _tui_session(seed: int, folder: Path) -> dict[str, object]:
@@ -143,10 +139,9 @@ def main() -> int:
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--tui", action="store_true", help="the text UI's A instead of hexcal demo")
     p.add_argument("--one-tui", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.one_tui is not None:
-        print(json.dumps(_tui_session(args.one_tui, args.dir)))
+        print(json.dumps(_tui_session(args.one_tui, Path(os.environ["HEXCAL_SESSIONS"]))))
         return 0
     burners = [
         multiprocessing.Process(target=_spin, args=(time.monotonic() + 3600,), daemon=True)

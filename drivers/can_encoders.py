@@ -246,8 +246,7 @@ class LegEncoders(_ReceivePath, Device):
         # A set no later frame closes (the bus went quiet) is closed after this, s: long enough
         # for a receive thread stalled by a busy computer to catch up on frames that were in time
         # (stalls of 0.15 s were seen on a loaded 2-core machine), and as long as a node may
-        # stay quiet before it is reported silent.
-        # With the bus down no answer can come: sooner.
+        # stay quiet before it is reported silent; sooner with the bus down (no answer can come).
         self._close_after_down = 2 * config.sync_period_s + 0.1
         self._close_after = max(
             self._close_after_down if self._producing else 0.0, config.heartbeat_timeout_s

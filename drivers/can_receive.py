@@ -75,11 +75,6 @@ class _Pending:
         "t_sync",
     )
 
-    @property
-    def t_sent(self) -> float:
-        """Monotonic s by which the SYNC was on the wire (inf while the driver is sending it)."""
-        return self.t_sync + (self.t_bus_hi - self.t_bus)
-
     def __init__(
         self,
         index: int,
@@ -103,6 +98,16 @@ class _Pending:
         self.arrival = [math.nan] * 6  # the same on the monotonic clock, s (set on closing)
         self.n = 0
         self.faults = faults  # key -> message; a key repeats (error frames) without piling up
+
+    @property
+    def t_sent(self) -> float:
+        """Monotonic s by which the SYNC was on the wire (inf while the driver is sending it)."""
+        return self.t_sync + (self.t_bus_hi - self.t_bus)
+
+
+def _sync_counter(msg: can.Message) -> int:
+    """A SYNC's counter byte (0 for a SYNC without one)."""
+    return msg.data[0] if len(msg.data) >= 1 else 0
 
 
 class _ReceivePath:
@@ -373,7 +378,7 @@ class _ReceivePath:
         with self._lock:
             ts = self._clock.peek(msg.timestamp, t)
             if ts is not None:
-                self._confirm_sync(msg.data[0] if len(msg.data) >= 1 else 0, ts)
+                self._confirm_sync(_sync_counter(msg), ts)
 
     def _on_tpdo(self, entry: tuple[int, int, float, float], data: bytearray, ts: float) -> None:
         """A position stamped ``ts`` on the bus clock."""
@@ -437,7 +442,7 @@ class _ReceivePath:
 
     def _on_bus_sync(self, msg: can.Message, t: float, ts: float | None) -> None:
         """A SYNC on the bus at bus time ``ts`` (None: not trusted, placed by arrival ``t``)."""
-        counter = msg.data[0] if len(msg.data) >= 1 else 0
+        counter = _sync_counter(msg)
         with self._lock:
             if self._producing:
                 if msg.is_rx:

@@ -16,6 +16,14 @@ import pytest
 from hexcal.app.progress import progress, wanted
 
 EXAMPLE = Path(__file__).parents[1] / "examples" / "left-hand-sim"
+#: The example's measurements with its robot and instruments, as the commands take them.
+EXAMPLE_INPUTS = [
+    str(EXAMPLE / "measurements.csv"),
+    "--robot",
+    str(EXAMPLE / "robot.json"),
+    "--instruments",
+    str(EXAMPLE / "instruments.json"),
+]
 
 
 class _Terminal(io.StringIO):
@@ -78,15 +86,7 @@ def _run_on_a_terminal(args: list[str], cwd: Path) -> tuple[str, str]:
 
 @pytest.mark.slow
 def test_diagnose_auto_report_shows_progress_on_a_terminal_and_none_with_json(tmp_path):
-    inputs = [
-        "diagnose",
-        str(EXAMPLE / "measurements.csv"),
-        "--robot",
-        str(EXAMPLE / "robot.json"),
-        "--instruments",
-        str(EXAMPLE / "instruments.json"),
-        "--auto",
-    ]
+    inputs = ["diagnose", *EXAMPLE_INPUTS, "--auto"]
     out, screen = _run_on_a_terminal([*inputs, "--report", "r.html"], tmp_path)
     assert "diagnosing Model 42" in screen and "writing the report" in screen
     assert "diagnosing" not in out and "report written to r.html" in out
@@ -97,14 +97,7 @@ def test_diagnose_auto_report_shows_progress_on_a_terminal_and_none_with_json(tm
 def test_calibrate_shows_its_stages_on_a_terminal_and_none_with_json(tmp_path):
     """``hexcal calibrate`` (over a second on a few thousand poses) names each stage on the
     terminal; stdout keeps only the results, and ``--json`` draws nothing."""
-    inputs = [
-        "calibrate",
-        str(EXAMPLE / "measurements.csv"),
-        "--robot",
-        str(EXAMPLE / "robot.json"),
-        "--instruments",
-        str(EXAMPLE / "instruments.json"),
-    ]
+    inputs = ["calibrate", *EXAMPLE_INPUTS]
     out, screen = _run_on_a_terminal(inputs, tmp_path)
     assert "calibrating Model 42 on" in screen and "pose accuracy on held-out poses" in screen
     assert "calibrating Model 42 on" not in out and "pose accuracy" in out

@@ -99,7 +99,8 @@ class ResultScreen(HexcalScreen):
     def on_mount(self) -> None:
         self.query_one("#result-scroll").focus()  # the arrows scroll the tables
         _, proc, _ = _app_state(self)
-        self.query_one(Working).start(f"calibrating Model {int(proc.model)}")
+        self._working = self.query_one(Working)
+        self._working.start(f"calibrating Model {int(proc.model)}")
         self._calibrate()
 
     def why_not(self, action: str) -> str | None:
@@ -117,7 +118,7 @@ class ResultScreen(HexcalScreen):
         try:
             inp = session_inputs(guided)
             result = calibrate_model(
-                inp, proc.model, on_stage=lambda text: self.hexcal.post(self._stage, text)
+                inp, proc.model, on_stage=lambda text: self.hexcal.post(self._working.stage, text)
             )
         except (ValueError, np.linalg.LinAlgError) as exc:  # refusals name the motion to add
             self.hexcal.post(self._refused, str(exc))
@@ -142,11 +143,8 @@ class ResultScreen(HexcalScreen):
         store(guided.sf, "calibration", result, inp.meas)
         self.hexcal.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
-    def _stage(self, text: str) -> None:
-        self.query_one(Working).stage(text)
-
     def _show(self, text: str) -> None:
-        self.query_one(Working).stop()
+        self._working.stop()
         self._text = text
         self._fit()
 
@@ -237,7 +235,8 @@ class DiagnosisScreen(HexcalScreen):
         self._details = ""
         self.query_one("#diag-scroll").focus()  # the arrows scroll
         _, proc, _ = _app_state(self)
-        self.query_one(Working).start(f"diagnosing Model {int(proc.model)}")
+        self._working = self.query_one(Working)
+        self._working.start(f"diagnosing Model {int(proc.model)}")
         self._diagnose(())
 
     def on_resize(self) -> None:
@@ -270,7 +269,7 @@ class DiagnosisScreen(HexcalScreen):
             inp = session_inputs(guided)
             prev = self.history[-1] if self.history else None
             (d,) = diagnose_chain(inp, proc.model, add=add, previous=prev)
-            self.hexcal.post(self._stage, f"{d.fit.model_name}: the calibrated model")
+            self.hexcal.post(self._working.stage, f"{d.fit.model_name}: the calibrated model")
             # The step's model as a lab ships it: calibrated with its effects, clamps included.
             result = model_of(inp, [*self.history, d], proc.model)
         except (ValueError, np.linalg.LinAlgError) as exc:
@@ -279,11 +278,8 @@ class DiagnosisScreen(HexcalScreen):
         store(guided.sf, "diagnosis", result, inp.meas, summary=d.to_dict())
         self.hexcal.post(self._show, d)
 
-    def _stage(self, text: str) -> None:
-        self.query_one(Working).stage(text)
-
     def _failed(self, msg: str) -> None:
-        self.query_one(Working).stop()
+        self._working.stop()
         self.busy = False
         self.query_one("#diag-text", Static).update(f"[red]cannot diagnose: {msg}[/red]")
         self.refresh_bindings()
@@ -291,7 +287,7 @@ class DiagnosisScreen(HexcalScreen):
     def _show(self, d: Any) -> None:
         from hexcal.diagnosis.text import before_after_text, diagnosis_text
 
-        self.query_one(Working).stop()
+        self._working.stop()
         self.history.append(d)
         self.busy = False
         guided, _, rig = _app_state(self)
@@ -351,7 +347,7 @@ class DiagnosisScreen(HexcalScreen):
         d = self.history[-1]
         self.busy = True
         self.refresh_bindings()
-        self.query_one(Working).start(f"adding {d.verdict} and refitting")
+        self._working.start(f"adding {d.verdict} and refitting")
         self._diagnose(tuple(e for e in d.effects if e != "offset") + (d.verdict,))
 
     def action_export(self) -> None:
