@@ -118,7 +118,8 @@ def test_validate_names_a_moved_zero_and_rehomes(tmp_path, capsys):
     at the floor."""
     import dataclasses
 
-    from hexcal.io.measurements import read_measurements, write_measurements
+    from hexcal.io.measurements import write_measurements
+    from hexcal.io.measurements_csv import read_measurements
 
     fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
     write_session_dir(fit_dir, left_hand(), SEED, PLAN, "gain")

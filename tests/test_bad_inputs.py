@@ -13,7 +13,8 @@ import pytest
 from hexcal.acquire.devices import DevicesConfigError, load_devices_config
 from hexcal.estimate.model_file import load_model, load_robot
 from hexcal.estimate.predict_table import TableError, read_table
-from hexcal.io.measurements import MeasurementError, read_measurements
+from hexcal.io.measurements import MeasurementError
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import InstrumentsError, load_instruments
 from hexcal.model.robot import RobotFileError
 from hexcal.procedure.session import SessionFileError, load_session

@@ -228,7 +228,7 @@ def test_predict_round_trips_through_csv(session, tmp_path, capsys):
     readings = tmp_path / "readings.csv"
     assert main(["predict", str(cal), str(poses), "--to", "readings", "--out", str(readings)]) == 0
     capsys.readouterr()
-    from hexcal.io.measurements import read_measurements
+    from hexcal.io.measurements_csv import read_measurements
 
     a, b = read_measurements(table), read_measurements(readings)
     assert np.abs(a.readings - b.readings).max() < 1e-6

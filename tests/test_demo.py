@@ -12,7 +12,7 @@ import pytest
 from hexcal.app.cli import main
 from hexcal.app.demo import DemoSettings, demo_text, run_demo
 from hexcal.estimate.model_file import load_model
-from hexcal.io.measurements import read_measurements
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.procedure.session import load_session
 
 

@@ -36,7 +36,8 @@ from hexcal.acquire.devices import (
 )
 from hexcal.estimate.model_file import load_model, load_robot
 from hexcal.estimate.predict_table import Table, TableError, direction, read_table
-from hexcal.io.measurements import MeasurementError, Measurements, read_measurements
+from hexcal.io.measurements import MeasurementError, Measurements
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import InstrumentsError, load_instruments
 from hexcal.model.robot import RobotFileError
 from hexcal.procedure.session import (

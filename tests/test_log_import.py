@@ -15,7 +15,7 @@ from hexcal.app.cli import EXIT_INPUT, main
 from hexcal.diagnosis.limits import at_limits
 from hexcal.estimate.model_file import load_robot
 from hexcal.io.log_import import LogImportError, import_log, load_map
-from hexcal.io.measurements import read_measurements
+from hexcal.io.measurements_csv import read_measurements
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv"

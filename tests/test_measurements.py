@@ -22,9 +22,9 @@ from hexcal.io.measurements import (
     MeasurementError,
     Measurements,
     measurements_to_csv_text,
-    read_measurements,
     write_measurements,
 )
+from hexcal.io.measurements_csv import read_measurements
 
 EXAMPLE = Path(__file__).parents[1] / ".." / "shared" / "examples" / "left-hand"
 HEADER = (*REQUIRED_COLUMNS, "temperature", "note")
@@ -572,7 +572,7 @@ def test_a_200_mb_table_reads_in_under_1_gb(tmp_path: Path) -> None:
     code = textwrap.dedent(
         """
         import resource, sys, time
-        from hexcal.io.measurements import read_measurements
+        from hexcal.io.measurements_csv import read_measurements
         start = time.perf_counter()
         m = read_measurements(sys.argv[1])
         took = time.perf_counter() - start

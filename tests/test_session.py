@@ -17,7 +17,8 @@ import pytest
 
 from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.estimate.model_file import load_robot
-from hexcal.io.measurements import read_measurements, write_measurements
+from hexcal.io.measurements import write_measurements
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.procedure.session import (
     SCHEMA_VERSION,
     Session,

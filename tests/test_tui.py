@@ -20,7 +20,7 @@ from scipy import stats
 
 from hexcal.app.demo import DemoSettings, against_truth, run_demo
 from hexcal.estimate.model_file import load_model, load_robot, save_model
-from hexcal.io.measurements import read_measurements
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.procedure.session import Session, load_session
 from hexcal.sim.robots import left_hand
 from hexcal.tui.app import HexcalApp

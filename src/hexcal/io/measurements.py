@@ -5,9 +5,10 @@ pose) and the constraint applied, the platform pose from the tracker (position m
 quaternion scalar first) and the six encoder readings (mm), optionally the structure temperature
 (degC). Extra columns are carried through untouched.
 
-Reading (:func:`read_measurements`) and the row rules (:class:`MeasurementRow`) are in
-:mod:`hexcal.io.measurements_csv` and importable from here too: the file is streamed row by row
-into typed arrays, and *all* bad rows are reported in one :class:`MeasurementError` naming the
+Reading (:func:`~hexcal.io.measurements_csv.read_measurements`) and the row rules
+(:class:`~hexcal.io.measurements_csv.MeasurementRow`) are in :mod:`hexcal.io.measurements_csv`,
+which imports this module (never the other way round): the file is streamed row by row into
+typed arrays, and *all* bad rows are reported in one :class:`MeasurementError` naming the
 file, the line and the column. Values are held to the ranges of :mod:`hexcal.io.safe_read`.
 Writing is lossless:
 floats are written with ``repr`` (shortest round-trip form), the column order is kept, and
@@ -571,37 +572,3 @@ def write_measurements(m: Measurements, path: str | Path) -> None:
         raise ValueError(f"{path}: no poses to write; a measurement table needs at least one row")
     _raise_issues(_duplicate_issues(m.pose_id), path)
     write_text_atomic(path, measurements_to_csv_text(m))
-
-
-# --------------------------------------------------------------------------------------------
-# The reader's names, importable from here
-
-#: Public names of :mod:`hexcal.io.measurements_csv`. That module builds :class:`Measurements`, so
-#: it imports this one; they are looked up there when first asked for (PEP 562).
-_READER_NAMES = frozenset(
-    {
-        "Constraint",
-        "Integer",
-        "Leg",
-        "MeasurementRow",
-        "Millimetres",
-        "Number",
-        "OptionalCelsius",
-        "PoseId",
-        "Seconds",
-        "Text",
-        "read_measurements",
-    }
-)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _READER_NAMES:
-        from hexcal.io import measurements_csv
-
-        return getattr(measurements_csv, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_READER_NAMES})
