@@ -64,6 +64,7 @@ def test_resume_starts_at_the_first_unfinished_step_with_its_poses(tmp_path):
         g.move()
         assert g.record()[0]
     name = g.step.name
+    g.sf.close()  # the first program ends: the session's lock is free again
     again = GuidedSession(
         SessionFile.resume(g.sf.path),
         g.steps,
@@ -162,6 +163,7 @@ def test_resuming_on_a_restarted_motion_controller_restarts_a_clamped_step(tmp_p
         g.move()
         g.record()
     fresh = MockMotionController(MockRobot(hr.truth, seed=9), seed=9)
+    g.sf.close()
     again = GuidedSession(
         SessionFile.resume(g.sf.path), g.steps, g.acquisition, platform_radius_mm=100.0, mover=fresh
     )

@@ -160,9 +160,12 @@ def test_a_kill_while_recording_leaves_the_session_intact_and_resumable(tmp_path
     sf = SessionFile.resume(path)
     n = len(sf.session.poses)
     assert n >= 1 and [p.pose_id for p in sf.session.poses] == list(range(1, n + 1))
-    # resuming removes it, and says so
+    # resuming removes it, and says so; the killed writer's lock is taken over, and said so
     assert [q for q in tmp_path.iterdir() if q.name.endswith(".tmp")] == []
-    assert len(sf.notices) == len(left)
+    removed = [n for n in sf.notices if "an interrupted save left" in n]
+    assert len(removed) == len(left)
+    taken = [n for n in sf.notices if "took over the lock of process" in n]
+    assert len(taken) == 1 and f"process {proc.pid} " in taken[0]
     rng = np.random.default_rng(5)
     sf.add_pose(sf.session.pose_record(recorded_pose(rng), "free", 0, "free", t=1.0))
     assert len(load_session(path).poses) == n + 1
@@ -262,7 +265,7 @@ def test_pose_ids_are_bounded(design):
 
 
 def test_resume_removes_the_orphan_temporary_files_of_that_session_only(tmp_path, design):
-    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    SessionFile.create(tmp_path / "s.json", Session(robot=design)).close()
     ours = [tmp_path / ".s.json.a1b2_c3d.tmp", tmp_path / ".s.json.zzzzzzzz.tmp"]
     for p in ours:
         p.write_bytes(b"x" * 100)
@@ -276,12 +279,13 @@ def test_resume_removes_the_orphan_temporary_files_of_that_session_only(tmp_path
     for p in others:
         p.write_text("keep")
     (tmp_path / ".s.json.dirdirdi.tmp").mkdir()  # not a regular file
-    resumed = SessionFile.resume(sf.path)
+    resumed = SessionFile.resume(tmp_path / "s.json")
     assert not any(p.exists() for p in ours)
     assert all(p.exists() for p in others) and (tmp_path / ".s.json.dirdirdi.tmp").is_dir()
     assert len(resumed.notices) == 2
     assert all("100 bytes" in n and "interrupted save" in n for n in resumed.notices)
-    assert SessionFile.resume(sf.path).notices == []
+    resumed.close()
+    assert SessionFile.resume(tmp_path / "s.json").notices == []
 
 
 def test_a_session_that_does_not_load_keeps_its_temporary_files(tmp_path):

@@ -151,6 +151,7 @@ def run_demo(
         chain += diagnose_chain(inp, proc.model, add=[base.verdict], previous=base)
     final = model_of(inp, chain, proc.model)
     store(sf, "diagnosis", final, meas, summary=base.to_dict())
+    sf.close()  # the session's lock: another program may open it now
     cal, cal_with = first.calibration, final.calibration
     return {
         "session": str(path),

@@ -27,7 +27,7 @@ from hexcal.effects import get_effect
 from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
 from hexcal.io.fileio import write_text_atomic
-from hexcal.io.safe_read import Count
+from hexcal.io.safe_read import Count, NotBool
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot, RobotFileError, json_text, read_robot_json
@@ -36,7 +36,7 @@ from hexcal.vocabulary import ModelKindField
 #: Largest magnitude of a fitted parameter or its σ, in its unit (ppm, mm, µm/N...).
 MAX_PARAMETER = 1e12
 #: A fit or accuracy statistic (RMS, percentile, χ²/dof...): finite, ≥ 0.
-Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False)]
+Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False), NotBool]
 
 FORMAT: Final = "hexcal-calibrated-model"
 FORMAT_VERSION = 1
@@ -47,8 +47,12 @@ class ParameterValue(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     name: str
-    value: float = Field(ge=-MAX_PARAMETER, le=MAX_PARAMETER, allow_inf_nan=False)
-    sigma: float | None = Field(None, ge=0, le=MAX_PARAMETER, allow_inf_nan=False)
+    value: Annotated[float, NotBool] = Field(
+        ge=-MAX_PARAMETER, le=MAX_PARAMETER, allow_inf_nan=False
+    )
+    sigma: Annotated[float, NotBool] | None = Field(
+        None, ge=0, le=MAX_PARAMETER, allow_inf_nan=False
+    )
     unit: str
 
 
@@ -121,7 +125,7 @@ class CalibrationBlock(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     format: Literal["hexcal-calibrated-model"] = FORMAT
-    format_version: int = Field(FORMAT_VERSION, ge=1, le=FORMAT_VERSION)
+    format_version: Annotated[int, NotBool] = Field(FORMAT_VERSION, ge=1, le=FORMAT_VERSION)
     model: str = Field(description="e.g. 'Model 42 + gain + backlash'")
     kind: ModelKindField
     effects: list[EffectRecord] = Field(default_factory=list)

@@ -1,11 +1,93 @@
-"""Atomic text writes: a crash never leaves a half-written file where a good one was."""
+"""Atomic text writes: a crash never leaves a half-written file where a good one was.
+
+Every error names the user's path (never the hidden temporary file) and says what to do;
+:func:`check_output` checks an output path before any work is done.
+"""
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import tempfile
 from pathlib import Path
+
+from hexcal.errors import HexcalError
+
+
+class OutputFileError(HexcalError, OSError):
+    """A file could not be written; the message names the user's path (not a temporary file)
+    and says what to do. Also an :class:`OSError`, so callers that catch those still do."""
+
+    def __init__(self, message: str, path: str | Path | None = None):
+        super().__init__(message)
+        self.path = None if path is None else Path(path)
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+def _why(exc: OSError, path: Path) -> str:
+    """An OS error on writing ``path`` in the user's terms, with what to do."""
+    folder = path.parent if str(path.parent) else Path(".")
+    code = exc.errno
+    if code == errno.ENOENT:
+        return f"the folder {folder} does not exist; create it, or choose another path"
+    if code == errno.EISDIR or path.is_dir():
+        return f"is a folder; give a file name inside it (e.g. {path / 'NAME'})"
+    if code == errno.ENOTDIR:
+        return f"{folder} is not a folder; choose another path"
+    if code in (errno.EACCES, errno.EPERM):
+        return f"no permission to write in {folder}; choose a folder you can write to"
+    if code == errno.EROFS:
+        return f"{folder} is on a read-only file system; choose another folder"
+    if code == errno.ENOSPC:
+        return "the disk is full; free some space and try again"
+    if code == errno.EDQUOT:
+        return "the disk quota is exceeded; free some space and try again"
+    return f"cannot be written ({exc.strerror or exc}); check the path and its folder"
+
+
+def write_error(exc: OSError, path: str | Path) -> OutputFileError:
+    """The error for an OS error met while writing ``path``: the user's path and what to do."""
+    path = Path(path)
+    return OutputFileError(f"{path}: {_why(exc, path)}", path)
+
+
+def check_output(path: str | Path, *, folder: bool = False, example: str = "") -> None:
+    """Refuse, before any work, an output path that cannot be written: ``path`` a folder where
+    a file is wanted (``folder`` False; ``example`` names a file to suggest inside it) or a file
+    where a folder is wanted, a folder that does not exist (a file's folder must; an output
+    folder is made if its parent exists) or one this process may not write in. Raises
+    :class:`OutputFileError`. Whether an existing file may be replaced is the caller's rule."""
+    path = Path(path)
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise OutputFileError(
+                f"{path}: is a file, but a folder is wanted here; choose another --out", path
+            )
+        parent = path if path.is_dir() else path.parent
+    else:
+        if path.is_dir():
+            name = example or "NAME"
+            raise OutputFileError(
+                f"{path}: is a folder; give a file name inside it (e.g. {path / name})", path
+            )
+        parent = path.parent
+    parent = parent if str(parent) else Path(".")
+    if not parent.exists():
+        raise OutputFileError(
+            f"{path}: the folder {parent} does not exist; create it (mkdir -p {parent}) or "
+            "choose another path",
+            path,
+        )
+    if not parent.is_dir():
+        raise OutputFileError(f"{path}: {parent} is not a folder; choose another path", path)
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputFileError(
+            f"{path}: no permission to write in {parent}; choose a folder you can write to", path
+        )
+
 
 #: write_text_atomic's temporary files: ``.<name>.<8 random characters>.tmp`` next to the file
 #: (tempfile.mkstemp's random part: lower-case letters, digits, underscore).
@@ -21,15 +103,20 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file, fsync and rename.
 
     The rename is atomic on POSIX and Windows, so readers see either the old file or the new one.
+    An OS error becomes :class:`OutputFileError`, naming ``path`` (not the temporary file).
     """
     path = Path(path)
     try:
-        mode = path.stat().st_mode & 0o777
-    except FileNotFoundError:
-        # mkstemp makes 0600 files; an exported file should get the usual umask-derived mode.
-        umask = os.umask(0)
-        os.umask(umask)
-        mode = 0o666 & ~umask
+        _write(path, text)
+    except OutputFileError:
+        raise
+    except OSError as exc:
+        raise write_error(exc, path) from None
+    _fsync_directory(path.parent)
+
+
+def _write(path: Path, text: str) -> None:
+    mode = _new_mode(path)
     fd, tmp = tempfile.mkstemp(
         prefix=_temp_prefix(path), suffix=TEMP_SUFFIX, dir=path.parent or "."
     )
@@ -43,7 +130,62 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    _fsync_directory(path.parent)
+
+
+def write_files_atomic(folder: str | Path, files: dict[str, str]) -> None:
+    """Write several files into ``folder`` (made if needed, with its parents) as one step: each
+    text goes to a temporary file first, and only when all are on disk are they renamed into
+    place. A failure before the renames leaves nothing behind — no file, and no folder this
+    call made — and is raised as :class:`OutputFileError` naming the user's path."""
+    folder = Path(folder)
+    made: list[Path] = []
+    for parent in reversed([folder, *folder.parents]):
+        if not parent.exists():
+            made.append(parent)
+    staged: list[tuple[str, Path]] = []
+    target = folder
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, text in files.items():
+            target = folder / name
+            fd, temp = tempfile.mkstemp(prefix=_temp_prefix(target), suffix=TEMP_SUFFIX, dir=folder)
+            staged.append((name, Path(temp)))
+            with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+                fh.write(text)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.chmod(temp, _new_mode(target))
+        for name, tmp in staged:
+            target = folder / name
+            os.replace(tmp, target)
+    except OSError as exc:
+        _undo(staged, made)
+        raise write_error(exc, target) from None
+    except BaseException:
+        _undo(staged, made)
+        raise
+    _fsync_directory(folder)
+
+
+def _undo(staged: list[tuple[str, Path]], made: list[Path]) -> None:
+    for _, tmp in staged:
+        tmp.unlink(missing_ok=True)
+    for folder in reversed(made):  # the deepest first; only if still empty
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+
+
+def _new_mode(path: Path) -> int:
+    """The mode a written file gets: an existing file's own, else the umask's."""
+    try:
+        return path.stat().st_mode & 0o777
+    except FileNotFoundError:
+        # mkstemp makes 0600 files; an exported file should get the usual umask-derived mode.
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def _fsync_directory(directory: Path) -> None:

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import Field
+from pydantic import BeforeValidator, Field
+from pydantic_core import PydanticCustomError
 
 from hexcal.errors import InputError
 
@@ -65,22 +66,34 @@ MAX_POSE_ID = 2**53 - 1
 #: Largest count of poses, samples or steps a file may state.
 MAX_COUNT = 2**31 - 1
 
+
+def _refuse_bool(value: Any) -> Any:
+    """JSON's ``true``/``false`` where a number belongs: pydantic would read it as 1 or 0."""
+    if isinstance(value, bool):
+        raise PydanticCustomError("bool_not_number", "expected a number, not a boolean")
+    return value
+
+
+#: Refuses a boolean where a number belongs (JSON ``true`` would otherwise read as 1.0).
+NotBool = BeforeValidator(_refuse_bool)
 #: A finite float (no NaN, no infinity).
-Finite = Annotated[float, Field(allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False), NotBool]
 #: A coordinate, length or reading in mm: finite, |x| ≤ :data:`MAX_COORDINATE_MM`.
 Millimetres = Annotated[
-    float, Field(ge=-MAX_COORDINATE_MM, le=MAX_COORDINATE_MM, allow_inf_nan=False)
+    float, Field(ge=-MAX_COORDINATE_MM, le=MAX_COORDINATE_MM, allow_inf_nan=False), NotBool
 ]
 #: A time in s: finite, |t| ≤ :data:`MAX_TIME_S`.
-Seconds = Annotated[float, Field(ge=-MAX_TIME_S, le=MAX_TIME_S, allow_inf_nan=False)]
+Seconds = Annotated[float, Field(ge=-MAX_TIME_S, le=MAX_TIME_S, allow_inf_nan=False), NotBool]
 #: A temperature in degC, from absolute zero to :data:`MAX_TEMPERATURE_C`.
-Celsius = Annotated[float, Field(ge=MIN_TEMPERATURE_C, le=MAX_TEMPERATURE_C, allow_inf_nan=False)]
+Celsius = Annotated[
+    float, Field(ge=MIN_TEMPERATURE_C, le=MAX_TEMPERATURE_C, allow_inf_nan=False), NotBool
+]
 #: A quaternion component (scalar first); the norm is checked where the quaternion is used.
-QuaternionPart = Annotated[float, Field(ge=-2.0, le=2.0, allow_inf_nan=False)]
+QuaternionPart = Annotated[float, Field(ge=-2.0, le=2.0, allow_inf_nan=False), NotBool]
 #: A pose id, 1 .. :data:`MAX_POSE_ID`.
-PoseId = Annotated[int, Field(ge=1, le=MAX_POSE_ID)]
+PoseId = Annotated[int, Field(ge=1, le=MAX_POSE_ID), NotBool]
 #: A count, 0 .. :data:`MAX_COUNT`.
-Count = Annotated[int, Field(ge=0, le=MAX_COUNT)]
+Count = Annotated[int, Field(ge=0, le=MAX_COUNT), NotBool]
 
 
 @dataclass(frozen=True)
@@ -212,13 +225,28 @@ def read_text(path: str | Path, kind: str | FileKind, error: ErrorFactory = Inpu
 # -- JSON -----------------------------------------------------------------------------------
 
 
+class _DuplicateKey(Exception):
+    """An object of the JSON text names a key twice."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise _DuplicateKey
+    return out
+
+
 def parse_json(
     text: str, where: str, error: ErrorFactory = InputFileError, damaged: str = ""
 ) -> Any:
-    """The JSON value of ``text``, held to :data:`MAX_DEPTH` and to finite numbers."""
+    """The JSON value of ``text``, held to :data:`MAX_DEPTH`, to finite numbers and to unique
+    keys in every object (a repeated key is refused, naming it and its line: JSON readers
+    differ on which value wins, and hexcal will not guess)."""
     hint = f"; {damaged}" if damaged else ""
     try:
-        data = json.loads(text)
+        data = json.loads(text, object_pairs_hook=_unique_keys)
+    except _DuplicateKey:
+        raise error(duplicate_key_message(text, where)) from None
     except json.JSONDecodeError as exc:
         raise error(
             f"{where}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg}){hint}"
@@ -231,6 +259,56 @@ def parse_json(
         raise error(f"{where}: {_digits_message(exc)}") from None
     check_tree(data, where, error, "JSON has no NaN or Infinity")
     return data
+
+
+_JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[{}\[\],:]')
+
+
+def duplicate_key_message(text: str, where: str) -> str:
+    """The message for the first key that an object of ``text`` (valid JSON) repeats: the key,
+    the field it belongs to, its line and the line it was first given on."""
+    # A small scan of the tokens that matter (strings and punctuation): a stack of the open
+    # objects' keys with their lines, and the path to name the field by.
+    stack: list[dict[str, int] | None] = []  # an object's keys (with lines), None for a list
+    path: list[Any] = []
+    expect_key = False
+    for m in _JSON_TOKEN.finditer(text):
+        tok = m.group()
+        if tok == "{":
+            stack.append({})
+            path.append(None)
+            expect_key = True
+        elif tok == "[":
+            stack.append(None)
+            path.append(0)
+            expect_key = False
+        elif tok in "}]":
+            stack.pop()
+            path.pop()
+            expect_key = False
+        elif tok == ",":
+            top = stack[-1] if stack else None
+            if top is None and path:
+                path[-1] += 1
+            expect_key = top is not None
+        elif tok == ":":
+            expect_key = False
+        elif expect_key and stack and stack[-1] is not None:
+            key = json.loads(tok)
+            line = text.count("\n", 0, m.start()) + 1
+            keys = stack[-1]
+            path[-1] = key
+            if key in keys:
+                field = field_name(path[:-1])
+                inside = "" if not path[:-1] else f" (in field {field})"
+                return (
+                    f"{where}: line {line}: key {key!r}{inside} is given twice (first on line "
+                    f"{keys[key]}); JSON readers differ on which one counts, so hexcal takes "
+                    "neither: delete one"
+                )
+            keys[key] = line
+            expect_key = False
+    return f"{where}: an object gives a key twice; delete one"  # pragma: no cover
 
 
 def read_json(path: str | Path, kind: str | FileKind, error: ErrorFactory = InputFileError) -> Any:
@@ -327,13 +405,33 @@ def parse_toml(text: str, where: str, error: ErrorFactory = InputFileError) -> d
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise error(f"{where}: not valid TOML ({exc}); fix the file there") from None
+        raise error(_toml_message(text, where, exc)) from None
     except RecursionError:  # not reached after the scan; kept as a last guard
         raise error(_too_deep(where, None)) from None
     except ValueError as exc:  # an integer of more than 4300 digits
         raise error(f"{where}: {_digits_message(exc)}") from None
     check_tree(data, where, error, "TOML's nan and inf are not accepted")
     return data
+
+
+_TOML_AT = re.compile(r"\(at line (\d+), column \d+\)")
+
+
+def _toml_message(text: str, where: str, exc: Exception) -> str:
+    """tomllib's error in words; a key or table given twice is named with its line."""
+    msg = str(exc)
+    at = _TOML_AT.search(msg)
+    if at and ("Cannot overwrite a value" in msg or "Cannot declare" in msg):
+        number = int(at.group(1))
+        lines = text.splitlines()
+        line = lines[number - 1].strip() if 0 < number <= len(lines) else ""
+        name = line.split("=", 1)[0].strip() if "=" in line else line
+        what = "table" if name.startswith("[") else "key"
+        return (
+            f"{where}: line {number}: {what} {name!r} is given twice (or a key is set again "
+            f"after its table); a TOML {what} may be given once: delete or merge one"
+        )
+    return f"{where}: not valid TOML ({msg}); fix the file there"
 
 
 def read_toml(

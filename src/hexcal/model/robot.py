@@ -22,11 +22,13 @@ from pydantic import (
 
 from hexcal.errors import InputError
 from hexcal.io.fileio import write_text_atomic
-from hexcal.io.safe_read import Millimetres, QuaternionPart, read_json
+from hexcal.io.safe_read import Millimetres, NotBool, QuaternionPart, read_json
 from hexcal.io.validation import format_validation_error
 
 #: A point or vector in mm, each coordinate finite and within ±MAX_COORDINATE_MM (1 km).
 Vec3 = Annotated[list[Millimetres], Field(min_length=3, max_length=3)]
+#: A number that JSON's true/false may not stand for.
+Number = Annotated[float, NotBool]
 #: Largest leadscrew pitch, mm, and platform mass, kg, robot.json may state.
 MAX_PITCH_MM = 1e3
 MAX_MASS_KG = 1e6
@@ -36,7 +38,7 @@ MAX_DEADBAND_MM = 1e3
 MAX_PRIOR = 1e12
 #: A plausible range [lo, hi] in a parameter's unit.
 Range = Annotated[
-    list[Annotated[float, Field(ge=-MAX_PRIOR, le=MAX_PRIOR, allow_inf_nan=False)]],
+    list[Annotated[float, Field(ge=-MAX_PRIOR, le=MAX_PRIOR, allow_inf_nan=False), NotBool]],
     Field(min_length=2, max_length=2),
 ]
 
@@ -79,21 +81,21 @@ class Robot(BaseModel):
     leg_offsets: Annotated[list[Millimetres], Field(min_length=6, max_length=6)] = [0.0] * 6
     home: Home = Home()
     #: Lead of the legs' screws, mm per turn.
-    leadscrew_pitch_mm: float | None = Field(None, gt=0, le=MAX_PITCH_MM, allow_inf_nan=False)
+    leadscrew_pitch_mm: Number | None = Field(None, gt=0, le=MAX_PITCH_MM, allow_inf_nan=False)
     #: Moving mass carried by the legs, kg.
-    platform_mass_kg: float | None = Field(None, gt=0, le=MAX_MASS_KG, allow_inf_nan=False)
+    platform_mass_kg: Number | None = Field(None, gt=0, le=MAX_MASS_KG, allow_inf_nan=False)
     #: Where the weight acts, mm, platform frame (default: the platform origin).
     platform_com_mm: Vec3 | None = None
     #: The stroke as limits on the encoder readings, [min, max] mm.
     leg_range_mm: Annotated[list[Millimetres], Field(min_length=2, max_length=2)] | None = None
     #: Half-angle of each joint's cone about the leg's direction at home, deg (both ends).
-    joint_limit_deg: float | None = Field(None, gt=0, le=180, allow_inf_nan=False)
+    joint_limit_deg: Number | None = Field(None, gt=0, le=180, allow_inf_nan=False)
     #: Plausible ranges replacing the catalogue's: by effect (``gain``) or by parameter's full
     #: name (``gain.g1``, which wins), in the parameter's unit; offsets relative to the design.
     plausible: dict[str, Range] | None = None
     #: The smallest change of a leg's reading that counts as a move for backlash, mm (default:
     #: 4·√2·σ of the stated encoder noise, set by the fit; 0.02 mm when the noise is unknown).
-    backlash_deadband_mm: float | None = Field(None, gt=0, le=MAX_DEADBAND_MM, allow_inf_nan=False)
+    backlash_deadband_mm: Number | None = Field(None, gt=0, le=MAX_DEADBAND_MM, allow_inf_nan=False)
 
     @field_validator("units")
     @classmethod

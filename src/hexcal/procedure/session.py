@@ -26,403 +26,53 @@ only differences within one run are meaningful; ``recorded_at`` is wall-clock UT
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
-import math
-from collections.abc import Iterable, Sequence
-from datetime import datetime, timezone
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal
 
-import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ValidationError
+from pydantic_core import PydanticSerializationError
 
 from hexcal import __version__
-from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
-from hexcal.acquire.devices import DevicesConfig
+from hexcal.acquire.acquisition import RecordedPose
 from hexcal.effects.priors import check_priors
-from hexcal.errors import InputError
-from hexcal.estimate.model_file import CalibratedRobot, save_model
-from hexcal.io.fileio import remove_orphan_temp_files, write_text_atomic
-from hexcal.io.measurements import REQUIRED_COLUMNS, Measurements
-from hexcal.io.safe_read import (
-    MAX_COORDINATE_MM,
-    Celsius,
-    Count,
-    Millimetres,
-    PoseId,
-    QuaternionPart,
-    Seconds,
-    read_json,
+from hexcal.io.fileio import (
+    OutputFileError,
+    remove_orphan_temp_files,
+    write_files_atomic,
+    write_text_atomic,
 )
+from hexcal.io.measurements import REQUIRED_COLUMNS
+from hexcal.io.safe_read import KINDS, decode, parse_json, read_bytes
 from hexcal.io.validation import format_validation_error, shown_value
-from hexcal.model.instruments import Instruments
-from hexcal.model.robot import Robot
 from hexcal.procedure import looks_like_session as looks_like_session
-from hexcal.vocabulary import Constraint, ConstraintField, ModelKindField
+from hexcal.procedure.session_check import (
+    duplicate_id_problems,
+    pose_problems,
+    problems_text,
+    session_problems,
+)
+from hexcal.procedure.session_legacy import set_aside_null_poses
+from hexcal.procedure.session_lock import SessionLock, SessionLocked, stale_notice
+from hexcal.procedure.session_model import SCHEMA_VERSION as SCHEMA_VERSION
+from hexcal.procedure.session_model import OperatorNote as OperatorNote
+from hexcal.procedure.session_model import PoseRecord as PoseRecord
+from hexcal.procedure.session_model import RawLegSample as RawLegSample
+from hexcal.procedure.session_model import RawTrackerSample as RawTrackerSample
+from hexcal.procedure.session_model import ResultRecord as ResultRecord
+from hexcal.procedure.session_model import Session as Session
+from hexcal.procedure.session_model import SessionFileError as SessionFileError
+from hexcal.procedure.session_model import SetAside as SetAside
+from hexcal.procedure.session_model import StepProgress as StepProgress
 
 log = logging.getLogger(__name__)
 # The notices are returned to the interface; logging is for an application that configures it
 # (without a handler, Python would print the warnings over the text UI's screen).
 log.addHandler(logging.NullHandler())
-
-SCHEMA_VERSION: Final = 2
-
-
-def _now() -> datetime:
-    return datetime.now(timezone.utc)
-
-
-def _usable(v: float) -> bool:
-    return math.isfinite(v) and abs(v) <= MAX_COORDINATE_MM
-
-
-def _nan_to_none(values: Iterable[float]) -> list[float | None]:
-    """Values as saved in a raw sample: None where the device gave no number (NaN, infinity,
-    or beyond the ±1 km of :data:`~hexcal.io.safe_read.MAX_COORDINATE_MM`)."""
-    return [float(v) if _usable(float(v)) else None for v in values]
-
-
-def _none_to_nan(values: Sequence[float | None]) -> np.ndarray:
-    return np.array([math.nan if v is None else v for v in values], float)
-
-
-class SessionFileError(InputError):
-    """A session file cannot be read or written; the message names it and says what to do."""
-
-
-class RawTrackerSample(BaseModel):
-    """One tracker sample: ``t`` host monotonic s; position (3,) mm and quaternion (4,) scalar
-    first, None when the device gave no pose; ``rms_mm``; ``fault`` sentence or None."""
-
-    model_config = ConfigDict(extra="forbid")
-    t: Seconds
-    position: list[Millimetres] | None = Field(None, min_length=3, max_length=3)
-    quaternion: list[QuaternionPart] | None = Field(None, min_length=4, max_length=4)
-    rms_mm: float | None = Field(None, ge=0, le=MAX_COORDINATE_MM, allow_inf_nan=False)
-    fault: str | None = None
-
-    @classmethod
-    def of(cls, s: TrackerSample) -> RawTrackerSample:
-        """The sample as saved. A position or quaternion holding a non-number (a device fault
-        the driver did not flag) is saved as None, and the sample flagged with a fault, so
-        the file never holds NaN and the sample is never taken for a good one."""
-        rms = float(s.rms_mm) if _usable(float(s.rms_mm)) and s.rms_mm >= 0 else None
-        position, quaternion, fault = s.position, s.quaternion, s.fault
-        bad: list[str] = []
-        if position is not None and not all(_usable(float(v)) for v in position):
-            position, bad = None, [*bad, "position"]
-        if quaternion is not None and not all(
-            math.isfinite(float(v)) and abs(float(v)) <= 2 for v in quaternion
-        ):
-            quaternion, bad = None, [*bad, "quaternion"]
-        if bad and not fault:
-            fault = f"the tracker's {' and '.join(bad)} was not a number"
-        return cls(
-            t=s.t,
-            position=None if position is None else [float(v) for v in position],
-            quaternion=None if quaternion is None else [float(v) for v in quaternion],
-            rms_mm=rms,
-            fault=fault,
-        )
-
-
-class RawLegSample(BaseModel):
-    """One set of six readings: ``t`` host monotonic s (its SYNC); readings (6,) mm, None where
-    a leg gave none; the faults the bus reported for it."""
-
-    model_config = ConfigDict(extra="forbid")
-    t: Seconds
-    readings: list[Millimetres | None] = Field(min_length=6, max_length=6)
-    faults: list[str] = Field(default_factory=list)
-
-    @classmethod
-    def of(cls, s: LegSample) -> RawLegSample:
-        """The set as saved: a reading that is not a number in range is saved as None, and,
-        when the bus reported no fault for the set, the set is flagged with one."""
-        readings = _nan_to_none(s.readings)
-        faults = list(s.faults)
-        missing = [str(k + 1) for k, r in enumerate(readings) if r is None]
-        if missing and not faults:
-            faults.append(f"leg {', '.join(missing)}: the reading was not a number")
-        return cls(t=s.t, readings=readings, faults=faults)
-
-
-class PoseRecord(BaseModel):
-    """One recorded pose: the row of the interchange table plus its raw samples.
-
-    ``quaternion`` is kept exactly as recorded or imported (not renormalised); ``extra`` holds
-    an imported table's extra columns as text, so export gives the table back unchanged.
-
-    Units: ``t`` s since the session started; position mm; readings mm; temperature degC.
-    Every number is finite and in range (:mod:`hexcal.io.safe_read`): a NaN or infinity is
-    refused on construction."""
-
-    model_config = ConfigDict(extra="forbid")
-    pose_id: PoseId
-    t: Seconds
-    step: str
-    leg: int = Field(ge=0, le=6)
-    constraint: ConstraintField
-    position: list[Millimetres] = Field(min_length=3, max_length=3)
-    quaternion: list[QuaternionPart] = Field(min_length=4, max_length=4)
-    readings: list[Millimetres] = Field(min_length=6, max_length=6)
-    temperature: Celsius | None = None
-    recorded_at: datetime | None = None
-    notes: list[str] = Field(default_factory=list)
-    extra: dict[str, str] = Field(default_factory=dict)
-    tracker_samples: list[RawTrackerSample] = Field(default_factory=list)
-    leg_samples: list[RawLegSample] = Field(default_factory=list)
-
-
-class SetAside(BaseModel):
-    """A pose refused at recording (``pose`` None) or recorded and then set aside because its
-    step failed a check; ``reason`` is the message the operator saw. ``unreadable_pose`` keeps,
-    exactly as it was in the file, a pose an older hexcal saved with ``null`` values (no valid
-    :class:`PoseRecord` can hold it): set aside on load, nothing of it lost."""
-
-    model_config = ConfigDict(extra="forbid")
-    step: str
-    reason: str
-    at: datetime = Field(default_factory=_now)
-    pose: PoseRecord | None = None
-    unreadable_pose: dict[str, Any] | None = None
-
-
-class OperatorNote(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    at: datetime = Field(default_factory=_now)
-    text: str
-
-
-class StepProgress(BaseModel):
-    """A procedure step the guided session has finished (``done``: its poses passed their
-    checks) or that the operator skipped; a resumed session starts at the first step with none."""
-
-    model_config = ConfigDict(extra="forbid")
-    step: str
-    status: Literal["done", "skipped"]
-    poses: Count = 0
-    at: datetime = Field(default_factory=_now)
-    check: str = Field("", description="the end-of-step check, in words")
-
-
-class ResultRecord(BaseModel):
-    """A calibration or diagnosis computed in the session: the model, the effects fitted with
-    it, the calibrated robot (robot.json content) and a JSON summary (RMS, χ², verdict...)."""
-
-    model_config = ConfigDict(extra="forbid")
-    kind: Literal["calibration", "diagnosis"]
-    at: datetime = Field(default_factory=_now)
-    model: ModelKindField
-    effects: list[str] = Field(default_factory=list)
-    pose_ids: list[PoseId] = Field(default_factory=list, description="the poses it used")
-    robot: Robot | None = None
-    calibrated: CalibratedRobot | None = Field(
-        None, description="the whole model: geometry and effects (calibrated.json's content)"
-    )
-    summary: dict[str, Any] = Field(default_factory=dict)
-
-
-class Session(BaseModel):
-    """A calibration session (see the module docstring)."""
-
-    model_config = ConfigDict(extra="forbid")
-    schema_version: Literal[1, 2] = SCHEMA_VERSION
-    hexcal_version: str = __version__
-    created: datetime = Field(default_factory=_now)
-    robot: Robot
-    devices: DevicesConfig | None = None
-    instruments: Instruments | None = Field(
-        None, description="the noise of the recorded poses (stated, or estimated from them)"
-    )
-    procedure: dict[str, Any] | None = Field(
-        None, description="the procedure as loaded from its TOML file"
-    )
-    columns: list[str] = Field(
-        default_factory=lambda: list(REQUIRED_COLUMNS),
-        description="the interchange table's header, in the order export writes it",
-    )
-    poses: list[PoseRecord] = Field(default_factory=list)
-    set_aside: list[SetAside] = Field(default_factory=list)
-    notes: list[OperatorNote] = Field(default_factory=list)
-    results: list[ResultRecord] = Field(default_factory=list)
-    progress: list[StepProgress] = Field(
-        default_factory=list, description="the guided procedure's finished and skipped steps"
-    )
-
-    # -- the interchange table ----------------------------------------------------------------
-    def measurements(self) -> Measurements:
-        """The recorded poses as the measurement table (every pose, in order)."""
-        if not self.poses:
-            raise SessionFileError("the session has no recorded pose yet")
-        p = self.poses
-        temps = [r.temperature for r in p]
-        # The interchange table has no empty temperature cell: the column goes out with every
-        # pose's temperature known, or not at all (poses recorded before one was entered).
-        has_t = "temperature" in self.columns and None not in temps
-        columns = [c for c in self.columns if has_t or c != "temperature"]
-        extra_names = [c for c in self.columns if c in p[0].extra]
-        return Measurements(
-            pose_id=np.asarray([r.pose_id for r in p]),
-            t=np.asarray([r.t for r in p], float),
-            step=np.asarray([r.step for r in p], object),
-            leg=np.asarray([r.leg for r in p]),
-            constraint=np.asarray([r.constraint.value for r in p], object),
-            position=np.asarray([r.position for r in p], float),
-            quaternion=np.asarray([r.quaternion for r in p], float),
-            readings=np.asarray([r.readings for r in p], float),
-            temperature=_none_to_nan(temps) if has_t else None,
-            extra={k: np.asarray([r.extra.get(k, "") for r in p], object) for k in extra_names},
-            columns=tuple(columns),
-        )
-
-    @classmethod
-    def from_measurements(
-        cls, meas: Measurements, robot: Robot, devices: DevicesConfig | None = None
-    ) -> Session:
-        """A session holding an imported table (no raw samples): export gives it back."""
-        poses = [
-            PoseRecord(
-                pose_id=int(meas.pose_id[i]),
-                t=float(meas.t[i]),
-                step=str(meas.step[i]),
-                leg=int(meas.leg[i]),
-                constraint=str(meas.constraint[i]),
-                position=[float(v) for v in meas.position[i]],
-                quaternion=[float(v) for v in meas.quaternion[i]],
-                readings=[float(v) for v in meas.readings[i]],
-                temperature=None if meas.temperature is None else _finite(meas.temperature[i]),
-                extra={k: str(v[i]) for k, v in meas.extra.items()},
-            )
-            for i in range(len(meas))
-        ]
-        return cls(robot=robot, devices=devices, columns=list(meas.columns), poses=poses)
-
-    # -- recording ------------------------------------------------------------------------------
-    def next_pose_id(self) -> int:
-        used = [r.pose_id for r in self.poses] + [
-            s.pose.pose_id for s in self.set_aside if s.pose is not None
-        ]
-        unreadable = [_unreadable_id(s.unreadable_pose) for s in self.set_aside]
-        used += [u for u in unreadable if u is not None]
-        return max(used, default=0) + 1
-
-    def pose_record(
-        self,
-        pose: RecordedPose,
-        step: str,
-        leg: int,
-        constraint: Constraint,
-        t: float,
-        temperature: float | None = None,
-    ) -> PoseRecord:
-        """A :class:`PoseRecord` of a recorded pose, numbered after every pose so far.
-
-        Raises :class:`SessionFileError` when the pose holds a NaN, an infinity or a value out
-        of range: the last line of defence, so that no such pose is ever saved (the drivers
-        flag the samples that would give one)."""
-        try:
-            return PoseRecord(
-                pose_id=self.next_pose_id(),
-                t=t,
-                step=step,
-                leg=leg,
-                constraint=constraint,
-                position=[float(v) for v in pose.position],
-                quaternion=[float(v) for v in pose.quaternion],
-                readings=[float(v) for v in pose.readings],
-                temperature=pose.temperature if temperature is None else temperature,
-                recorded_at=_now(),
-                notes=list(pose.notes),
-                tracker_samples=[RawTrackerSample.of(s) for s in pose.tracker_samples],
-                leg_samples=[RawLegSample.of(s) for s in pose.leg_samples],
-            )
-        except ValidationError as exc:
-            raise SessionFileError(
-                format_validation_error(exc, f"pose of step {step!r} not saved")
-                + "\na pose must hold finite numbers in range: check the devices (a fault "
-                "their drivers did not flag), then record the pose again"
-            ) from None
-
-
-def _finite(v: float) -> float | None:
-    return float(v) if math.isfinite(float(v)) else None
-
-
-def _unreadable_id(pose: dict[str, Any] | None) -> int | None:
-    pid = None if pose is None else pose.get("pose_id")
-    return pid if isinstance(pid, int) and not isinstance(pid, bool) and pid >= 1 else None
-
-
-#: The numbers of a pose an older hexcal may have saved as null (NaN, infinity): the table row's
-#: and each raw sample's time. (A raw sample's own position, quaternion and readings may be null.)
-_POSE_NUMBERS = ("t", "position", "quaternion", "readings")
-
-
-def _null_fields(pose: dict[str, Any]) -> list[str]:
-    """The fields of a saved pose that hold null where a number belongs."""
-    found = []
-    for key in _POSE_NUMBERS:
-        if key not in pose:
-            continue
-        v = pose[key]
-        if v is None:
-            found.append(key)
-        elif isinstance(v, list):
-            found += [f"{key}.{j}" for j, x in enumerate(v) if x is None]
-    for group in ("tracker_samples", "leg_samples"):
-        samples = pose.get(group)
-        if isinstance(samples, list):
-            found += [
-                f"{group}.{j}.t"
-                for j, smp in enumerate(samples)
-                if isinstance(smp, dict) and "t" in smp and smp["t"] is None
-            ]
-    return found
-
-
-def _null_reason(pose: dict[str, Any], fields: list[str]) -> str:
-    pid = pose.get("pose_id")
-    name = f"pose {pid}" if isinstance(pid, int) else "a pose"
-    listed = ", ".join(fields[:3]) + (f" and {len(fields) - 3} more" if len(fields) > 3 else "")
-    verb = "was not a number" if len(fields) == 1 else "were not numbers"
-    return f"{name}: {listed} {verb} (saved by an older hexcal); set aside on load"
-
-
-def set_aside_null_poses(data: dict[str, Any]) -> list[str]:
-    """Move every pose of a parsed session file that holds null where a number belongs (as an
-    older hexcal saved NaN) to ``set_aside``, kept whole as ``unreadable_pose``; the same for a
-    set-aside pose. The reasons, one per pose moved; everything else is left as it was."""
-    reasons: list[str] = []
-    poses, aside = data.get("poses"), data.get("set_aside", [])
-    if not isinstance(aside, list):
-        return reasons  # validation names the field
-    if isinstance(poses, list):
-        kept = []
-        for p in poses:
-            fields = _null_fields(p) if isinstance(p, dict) else []
-            if not fields:
-                kept.append(p)
-                continue
-            reason = _null_reason(p, fields)
-            step = p.get("step") if isinstance(p.get("step"), str) else "?"
-            aside.append({"step": step, "reason": reason, "unreadable_pose": p})
-            reasons.append(reason)
-        data["poses"] = kept
-    for item in aside:
-        pose = item.get("pose") if isinstance(item, dict) else None
-        if not isinstance(pose, dict):
-            continue
-        fields = _null_fields(pose)
-        if fields:
-            reason = _null_reason(pose, fields)
-            item["unreadable_pose"] = item.pop("pose")
-            if isinstance(item.get("reason"), str):
-                item["reason"] += f" — {reason}"
-            reasons.append(reason)
-    data["set_aside"] = aside
-    return reasons
 
 
 def session_json_schema() -> str:
@@ -437,12 +87,19 @@ def _error(message: str) -> SessionFileError:
 def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
     """Read a session file. Refuses — naming the file and saying what to do — a missing file,
     one that is not JSON or not a session, one beyond the limits of :mod:`hexcal.io.safe_read`
-    (512 MB, nesting, non-finite numbers), and one written by a newer hexcal.
+    (512 MB, nesting, non-finite numbers, a key given twice), one written by a newer hexcal,
+    and one whose poses break the rules of the table it exports to (a repeated pose id, a
+    header without its columns: :mod:`hexcal.procedure.session_check`).
 
     Poses an older hexcal saved with ``null`` values are set aside (see the module docstring);
     each one's reason is appended to ``notices`` when given, and logged."""
-    path = Path(path)
-    data = read_json(path, "session", _error)
+    return _load(Path(path), notices)[0]
+
+
+def _load(path: Path, notices: list[str] | None = None) -> tuple[Session, bytes]:
+    """The session of ``path`` and the bytes it was read from (see :func:`load_session`)."""
+    raw = read_bytes(path, "session", _error)
+    data = parse_json(decode(raw, str(path), _error), str(path), _error, KINDS["session"].damaged)
     if not isinstance(data, dict) or "schema_version" not in data:
         raise SessionFileError(
             f"{path}: not a hexcal session file (no schema_version); it is left untouched"
@@ -462,6 +119,16 @@ def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
             format_validation_error(exc, str(path), data)
             + "\nthe file is left untouched; fix the field or start a new session"
         ) from None
+    problems = session_problems(session)
+    if problems:
+        raise SessionFileError(
+            problems_text(
+                str(path),
+                problems,
+                "the file is left untouched; fix it there (the table it exports to must be "
+                "valid) or start a new session",
+            )
+        )
     robots = [session.robot] + [r for res in session.results for r in (res.robot, res.calibrated)]
     for robot in robots:
         if robot is not None:
@@ -475,7 +142,7 @@ def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
         log.warning("%s: %s", path, reason)
     if notices is not None:
         notices += [f"{path}: {reason}" for reason in moved]
-    return session
+    return session, raw
 
 
 def session_to_text(session: Session) -> str:
@@ -483,60 +150,211 @@ def session_to_text(session: Session) -> str:
     return session.model_dump_json(indent=1, exclude_none=False) + "\n"
 
 
+def _acquire(path: Path, creating: bool) -> SessionLock:
+    """The session's lock, or :class:`SessionLocked` naming its holder; an OS error on the lock
+    file (a folder one may not write in) in the user's terms."""
+    try:
+        return SessionLock.acquire(path)
+    except SessionLocked:
+        raise
+    except OSError as exc:
+        from hexcal.io.fileio import write_error
+
+        err = write_error(exc, path)
+        if creating:
+            raise SessionFileError(f"{err}; the session file was not created") from None
+        raise SessionFileError(
+            f"{err}\nto record, this hexcal must lock the session beside it; to look at it, "
+            "open it read-only (hexcal calibrate, diagnose and export only read it)"
+        ) from None
+
+
+def _release(lock: SessionLock | None) -> None:
+    if lock is not None:
+        lock.release()
+
+
+class SessionConflict(SessionFileError):
+    """The session file on disk is not the one this process last read or wrote: another
+    program changed it. Nothing was overwritten; ``mine`` holds this process's version."""
+
+    def __init__(self, message: str, mine: Path):
+        super().__init__(message)
+        self.mine = mine
+
+
+@dataclass(frozen=True)
+class _Seen:
+    """The file on disk as this process last read or wrote it: its identity (inode, size,
+    modification time in ns) and the SHA-256 of its bytes."""
+
+    inode: int
+    size: int
+    mtime_ns: int
+    sha256: str
+
+    @classmethod
+    def of(cls, path: Path, raw: bytes) -> _Seen | None:
+        try:
+            st = path.stat()
+        except OSError:
+            return None
+        return cls(st.st_ino, st.st_size, st.st_mtime_ns, hashlib.sha256(raw).hexdigest())
+
+
 class SessionFile:
-    """A session bound to its file; every change is saved atomically at once.
+    """A session bound to its file, with one writer; every change is saved atomically at once.
 
     Use :meth:`create` for a new file (refused if the path exists: an existing session is
-    resumed, never replaced) and :meth:`resume` for an existing one (refused if damaged)."""
+    resumed, never replaced) and :meth:`resume` for an existing one (refused if damaged). Both
+    take the session's lock (:mod:`hexcal.procedure.session_lock`) and hold it until
+    :meth:`close` (or the end of a ``with`` block, or of the process): a second writer is
+    refused with :class:`~hexcal.procedure.session_lock.SessionLocked`, naming the holder.
+    ``resume(path, read_only=True)`` opens without the lock, and refuses to save.
 
-    def __init__(self, path: Path, session: Session, notices: Sequence[str] = ()):
+    Every save first checks that the file on disk is the one this process last read or wrote
+    (its identity, else its SHA-256): when another program changed it, the save refuses with
+    :class:`SessionConflict`, keeps the file on disk as it is and writes this process's version
+    beside it (:meth:`conflict_path`), so that nothing is lost."""
+
+    def __init__(
+        self,
+        path: Path,
+        session: Session,
+        notices: Sequence[str] = (),
+        *,
+        lock: SessionLock | None = None,
+        read_only: bool = False,
+        seen: _Seen | None = None,
+    ):
         self.path = path
         self.session = session
         #: What opening the file did, in words (orphan temporary files removed, poses set
-        #: aside on load), for the interface to show; also logged.
+        #: aside on load, a crashed holder's lock taken over), for the interface to show.
         self.notices: list[str] = list(notices)
+        self.read_only = read_only
+        self._lock = lock
+        self._seen = seen
+        # The lock goes with the object if nobody closes it (a test, an interface that fails).
+        self._finalizer = weakref.finalize(self, _release, lock)
 
     @classmethod
     def create(cls, path: str | Path, session: Session) -> SessionFile:
         path = Path(path)
-        if path.exists():
-            raise SessionFileError(
-                f"{path}: already exists — resume it, or choose another name; it is not overwritten"
-            )
-        sf = cls(path, session)
-        sf.save()
+        lock = _acquire(path, creating=True)
+        try:
+            if path.exists():
+                raise SessionFileError(
+                    f"{path}: already exists — resume it, or choose another name; it is not "
+                    "overwritten"
+                )
+            sf = cls(path, session, lock=lock)
+            sf.save(creating=True)
+        except BaseException:
+            lock.release()
+            raise
         return sf
 
     @classmethod
-    def resume(cls, path: str | Path) -> SessionFile:
-        """Open an existing session to go on with it. Once it has loaded, the temporary files
-        an interrupted save left next to it (named as :func:`hexcal.io.fileio.write_text_atomic`
+    def resume(cls, path: str | Path, read_only: bool = False) -> SessionFile:
+        """Open an existing session to go on with it (``read_only``: to look at it, without
+        the lock; saving is then refused). Once it has loaded, the temporary files an
+        interrupted save left next to it (named as :func:`hexcal.io.fileio.write_text_atomic`
         names them, for this file only) are removed and said so in :attr:`notices`; a file
         that does not load is refused with everything next to it left as it is."""
         path = Path(path)
         notices: list[str] = []
-        session = load_session(path, notices)
-        for tmp, size in remove_orphan_temp_files(path):
-            text = (
-                f"{tmp}: removed, a temporary file ({size} bytes) an interrupted save left; "
-                f"{path.name} holds the last complete save"
-            )
+        lock = None if read_only else _acquire(path, creating=False)
+        try:
+            session, raw = _load(path, notices)
+        except BaseException:
+            _release(lock)
+            raise
+        if lock is not None and lock.taken_over is not None:
+            text = stale_notice(path, lock.taken_over)
             log.warning("%s", text)
             notices.append(text)
-        return cls(path, session, notices)
+        if lock is not None:  # only the writer may tidy up after an interrupted save
+            for tmp, size in remove_orphan_temp_files(path):
+                text = (
+                    f"{tmp}: removed, a temporary file ({size} bytes) an interrupted save "
+                    f"left; {path.name} holds the last complete save"
+                )
+                log.warning("%s", text)
+                notices.append(text)
+        return cls(path, session, notices, lock=lock, read_only=read_only, seen=_Seen.of(path, raw))
 
-    def save(self) -> None:
+    def close(self) -> None:
+        """Give up the session's lock (saving stays possible only for a read-only look: no)."""
+        self._finalizer()
+        self._lock = None
+        self.read_only = True
+
+    def __enter__(self) -> SessionFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def conflict_path(self) -> Path:
+        """Where a save that met another program's change puts this process's version."""
+        return self.path.with_name(f"{self.path.stem}.mine{self.path.suffix or '.json'}")
+
+    def _check_disk(self) -> None:
+        """Refuse to save over a file another program changed since this one read or wrote it
+        (:class:`SessionConflict`, this version written to :meth:`conflict_path`)."""
+        seen = self._seen
+        if seen is None:
+            return
+        try:
+            st = self.path.stat()
+            if (st.st_ino, st.st_size, st.st_mtime_ns) == (seen.inode, seen.size, seen.mtime_ns):
+                return
+            raw = read_bytes(self.path, "session", _error)
+            if hashlib.sha256(raw).hexdigest() == seen.sha256:
+                return
+            what = "changed"
+        except FileNotFoundError:
+            what = "removed"
+        except (OSError, SessionFileError):
+            what = "made unreadable"
+        mine = self.conflict_path()
+        write_text_atomic(mine, session_to_text(self.session))
+        raise SessionConflict(
+            f"{self.path}: {what} by another program since this hexcal opened it, so it is not "
+            f"overwritten. Nothing is lost: the file there holds the other program's work, and "
+            f"{mine} holds this session as it is here. To merge them: hexcal session merge "
+            f"{self.path} {mine} --out MERGED.json",
+            mine,
+        )
+
+    def save(self, creating: bool = False) -> None:
+        if self.read_only:
+            raise SessionFileError(
+                f"{self.path}: opened read-only (or closed): nothing is saved; resume it to record"
+            )
         # A schema 1 file is upgraded when hexcal writes it (schema 2 only adds fields).
         self.session.schema_version = SCHEMA_VERSION
+        text = session_to_text(self.session)
+        if not creating:
+            self._check_disk()
         try:
-            write_text_atomic(self.path, session_to_text(self.session))
-        except OSError as exc:
+            write_text_atomic(self.path, text)
+        except OutputFileError as exc:
+            if creating:
+                raise SessionFileError(f"{exc}; the session file was not created") from None
             raise SessionFileError(
-                f"{self.path}: could not save the session ({exc.strerror or exc}); the last "
-                "saved state is still on disk — free space or fix permissions, then record again"
+                f"{exc}\nthe last saved state is still on disk; the change made now is not "
+                "saved: fix the cause, then do it again"
             ) from None
+        self._seen = _Seen.of(self.path, text.encode("utf-8"))
 
     def add_pose(self, record: PoseRecord) -> None:
+        """Append a recorded pose and save. The record is checked again as loading would
+        check it (finite numbers in range, an unused pose id, the table's rules): a record
+        built without validation, or changed after, is refused naming the session file, the
+        pose and the field, and nothing is saved."""
+        record = self._checked(record)
         if record.temperature is not None and "temperature" not in self.session.columns:
             # The table's temperature column comes with the first pose that has one (the
             # poses before it export an empty cell); it sits after the required columns.
@@ -545,6 +363,27 @@ class SessionFile:
             self.session.columns = [*cols[:at], "temperature", *cols[at:]]
         self.session.poses.append(record)
         self.save()
+
+    def _checked(self, record: PoseRecord) -> PoseRecord:
+        where = f"{self.path}: pose {getattr(record, 'pose_id', '?')} not saved"
+        try:
+            data = record.model_dump()
+        except PydanticSerializationError:  # built without validation: a field of a wrong type
+            data = {name: getattr(record, name, None) for name in PoseRecord.model_fields}
+        try:
+            checked = PoseRecord.model_validate(data)
+        except ValidationError as exc:
+            raise SessionFileError(
+                format_validation_error(exc, where)
+                + "\na pose must hold finite numbers in range: check the devices, then "
+                "record the pose again"
+            ) from None
+        i = len(self.session.poses)
+        problems = duplicate_id_problems([*self.session.poses, checked])
+        problems += pose_problems(checked, i, self.session.columns)
+        if problems:
+            raise SessionFileError(problems_text(where, problems, "the session is unchanged"))
+        return checked
 
     def set_aside(self, item: SetAside) -> None:
         self.session.set_aside.append(item)
@@ -635,27 +474,35 @@ def export_session(session: Session, out: str | Path) -> list[str]:
     ``measurements.csv`` (the interchange table), ``robot.json`` (the design),
     ``instruments.json`` (the noise, when the session holds it) and, when the
     session holds a model, ``calibrated.json``: the latest calibration or diagnosis step's whole
-    model, effects included (docs/formats.md). The names written, in words."""
-    from hexcal.io.measurements import write_measurements
-    from hexcal.model.robot import save_robot
+    model, effects included (docs/formats.md). The names written, in words.
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_measurements(session.measurements(), out / "measurements.csv")
-    save_robot(session.robot, out / "robot.json")
+    Every file's text is made first (a session that cannot give a valid table is refused
+    naming the session's poses and fields), then all are written in one step
+    (:func:`~hexcal.io.fileio.write_files_atomic`): a refused or failed export leaves nothing
+    behind."""
+    from hexcal.io.measurements import measurements_to_csv_text
+
+    problems = session_problems(session)
+    if problems:
+        raise SessionFileError(
+            problems_text("the session", problems, "nothing was exported; fix the session file")
+        )
+    files = {
+        "measurements.csv": measurements_to_csv_text(session.measurements()),
+        "robot.json": session.robot.to_json(),
+    }
     written = ["measurements.csv", "robot.json"]
     if session.instruments is not None:
-        from hexcal.model.instruments import save_instruments
-
-        save_instruments(session.instruments, out / "instruments.json")
+        files["instruments.json"] = session.instruments.to_json()
         written.append("instruments.json")
     latest = latest_model(session)
     if latest is not None:
         when = f"{latest.at:%Y-%m-%d %H:%M}"
         if latest.calibrated is not None:
-            save_model(latest.calibrated, out / "calibrated.json")
+            files["calibrated.json"] = latest.calibrated.to_json()
             written.append(f"calibrated.json ({latest.calibrated.calibration.model}, {when})")
         elif latest.robot is not None:  # a session from before the model file: geometry only
-            save_robot(latest.robot, out / "calibrated.json")
+            files["calibrated.json"] = latest.robot.to_json()
             written.append(f"calibrated.json (Model {latest.model} geometry, {when})")
+    write_files_atomic(out, files)
     return written

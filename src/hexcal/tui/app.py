@@ -324,6 +324,7 @@ class HexcalApp(App):
         try:
             rig = self.rig or self.backend.open()
         except Exception as exc:  # any driver error: show it, stay on the start screen
+            sf.close()  # the session's lock: resuming it again must find it free
             self.post(self._start_failed, exc)
             return
         self.rig = rig
@@ -358,6 +359,8 @@ class HexcalApp(App):
         self.notices = []
 
     def on_unmount(self) -> None:
+        if self.guided is not None:
+            self.guided.sf.close()  # the session's lock: another program may open it now
         self._hexcal_log.removeHandler(self._handler)
         self._hexcal_log.propagate = self._propagate
         self.backend.close()

@@ -1,0 +1,334 @@
+"""The session file's content as types (pydantic v2): poses with their raw samples, poses set
+aside, notes, progress, results, and the :class:`Session` that holds them (docs/formats.md, "The
+session file"). Reading and writing the file, and the one-writer rule, are in
+:mod:`hexcal.procedure.session`, which offers these names too.
+
+Numbers: every number is finite and within the limits of :mod:`hexcal.io.safe_read` (positions
+and readings ±1 km, times ±1e9 s, pose ids 1 .. 2**53 − 1, no boolean for a number). A pose
+holding NaN or infinity is refused on construction (:class:`SessionFileError`), never saved.
+
+Times: ``t`` of a pose is seconds since the session started (the interchange table's ``t``);
+raw sample times are the host's monotonic clock (s) of the recording run they came from, so
+only differences within one run are meaningful; ``recorded_at`` is wall-clock UTC.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from datetime import datetime, timezone
+from typing import Any, Final, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from hexcal import __version__
+from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
+from hexcal.acquire.devices import DevicesConfig
+from hexcal.errors import InputError
+from hexcal.estimate.model_file import CalibratedRobot
+from hexcal.io.measurements import REQUIRED_COLUMNS, Measurements
+from hexcal.io.safe_read import (
+    MAX_COORDINATE_MM,
+    Celsius,
+    Count,
+    Finite,
+    Millimetres,
+    PoseId,
+    QuaternionPart,
+    Seconds,
+)
+from hexcal.io.validation import format_validation_error
+from hexcal.model.instruments import Instruments
+from hexcal.model.robot import Robot
+from hexcal.vocabulary import Constraint, ConstraintField, ModelKindField
+
+SCHEMA_VERSION: Final = 2
+#: The columns of the interchange table that are not extra columns.
+_TABLE_COLUMNS = frozenset((*REQUIRED_COLUMNS, "temperature"))
+
+
+def _now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+def _usable(v: float) -> bool:
+    return math.isfinite(v) and abs(v) <= MAX_COORDINATE_MM
+
+
+def _nan_to_none(values: Iterable[float]) -> list[float | None]:
+    """Values as saved in a raw sample: None where the device gave no number (NaN, infinity,
+    or beyond the ±1 km of :data:`~hexcal.io.safe_read.MAX_COORDINATE_MM`)."""
+    return [float(v) if _usable(float(v)) else None for v in values]
+
+
+def _none_to_nan(values: Sequence[float | None]) -> np.ndarray:
+    return np.array([math.nan if v is None else v for v in values], float)
+
+
+class SessionFileError(InputError):
+    """A session file cannot be read or written; the message names it and says what to do."""
+
+
+class RawTrackerSample(BaseModel):
+    """One tracker sample: ``t`` host monotonic s; position (3,) mm and quaternion (4,) scalar
+    first, None when the device gave no pose; ``rms_mm``; ``fault`` sentence or None."""
+
+    model_config = ConfigDict(extra="forbid")
+    t: Seconds
+    position: list[Millimetres] | None = Field(None, min_length=3, max_length=3)
+    quaternion: list[QuaternionPart] | None = Field(None, min_length=4, max_length=4)
+    rms_mm: Finite | None = Field(None, ge=0, le=MAX_COORDINATE_MM)
+    fault: str | None = None
+
+    @classmethod
+    def of(cls, s: TrackerSample) -> RawTrackerSample:
+        """The sample as saved. A position or quaternion holding a non-number (a device fault
+        the driver did not flag) is saved as None, and the sample flagged with a fault, so
+        the file never holds NaN and the sample is never taken for a good one."""
+        rms = float(s.rms_mm) if _usable(float(s.rms_mm)) and s.rms_mm >= 0 else None
+        position, quaternion, fault = s.position, s.quaternion, s.fault
+        bad: list[str] = []
+        if position is not None and not all(_usable(float(v)) for v in position):
+            position, bad = None, [*bad, "position"]
+        if quaternion is not None and not all(
+            math.isfinite(float(v)) and abs(float(v)) <= 2 for v in quaternion
+        ):
+            quaternion, bad = None, [*bad, "quaternion"]
+        if bad and not fault:
+            fault = f"the tracker's {' and '.join(bad)} was not a number"
+        return cls(
+            t=s.t,
+            position=None if position is None else [float(v) for v in position],
+            quaternion=None if quaternion is None else [float(v) for v in quaternion],
+            rms_mm=rms,
+            fault=fault,
+        )
+
+
+class RawLegSample(BaseModel):
+    """One set of six readings: ``t`` host monotonic s (its SYNC); readings (6,) mm, None where
+    a leg gave none; the faults the bus reported for it."""
+
+    model_config = ConfigDict(extra="forbid")
+    t: Seconds
+    readings: list[Millimetres | None] = Field(min_length=6, max_length=6)
+    faults: list[str] = Field(default_factory=list)
+
+    @classmethod
+    def of(cls, s: LegSample) -> RawLegSample:
+        """The set as saved: a reading that is not a number in range is saved as None, and,
+        when the bus reported no fault for the set, the set is flagged with one."""
+        readings = _nan_to_none(s.readings)
+        faults = list(s.faults)
+        missing = [str(k + 1) for k, r in enumerate(readings) if r is None]
+        if missing and not faults:
+            faults.append(f"leg {', '.join(missing)}: the reading was not a number")
+        return cls(t=s.t, readings=readings, faults=faults)
+
+
+class PoseRecord(BaseModel):
+    """One recorded pose: the row of the interchange table plus its raw samples.
+
+    ``quaternion`` is kept exactly as recorded or imported (not renormalised); ``extra`` holds
+    an imported table's extra columns as text, so export gives the table back unchanged.
+
+    Units: ``t`` s since the session started; position mm; readings mm; temperature degC.
+    Every number is finite and in range (:mod:`hexcal.io.safe_read`): a NaN or infinity is
+    refused on construction."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose_id: PoseId
+    t: Seconds
+    step: str
+    leg: int = Field(ge=0, le=6)
+    constraint: ConstraintField
+    position: list[Millimetres] = Field(min_length=3, max_length=3)
+    quaternion: list[QuaternionPart] = Field(min_length=4, max_length=4)
+    readings: list[Millimetres] = Field(min_length=6, max_length=6)
+    temperature: Celsius | None = None
+    recorded_at: datetime | None = None
+    notes: list[str] = Field(default_factory=list)
+    extra: dict[str, str] = Field(default_factory=dict)
+    tracker_samples: list[RawTrackerSample] = Field(default_factory=list)
+    leg_samples: list[RawLegSample] = Field(default_factory=list)
+
+
+class SetAside(BaseModel):
+    """A pose refused at recording (``pose`` None) or recorded and then set aside because its
+    step failed a check; ``reason`` is the message the operator saw. ``unreadable_pose`` keeps,
+    exactly as it was in the file, a pose an older hexcal saved with ``null`` values (no valid
+    :class:`PoseRecord` can hold it): set aside on load, nothing of it lost."""
+
+    model_config = ConfigDict(extra="forbid")
+    step: str
+    reason: str
+    at: datetime = Field(default_factory=_now)
+    pose: PoseRecord | None = None
+    unreadable_pose: dict[str, Any] | None = None
+
+
+class OperatorNote(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    at: datetime = Field(default_factory=_now)
+    text: str
+
+
+class StepProgress(BaseModel):
+    """A procedure step the guided session has finished (``done``: its poses passed their
+    checks) or that the operator skipped; a resumed session starts at the first step with none."""
+
+    model_config = ConfigDict(extra="forbid")
+    step: str
+    status: Literal["done", "skipped"]
+    poses: Count = 0
+    at: datetime = Field(default_factory=_now)
+    check: str = Field("", description="the end-of-step check, in words")
+
+
+class ResultRecord(BaseModel):
+    """A calibration or diagnosis computed in the session: the model, the effects fitted with
+    it, the calibrated robot (robot.json content) and a JSON summary (RMS, χ², verdict...)."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["calibration", "diagnosis"]
+    at: datetime = Field(default_factory=_now)
+    model: ModelKindField
+    effects: list[str] = Field(default_factory=list)
+    pose_ids: list[PoseId] = Field(default_factory=list, description="the poses it used")
+    robot: Robot | None = None
+    calibrated: CalibratedRobot | None = Field(
+        None, description="the whole model: geometry and effects (calibrated.json's content)"
+    )
+    summary: dict[str, Any] = Field(default_factory=dict)
+
+
+class Session(BaseModel):
+    """A calibration session (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid")
+    schema_version: Literal[1, 2] = SCHEMA_VERSION
+    hexcal_version: str = __version__
+    created: datetime = Field(default_factory=_now)
+    robot: Robot
+    devices: DevicesConfig | None = None
+    instruments: Instruments | None = Field(
+        None, description="the noise of the recorded poses (stated, or estimated from them)"
+    )
+    procedure: dict[str, Any] | None = Field(
+        None, description="the procedure as loaded from its TOML file"
+    )
+    columns: list[str] = Field(
+        default_factory=lambda: list(REQUIRED_COLUMNS),
+        description="the interchange table's header, in the order export writes it",
+    )
+    poses: list[PoseRecord] = Field(default_factory=list)
+    set_aside: list[SetAside] = Field(default_factory=list)
+    notes: list[OperatorNote] = Field(default_factory=list)
+    results: list[ResultRecord] = Field(default_factory=list)
+    progress: list[StepProgress] = Field(
+        default_factory=list, description="the guided procedure's finished and skipped steps"
+    )
+
+    # -- the interchange table ----------------------------------------------------------------
+    def measurements(self) -> Measurements:
+        """The recorded poses as the measurement table (every pose, in order)."""
+        if not self.poses:
+            raise SessionFileError("the session has no recorded pose yet")
+        p = self.poses
+        temps = [r.temperature for r in p]
+        # The interchange table has no empty temperature cell: the column goes out with every
+        # pose's temperature known, or not at all (poses recorded before one was entered).
+        has_t = "temperature" in self.columns and None not in temps
+        columns = [c for c in self.columns if has_t or c != "temperature"]
+        extra_names = [c for c in self.columns if c not in _TABLE_COLUMNS]
+        return Measurements(
+            pose_id=np.asarray([r.pose_id for r in p]),
+            t=np.asarray([r.t for r in p], float),
+            step=np.asarray([r.step for r in p], object),
+            leg=np.asarray([r.leg for r in p]),
+            constraint=np.asarray([r.constraint.value for r in p], object),
+            position=np.asarray([r.position for r in p], float),
+            quaternion=np.asarray([r.quaternion for r in p], float),
+            readings=np.asarray([r.readings for r in p], float),
+            temperature=_none_to_nan(temps) if has_t else None,
+            extra={k: np.asarray([r.extra.get(k, "") for r in p], object) for k in extra_names},
+            columns=tuple(columns),
+        )
+
+    @classmethod
+    def from_measurements(
+        cls, meas: Measurements, robot: Robot, devices: DevicesConfig | None = None
+    ) -> Session:
+        """A session holding an imported table (no raw samples): export gives it back."""
+        poses = [
+            PoseRecord(
+                pose_id=int(meas.pose_id[i]),
+                t=float(meas.t[i]),
+                step=str(meas.step[i]),
+                leg=int(meas.leg[i]),
+                constraint=str(meas.constraint[i]),
+                position=[float(v) for v in meas.position[i]],
+                quaternion=[float(v) for v in meas.quaternion[i]],
+                readings=[float(v) for v in meas.readings[i]],
+                temperature=None if meas.temperature is None else _finite(meas.temperature[i]),
+                extra={k: str(v[i]) for k, v in meas.extra.items()},
+            )
+            for i in range(len(meas))
+        ]
+        return cls(robot=robot, devices=devices, columns=list(meas.columns), poses=poses)
+
+    # -- recording ------------------------------------------------------------------------------
+    def next_pose_id(self) -> int:
+        used = [r.pose_id for r in self.poses] + [
+            s.pose.pose_id for s in self.set_aside if s.pose is not None
+        ]
+        unreadable = [_unreadable_id(s.unreadable_pose) for s in self.set_aside]
+        used += [u for u in unreadable if u is not None]
+        return max(used, default=0) + 1
+
+    def pose_record(
+        self,
+        pose: RecordedPose,
+        step: str,
+        leg: int,
+        constraint: Constraint,
+        t: float,
+        temperature: float | None = None,
+    ) -> PoseRecord:
+        """A :class:`PoseRecord` of a recorded pose, numbered after every pose so far.
+
+        Raises :class:`SessionFileError` when the pose holds a NaN, an infinity or a value out
+        of range: the last line of defence, so that no such pose is ever saved (the drivers
+        flag the samples that would give one)."""
+        try:
+            return PoseRecord(
+                pose_id=self.next_pose_id(),
+                t=t,
+                step=step,
+                leg=leg,
+                constraint=constraint,
+                position=[float(v) for v in pose.position],
+                quaternion=[float(v) for v in pose.quaternion],
+                readings=[float(v) for v in pose.readings],
+                temperature=pose.temperature if temperature is None else temperature,
+                recorded_at=_now(),
+                notes=list(pose.notes),
+                tracker_samples=[RawTrackerSample.of(s) for s in pose.tracker_samples],
+                leg_samples=[RawLegSample.of(s) for s in pose.leg_samples],
+            )
+        except ValidationError as exc:
+            raise SessionFileError(
+                format_validation_error(exc, f"pose of step {step!r} not saved")
+                + "\na pose must hold finite numbers in range: check the devices (a fault "
+                "their drivers did not flag), then record the pose again"
+            ) from None
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(float(v)) else None
+
+
+def _unreadable_id(pose: dict[str, Any] | None) -> int | None:
+    pid = None if pose is None else pose.get("pose_id")
+    return pid if isinstance(pid, int) and not isinstance(pid, bool) and pid >= 1 else None
