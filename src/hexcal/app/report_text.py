@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from hexcal.estimate.calibrate import Calibration
+from hexcal.io import json_out
 from hexcal.vocabulary import ModelKind
 
 
@@ -144,13 +143,5 @@ def calibration_json(cal: Calibration, source: str, noise_source: str) -> str:
             "text": c.text,
         }
 
-    def finite(o):
-        if isinstance(o, float) and not np.isfinite(o):
-            return None
-        if isinstance(o, list):
-            return [finite(x) for x in o]
-        if isinstance(o, dict):
-            return {k: finite(v) for k, v in o.items()}
-        return o
-
-    return json.dumps(finite(out), indent=2)
+    # Strict JSON: an interval or statistic that could not be computed is null, with why.
+    return json_out.dumps(out, indent=2)

@@ -20,13 +20,14 @@ from datetime import datetime, timezone
 from typing import Any, Final, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from hexcal import __version__
 from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
 from hexcal.acquire.devices import DevicesConfig
 from hexcal.errors import InputError
 from hexcal.estimate.model_file import CalibratedRobot
+from hexcal.io.json_out import accuracy_reason, strict
 from hexcal.io.measurements import REQUIRED_COLUMNS, Measurements
 from hexcal.io.safe_read import (
     MAX_COORDINATE_MM,
@@ -201,6 +202,12 @@ class ResultRecord(BaseModel):
         None, description="the whole model: geometry and effects (calibrated.json's content)"
     )
     summary: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("summary")
+    @classmethod
+    def _strict(cls, summary: dict[str, Any]) -> dict[str, Any]:
+        # Free-form: a figure that could not be computed is null with its reason beside it.
+        return strict(summary, accuracy_reason)
 
 
 class Session(BaseModel):

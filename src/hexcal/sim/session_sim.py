@@ -145,6 +145,7 @@ def truth_json(
                 },
             },
             indent=2,
+            allow_nan=False,
         )
         + "\n"
     )
@@ -194,6 +195,6 @@ def write_session_dir(
         data = json.loads(text)
         names = [sp.name for sp in get_effect(effect).params(design)]
         data["effect_values"] = dict(zip(names, values.tolist(), strict=True))
-        text = json.dumps(data, indent=2) + "\n"
+        text = json.dumps(data, indent=2, allow_nan=False) + "\n"
     write_text_atomic(outdir / "truth.json", text)
     return outdir

@@ -9,7 +9,6 @@ from hexcal.app.commands.common import (
     add_model_option,
     add_pose_selection,
     drawing_mismatch,
-    jsonable,
     read_inputs,
     report_mismatch,
 )
@@ -64,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.app.report_text import calibration_json, calibration_text
     from hexcal.app.workflow import calibrate_model, refuse_overwrite, save_result
     from hexcal.estimate.accuracy import accuracy_table
+    from hexcal.io import json_out
     from hexcal.vocabulary import ModelKind
 
     inp = read_inputs(args)
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         out["model_name"] = result.name
         out["effects"] = list(cal.effects)
         out["pose_accuracy"] = [a.to_dict() for a in result.accuracy]
-        print(json.dumps(out, indent=2, default=jsonable))
+        print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         print(calibration_text(cal, inp.label, _noise_line(inp, cal)))
         print(

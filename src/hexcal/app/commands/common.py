@@ -91,15 +91,6 @@ def report_mismatch(mismatch: list[str], args: argparse.Namespace) -> int:
     return EXIT_DRAWING
 
 
-def jsonable(o):
-    """``json.dumps``'s ``default``: a non-finite float as null."""
-    import math
-
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    raise TypeError(f"not JSON: {type(o).__name__}")
-
-
 def refuse_existing(directory: Path, names: list[str], force: bool) -> None:
     """An output directory whose files would be replaced needs --force."""
     there = [n for n in names if (Path(directory) / n).exists()]

@@ -43,9 +43,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from hexcal.app.demo import DemoSettings, run_demo
+    from hexcal.io import json_out
 
     settings = DemoSettings(
         seed=args.seed,
@@ -60,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     say = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
     result = run_demo(settings, on_event=say)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(json_out.dumps(result, why=json_out.accuracy_reason, indent=2))
         return 0
     from hexcal.app.demo import demo_text
 

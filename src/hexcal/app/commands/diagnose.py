@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING
 from hexcal.app.commands.common import (
     add_model_option,
     add_pose_selection,
-    jsonable,
     read_inputs,
     report_mismatch,
 )
@@ -63,10 +62,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from hexcal.app.workflow import refuse_overwrite
     from hexcal.diagnosis.text import before_after_text, diagnosis_text
+    from hexcal.io import json_out
 
     inp = read_inputs(args)
     for out_path in (args.out, args.residuals, args.report):
@@ -103,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
         if result is not None:
             out["written"] = {"path": str(args.out), "model": result.name}
-        print(json.dumps(out, indent=2, default=jsonable))
+        print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         if limit_lines:
             left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""

@@ -62,7 +62,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import json
+
     from hexcal.app.progress import progress, wanted
+    from hexcal.io import json_out
+    from hexcal.io.fileio import write_text_atomic
     from hexcal.sim.simulate import PoseRanges
     from hexcal.sim.study import (
         SWEEPS,
@@ -94,12 +98,14 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         write_csv(result, out / "study.csv")
-        (out / "study.json").write_text(to_json(result), encoding="utf-8")
+        # Strict JSON, whatever the study's own writer lets through (a NaN becomes null).
+        text = json_out.dumps(json.loads(to_json(result)), indent=1)
+        write_text_atomic(out / "study.json", text)
         if not args.no_plots:
             bar.stage("drawing the plots")
         pngs = [] if args.no_plots else [*plot(result, out), plot_efficiency(result, out)]
     if args.json:
-        print(to_json(result))
+        print(text)
     else:
         print(factor_table(result))
         print()

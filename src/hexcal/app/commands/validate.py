@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.app.commands.common import jsonable
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``validate`` command and its options."""
@@ -37,11 +35,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from hexcal.app.workflow import read_inputs
     from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, load_model, model_label
     from hexcal.estimate.model_validation import validate_model
+    from hexcal.io import json_out
 
     loaded = load_model(args.model)
     model = leg_model_of(loaded)
@@ -66,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         v.rehomed = validate_model(moved, f"{v.model} re-homed", inp.meas, sig_r, source)
         v.offset_shift_mm = shift
     if args.json:
-        print(json.dumps(v.to_dict(), indent=2, default=jsonable))
+        print(json_out.dumps(v.to_dict(), why=json_out.accuracy_reason, indent=2))
     else:
         print(v.text(inp.label))
     return 0
