@@ -7,6 +7,9 @@ the file, line, field or device and says what to do.
 - :class:`DeviceError` — a device (tracker, encoders, motion controller) cannot deliver.
 - :class:`RefusedError` — the data do not support what was asked (a calibration, a pose, a fit,
   a prediction); nothing is wrong with the files, more or other poses are needed.
+- :class:`MismatchError` — the data disagree with the drawing or with themselves (a unit, a
+  sign, the quaternion order, swapped legs, an offset): an input error the command line gives
+  exit status 4, as it does a calibration that does not match the drawing.
 
 Each module's own errors derive from one of these (``RobotFileError(InputError)``,
 ``TrackerTimeout(DeviceError)``, ``CalibrationRefused(RefusedError)``...), so a caller can catch
@@ -35,4 +38,9 @@ class RefusedError(HexcalError):
     message says which poses or motions would."""
 
 
-__all__ = ["DeviceError", "HexcalError", "InputError", "RefusedError"]
+class MismatchError(InputError):
+    """The data disagree with the drawing or among themselves; the message names the cause
+    (units, a sign, the quaternion order, swapped legs, an offset) and the fix."""
+
+
+__all__ = ["DeviceError", "HexcalError", "InputError", "MismatchError", "RefusedError"]

@@ -82,8 +82,10 @@ def error_message(exc: BaseException) -> tuple[int, str]:
     raw library text reaches the user."""
     import numpy as np
 
-    from hexcal.errors import HexcalError, RefusedError
+    from hexcal.errors import HexcalError, MismatchError, RefusedError
 
+    if isinstance(exc, MismatchError):  # the data against the drawing or themselves
+        return EXIT_DRAWING, str(exc)
     if isinstance(exc, RefusedError):
         return EXIT_REFUSED, str(exc)
     if isinstance(exc, HexcalError):  # its message names what and says what to do

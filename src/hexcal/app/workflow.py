@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from hexcal.errors import RefusedError
+from hexcal.errors import MismatchError, RefusedError
 from hexcal.estimate.accuracy import PoseAccuracy
 from hexcal.estimate.calibrate import Calibration, calibrate
 from hexcal.estimate.model_file import (
@@ -37,12 +37,13 @@ from hexcal.estimate.model_file import (
     save_model,
 )
 from hexcal.estimate.refine import FitStalled
+from hexcal.estimate.sanity import DRAWING_TOLERANCE
 from hexcal.estimate.solvers.whole_robot import Form
 from hexcal.io.measurements import Measurements
 from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas
-from hexcal.model.robot import Robot
+from hexcal.model.robot import GeometryOutOfRange, Robot
 from hexcal.vocabulary import ModelKind, names_an_addition
 
 #: The most effects ``diagnose --auto`` adds before it stops.
@@ -65,6 +66,14 @@ class Inputs:
     model_effects: tuple[str, ...] = ()
     #: What reading did that the user must hear (poses set aside on load, …)
     notices: list[str] = field(default_factory=list)
+    #: Whether findings that rest on the drawing refuse (False: they are only reported), and
+    #: the drawing check's tolerance (a fraction of the design radius)
+    drawing_check: bool = True
+    drawing_tolerance: float = DRAWING_TOLERANCE
+    #: The data's consistency, once checked (:func:`screen_inputs`), and what it reported
+    #: without refusing
+    consistency: Any = field(default=None, repr=False)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def sigmas(self) -> NoiseSigmas | None:
@@ -82,11 +91,21 @@ class Inputs:
         keep = ~np.isin(self.meas.pose_id, sorted(ids))
         meas = self.meas.subset(keep)
         label = f"{self.label.rsplit(' (', 1)[0]} ({len(meas)} poses; {len(ids)} excluded)"
-        return replace(self, meas=meas, label=label)
+        return replace(self, meas=meas, label=label, consistency=None)
 
 
 class FitFailed(RefusedError, ValueError):
     """The refinement did not converge: the message names the poses pulling it."""
+
+
+class FitDiverged(RefusedError, ValueError):
+    """The fit diverged (its geometry left every plausible value): the message says so, with
+    the likely causes ranked from the data's own signature; never a fault of the user's files."""
+
+
+class DataMismatch(MismatchError):
+    """The data disagree with themselves or with the drawing, found before any fit (a unit, a
+    sign, the quaternion order, swapped legs, an offset): exit status 4."""
 
 
 def pose_names(meas: Measurements, rows: Iterable[int]) -> str:
@@ -106,20 +125,88 @@ def screen_outliers(inp: Inputs) -> None:
         raise ValueError(outlier_message(found, inp.label))
 
 
-def _stall_message(inp: Inputs, exc: Exception) -> FitFailed:
+def consistency_of(inp: Inputs) -> Any:
+    """The data's consistency (:func:`hexcal.estimate.consistency.check_consistency`), checked
+    once per inputs."""
+    from hexcal.estimate.consistency import check_consistency
+
+    if inp.consistency is None:
+        inp.consistency = check_consistency(
+            inp.meas, inp.design, inp.drawing_tolerance, inp.label.rsplit(" (", 1)[0]
+        )
+    return inp.consistency
+
+
+def screen_inputs(inp: Inputs) -> list[str]:
+    """The cheap checks, before any fit: the data's own consistency (units, signs, quaternion
+    order, and against the drawing its size, its legs and offsets), then gross outlier poses.
+    Raises :class:`DataMismatch` (or the outliers' refusal); returns what is reported without
+    refusing (findings that rest on the drawing when :attr:`Inputs.drawing_check` is off)."""
+    c = consistency_of(inp)
+    refused = c.refusals(inp.drawing_check)
+    if refused:
+        lines = "\n".join(f"  {f.text}" for f in refused)
+        hint = (
+            "; if the drawing itself is wrong, --drawing-tolerance or --no-drawing-check"
+            if any(f.drawing for f in refused)
+            else ""
+        )
+        raise DataMismatch(
+            f"the data do not agree with {'the drawing' if all(f.drawing for f in refused) else 'themselves'}"
+            f"; nothing was fitted:\n{lines}\nfix the cause and calibrate again{hint}"
+        )
+    screen_outliers(inp)
+    return [f.text for f in c.warnings(inp.drawing_check)]
+
+
+def _causes(inp: Inputs) -> str:
+    from hexcal.estimate.consistency import likely_causes
+
+    causes = likely_causes(inp.meas, inp.design, inp.drawing_tolerance)
+    return "".join(f"\n  {i}. {c}" for i, c in enumerate(causes, 1))
+
+
+def _stall_message(inp: Inputs, exc: Exception) -> RefusedError:
+    """The refusal of a fit that did not converge (:class:`FitFailed`) or diverged
+    (:class:`FitDiverged`), with the likely causes from the data's own signature."""
+    causes = _causes(inp)
+    if isinstance(exc, (GeometryOutOfRange, FitDiverged)):
+        what = str(exc).split("\n", 1)[0].removeprefix("computed geometry: ")
+        return FitDiverged(
+            f"{inp.label}: the fit diverged ({what}): its geometry left every plausible value, "
+            "so the model and the data disagree somewhere; this is not an error in the robot "
+            "file. "
+            + (
+                f"The likely causes, from the data's own signature, most likely first:{causes}"
+                if causes
+                else "No cause stands out in the data's signature: check the table's columns, "
+                "units and signs, and the robot description"
+            )
+        )
     rows = getattr(exc, "rows", [])
     pulling = f"; the poses pulling it: {pose_names(inp.meas, rows)}" if rows else ""
+    likely = f"\nthe data's own signature suggests, most likely first:{causes}" if causes else ""
     return FitFailed(
         f"{inp.label}: the calibration did not converge ({exc}){pulling}. Check those poses "
         "(a typo, a pose taken mid-move, a swapped column), leave them out with "
-        "--exclude-poses, or check the robot description"
+        f"--exclude-poses, or check the robot description{likely}"
     )
+
+
+def check_diverged(inp: Inputs, robot: Robot) -> None:
+    """Refuse a fitted geometry that left every plausible value (:class:`FitDiverged`)."""
+    from hexcal.estimate.sanity import divergence
+
+    why = divergence(robot.a, robot.b, robot.offsets, inp.design)
+    if why is not None:
+        raise _stall_message(inp, FitDiverged(why))
 
 
 def check_drawing(inp: Inputs, cal: Calibration, tolerance: float | None = None) -> list[str]:
     """The calibration against the drawing (:func:`hexcal.estimate.sanity.check_against_drawing`): one
     line per leg that does not match, with the poses that pull it most; empty when it does."""
-    from hexcal.estimate.sanity import DRAWING_TOLERANCE, check_against_drawing
+    from hexcal.estimate.consistency import offset_findings
+    from hexcal.estimate.sanity import check_against_drawing
 
     tol = DRAWING_TOLERANCE if tolerance is None else tolerance
     found = check_against_drawing(cal.robot.a, cal.robot.b, inp.design, tol)
@@ -129,6 +216,11 @@ def check_drawing(inp: Inputs, cal: Calibration, tolerance: float | None = None)
         lines.append(
             f"{f.text}; the poses that pull leg {f.legs[0]} most: {pose_names(inp.meas, worst)}"
         )
+    if not found and cal.model == ModelKind.M42 and "leg_offsets" in inp.design.model_fields_set:
+        lines += [
+            f.text.removeprefix("fitted: ")
+            for f in offset_findings(cal.robot.offsets, inp.design, tol, "fitted")
+        ]
     return lines
 
 
@@ -229,6 +321,9 @@ class ModelResult:
     calibration: Calibration
     accuracy: list[PoseAccuracy]
     file: CalibratedRobot
+    #: How the calibration does not match the drawing, one line per leg (then ``accuracy`` is
+    #: empty: a model about to be refused is not measured)
+    mismatch: list[str] = field(default_factory=list)
 
     @property
     def name(self) -> str:
@@ -322,11 +417,17 @@ def calibrate_model(
     form: Form = "paper",
     do_refine: bool = True,
     on_stage: Callable[[str], None] | None = None,
+    drawing_tolerance: float | None = None,
 ) -> ModelResult:
     """Calibrate Model ``model`` with ``effects`` (and the model file's own, when the robot
     given was a calibrated.json), then measure its pose accuracy on held-out poses against the
     drawing's and, with effects, the geometry alone. ``on_stage`` is told each stage as it
-    starts (a progress display)."""
+    starts (a progress display).
+
+    The cheap checks come first (:func:`screen_inputs`: the data's consistency, outliers); a
+    fit that diverges is refused as such (:class:`FitDiverged`). With ``drawing_tolerance``
+    the calibration is checked against the drawing (:func:`check_drawing`) before the pose
+    accuracy: a mismatch is returned in :attr:`ModelResult.mismatch`, unmeasured."""
     from hexcal.estimate.effect_fit import (
         Problem,
         design_accuracy,
@@ -337,7 +438,7 @@ def calibrate_model(
 
     effects = tuple(dict.fromkeys((*inp.model_effects, *effects)))
     stage = on_stage or (lambda text: None)
-    screen_outliers(inp)
+    screen_inputs(inp)
     stage(f"calibrating Model {int(model)} on {len(inp.meas.pose_id)} poses")
     try:
         cal = calibrate(
@@ -350,15 +451,20 @@ def calibrate_model(
             effects=effects,
             clamps=clamps,
         )
-    except FitStalled as exc:
+    except (FitStalled, GeometryOutOfRange) as exc:
         raise _stall_message(inp, exc) from None
+    check_diverged(inp, cal.robot)
+    if drawing_tolerance is not None:
+        mismatch = check_drawing(inp, cal, drawing_tolerance)
+        if mismatch:
+            return ModelResult(cal, [], build_file(inp, cal, [], None, None), mismatch)
     stage("the pose accuracy on held-out poses (5 folds)")
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
     base = ("offset",) if model == ModelKind.M42 else ()
     chain = [base] if not cal.effects else [base, (*base, *cal.effects)]
     try:
         fits = [fit_model(problem, c) for c in chain]
-    except FitStalled as exc:
+    except (FitStalled, GeometryOutOfRange) as exc:
         raise _stall_message(inp, exc) from None
     r = cal.refinement
     sig = _floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
@@ -393,7 +499,7 @@ def diagnose_chain(
     added = list(dict.fromkeys((*inp.model_effects, *add)))
     problem = None if previous is None else previous.problem
     if previous is None:
-        screen_outliers(inp)
+        screen_inputs(inp)
     steps = []
     while True:
         try:
@@ -405,7 +511,7 @@ def diagnose_chain(
                 instruments=inp.instruments,
                 problem=problem,
             )
-        except FitStalled as exc:
+        except (FitStalled, GeometryOutOfRange) as exc:
             raise _stall_message(inp, exc) from None
         problem = d.problem
         steps.append(d)
@@ -436,8 +542,9 @@ def model_of(
             effects=effects,
             clamps=clamps,
         )
-    except FitStalled as exc:
+    except (FitStalled, GeometryOutOfRange) as exc:
         raise _stall_message(inp, exc) from None
+    check_diverged(inp, cal.robot)
     accuracy = [last.design_accuracy] + [d.accuracy for d in chain]
     floor = last.noise_floor_mm if last.problem.sigmas is not None else None
     file = build_file(inp, cal, accuracy, last.fit.cv_rms_mm, floor)

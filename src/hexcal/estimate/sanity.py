@@ -126,6 +126,41 @@ def _aligned(points: np.ndarray, design: np.ndarray, tol: float) -> np.ndarray:
         keep[worst] = False
 
 
+#: A fitted geometry whose base or platform is this many times the drawing's size, or whose
+#: offsets lie this many leg lengths from the drawing's, has left every plausible value: the
+#: fit diverged (a real robot is off its drawing by millimetres).
+DIVERGED_FACTOR = 10.0
+
+
+def divergence(a: np.ndarray, b: np.ndarray, offsets: np.ndarray, design: Robot) -> str | None:
+    """How a fitted geometry (a (6, 3), b (6, 3), offsets (6,) mm) left every plausible value,
+    in words, or None when it did not. Only sizes are compared (the fit is in the tracker's
+    frame, which may lie anywhere)."""
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(offsets))):
+        return "the fitted geometry is not finite"
+
+    def radius(p: np.ndarray) -> float:
+        return float(np.linalg.norm(p - p.mean(axis=0), axis=1).max())
+
+    for name, fit, ref in (("base", a, design.a), ("platform", b, design.b)):
+        if radius(fit) > DIVERGED_FACTOR * max(radius(ref), 1.0):
+            return (
+                f"the fitted {name} spans {radius(fit):.3g} mm across, against {radius(ref):.3g} "
+                "mm on the drawing"
+            )
+    lengths = np.linalg.norm(design.a - design.b, axis=1)
+    span = DIVERGED_FACTOR * max(
+        float(np.mean(lengths)), float(np.max(np.abs(design.offsets))), 1.0
+    )
+    worst = int(np.argmax(np.abs(offsets - design.offsets)))
+    if abs(offsets[worst] - design.offsets[worst]) > span:
+        return (
+            f"leg {worst + 1}'s fitted offset is {offsets[worst]:.3g} mm, against "
+            f"{design.offsets[worst]:.3g} mm on the drawing"
+        )
+    return None
+
+
 @dataclass(frozen=True)
 class OutlierPose:
     """A pose whose leg lengths disagree with its readings far beyond the others'."""

@@ -20,9 +20,9 @@ from pydantic import (
     field_validator,
 )
 
-from hexcal.errors import InputError
+from hexcal.errors import InputError, RefusedError
 from hexcal.io.fileio import write_text_atomic
-from hexcal.io.safe_read import Millimetres, NotBool, QuaternionPart, read_json
+from hexcal.io.safe_read import MAX_COORDINATE_MM, Millimetres, NotBool, QuaternionPart, read_json
 from hexcal.io.validation import format_validation_error
 
 #: A point or vector in mm, each coordinate finite and within ±MAX_COORDINATE_MM (1 km).
@@ -45,6 +45,11 @@ Range = Annotated[
 
 class RobotFileError(InputError):
     """robot.json could not be read; the message names the file and the field."""
+
+
+class GeometryOutOfRange(RefusedError, ValueError):
+    """A computed geometry (a fit's) is not finite or beyond the ±1 km any robot file may hold:
+    the computation diverged; nothing is wrong with the user's files."""
 
 
 class Home(BaseModel):
@@ -146,10 +151,21 @@ class Robot(BaseModel):
         if offsets is not None:
             data["leg_offsets"] = np.asarray(offsets, float).tolist()
         data.update(extra)
+        numbers = np.concatenate([np.ravel(a), np.ravel(b), np.ravel(data["leg_offsets"])])
+        worst = float(np.max(np.abs(numbers))) if np.all(np.isfinite(numbers)) else np.inf
+        if not worst <= MAX_COORDINATE_MM:
+            raise GeometryOutOfRange(
+                "the geometry is not finite"
+                if not np.isfinite(worst)
+                else f"a coordinate or offset reached {worst:.3g} mm, beyond the ±1 km any robot "
+                "file may hold"
+            )
         try:
             return Robot.model_validate(data)
         except ValidationError as exc:  # e.g. a fit that diverged to NaN or beyond 1 km
-            raise ValueError(format_validation_error(exc, "robot geometry", data)) from None
+            raise GeometryOutOfRange(
+                format_validation_error(exc, "computed geometry", data)
+            ) from None
 
     def to_json(self) -> str:
         """robot.json text (indent 2); absent optional keys stay absent. An unknown key

@@ -8,7 +8,7 @@ from pathlib import Path
 from hexcal.app.commands.common import (
     add_model_option,
     add_pose_selection,
-    drawing_mismatch,
+    drawing_tolerance,
     read_inputs,
     report_mismatch,
 )
@@ -78,9 +78,10 @@ def run(args: argparse.Namespace) -> int:
             form=args.form,
             do_refine=not args.no_refine,
             on_stage=bar.stage,
+            drawing_tolerance=drawing_tolerance(args),
         )
     cal = result.calibration
-    mismatch = drawing_mismatch(args, inp, cal)
+    mismatch = result.mismatch  # then unmeasured: a model about to be refused
     if args.out and not mismatch:
         save_result(result, args.out, inp, args.force)
     if args.json:
@@ -88,13 +89,19 @@ def run(args: argparse.Namespace) -> int:
         out["model_name"] = result.name
         out["effects"] = list(cal.effects)
         out["pose_accuracy"] = [a.to_dict() for a in result.accuracy]
+        if inp.warnings:
+            out["data_warnings"] = inp.warnings
+        if mismatch:
+            out["drawing_mismatch"] = mismatch
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         print(calibration_text(cal, inp.label, _noise_line(inp, cal)))
-        print(
-            "\npose accuracy (the pose the model computes from the readings, against the tracker):"
-        )
-        print(accuracy_table(result.accuracy))
+        if result.accuracy:
+            print(
+                "\npose accuracy (the pose the model computes from the readings, against the "
+                "tracker):"
+            )
+            print(accuracy_table(result.accuracy))
         if args.out and not mismatch:
             print(f"\ncalibrated model ({result.name}) written to {args.out}")
     return report_mismatch(mismatch, args)

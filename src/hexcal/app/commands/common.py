@@ -57,6 +57,22 @@ def read_inputs(args: argparse.Namespace):
         print(f"hexcal: {text}", file=sys.stderr)
     if getattr(args, "exclude_poses", None):
         inp = inp.without(args.exclude_poses)
+    if hasattr(args, "no_drawing_check"):
+        # The cheap checks before any fit (units, signs, quaternion order, the drawing):
+        # refused at once, or, resting on a drawing not checked, said and gone on.
+        from hexcal.app.workflow import screen_inputs
+        from hexcal.errors import MismatchError
+
+        inp.drawing_check = not args.no_drawing_check
+        inp.drawing_tolerance = args.drawing_tolerance
+        try:
+            inp.warnings = screen_inputs(inp)
+        except MismatchError as exc:
+            if getattr(args, "out", None):
+                raise type(exc)(f"{exc}; {args.out} was not written") from None
+            raise
+        for text in inp.warnings:
+            print(f"hexcal: warning (the drawing is not checked): {text}", file=sys.stderr)
     if inp.model_effects and not getattr(args, "json", False):
         print(
             f"hexcal: {args.robot} is a calibrated model: its effects "
@@ -66,13 +82,9 @@ def read_inputs(args: argparse.Namespace):
     return inp
 
 
-def drawing_mismatch(args: argparse.Namespace, inp, cal) -> list[str]:
-    """The calibration against the drawing (none with --no-drawing-check)."""
-    from hexcal.app.workflow import check_drawing
-
-    if args.no_drawing_check:
-        return []
-    return check_drawing(inp, cal, args.drawing_tolerance)
+def drawing_tolerance(args: argparse.Namespace) -> float | None:
+    """The drawing check's tolerance, None with --no-drawing-check."""
+    return None if args.no_drawing_check else args.drawing_tolerance
 
 
 def report_mismatch(mismatch: list[str], args: argparse.Namespace) -> int:
