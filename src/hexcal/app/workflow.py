@@ -264,7 +264,7 @@ def read_inputs(
                 f"{measurements}: a measurement table needs the robot description: pass "
                 "--robot robot.json (a session file carries its own)"
             )
-        meas = read_measurements(measurements)
+        meas = read_measurements(measurements, notices)
     label = f"{measurements} ({len(meas)} poses)"
     return Inputs(meas, design, inst, source, label, files, effects, notices)
 

@@ -20,12 +20,13 @@ from scipy.spatial.transform import Rotation
 
 from hexcal.errors import InputError
 from hexcal.estimate.predict import LegModel
+from hexcal.io.csv_dialect import table_rows, table_text, to_point
 from hexcal.io.safe_read import (
     MAX_COORDINATE_MM,
     MAX_TEMPERATURE_C,
     MAX_TIME_S,
     MIN_TEMPERATURE_C,
-    read_text,
+    read_bytes,
 )
 from hexcal.io.validation import shown_value
 
@@ -53,6 +54,7 @@ class Table:
     header: list[str]
     rows: list[list[str]]
     lines: list[int]
+    decimal: str = "."  #: "," when the file writes decimal commas (a spreadsheet's locale)
 
     @overload
     def column(self, name: str, required: Literal[True] = True) -> np.ndarray: ...
@@ -72,7 +74,7 @@ class Table:
             cell = row[j] if j < len(row) else ""
             where = f"{self.path}: line {self.lines[i]}, column {name!r}: {shown_value(cell)}"
             try:
-                v = float(cell)
+                v = float(to_point(cell) if self.decimal == "," else cell)
             except ValueError:
                 raise TableError(f"{where} is not a number") from None
             if not np.isfinite(v):
@@ -90,19 +92,13 @@ def read_table(path: Path) -> Table:
     """Read a prediction table (UTF-8 CSV with a header, at most 64 MB: every cell is kept as
     text to be written back). Errors name the file and the line."""
     path = Path(path)
-    text = read_text(path, "table", TableError)
-    reader = csv.reader(io.StringIO(text, newline=""))
-    rows, lines = [], []
-    start = 1
+    raw = read_bytes(path, "table", TableError)
+    dialect, text = table_text(raw, str(path), TableError, (*READINGS, *POSE), list(_RANGES))
     try:
-        for r in reader:
-            line, start = start, reader.line_num + 1
-            if r and any(c.strip() for c in r):
-                rows.append(r)
-                lines.append(line)
+        rows, lines = table_rows(text, dialect)
     except csv.Error as exc:
         raise TableError(
-            f"{path}: line {reader.line_num}: not valid CSV ({exc}); fix the line or remove it"
+            f"{path}: line {exc.args[1]}: not valid CSV ({exc.args[0]}); fix the line or remove it"
         ) from None
     if not rows:
         raise TableError(f"{path}: empty; expected a header row and one row per pose")
@@ -115,7 +111,7 @@ def read_table(path: Path) -> Table:
             )
     if not body:
         raise TableError(f"{path}: no rows after the header")
-    return Table(str(path), header, body, lines[1:])
+    return Table(str(path), header, body, lines[1:], dialect.decimal)
 
 
 def direction(table: Table, to: str | None) -> str:

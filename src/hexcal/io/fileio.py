@@ -31,7 +31,7 @@ def _why(exc: OSError, path: Path) -> str:
     """An OS error on writing ``path`` in the user's terms, with what to do."""
     folder = path.parent if str(path.parent) else Path(".")
     code = exc.errno
-    if code == errno.ENOENT:
+    if code == errno.ENOENT and not folder.is_dir():
         return f"the folder {folder} does not exist; create it, or choose another path"
     if code == errno.EISDIR or path.is_dir():
         return f"is a folder; give a file name inside it (e.g. {path / 'NAME'})"

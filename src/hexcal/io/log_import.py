@@ -43,8 +43,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from scipy.spatial.transform import Rotation
 
 from hexcal.errors import InputError
+from hexcal.io.csv_dialect import grouping_hint, table_rows, table_text, to_point
 from hexcal.io.measurements import CONSTRAINTS, Measurements
-from hexcal.io.safe_read import MB, FileKind, read_text, read_toml
+from hexcal.io.safe_read import MB, FileKind, read_bytes, read_toml
 from hexcal.io.validation import format_validation_error
 from hexcal.vocabulary import Constraint
 
@@ -134,6 +135,12 @@ class LogMap(BaseModel):
     readings: ReadingsMap
     columns: ColumnsMap = ColumnsMap()
 
+    def numeric_columns(self) -> list[str]:
+        """The log's columns that hold numbers (where a decimal comma is read as a point)."""
+        p, c = self.pose, self.columns
+        names = [*p.position, *(p.quaternion or p.euler or []), *self.readings.columns]
+        return names + [n for n in (c.time, c.temperature, c.leg, c.pose_id) if n]
+
     def check(self, where: str) -> None:
         p, r = self.pose, self.readings
         if (p.quaternion is None) == (p.euler is None):
@@ -163,6 +170,11 @@ class _Log:
     path: str
     header: list[str]
     rows: list[list[str]]
+    decimal: str = "."  #: "," when the log writes decimal commas
+    lines: list[int] | None = None  #: the line each row starts on
+
+    def line(self, i: int) -> int:
+        return self.lines[i] if self.lines else i + 2
 
     def col(self, name: str) -> int:
         if name not in self.header:
@@ -178,12 +190,13 @@ class _Log:
         for i, row in enumerate(self.rows):
             cell = row[j].strip() if j < len(row) else ""
             try:
-                v = float(cell)
+                v = float(to_point(cell) if self.decimal == "," else cell)
             except ValueError:
                 v = float("nan")
             if not np.isfinite(v):
                 raise LogImportError(
-                    f"{self.path}: line {i + 2}, column {name!r}: {cell!r} is not a finite number"
+                    f"{self.path}: line {self.line(i)}, column {name!r}: {cell!r} is not a finite "
+                    f"number{grouping_hint(cell)}"
                 )
             out[i] = v
         return out
@@ -193,24 +206,30 @@ class _Log:
         return np.array([row[j].strip() if j < len(row) else "" for row in self.rows], dtype=object)
 
 
-def _read_log(path: Path) -> _Log:
-    text = read_text(path, LOG_KIND, LogImportError)
-    rows = [r for r in csv.reader(text.splitlines()) if r and any(c.strip() for c in r)]
+def _read_log(path: Path, numeric: list[str]) -> _Log:
+    raw = read_bytes(path, LOG_KIND, LogImportError)
+    dialect, text = table_text(raw, str(path), LogImportError, numeric, numeric)
+    try:
+        rows, lines = table_rows(text, dialect)
+    except csv.Error as exc:
+        raise LogImportError(
+            f"{path}: line {exc.args[1]}: not valid CSV ({exc.args[0]}); fix the line or remove it"
+        ) from None
     if len(rows) < 2:
         raise LogImportError(f"{path}: needs a header row and at least one row of data")
     header = [h.strip() for h in rows[0]]
-    for i, r in enumerate(rows[1:]):
+    for r, line in zip(rows[1:], lines[1:], strict=True):
         if len(r) != len(header):
             raise LogImportError(
-                f"{path}: line {i + 2}: {len(r)} cells where the header has {len(header)}"
+                f"{path}: line {line}: {len(r)} cells where the header has {len(header)}"
             )
-    return _Log(str(path), header, rows[1:])
+    return _Log(str(path), header, rows[1:], dialect.decimal, lines[1:])
 
 
 def import_log(log_path: str | Path, mapping: LogMap | str | Path) -> Measurements:
     """The measurement table of a lab's log (see the module docstring)."""
     m = mapping if isinstance(mapping, LogMap) else load_map(mapping)
-    log = _read_log(Path(log_path))
+    log = _read_log(Path(log_path), m.numeric_columns())
     p, r, c = m.pose, m.readings, m.columns
     position = (
         np.column_stack([log.numbers(n) for n in p.position]) * POSITION_UNITS[p.position_unit]
@@ -222,7 +241,7 @@ def import_log(log_path: str | Path, mapping: LogMap | str | Path) -> Measuremen
         if len(bad):
             i = int(bad[0])
             raise LogImportError(
-                f"{log.path}: line {i + 2}, columns {', '.join(p.quaternion)}: quaternion norm "
+                f"{log.path}: line {log.line(i)}, columns {', '.join(p.quaternion)}: quaternion norm "
                 f"{norm[i]:.6f}, expected 1 — check quaternion_order ({p.quaternion_order})"
             )
         rot = Rotation.from_quat(q, scalar_first=p.quaternion_order == "wxyz")
@@ -249,7 +268,7 @@ def import_log(log_path: str | Path, mapping: LogMap | str | Path) -> Measuremen
     if unknown:
         i = int(np.where(constraint == unknown[0])[0][0])
         raise LogImportError(
-            f"{log.path}: line {i + 2}, column {c.constraint!r}: {unknown[0]!r} is not a "
+            f"{log.path}: line {log.line(i)}, column {c.constraint!r}: {unknown[0]!r} is not a "
             f"constraint ({', '.join(CONSTRAINTS)})"
         )
     # A column not mapped is left to from_arrays' default (None).

@@ -1,5 +1,7 @@
-"""Reading ``measurements.csv`` (docs/formats.md): the rules a row must keep
-(:class:`MeasurementRow`, pydantic v2) and the streaming reader (:func:`read_measurements`).
+"""Reading ``measurements.csv`` (docs/formats.md): the streaming reader
+(:func:`read_measurements`), with the rules a row must keep (:class:`MeasurementRow`, pydantic
+v2, in :mod:`hexcal.io.measurement_rows`) and the file's CSV dialect
+(:mod:`hexcal.io.csv_dialect`).
 
 Reading streams the file row by row into typed arrays, so memory stays about the file's size
 (a 200 MB table reads in well under 1 GB); rows are checked a block at a time against the rules
@@ -8,8 +10,8 @@ bad rows are reported in one :class:`~hexcal.io.measurements.MeasurementError` n
 the line and the column. Values are held to the ranges of :mod:`hexcal.io.safe_read` (positions
 and readings ±1 km, times ±1e9 s, temperatures −273.15..1000 degC, pose ids 1 .. 2**53 − 1).
 
-The table itself, its errors and the writer are in :mod:`hexcal.io.measurements`, which also
-offers this module's public names.
+The table itself, its errors and the writer are in :mod:`hexcal.io.measurements`, which this
+module imports (never the other way round).
 """
 
 from __future__ import annotations
@@ -17,25 +19,17 @@ from __future__ import annotations
 import codecs
 import csv
 import io
-import math
-import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
 
 import numpy as np
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    BeforeValidator,
-    ConfigDict,
-    ValidationError,
-    ValidationInfo,
-    field_validator,
-)
-from pydantic_core import PydanticCustomError
+from pydantic import ValidationError
 
+from hexcal.io.csv_dialect import HEAD_BYTES, Dialect, DialectError, sniff, to_point
+
+# MeasurementRow: the row rules, importable from here too.
+from hexcal.io.measurement_rows import MeasurementRow, row_issues
 from hexcal.io.measurements import (
     _KNOWN_COLUMNS,
     CONSTRAINTS,
@@ -57,246 +51,10 @@ from hexcal.io.safe_read import (
     MAX_TEMPERATURE_C,
     MAX_TIME_S,
     MIN_TEMPERATURE_C,
+    legacy_hint,
     open_binary,
 )
 from hexcal.vocabulary import Constraint
-
-_ROW_HINT = "fix the value or remove the row"
-
-
-# --------------------------------------------------------------------------------------------
-# Row validation (pydantic)
-
-# Error types whose message this module writes itself; pydantic's own messages get a generic hint.
-_OWN_ERRORS = frozenset(
-    {
-        "empty_field",
-        "not_a_number",
-        "not_finite",
-        "not_an_integer",
-        "not_text",
-        "leg_range",
-        "unknown_constraint",
-        "leg_constraint",
-        "quaternion_norm",
-        "out_of_range",
-    }
-)
-_INTEGER_RE = re.compile(r"[+-]?[0-9]+(?:\.0*)?")
-
-
-def _empty() -> PydanticCustomError:
-    return PydanticCustomError(
-        "empty_field", "the field is empty; fill in the value or remove the row"
-    )
-
-
-def _parse_number(value: Any) -> float:
-    """A finite float from a CSV field (or a Python number)."""
-    if isinstance(value, str):
-        text = value.strip()
-        if not text:
-            raise _empty()
-        # float() also takes '1_000' and non-ASCII digits; other CSV readers do not, so refuse
-        # them here rather than write files only this reader understands.
-        try:
-            if "_" in text or not text.isascii():
-                raise ValueError
-            x = float(text)
-        except ValueError:
-            raise PydanticCustomError(
-                "not_a_number", f"{text!r} is not a number; {_ROW_HINT}"
-            ) from None
-    elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
-        text, x = repr(value), float(value)
-    else:
-        raise PydanticCustomError("not_a_number", f"{value!r} is not a number; {_ROW_HINT}")
-    if not math.isfinite(x):
-        raise PydanticCustomError(
-            "not_finite",
-            f"{text!r} is not a finite number (NaN and infinity are not allowed); {_ROW_HINT}",
-        )
-    return x
-
-
-def _parse_integer(value: Any) -> int:
-    """An int from a CSV field; ``'3'`` and ``'3.0'`` (spreadsheet exports) are accepted."""
-    if isinstance(value, str):
-        text = value.strip()
-        if not text:
-            raise _empty()
-        if not _INTEGER_RE.fullmatch(text):
-            raise PydanticCustomError("not_an_integer", f"{text!r} is not an integer; {_ROW_HINT}")
-        return int(text.split(".")[0])
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        return int(value)
-    if isinstance(value, (float, np.floating)) and math.isfinite(value) and value == int(value):
-        return int(value)
-    raise PydanticCustomError("not_an_integer", f"{value!r} is not an integer; {_ROW_HINT}")
-
-
-def _parse_text(value: Any) -> str:
-    if not isinstance(value, str):
-        raise PydanticCustomError("not_text", f"{value!r} is not text; {_ROW_HINT}")
-    text = value.strip()
-    if not text:
-        raise _empty()
-    return text
-
-
-def _check_leg(leg: int) -> int:
-    if not 0 <= leg <= 6:
-        raise PydanticCustomError(
-            "leg_range",
-            f"leg {leg} is outside 0..6; give the clamped leg 1..6, or 0 for a free pose",
-        )
-    return leg
-
-
-def _check_constraint(text: str) -> str:
-    if text not in CONSTRAINTS:
-        case = " (constraint names are lower case)" if text.lower() in CONSTRAINTS else ""
-        raise PydanticCustomError(
-            "unknown_constraint",
-            f"{text!r} is not a known constraint{case}; use one of: {', '.join(CONSTRAINTS)}",
-        )
-    return text
-
-
-def _check_range(x: float, low: float, high: float, unit: str) -> float:
-    if not low <= x <= high:
-        raise PydanticCustomError(
-            "out_of_range", f"{x!r} {unit} is outside {low:g}..{high:g} {unit}; {_ROW_HINT}"
-        )
-    return x
-
-
-def _within(low: float, high: float, unit: str) -> AfterValidator:
-    """An after-validator refusing values outside [low, high] ``unit``."""
-    return AfterValidator(lambda x: _check_range(x, low, high, unit))
-
-
-def _check_pose_id(pose_id: int) -> int:
-    if not 1 <= pose_id <= MAX_POSE_ID:
-        raise PydanticCustomError(
-            "out_of_range",
-            f"pose_id {pose_id} is outside 1..{MAX_POSE_ID} (2**53 - 1); renumber the poses from 1",
-        )
-    return pose_id
-
-
-Number = Annotated[float, BeforeValidator(_parse_number)]
-#: A position or reading, mm, within ±MAX_COORDINATE_MM.
-Millimetres = Annotated[
-    float, BeforeValidator(_parse_number), _within(-MAX_COORDINATE_MM, MAX_COORDINATE_MM, "mm")
-]
-#: A time, s, within ±MAX_TIME_S.
-Seconds = Annotated[float, BeforeValidator(_parse_number), _within(-MAX_TIME_S, MAX_TIME_S, "s")]
-Integer = Annotated[int, BeforeValidator(_parse_integer)]
-PoseId = Annotated[int, BeforeValidator(_parse_integer), AfterValidator(_check_pose_id)]
-Text = Annotated[str, BeforeValidator(_parse_text)]
-Leg = Annotated[int, BeforeValidator(_parse_integer), AfterValidator(_check_leg)]
-#: A constraint as the table writes it (a :class:`Constraint` value), kept as its text.
-ConstraintText = Annotated[str, BeforeValidator(_parse_text), AfterValidator(_check_constraint)]
-# Not ``Number | None``: a union would report a bad value once per member, with a mangled location.
-OptionalCelsius = Annotated[
-    float | None,
-    BeforeValidator(lambda v: None if v is None else _parse_number(v)),
-    AfterValidator(
-        lambda v: (
-            None if v is None else _check_range(v, MIN_TEMPERATURE_C, MAX_TEMPERATURE_C, "degC")
-        )
-    ),
-]
-
-
-class MeasurementRow(BaseModel):
-    """One row of measurements.csv, validated.
-
-    Units: ``t`` s; ``x, y, z`` mm (platform origin in the measurement frame); ``qw..qz`` unit
-    quaternion, scalar first (norm within :data:`QUATERNION_TOLERANCE` of 1); ``rho1..rho6`` mm;
-    ``temperature`` degC or None when the file has no such column. Fields accept the raw CSV
-    strings; whitespace around them is ignored. Ranges: ``pose_id`` 1 .. 2**53 − 1; ``t``
-    ±1e9 s; positions and readings ±1e6 mm; temperature −273.15..1000 degC.
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    pose_id: PoseId
-    t: Seconds
-    step: Text
-    leg: Leg
-    constraint: ConstraintText
-    x: Millimetres
-    y: Millimetres
-    z: Millimetres
-    qw: Number
-    qx: Number
-    qy: Number
-    qz: Number
-    rho1: Millimetres
-    rho2: Millimetres
-    rho3: Millimetres
-    rho4: Millimetres
-    rho5: Millimetres
-    rho6: Millimetres
-    temperature: OptionalCelsius = None
-
-    # Field validators rather than one model validator: a row that breaks both rules reports
-    # both, and each is pinned to a column. ``leg`` precedes ``constraint`` and ``qw..qy``
-    # precede ``qz``, so ``info.data`` holds them when they were valid.
-    @field_validator("constraint")
-    @classmethod
-    def _leg_matches_constraint(cls, constraint: str, info: ValidationInfo) -> str:
-        leg = info.data.get("leg")
-        if leg is None:
-            return constraint
-        if leg == 0 and constraint != Constraint.FREE:
-            raise PydanticCustomError(
-                "leg_constraint",
-                f"constraint '{constraint}' needs a clamped leg but leg is 0; set leg to the "
-                "clamped leg (1..6), or the constraint to 'free' for a free pose",
-            )
-        if leg != 0 and constraint == Constraint.FREE:
-            raise PydanticCustomError(
-                "leg_constraint",
-                f"constraint 'free' is for free poses, which have leg 0, but leg is {leg}; set "
-                "leg to 0, or the constraint to the clamp used (direction, direction+length, "
-                "length)",
-            )
-        return constraint
-
-    @field_validator("qz")
-    @classmethod
-    def _unit_quaternion(cls, qz: float, info: ValidationInfo) -> float:
-        parts = [info.data.get(c) for c in QUATERNION_COLUMNS[:3]]
-        if any(p is None for p in parts):
-            return qz
-        q = (*(float(p) for p in parts if p is not None), qz)
-        norm = math.sqrt(sum(c * c for c in q))
-        if abs(norm - 1.0) > QUATERNION_TOLERANCE:
-            raise PydanticCustomError(
-                "quaternion_norm",
-                f"quaternion (qw, qx, qy, qz) = ({', '.join(repr(c) for c in q)}) has norm "
-                f"{norm:.6f}, not within {QUATERNION_TOLERANCE:g} of 1; check the column order "
-                "(scalar first) or renormalise at the source, or remove the row",
-                {"column": "qw"},
-            )
-        return qz
-
-
-def _row_issues(exc: ValidationError, line: int, values: Mapping[str, str]) -> list[Issue]:
-    issues = []
-    for err in exc.errors(include_url=False):
-        ctx = err.get("ctx") or {}
-        column = ctx.get("column") or (str(err["loc"][0]) if err["loc"] else None)
-        if err["type"] in _OWN_ERRORS:
-            message = err["msg"]
-        else:
-            message = f"{values.get(column or '', '')!r}: {err['msg']}; {_ROW_HINT}"
-        issues.append(Issue(message, line=line, column=column))
-    return issues
-
 
 # --------------------------------------------------------------------------------------------
 # Reading
@@ -359,7 +117,8 @@ def _undecodable(path: Path) -> MeasurementError:
         path,
         line,
         column,
-        f"byte {at} (0x{data[i]:02x}) is not UTF-8 text; save the file as UTF-8 (e.g. 'CSV UTF-8')",
+        f"byte {at} (0x{data[i]:02x}) is not UTF-8 text; save the file as UTF-8 (e.g. 'CSV UTF-8')"
+        + legacy_hint(data[i : i + 4]),
     )
 
 
@@ -585,7 +344,7 @@ class _TableReader:
             try:
                 row = MeasurementRow.model_validate({c: by_name[c] for c in self.fields})
             except ValidationError as exc:
-                found = _row_issues(exc, line, by_name)
+                found = row_issues(exc, line, by_name)
                 for issue in sorted(found, key=lambda i: order.get(i.column or "", len(order))):
                     self._issue(issue)
                 continue
@@ -667,13 +426,22 @@ def _repeated_ids(ids: np.ndarray, lines: np.ndarray) -> tuple[list[Issue], int]
     return issues, len(repeats)
 
 
-def read_measurements(path: str | Path) -> Measurements:
+#: The columns holding numbers (where a decimal comma is read as a point).
+NUMERIC_COLUMNS = ("pose_id", "t", "leg", *POSITION_COLUMNS, *QUATERNION_COLUMNS,
+                   *READING_COLUMNS, "temperature")  # fmt: skip
+
+
+def read_measurements(path: str | Path, notices: list[str] | None = None) -> Measurements:
     """Read and validate measurements.csv (docs/formats.md).
 
     Raises :class:`MeasurementError` listing every bad row (up to :data:`MAX_MESSAGES`), each
     with file, line (header = line 1) and column; also for a missing, unreadable, non-UTF-8,
     empty or too large (:data:`hexcal.io.safe_read.KINDS`) file. Floats keep the exact value
     written; extra columns keep their text. The file is streamed: memory stays about its size.
+
+    The CSV dialect is found from the file's first lines (:mod:`hexcal.io.csv_dialect`):
+    semicolons or tabs, decimal commas, a byte-order mark, UTF-16, Excel's ``sep=`` line and
+    empty padding columns are read as they are, and said in ``notices`` when given.
     """
     path = Path(path)
 
@@ -681,32 +449,52 @@ def read_measurements(path: str | Path) -> Measurements:
         return MeasurementError.single(path, None, None, message.removeprefix(f"{path}: "))
 
     with open_binary(path, "measurements", error) as fh:
-        # utf-8-sig drops a leading byte-order mark (spreadsheet exports); newline="" keeps
-        # line ends as they are, as the csv module wants.
-        stream = io.TextIOWrapper(fh, encoding="utf-8-sig", newline="")
         try:
-            return _read_table(stream, path)
+            head = fh.read(HEAD_BYTES)
+            fh.seek(0)
+        except OSError as exc:
+            raise error(f"cannot be read ({exc.strerror or exc})") from None
+        try:
+            dialect = sniff(head, REQUIRED_COLUMNS, NUMERIC_COLUMNS)
+        except DialectError as exc:
+            raise MeasurementError.single(path, 2, None, str(exc)) from None
+        # newline="" keeps line ends as they are, as the csv module wants; utf-8-sig drops a
+        # leading byte-order mark (spreadsheet exports).
+        stream = io.TextIOWrapper(fh, encoding=dialect.encoding, newline="")
+        try:
+            table = _read_table(stream, path, dialect)
         except UnicodeDecodeError:
             raise _undecodable(path) from None
         except OSError as exc:
             raise error(f"cannot be read ({exc.strerror or exc})") from None
+    if not dialect.standard and notices is not None:
+        notices.append(f"{path}: read as a table {dialect.describe()}")
+    return table
 
 
-def _read_table(stream: io.TextIOWrapper, path: Path) -> Measurements:
-    reader = csv.reader(stream)
+def _read_table(stream: io.TextIOWrapper, path: Path, dialect: Dialect) -> Measurements:
+    reader = dialect.reader(stream)
+    skip = dialect.skip
     table: _TableReader | None = None
     pending: list[tuple[int, list[str]]] = []
-    header_line = 1
+    header_line = 1 + skip
     start = 1
+    numeric: list[int] = []
+    width = 0
     try:
         for fields in reader:
-            line, start = start, reader.line_num + 1
+            line, start = start + skip, reader.line_num + 1
             # Blank lines and the all-comma rows spreadsheets append hold no data at all.
             # (Fields are stripped where they are used: the fast path leaves numbers as they
             # are, since float() and int() ignore the same spaces str.strip() removes.)
             if not fields or (not fields[0].strip() and not "".join(fields).strip()):
                 continue
             if table is not None:
+                fields = dialect.trim(fields, width)
+                if numeric:
+                    for j in numeric:
+                        if j < len(fields):
+                            fields[j] = to_point(fields[j])
                 pending.append((line, fields))
                 if len(pending) >= _BLOCK_ROWS:
                     table.flush(pending)
@@ -714,11 +502,15 @@ def _read_table(stream: io.TextIOWrapper, path: Path) -> Measurements:
                 continue
             header_line = line
             header = [f.strip() for f in fields]
+            header = header[: len(header) - dialect.padding]
             _raise_issues(_header_issues(header, line), path)
             table = _TableReader(header, path)
+            width = len(header)
+            if dialect.decimal == ",":
+                numeric = [k for k, c in enumerate(header) if c in NUMERIC_COLUMNS]
     except csv.Error as exc:
         raise MeasurementError.single(
-            path, reader.line_num, None, f"not valid CSV ({exc}); fix the line or remove it"
+            path, reader.line_num + skip, None, f"not valid CSV ({exc}); fix the line or remove it"
         ) from None
     if table is None:
         raise MeasurementError.single(

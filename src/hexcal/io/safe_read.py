@@ -213,8 +213,19 @@ def decode(raw: bytes, where: str, error: ErrorFactory) -> str:
         line = raw.count(b"\n", 0, at) + 1
         raise error(
             f"{where}: byte {at} (line {line}, 0x{raw[at]:02x}) is not UTF-8 text; save the "
-            "file as UTF-8"
+            f"file as UTF-8{legacy_hint(raw[at : at + 4])}"
         ) from None
+
+
+def legacy_hint(fragment: bytes) -> str:
+    """What an undecodable byte suggests: text in a Western 8-bit code page, as a spreadsheet's
+    plain "CSV" and older lab software save it ('' when nothing clear)."""
+    if fragment and fragment[0] >= 0x80 and not fragment.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return (
+            " (it reads as Windows-1252 or Latin-1 text, as a spreadsheet's plain 'CSV' saves "
+            "it: choose 'CSV UTF-8')"
+        )
+    return ""
 
 
 def read_text(path: str | Path, kind: str | FileKind, error: ErrorFactory = InputFileError) -> str:

@@ -8,6 +8,7 @@ from pathlib import Path
 from hexcal.app.commands.common import (
     add_model_option,
     add_pose_selection,
+    check_outputs,
     drawing_tolerance,
     read_inputs,
     report_mismatch,
@@ -66,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.io import json_out
     from hexcal.vocabulary import ModelKind
 
+    check_outputs((args.out, "calibrated.json"))
     inp = read_inputs(args)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)

@@ -103,6 +103,17 @@ def report_mismatch(mismatch: list[str], args: argparse.Namespace) -> int:
     return EXIT_DRAWING
 
 
+def check_outputs(*outputs: tuple[object, str]) -> None:
+    """Refuse, before any work, an output path that cannot be written: each ``(path, what)``
+    with ``what`` a file name to suggest inside a folder given where a file is wanted (e.g.
+    ``calibrated.json``), or ``"/"`` for an output folder; None paths are skipped."""
+    from hexcal.io.fileio import check_output
+
+    for path, what in outputs:
+        if path:
+            check_output(Path(str(path)), folder=what == "/", example=what)
+
+
 def refuse_existing(directory: Path, names: list[str], force: bool) -> None:
     """An output directory whose files would be replaced needs --force."""
     there = [n for n in names if (Path(directory) / n).exists()]

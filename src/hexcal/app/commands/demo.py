@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.app.commands.common import COUNT, POSITIVE_COUNT, SECONDS, SEED
+from hexcal.app.commands.common import COUNT, POSITIVE_COUNT, SECONDS, SEED, check_outputs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.app.demo import DemoSettings, run_demo
     from hexcal.io import json_out
 
+    check_outputs((args.session, "session.json"))
     settings = DemoSettings(
         seed=args.seed,
         effect=args.effect,

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from hexcal.app.commands.common import (
     add_model_option,
     add_pose_selection,
+    check_outputs,
     read_inputs,
     report_mismatch,
 )
@@ -66,6 +67,12 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.diagnosis.text import before_after_text, diagnosis_text
     from hexcal.io import json_out
 
+    check_outputs(
+        (args.out, "calibrated.json"),
+        (args.residuals, "residuals.csv"),
+        (args.report, "report.html"),
+        (args.plots, "/"),
+    )
     inp = read_inputs(args)
     for out_path in (args.out, args.residuals, args.report):
         if out_path:

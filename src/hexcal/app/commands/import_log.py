@@ -24,10 +24,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hexcal.app.commands.common import check_outputs
     from hexcal.io.log_import import import_log
     from hexcal.io.measurements import write_measurements
 
     out = Path(args.out)
+    check_outputs((out, "measurements.csv"))
     if out.resolve() in (Path(args.log).resolve(), Path(args.map).resolve()):
         raise ValueError(f"{out}: this is an input; write the table to another file")
     if out.exists() and not args.force:

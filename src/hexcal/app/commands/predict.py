@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hexcal.app.commands.common import number
+from hexcal.app.commands.common import check_outputs, number
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.estimate.predict_table import direction, predict_table, read_table, write_table
     from hexcal.io.fileio import write_text_atomic
 
+    check_outputs((args.out, "predicted.csv"))
     model = leg_model_of(load_model(args.model))
     table = read_table(args.table)
     to = direction(table, args.to)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.app.commands.common import COUNT, SEED, SIGMA, number, refuse_existing
+from hexcal.app.commands.common import COUNT, SEED, SIGMA, check_outputs, number, refuse_existing
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
             "--effect compliance needs the platform mass: pass --mass-kg (or a robot.json with platform_mass_kg)"
         )
     names = ["robot.json", "measurements.csv", "instruments.json", "truth.json"]
+    check_outputs((args.out, "/"))
     refuse_existing(args.out, names, args.force)
     if args.robot and Path(args.robot).resolve() == (Path(args.out) / "robot.json").resolve():
         raise ValueError(f"{args.robot}: this is the robot input; choose another --out")

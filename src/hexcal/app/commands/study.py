@@ -6,7 +6,14 @@ import argparse
 import time
 from pathlib import Path
 
-from hexcal.app.commands.common import POSITIVE_COUNT, SEED, SIGMA, number, refuse_existing
+from hexcal.app.commands.common import (
+    POSITIVE_COUNT,
+    SEED,
+    SIGMA,
+    check_outputs,
+    number,
+    refuse_existing,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -89,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         ranges=PoseRanges(stroke_mm=args.stroke_mm, tilt_deg=args.tilt_deg, cone_deg=args.cone_deg),
     )
+    check_outputs((args.out, "/"))
     refuse_existing(Path(args.out), ["study.csv", "study.json"], args.force)
     t0 = time.perf_counter()
     with progress(wanted(args.json)) as bar:
