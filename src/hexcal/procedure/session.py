@@ -1,10 +1,10 @@
 """The session file: everything a calibration session recorded and computed, in one JSON file.
 
-A :class:`Session` (pydantic v2) holds the robot description, the device configuration, the
-procedure, every recorded pose with its raw samples and timestamps, the poses that were refused
-or set aside (with the reason), operator notes, and each calibration and diagnosis result with
-the model it used. ``schema_version`` says which layout the file follows (``hexcal schema``
-prints the JSON Schema).
+A :class:`Session` (pydantic v2, in :mod:`hexcal.procedure.session_model` and importable from
+here) holds the robot description, the device configuration, the procedure, every recorded pose
+with its raw samples and timestamps, the poses refused or set aside (with the reason), operator
+notes, and each calibration and diagnosis result with the model it used. ``schema_version`` says
+which layout the file follows (``hexcal schema`` prints the JSON Schema).
 
 Safety: :class:`SessionFile` saves the whole session atomically (temporary file, fsync, rename,
 fsync of the directory) after every change, so a kill at any instant leaves either the previous
@@ -12,16 +12,19 @@ file or the new one. A file that is not valid JSON, not a session, or written by
 (higher ``schema_version``) is refused with a message naming it, and is never overwritten:
 :class:`SessionFile` only writes to a path it created or loaded cleanly itself.
 
+One writer: a :class:`SessionFile` holds the session's lock (:mod:`hexcal.procedure.session_lock`)
+until it is closed, so a second program is refused, told who holds it; every save checks that the
+file on disk is the one it last read or wrote, and refuses (:class:`SessionConflict`, both
+versions kept, :mod:`hexcal.procedure.session_merge` merges them) when another program changed
+it. The file is held to the rules of the table it exports to
+(:mod:`hexcal.procedure.session_check`) on load and when a pose is added.
+
 Numbers: every number in a session is finite and within the limits of :mod:`hexcal.io.safe_read`
 (positions and readings ±1 km, times ±1e9 s, pose ids 1 .. 2**53 − 1). A pose holding NaN or
 infinity is refused on construction (:class:`SessionFileError`), never saved. A file from an
 older hexcal, which saved such values as ``null``, still loads: each pose with a ``null`` where a
 number belongs is moved to ``set_aside`` whole (``unreadable_pose``), with a reason naming the pose
-and the field; nothing else changes.
-
-Times: ``t`` of a pose is seconds since the session started (the interchange table's ``t``);
-raw sample times are the host's monotonic clock (s) of the recording run they came from, so
-only differences within one run are meaningful; ``recorded_at`` is wall-clock UTC.
+and the field; nothing else changes (:mod:`hexcal.procedure.session_legacy`).
 """
 
 from __future__ import annotations
