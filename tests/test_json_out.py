@@ -39,8 +39,8 @@ def test_a_pose_accuracy_that_no_pose_closed_says_so():
     out = strict(record, accuracy_reason)
     assert out["position_rms_mm"] is None
     assert out["position_rms_mm_why"] == (
-        "no pose to measure it on: the readings of 184 of 184 poses closed to no pose with "
-        "this model"
+        "no pose to measure it on: the readings of none of the 184 poses tried closed to a "
+        "pose with this model"
     )
 
 

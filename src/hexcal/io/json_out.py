@@ -96,13 +96,11 @@ def loads_strict(text: str) -> Any:
 def accuracy_reason(key: str, record: Mapping[str, Any]) -> str | None:
     """Why a pose-accuracy figure (``position_rms_mm``...) is null: the poses whose readings
     no pose closes."""
-    failed = record.get("failed")
-    poses = record.get("poses")
+    failed = record.get("failed", record.get("poses_out_of_workspace"))
     if key.startswith(("position_", "orientation_")) and isinstance(failed, int) and failed:
-        total = failed + (poses if isinstance(poses, int) else 0)
         return (
-            f"no pose to measure it on: the readings of {failed} of {total} poses closed to no "
-            "pose with this model"
+            f"no pose to measure it on: the readings of none of the {failed} poses tried closed "
+            "to a pose with this model"
         )
     if key.startswith("floor_"):
         return "no noise floor without stated noise (the floor would be the fit's own residual)"
