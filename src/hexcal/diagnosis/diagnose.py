@@ -229,6 +229,7 @@ class Diagnosis:
                     "separating_motion": c.separating_motion,
                     "nonphysical": [p.name for p in c.refit.nonphysical()] if c.refit else [],
                     "of_the_session": _of_the_session(c.effect),
+                    "source": get_effect(c.effect).source.text(),
                 }
                 for c in self.candidates
             ],
