@@ -32,13 +32,21 @@ for a platform joint — under a tenth of the tracker's 10 µm. The simulator in
 ``L − L'`` (:meth:`~hexcal.effects.base.Effect.true_contribution`), so simulated sessions test
 the linearisation.
 
-**What the geometry absorbs.** Write ``s(n) = |u × n|`` around the leg's mean direction: its
-constant part is a change of ``offset_k``, and its part linear in ``n`` is ``n·δ`` for a fixed
-vector ``δ`` along ``u`` — a shift of the joint centre along its fixed axis (``a_k`` for a base
-joint; for a platform joint, ``n`` taken in the platform frame, a shift of ``b_k``). Only the
-curvature of ``s`` over the leg's swing is the effect's own: with the fixed axis across the leg
-at home (``u·n ≈ 0``), ``s ≈ 1 − (u·n)²/2``, so what separates it is each leg swung far towards
-and away from its joint's fixed axis (about the joint's second axis), on both sides.
+**What the geometry absorbs.** Write ``s(n) = |u × n|`` around the leg's direction at home
+``n₀``: its constant part ``e·s(n₀)`` is a change of ``offset_k``; its part linear in ``n``,
+``−e·(u·n₀)/s(n₀)·(u·n)``, is what a shift of the joint centre along its fixed axis gives (``a_k``
+for a base joint; for a platform joint, ``n`` taken in the platform frame, ``b_k``) — nothing
+when the fixed axis is across the leg at home, the default, where ``s ≈ 1 − (u·n)²/2``. What
+is left is that curvature, and of it the geometry takes whatever follows the legs' tilt over the
+session's poses (mostly through ``a_k``'s or ``b_k``'s height). On a standard simulated Left
+Hand session (184 poses) that leaves 0.3 % of the ``ujoint`` basis' size (principal angle to the
+geometry's Jacobian 0.15–0.2°) and 1.3 % of ``balljoint``'s (0.7–1.1°). Without noise, a 1 mm
+offset on every joint leaves Model 42 a residual of 3.5 µm RMS (up to 28 µm at the poses that
+swing the legs most) at the base joints and 14 µm RMS (up to 90 µm) at the platform joints; with
+the standard noise the session resolves the offsets to about ±0.1 mm and ±0.025 mm. The fit of
+the linear model reads a 1 mm offset 0.5 % short (the second-order term), far inside that. What separates the rest is each leg swung far towards
+and away from its joint's fixed axis, on both sides: about the joint's second axis for a base
+joint; by tilting the platform, for a platform joint.
 """
 
 from __future__ import annotations
