@@ -298,9 +298,22 @@ def main() -> None:
     ap.add_argument("--out", default="docs/diagnosis_rates.json")
     ap.add_argument("--cases", nargs="*", help="only these cases (default: every one)")
     ap.add_argument("--markdown", metavar="JSON", help="only print the table of an earlier run")
+    ap.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="JSON",
+        help="join the rows of runs of different cases into --out (no session is run)",
+    )
     args = ap.parse_args()
     if args.markdown:
         print(markdown(json.loads(Path(args.markdown).read_text())["summary"]))
+        return
+    if args.merge:
+        runs = [json.loads(Path(p).read_text()) for p in args.merge]
+        rows = [r for run in runs for r in run["rows"]]
+        out = {"seconds": sum(r["seconds"] for r in runs), "summary": summarise(rows), "rows": rows}
+        Path(args.out).write_text(json.dumps(out, indent=1))
+        print(markdown(out["summary"]))
         return
     wanted = set(args.cases or (*EFFECTS, *JOINT_SIZES, "clean", "foreign", *HARD_CASES))
     jobs = [

@@ -387,3 +387,41 @@ def test_the_rig_file_lists_effect_files_relative_to_it(tmp_path):
     assert cfg.effects == [tmp_path / "height_effect.py"]
     assert "effects" not in cfg.model_dump()  # a session stores the devices, never these paths
     assert effects.plugins.load_files(cfg.effects) == ["height"]
+
+
+def test_the_docs_example_file_is_named_on_a_session_hiding_it(tmp_path):
+    """docs/effects.md's minimal file, as it stands: loaded, hidden by the simulator, named."""
+    import re
+
+    from hexcal.diagnosis import diagnose
+    from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+    from hexcal.sim.inject import effect_hook
+    from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
+
+    text = (ROOT / "docs" / "effects.md").read_text(encoding="utf-8")
+    code = re.findall(r"```python\n(.*?)```", text, re.S)[0]
+    path = tmp_path / "height.py"
+    path.write_text(code)
+    assert effects.load_file(path) == ["height"]
+    design = left_hand()
+    rng = np.random.default_rng(2)
+    truth = perturbed_truth(design, rng, SessionPlan())
+    hook = effect_hook("height", np.array([0.5]), truth)  # 0.5 µm per mm of platform height
+    meas, _ = simulate_session(design, 2, SessionPlan(), effects=[hook], truth=truth)
+    inst = Instruments(
+        tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
+        encoders=EncoderNoise(reading_sigma_mm=0.002),
+    )
+    d = diagnose(meas, design, 42, instruments=inst)
+    assert d.verdict == "height", (d.verdict, [(c.effect, c.reason) for c in d.candidates])
+
+
+def test_hexcal_run_loads_the_rig_files_effects_before_the_ui(tmp_path, capsys):
+    """``hexcal run --config`` runs the rig file's effect files first (here it then stops: no
+    --robot), so the text UI's diagnosis has them."""
+    effect_file(tmp_path)
+    rig = tmp_path / "rig.toml"
+    rig.write_text('effects = ["height_effect.py"]\n[tracker]\nurl = "loop://"\n')
+    assert main(["run", "--config", str(rig)]) == 2
+    assert "needs its design" in capsys.readouterr().err
+    assert effects.get_effect("height").source.kind == "file"

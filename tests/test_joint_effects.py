@@ -93,7 +93,7 @@ def test_the_geometry_absorbs_most_and_the_rest_is_resolved(name, absorbed, reso
     problem = Problem.build(meas, design, SIG)
     fit = fit_model(problem, ("offset",), cross_validate=False)
     q = jacobian_basis(fit)
-    jw, _, w = fit.refinement.whitened()
+    _, _, w = fit.refinement.whitened()
     basis = problem.basis(name)
     bw = np.einsum("mij,mjp->mip", w, basis).reshape(-1, 6)
     left = bw - q @ (q.T @ bw)

@@ -47,8 +47,9 @@ class Gain(Effect):
         spread = float(np.max(np.abs(np.asarray(values) - common)))
         return (
             f"gain looks exactly like a tracker scale error: a tracker whose positions read "
-            f"{common:+.0f} ppm long (a few hundred ppm is a plain calibration error) gives every "
-            f"leg the same {common:+.0f} ppm gain, with the geometry scaled alike. Only the legs' "
+            f"{common:+.0f} ppm long gives every leg the same {common:+.0f} ppm gain, with the "
+            "geometry scaled alike (an optical tracker's or a motion-capture system's scale is "
+            "often a few hundred ppm off). Only the legs' "
             f"differences (up to ±{spread:.0f} ppm about that mean) are surely the encoders'; to "
             "tell the common part apart, measure a length standard (a calibrated bar, or an "
             "interferometer along a line) in the tracker's volume"

@@ -44,9 +44,10 @@ geometry's Jacobian 0.15–0.2°) and 1.3 % of ``balljoint``'s (0.7–1.1°). Wi
 offset on every joint leaves Model 42 a residual of 3.5 µm RMS (up to 28 µm at the poses that
 swing the legs most) at the base joints and 14 µm RMS (up to 90 µm) at the platform joints; with
 the standard noise the session resolves the offsets to about ±0.1 mm and ±0.025 mm. The fit of
-the linear model reads a 1 mm offset 0.5 % short (the second-order term), far inside that. What separates the rest is each leg swung far towards
-and away from its joint's fixed axis, on both sides: about the joint's second axis for a base
-joint; by tilting the platform, for a platform joint.
+the linear model reads a 1 mm offset 0.5 % short (the second-order term), far inside that.
+What separates the rest is each leg swung far towards and away from its joint's fixed axis, on
+both sides: about the joint's second axis for a base joint; by tilting the platform, for a
+platform joint.
 """
 
 from __future__ import annotations
