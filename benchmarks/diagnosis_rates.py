@@ -3,8 +3,9 @@
     python benchmarks/diagnosis_rates.py [--sessions 50] [--jobs 2] [--out docs/diagnosis_rates.json]
 
 For every catalogue effect, sessions with that effect hidden at a realistic size (and at 0.3×
-that, near the detection limit); clean sessions; and sessions with a structured effect outside
-the catalogue (a local dent in one leg). Geometry, noise realisation and effect sizes are drawn
+that, near the detection limit); the joints' axis offsets at sizes chosen by what the geometry
+leaves of them (:data:`JOINT_SIZES`); clean sessions; and sessions with a structured effect
+outside the catalogue (a local dent in one leg). Geometry, noise realisation and effect sizes are drawn
 from each session's seed. Reported: the share of right verdicts, the false-alarm rate on clean
 sessions, and, after adding the named effect, the held-out RMS against the noise floor.
 """
@@ -51,6 +52,17 @@ INST = Instruments(
 #: The catalogue on the Left Hand (drift: a tracker drifting 100–200 µm over the session while
 #: the temperature rises 5 K, so it must be told apart from thermal).
 EFFECTS = ("offset", "gain", "backlash", "thermal", "compliance", "leadscrew", "drift")
+#: The joints' axis offsets, mm on every joint (sides drawn per leg): (size, verdict expected).
+#: The geometry absorbs all but a sliver of them (hexcal.effects.joint_axes), so their sizes
+#: are set by the χ² that sliver leaves on a standard session (λ, the non-centrality): a 1 mm
+#: offset at the base joints leaves λ ≈ 430–670, named; at 0.15 mm λ ≈ 10–15, under the ΔBIC
+#: of six parameters (≈ 52), so the verdict is none. A platform joint's offset shows about 20×
+#: more (λ ≈ 8000–12500 at 1 mm): 1 mm is named, 0.25 mm (λ ≈ 500–780, as visible as a base
+#: joint's 1 mm) too, and 0.035 mm (λ ≈ 10–15, as a base joint's 0.15 mm) is not.
+JOINT_SIZES = {
+    "ujoint": ((1.0, "ujoint"), (0.15, "none")),
+    "balljoint": ((1.0, "balljoint"), (0.25, "balljoint"), (0.035, "none")),
+}
 #: Cases on hardware the Left Hand does not stand for, or with gross outliers: (case, the
 #: verdict expected). Each is run at its realistic size only.
 HARD_CASES = {
@@ -96,7 +108,7 @@ def left_hand_session(case: str, seed: int, scale: float = 1.0) -> Case:
         design = design.with_geometry(
             design.a, design.b, truth.offsets - scale * (truth.offsets - design.offsets)
         )
-    elif effect in EFFECTS:
+    elif effect in EFFECTS or effect in JOINT_SIZES:
         hooks = [effect_hook(effect, realistic_values(effect, rng, truth, scale), truth)]
     elif case == "foreign":
         dent_leg = int(rng.integers(1, 7))
@@ -116,6 +128,8 @@ def left_hand_session(case: str, seed: int, scale: float = 1.0) -> Case:
     if case == "compliance, no mass":
         design = design.model_copy(update={"platform_mass_kg": None})
     expected = HARD_CASES.get(case) or {"clean": "none", "foreign": "unexplained"}.get(case, case)
+    if case in JOINT_SIZES:
+        expected = dict(JOINT_SIZES[case])[scale]
     return Case(meas, design, model, expected, INST, dent_leg, ids)
 
 
@@ -168,7 +182,8 @@ def run_one(args):
         out["located"] = (
             bool(d.where["worst_legs"]) and d.where["worst_legs"][0] == f"leg {c.dent_leg}"
         )
-    if right and scale == 1.0 and case not in CLEAN and case != "foreign":
+    named = case not in CLEAN and case != "foreign" and c.expected != "none"
+    if right and named and (scale == 1.0 or case in JOINT_SIZES):
         if d.verdict == "outliers":  # set aside already: the fit is of the rest
             after = d
         else:
@@ -217,6 +232,8 @@ def markdown(summary: dict) -> str:
             name, _, size = key.partition(" (")
             robot, _, effect = name.rpartition(": ")
             label = (f"{robot}: " if robot else "") + f"`{effect}`" + (f" ({size}" if size else "")
+            if effect in JOINT_SIZES:
+                label = f"`{effect}`, every joint's axes {size.rstrip(')')} apart"
         extra = ""
         if "located_right_leg" in s:
             extra = f"; right leg located in {100 * s['located_right_leg']:.0f} %"
@@ -235,12 +252,16 @@ def summarise(rows: list[dict]) -> dict:
     """Per case and size: share right, the verdicts, the held-out RMS against the floor after
     adding the named effect, and (clean sessions) the false alarms."""
     summary = {}
-    for case in (*EFFECTS, "clean", "foreign", *HARD_CASES):
-        for scale in (1.0, 0.3):
+    for case in (*EFFECTS, *JOINT_SIZES, "clean", "foreign", *HARD_CASES):
+        scales = [size for size, _ in JOINT_SIZES[case]] if case in JOINT_SIZES else (1.0, 0.3)
+        for scale in scales:
             sel = [r for r in rows if r["case"] == case and r["scale"] == scale]
             if not sel:
                 continue
-            key = case if scale == 1.0 else f"{case} (0.3× size)"
+            if case in JOINT_SIZES:
+                key = f"{case} ({scale:g} mm)"
+            else:
+                key = case if scale == 1.0 else f"{case} (0.3× size)"
             s: dict = {
                 "sessions": len(sel),
                 "right": float(np.mean([r["right"] for r in sel])),
@@ -277,11 +298,24 @@ def main() -> None:
     ap.add_argument("--out", default="docs/diagnosis_rates.json")
     ap.add_argument("--cases", nargs="*", help="only these cases (default: every one)")
     ap.add_argument("--markdown", metavar="JSON", help="only print the table of an earlier run")
+    ap.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="JSON",
+        help="join the rows of runs of different cases into --out (no session is run)",
+    )
     args = ap.parse_args()
     if args.markdown:
         print(markdown(json.loads(Path(args.markdown).read_text())["summary"]))
         return
-    wanted = set(args.cases or (*EFFECTS, "clean", "foreign", *HARD_CASES))
+    if args.merge:
+        runs = [json.loads(Path(p).read_text()) for p in args.merge]
+        rows = [r for run in runs for r in run["rows"]]
+        out = {"seconds": sum(r["seconds"] for r in runs), "summary": summarise(rows), "rows": rows}
+        Path(args.out).write_text(json.dumps(out, indent=1))
+        print(markdown(out["summary"]))
+        return
+    wanted = set(args.cases or (*EFFECTS, *JOINT_SIZES, "clean", "foreign", *HARD_CASES))
     jobs = [
         (c, s, 1.0)
         for c in (*EFFECTS, "clean", "foreign", *HARD_CASES)
@@ -289,6 +323,13 @@ def main() -> None:
         if c in wanted
     ]
     jobs += [(c, s, 0.3) for c in EFFECTS for s in range(args.sessions) if c in wanted]
+    jobs += [
+        (c, s, size)
+        for c, sizes in JOINT_SIZES.items()
+        for size, _ in sizes
+        for s in range(args.sessions)
+        if c in wanted
+    ]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_one, jobs, chunksize=4))

@@ -10,9 +10,12 @@ a PCAN / Kvaser adapter is ``examples/rig.toml``; its tables:
   ``tpdo``, ``other_tpdos``, ``heartbeat_ms``, ``sync_counter``, ``sdo_timeout_s``; see
   :mod:`hexcal.drivers.can_nodes`) and ``[[can.legs]]`` (``leg``, ``node_id``,
   ``counts_per_mm``, ``sign``, ``zero_mm``, ``eds``);
-- ``[still]``: the still window a pose is recorded from.
+- ``[still]``: the still window a pose is recorded from;
+- ``effects``: Python files defining effects beyond the catalogue, which ``hexcal run`` loads
+  for the text UI (docs/effects.md). They are the lab's own code, named in the lab's own rig
+  file; a session stores the rig's devices but never these paths.
 
-Paths in the file (EDS) are relative to it.
+Paths in the file (EDS, effects) are relative to it.
 """
 
 from __future__ import annotations
@@ -99,11 +102,18 @@ class StillConfig(BaseModel):
         return StillWindow(**self.model_dump())
 
 
+#: Most effect files a rig file may list.
+MAX_EFFECT_FILES = 100
+
+
 class DevicesConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     tracker: TrackerConfig
     can: CanBusConfig = Field(default_factory=default_can_config)
     still: StillConfig = Field(default_factory=StillConfig)
+    #: Effect files for the text UI, relative to the rig file. Not stored with a session (it
+    #: is code the lab runs, not a record of the devices), so ``exclude``.
+    effects: list[Path] = Field(default_factory=list, max_length=MAX_EFFECT_FILES, exclude=True)
 
     @field_validator("can")
     @classmethod
@@ -137,5 +147,7 @@ def load_devices_config(path: str | Path) -> DevicesConfig:
         cfg = DevicesConfig.model_validate(data)
     except ValidationError as exc:
         raise DevicesConfigError(format_validation_error(exc, str(path), data)) from None
-    # EDS paths in the file are relative to it.
-    return cfg.model_copy(update={"can": cfg.can.relative_to(Path(path).parent)})
+    # EDS and effect paths in the file are relative to it.
+    here = Path(path).parent
+    effects = [p if p.is_absolute() else here / p for p in cfg.effects]
+    return cfg.model_copy(update={"can": cfg.can.relative_to(here), "effects": effects})

@@ -32,6 +32,7 @@ from hexcal.estimate.model_file import (
     FitRecord,
     Provenance,
     effect_records,
+    format_version_of,
     input_records,
     load_model,
     save_model,
@@ -235,19 +236,20 @@ def read_inputs(
     files: dict[str, Path] = {"measurements": Path(measurements)}
     effects: tuple[str, ...] = ()
     design: Robot | None = None
+    notices: list[str] = []
     if robot is not None:
         files["robot"] = Path(robot)
         loaded = load_model(robot)
         if isinstance(loaded, CalibratedRobot):
             effects = tuple(e.name for e in loaded.calibration.effects)
             design = loaded.plain_robot()
+            notices += loaded.source_notes(str(robot))
         else:
             design = loaded
     inst, source = None, "estimated from the residual"
     if instruments is not None:
         files["instruments"] = Path(instruments)
         inst, source = load_instruments(instruments), f"stated in {instruments}"
-    notices: list[str] = []
     if looks_like_session(measurements):
         from hexcal.procedure.session import load_session
 
@@ -376,10 +378,12 @@ def build_file(
     if cal.session_effects:
         shipped = f"Model {cal.model}" + model.name
         name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
+    effects = effect_records(model, cal.sigmas())
     block = CalibrationBlock(
+        format_version=format_version_of(effects),
         model=name,
         kind=cal.model,
-        effects=effect_records(model, cal.sigmas()),
+        effects=effects,
         noise=noise,
         noise_source=source,
         fit=FitRecord(

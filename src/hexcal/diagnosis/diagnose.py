@@ -229,6 +229,7 @@ class Diagnosis:
                     "separating_motion": c.separating_motion,
                     "nonphysical": [p.name for p in c.refit.nonphysical()] if c.refit else [],
                     "of_the_session": _of_the_session(c.effect),
+                    "source": get_effect(c.effect).source.text(),
                 }
                 for c in self.candidates
             ],
@@ -577,6 +578,7 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
     verdict: Verdict
     if best is not None:
         verdict = best.effect
+        notes += _look_alike(problem, best)
         if best.with_effect:
             notes.append(
                 f"{best.effect} leaves an excess that {best.with_effect} would explain: "
@@ -600,6 +602,18 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
     else:
         verdict = Outcome.NONE
     return verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof
+
+
+def _look_alike(problem: Problem, named: Candidate) -> list[str]:
+    """What else leaves the residual the named effect explains (the effect's
+    :meth:`~hexcal.effects.base.Effect.look_alike`, at its fitted values), as a note."""
+    if named.refit is None:
+        return []
+    eff = get_effect(named.effect)
+    names = [s.name for s in eff.params(problem.design)]
+    fitted = {p.name: p.value for p in named.refit.params}
+    text = eff.look_alike(np.array([fitted[n] for n in names]), problem.design)
+    return [text] if text else []
 
 
 def _robot_before_session(

@@ -28,6 +28,7 @@ from hexcal.diagnosis.compare_plots import before_after, pose_error_map
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.diagnosis.plots import write_plots
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
+from hexcal.effects import get_effect
 from hexcal.estimate.effect_fit import ParamRow
 from hexcal.io.fileio import write_text_atomic
 from hexcal.vocabulary import Outcome, Verdict
@@ -365,6 +366,16 @@ def _provenance(diags: Sequence[Diagnosis], inputs: Mapping[str, Path]) -> str:
             digest = f'<span class="err">not readable: {_e(exc.strerror or exc)}</span>'
         rows.append((f"input: {_e(label)}", f"<code>{_e(p)}</code><br>{digest}"))
     rows.append(("models", " → ".join(_e(d.fit.model_name) for d in diags)))
+    outside = {  # effects from outside the catalogue, fitted or scored: where their code came from
+        e: get_effect(e).source.text()
+        for d in diags
+        for e in (*d.effects, *(c.effect for c in d.candidates))
+        if get_effect(e).source.kind != "catalogue"
+    }
+    if outside:
+        rows.append(
+            ("effects loaded", "<br>".join(f"{_e(n)}: {_e(t)}" for n, t in outside.items()))
+        )
     sources = list(dict.fromkeys(d.floor_source for d in diags))
     rows.append(("noise floor", "<br>".join(_e(s) for s in sources)))
     m = len(diags[0].problem.meas)

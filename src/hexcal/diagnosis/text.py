@@ -88,7 +88,10 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         )
         from hexcal.effects import get_effect
 
-        lines.append(f"  physics: {get_effect(v).physics}")
+        eff = get_effect(v)
+        lines.append(f"  physics: {eff.physics}")
+        if eff.source.kind != "catalogue":
+            lines.append(f"  (an effect from outside the catalogue: {eff.source.text()})")
     bad = f.nonphysical()
     notes = d.notes + f.notes
     if notes:

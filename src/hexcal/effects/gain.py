@@ -39,6 +39,22 @@ class Gain(Effect):
     def basis(self, data: EffectData) -> np.ndarray:
         return diagonal(data.readings * 1e-6)
 
+    def look_alike(self, values: np.ndarray, robot) -> str:
+        # A tracker reading positions (1 + s) times too far from its origin sees every leg
+        # (1 + s) times too long: |(1+s)(P + R b − a)| = (1+s)(ρ + offset), i.e. a gain s on every
+        # leg with a, b and the offsets scaled by (1 + s) — the same residual, exactly.
+        common = float(np.mean(values))
+        spread = float(np.max(np.abs(np.asarray(values) - common)))
+        return (
+            f"gain looks exactly like a tracker scale error: a tracker whose positions read "
+            f"{common:+.0f} ppm long gives every leg the same {common:+.0f} ppm gain, with the "
+            "geometry scaled alike (an optical tracker's or a motion-capture system's scale is "
+            "often a few hundred ppm off). Only the legs' "
+            f"differences (up to ±{spread:.0f} ppm about that mean) are surely the encoders'; to "
+            "tell the common part apart, measure a length standard (a calibrated bar, or an "
+            "interferometer along a line) in the tracker's volume"
+        )
+
     def meaning(self, name: str, value: float, robot) -> str:
         return (
             f"a {abs(value) / 1e4:.2g} % scale error of leg {leg_of(name)} — check the leg's "

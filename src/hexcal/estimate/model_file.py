@@ -6,7 +6,11 @@ the design), so any reader of robot.json gets the calibrated geometry; ``calibra
 model's name, every effect with its parameters (value, σ, unit), the noise it was fitted with,
 its fit statistics, the pose accuracy it reaches on held-out poses, and the provenance (hexcal
 version, SHA-256 of the inputs, date, pose count). ``calibration.format_version`` is checked:
-a file from a newer hexcal is refused, not misread.
+a file from a newer hexcal is refused, not misread. Version 2 adds, to each effect from outside
+hexcal's catalogue, its ``source`` (the package and version, or the file's SHA-256); hexcal
+writes version 1 when every effect is the catalogue's, so older readers still read those files.
+An effect the file names but this process has not loaded is refused, naming what to install or
+pass (:func:`parse_model`); nothing in the file is ever executed.
 
 :func:`load_model` reads either file: a plain robot.json is the model with no effects (the
 drawing), so ``hexcal validate`` and ``hexcal predict`` take both.
@@ -20,10 +24,11 @@ from pathlib import Path
 from typing import Annotated, Any, Final, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hexcal import __version__
-from hexcal.effects import get_effect
+from hexcal.effects import CATALOGUE, EffectSource, get_effect
+from hexcal.effects.plugins import failure_of
 from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
 from hexcal.io.fileio import write_text_atomic
@@ -39,7 +44,11 @@ MAX_PARAMETER = 1e12
 Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False), NotBool]
 
 FORMAT: Final = "hexcal-calibrated-model"
-FORMAT_VERSION = 1
+#: The newest format version this hexcal reads and writes. 1: the catalogue's effects only;
+#: 2: an effect may come from outside the catalogue and records its ``source``.
+FORMAT_VERSION = 2
+#: The version a file needs when an effect records its source.
+SOURCE_VERSION = 2
 
 
 class ParameterValue(BaseModel):
@@ -56,13 +65,49 @@ class ParameterValue(BaseModel):
     unit: str
 
 
+class SourceRecord(BaseModel):
+    """Where an effect from outside the catalogue came from (format version 2): an installed
+    ``package`` (name, version, entry point), a ``file`` given with ``--effects`` (its name and
+    the SHA-256 of its bytes), or a ``module`` of the program that wrote the file."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["package", "file", "module"]
+    package: str | None = Field(None, min_length=1, max_length=200)
+    version: str | None = Field(None, max_length=100)
+    entry_point: str | None = Field(None, max_length=400)
+    file: str | None = Field(None, min_length=1, max_length=400)
+    sha256: str | None = Field(None, pattern=r"^[0-9a-f]{64}$")
+    module: str | None = Field(None, min_length=1, max_length=400)
+
+    @classmethod
+    def of(cls, source: EffectSource) -> SourceRecord | None:
+        """The record of a registered effect's source (None for the catalogue's own)."""
+        if source.kind == "catalogue":
+            return None
+        fields = ("package", "version", "entry_point", "file", "sha256", "module")
+        return cls(kind=source.kind, **{f: getattr(source, f) or None for f in fields})
+
+    def effect_source(self) -> EffectSource:
+        return EffectSource(
+            self.kind,
+            package=self.package or "",
+            version=self.version or "",
+            entry_point=self.entry_point or "",
+            file=self.file or "",
+            sha256=self.sha256 or "",
+            module=self.module or "",
+        )
+
+
 class EffectRecord(BaseModel):
-    """One catalogue effect of the model and its fitted parameters."""
+    """One effect of the model and its fitted parameters; ``source`` when it is not one of
+    hexcal's catalogue."""
 
     model_config = ConfigDict(extra="forbid")
     name: str
     parameters: list[ParameterValue]
     physics: str = ""
+    source: SourceRecord | None = None
 
 
 class FitRecord(BaseModel):
@@ -125,7 +170,7 @@ class CalibrationBlock(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     format: Literal["hexcal-calibrated-model"] = FORMAT
-    format_version: Annotated[int, NotBool] = Field(FORMAT_VERSION, ge=1, le=FORMAT_VERSION)
+    format_version: Annotated[int, NotBool] = Field(1, ge=1, le=FORMAT_VERSION)
     model: str = Field(description="e.g. 'Model 42 + gain + backlash'")
     kind: ModelKindField
     effects: list[EffectRecord] = Field(default_factory=list)
@@ -137,6 +182,16 @@ class CalibrationBlock(BaseModel):
         description="pose accuracy of the design, the geometry alone and each effect added",
     )
     provenance: Provenance
+
+    @model_validator(mode="after")
+    def _version_holds_the_sources(self) -> CalibrationBlock:
+        need = format_version_of(self.effects)
+        if self.format_version < need:
+            raise ValueError(
+                f"format_version {self.format_version} has no effect sources; a file whose "
+                f"effects record their source is format_version {need}"
+            )
+        return self
 
 
 class CalibratedRobot(Robot):
@@ -150,6 +205,25 @@ class CalibratedRobot(Robot):
         values = [p.value for e in self.calibration.effects for p in e.parameters]
         return LegModel(self.plain_robot(), effects, np.array(values, float))
 
+    def source_notes(self, where: str) -> list[str]:
+        """One line per effect whose loaded code comes from elsewhere than the code it was
+        fitted with (another package version, another file): the parameters may not mean the
+        same. Empty when every effect is what the file records."""
+        notes = []
+        for e in self.calibration.effects:
+            recorded = None if e.source is None else e.source.effect_source()
+            now = CATALOGUE[e.name].source
+            if recorded is None and now.kind == "catalogue":
+                continue
+            if recorded is not None and _same_source(recorded, now):
+                continue
+            was = "hexcal's catalogue" if recorded is None else recorded.text()
+            notes.append(
+                f"{where}: the effect {e.name} was fitted with {was}; the one loaded now is from "
+                f"{now.text()}: if its parameters mean something else, calibrate again"
+            )
+        return notes
+
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""
         return Robot.model_validate(self.model_dump(exclude={"calibration"}, exclude_none=True))
@@ -159,8 +233,24 @@ class CalibratedRobot(Robot):
         return json_text(self.model_dump(mode="json", exclude_none=True))
 
 
+def _same_source(a: EffectSource, b: EffectSource) -> bool:
+    if a.kind != b.kind:
+        return False
+    if a.kind == "package":
+        return (a.package, a.version) == (b.package, b.version)
+    if a.kind == "file":
+        return a.sha256 == b.sha256
+    return a.module == b.module
+
+
+def format_version_of(effects: list[EffectRecord]) -> int:
+    """The format version a file holding ``effects`` needs: 2 when one records its source."""
+    return SOURCE_VERSION if any(e.source is not None for e in effects) else 1
+
+
 def effect_records(model: LegModel, sigmas: dict[str, float] | None = None) -> list[EffectRecord]:
-    """The model's effects with their values, in spec units; ``sigmas`` by parameter name."""
+    """The model's effects with their values, in spec units; ``sigmas`` by parameter name;
+    where each comes from when it is not hexcal's catalogue."""
     out, i = [], 0
     for e in model.effects:
         eff = get_effect(e)
@@ -174,7 +264,11 @@ def effect_records(model: LegModel, sigmas: dict[str, float] | None = None) -> l
                 )
             )
             i += 1
-        out.append(EffectRecord(name=e, parameters=params, physics=eff.physics))
+        out.append(
+            EffectRecord(
+                name=e, parameters=params, physics=eff.physics, source=SourceRecord.of(eff.source)
+            )
+        )
     return out
 
 
@@ -231,13 +325,53 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
     except ValueError as exc:
         raise RobotFileError(str(exc)) from None
     if isinstance(robot, CalibratedRobot):
+        _check_effects_loaded(robot, where)
         try:
             robot.leg_model()
         except ValidationError as exc:
             raise RobotFileError(format_validation_error(exc, where)) from None
         except ValueError as exc:
             raise RobotFileError(f"{where}: field calibration.effects: {exc}") from None
+        _check_parameter_names(robot, where)
     return robot
+
+
+def _check_effects_loaded(robot: CalibratedRobot, where: str) -> None:
+    """Refuse a model one of whose effects this process has not loaded, naming where the effect
+    came from and what to install or pass."""
+    for i, e in enumerate(robot.calibration.effects):
+        field = f"field calibration.effects.{i} ({e.name})"
+        if e.name not in CATALOGUE:
+            failed = failure_of(e.name)
+            if failed:
+                raise RobotFileError(f"{where}: {field}: {failed}: fix or reinstall the package")
+            if e.source is None:
+                raise RobotFileError(
+                    f"{where}: {field}: the effect is not in this hexcal's catalogue "
+                    f"({', '.join(sorted(CATALOGUE))}); the file records no source for it: "
+                    "install or pass (--effects FILE.py) the code that defines it"
+                )
+            src = e.source.effect_source()
+            raise RobotFileError(
+                f"{where}: {field}: the effect comes from {src.text()}, which is not loaded: "
+                f"{src.how_to_get()}, then run again"
+            )
+
+
+def _check_parameter_names(robot: CalibratedRobot, where: str) -> None:
+    """Refuse a model whose effect's parameters are not those the effect loaded now has."""
+    plain = robot.plain_robot()
+    for i, e in enumerate(robot.calibration.effects):
+        field = f"field calibration.effects.{i} ({e.name})"
+        names = [s.name for s in get_effect(e.name).params(plain)]
+        recorded = [p.name for p in e.parameters]
+        if recorded != names:
+            raise RobotFileError(
+                f"{where}: {field}: the file holds the parameters {', '.join(recorded)}; the "
+                f"effect loaded now (from {get_effect(e.name).source.text()}) has "
+                f"{', '.join(names)}: load the version of the effect the model was fitted with, "
+                "or calibrate again"
+            )
 
 
 def load_model(path: str | Path) -> CalibratedRobot | Robot:

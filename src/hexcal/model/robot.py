@@ -101,6 +101,13 @@ class Robot(BaseModel):
     #: The smallest change of a leg's reading that counts as a move for backlash, mm (default:
     #: 4·√2·σ of the stated encoder noise, set by the fit; 0.02 mm when the noise is unknown).
     backlash_deadband_mm: Number | None = Field(None, gt=0, le=MAX_DEADBAND_MM, allow_inf_nan=False)
+    #: The first (fixed) axis of each base U-joint, a direction in the base frame (any length
+    #: but zero), for the ``ujoint`` effect; default: horizontal and across the leg at home.
+    ujoint_axes: Annotated[list[Vec3], Field(min_length=6, max_length=6)] | None = None
+    #: The first axis of each platform joint, fixed in the platform, a direction in the
+    #: platform frame, for the ``balljoint`` effect; default: horizontal in the platform frame
+    #: and across the leg at home.
+    balljoint_axes: Annotated[list[Vec3], Field(min_length=6, max_length=6)] | None = None
 
     @field_validator("units")
     @classmethod
@@ -115,6 +122,15 @@ class Robot(BaseModel):
         if r is not None and not r[0] < r[1]:
             raise ValueError(f"leg_range_mm is [min, max] with min < max (got {r})")
         return r
+
+    @field_validator("ujoint_axes", "balljoint_axes")
+    @classmethod
+    def _directions(cls, axes: list[list[float]] | None) -> list[list[float]] | None:
+        if axes is not None:
+            for k, axis in enumerate(axes, start=1):
+                if not float(np.linalg.norm(axis)) > 1e-9:
+                    raise ValueError(f"joint {k}'s axis is {axis}: give a direction, not zero")
+        return axes
 
     @field_validator("plausible")
     @classmethod

@@ -1,7 +1,10 @@
-"""Hidden effects for the simulator: the same catalogue units, with true parameter values.
+"""Hidden effects for the simulator: the same effect units, with true parameter values.
 
 The simulator finds readings r with ``r + offset + Σ contribution(r) = true length``, so a
-session simulated with an effect is exactly what the model with that effect describes.
+session simulated with an effect is what the model with that effect describes — exactly, or,
+for an effect linearised from an exact law (the joints' axis offsets), by that law
+(:meth:`~hexcal.effects.base.Effect.true_contribution`). Any registered effect can be hidden,
+the catalogue's or one loaded from outside it.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
         data = EffectData(
             readings, ctx.position, ctx.rotation, ctx.t, ctx.temperature, truth, truth.a, truth.b
         )
-        return eff.contribution(data, values)
+        return eff.true_contribution(data, values)
 
     hook.__name__ = f"hidden_{name}"
     return hook
@@ -49,7 +52,8 @@ def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
 def realistic_values(
     name: str, rng: np.random.Generator, truth: Robot, scale: float = 1.0
 ) -> np.ndarray:
-    """Random true values at a realistic size (``scale`` < 1 for sizes near detection)."""
+    """Random true values at a realistic size (``scale`` < 1 for sizes near detection); an
+    effect from outside the catalogue gives its own (:meth:`Effect.typical_values`)."""
     sign = rng.choice([-1.0, 1.0], 6)
     if name == "offset":
         return scale * sign * rng.uniform(0.2, 1.0, 6)
@@ -71,4 +75,13 @@ def realistic_values(
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
         return scale * rng.uniform(100.0, 200.0) / TYPICAL_SESSION_H * direction  # µm/h
-    raise ValueError(f"no realistic size for effect {name!r}")
+    if name in ("ujoint", "balljoint"):
+        # Every joint's axes 1 mm apart (a hobby or printed joint), the side drawn per leg.
+        return scale * sign * 1.0  # mm
+    typical = get_effect(name).typical_values(rng, truth)
+    if typical is not None:
+        return scale * np.asarray(typical, float)
+    raise ValueError(
+        f"effect {name!r} gives no typical size (its typical_values method): give its values "
+        "(hexcal simulate --effect-values)"
+    )

@@ -159,10 +159,11 @@ def write_session_dir(
     effect: str | None = None,
     effect_scale: float = 1.0,
     pose_seed: int | None = None,
+    effect_values: np.ndarray | None = None,
 ) -> Path:
     """Write robot.json (design), measurements.csv, instruments.json and truth.json; with
-    ``effect``, that catalogue effect is hidden at a realistic size (its true values go to
-    truth.json). ``seed`` draws the robot (its truth and effect); ``pose_seed`` (default
+    ``effect``, that registered effect is hidden at a realistic size, or with ``effect_values``
+    (its true values go to truth.json). ``seed`` draws the robot (its truth and effect); ``pose_seed`` (default
     ``seed``) the poses and the noise, so another ``pose_seed`` is a second session of the same
     robot (for validation)."""
     outdir = Path(outdir)
@@ -173,7 +174,10 @@ def write_session_dir(
     if effect:
         from hexcal.sim.inject import effect_hook, realistic_values
 
-        values = realistic_values(effect, rng, truth, effect_scale)
+        if effect_values is None:
+            values = realistic_values(effect, rng, truth, effect_scale)
+        else:
+            values = effect_scale * np.asarray(effect_values, float)
         hooks = [effect_hook(effect, values, truth)]
         label = effect
     poses = seed if pose_seed is None else pose_seed

@@ -6,10 +6,12 @@ import argparse
 from pathlib import Path
 
 from hexcal.app.commands.common import (
+    add_effects_option,
     add_model_option,
     add_pose_selection,
     check_outputs,
     drawing_tolerance,
+    load_effects,
     read_inputs,
     report_mismatch,
 )
@@ -43,8 +45,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="refine from the leg lengths alone, without the clamps' own constraints",
     )
     c.add_argument(
-        "--add", nargs="+", metavar="EFFECT", help="catalogue effects to fit with the geometry"
+        "--add",
+        nargs="+",
+        metavar="EFFECT",
+        help="effects to fit with the geometry (the catalogue's, or loaded with --effects)",
     )
+    add_effects_option(c)
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.add_argument(
         "--out",
@@ -68,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.vocabulary import ModelKind
 
     check_outputs((args.out, "calibrated.json"))
+    load_effects(args)
     inp = read_inputs(args)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)

@@ -168,3 +168,26 @@ def add_model_option(parser: argparse.ArgumentParser) -> None:
         default=42,
         help="36: base and platform points; 42: and each leg's length offset (default 42)",
     )
+
+
+def add_effects_option(parser: argparse.ArgumentParser) -> None:
+    """``--effects FILE.py …``: effects from outside the catalogue, as calibrate, diagnose,
+    validate, predict and simulate take them (docs/effects.md)."""
+    parser.add_argument(
+        "--effects",
+        nargs="+",
+        type=Path,
+        metavar="FILE.py",
+        help="Python files defining effects beyond the catalogue (docs/effects.md); they run as "
+        "your own code. Installed effect packages load without it",
+    )
+
+
+def load_effects(args: argparse.Namespace) -> list[str]:
+    """Run the ``--effects`` files (the user's explicit act) and say, on stderr, which
+    installed effect packages failed to load; the names the files registered."""
+    from hexcal.effects.plugins import failures, load_files
+
+    for text in failures():
+        print(f"hexcal: {text}", file=sys.stderr)
+    return load_files(getattr(args, "effects", None) or ())

@@ -7,9 +7,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hexcal.app.commands.common import (
+    add_effects_option,
     add_model_option,
     add_pose_selection,
     check_outputs,
+    load_effects,
     read_inputs,
     report_mismatch,
 )
@@ -34,8 +36,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--instruments", type=Path, help="instruments.json: the noise that sets the floor"
     )
     d.add_argument(
-        "--add", nargs="+", metavar="EFFECT", help="catalogue effects already in the model"
+        "--add",
+        nargs="+",
+        metavar="EFFECT",
+        help="effects already in the model (the catalogue's, or loaded with --effects)",
     )
+    add_effects_option(d)
     d.add_argument(
         "--auto",
         action="store_true",
@@ -73,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         (args.report, "report.html"),
         (args.plots, "/"),
     )
+    load_effects(args)
     inp = read_inputs(args)
     for out_path in (args.out, args.residuals, args.report):
         if out_path:

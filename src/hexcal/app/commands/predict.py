@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hexcal.app.commands.common import check_outputs, number
+from hexcal.app.commands.common import add_effects_option, check_outputs, load_effects, number
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,16 +32,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     pr.add_argument("--out", type=Path, help="CSV to write (default: standard output)")
     pr.add_argument("--force", action="store_true", help="replace an existing --out file")
+    add_effects_option(pr)
     pr.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from hexcal.estimate.model_file import leg_model_of, load_model
+    from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, load_model
     from hexcal.estimate.predict_table import direction, predict_table, read_table, write_table
     from hexcal.io.fileio import write_text_atomic
 
     check_outputs((args.out, "predicted.csv"))
-    model = leg_model_of(load_model(args.model))
+    load_effects(args)
+    loaded = load_model(args.model)
+    if isinstance(loaded, CalibratedRobot):
+        for note in loaded.source_notes(str(args.model)):
+            print(f"hexcal: {note}", file=sys.stderr)
+    model = leg_model_of(loaded)
     table = read_table(args.table)
     to = direction(table, args.to)
     names, values = predict_table(model, table, to, args.temperature)

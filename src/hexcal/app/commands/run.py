@@ -6,7 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from hexcal.app.commands.common import COUNT, POSITIVE_COUNT, SECONDS, SEED
+from hexcal.app.commands.common import (
+    COUNT,
+    POSITIVE_COUNT,
+    SECONDS,
+    SEED,
+    add_effects_option,
+    load_effects,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,6 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="--mock: the effect the robot hides (default: drawn by the seed)",
     )
     rn.add_argument("--window-s", type=SECONDS, default=0.25, help="--mock: still window, s")
+    add_effects_option(rn)
     rn.set_defaults(func=run)
 
 
@@ -51,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.tui.backend import MockBackend, RealBackend, mock_backend
 
     backend: MockBackend | RealBackend
+    load_effects(args)
     if args.mock:
         backend = mock_backend(args.seed, args.effect, args.window_s)
         if args.robot:
@@ -65,9 +74,11 @@ def run(args: argparse.Namespace) -> int:
             )
             return 2
         from hexcal.acquire.devices import load_devices_config
+        from hexcal.effects.plugins import load_files
         from hexcal.estimate.model_file import load_robot
 
-        load_devices_config(args.config)  # refuse a bad file before the UI starts
+        # Refuse a bad file before the UI starts; its effect files run now, as --effects would.
+        load_files(load_devices_config(args.config).effects)
         if not args.robot:
             # A real rig is never the paper's robot: calibrating against the wrong drawing
             # would start from centimetres off, and nothing would say so.

@@ -5,7 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.app.commands.common import COUNT, SEED, SIGMA, check_outputs, number, refuse_existing
+from hexcal.app.commands.common import (
+    COUNT,
+    SEED,
+    SIGMA,
+    add_effects_option,
+    check_outputs,
+    load_effects,
+    number,
+    refuse_existing,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -50,9 +59,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--sigma-l-mm", help="encoder reading noise σ, mm", type=SIGMA, default=0.002)
     m.add_argument(
         "--effect",
-        choices=("offset", "gain", "backlash", "thermal", "compliance", "leadscrew"),
-        help="hide this catalogue effect at a realistic size",
+        metavar="EFFECT",
+        help="hide this effect at a realistic size: offset, gain, backlash, thermal, "
+        "compliance, leadscrew, drift, ujoint, balljoint, or one loaded with --effects",
     )
+    m.add_argument(
+        "--effect-values",
+        nargs="+",
+        type=number(float, -1e12, 1e12),
+        metavar="V",
+        help="the hidden effect's parameter values, in their units and order (default: drawn "
+        "at a realistic size)",
+    )
+    add_effects_option(m)
     m.add_argument(
         "--effect-scale",
         type=number(float, 0.0, 100.0),
@@ -79,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.sim.session_sim import SessionPlan, write_session_dir
     from hexcal.sim.simulate import NoiseModel
 
+    load_effects(args)
     design = load_robot(args.robot) if args.robot else left_hand()
     if args.mass_kg is not None:
         design = design.model_copy(update={"platform_mass_kg": args.mass_kg})
@@ -90,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         noise=NoiseModel(args.sigma_p_mm, args.sigma_a_deg, args.sigma_l_mm),
         temperature_rise_k=args.temperature_rise_k,
     )
+    values = _effect_values(args, design)
     if args.effect == "compliance" and not design.platform_mass_kg:
         raise ValueError(
             "--effect compliance needs the platform mass: pass --mass-kg (or a robot.json with platform_mass_kg)"
@@ -100,10 +121,32 @@ def run(args: argparse.Namespace) -> int:
     if args.robot and Path(args.robot).resolve() == (Path(args.out) / "robot.json").resolve():
         raise ValueError(f"{args.robot}: this is the robot input; choose another --out")
     out = write_session_dir(
-        args.out, design, args.seed, plan, args.effect, args.effect_scale, args.pose_seed
+        args.out, design, args.seed, plan, args.effect, args.effect_scale, args.pose_seed, values
     )
     hidden = f", hidden effect: {args.effect}" if args.effect else ""
     print(
         f"simulated session written to {out}/ (robot.json, measurements.csv, instruments.json, truth.json{hidden})"
     )
     return 0
+
+
+def _effect_values(args: argparse.Namespace, design):
+    """The hidden effect's values given with --effect-values (None: drawn), checked against
+    its parameters; the effect's name checked against the registered ones."""
+    import numpy as np
+
+    from hexcal.effects import get_effect
+
+    if args.effect is None:
+        if args.effect_values:
+            raise ValueError("--effect-values needs --effect: which effect the values are of")
+        return None
+    specs = get_effect(args.effect).params(design)
+    if args.effect_values is None:
+        return None
+    if len(args.effect_values) != len(specs):
+        raise ValueError(
+            f"--effect-values: {args.effect} takes {len(specs)} values "
+            f"({', '.join(f'{s.name} {s.unit}' for s in specs)}), got {len(args.effect_values)}"
+        )
+    return np.asarray(args.effect_values, float)

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
+
+from hexcal.app.commands.common import add_effects_option, load_effects
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -31,6 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="also re-estimate the six offsets alone on these poses (after the encoders were "
         "homed again) and report that beside the plain figure",
     )
+    add_effects_option(v)
     v.set_defaults(func=run, robot=None)
 
 
@@ -40,8 +44,12 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.estimate.model_validation import validate_model
     from hexcal.io import json_out
 
+    load_effects(args)
     loaded = load_model(args.model)
     model = leg_model_of(loaded)
+    if isinstance(loaded, CalibratedRobot):
+        for note in loaded.source_notes(str(args.model)):
+            print(f"hexcal: {note}", file=sys.stderr)
     # The robot of the table is the model's own (a session file's design is not used).
     inp = read_inputs(args.measurements, args.model, args.instruments)
     sig, source = inp.sigmas, inp.noise_source
