@@ -15,7 +15,24 @@ from hexcal.effects import (  # noqa: F401
     leadscrew,
     offset,
     thermal,
+    zero_step,
 )
-from hexcal.effects.base import CATALOGUE, Effect, EffectData, ParamSpec, get_effect, register
+from hexcal.effects.base import (
+    CATALOGUE,
+    Effect,
+    EffectData,
+    ParamSpec,
+    diagonal,
+    get_effect,
+    register,
+)
 
-__all__ = ["CATALOGUE", "Effect", "EffectData", "ParamSpec", "get_effect", "register"]
+__all__ = [
+    "CATALOGUE",
+    "Effect",
+    "EffectData",
+    "ParamSpec",
+    "diagonal",
+    "get_effect",
+    "register",
+]
