@@ -161,8 +161,14 @@ def covariate(name: str) -> Covariate:
 
 
 def knots_of(values: np.ndarray, k: int) -> np.ndarray:
-    """(6, k) knots per leg at the quantiles of each leg's values (M, 6)."""
-    return np.quantile(values, np.linspace(0.0, 1.0, k), axis=0).T
+    """(6, k) knots per leg, halfway between the quantiles of each leg's values (M, 6) and even
+    spacing over their range: dense where the poses are, but never closer than half the even
+    spacing (a clamped leg repeats one reading over a whole step, which would put two quantile
+    knots on top of each other)."""
+    grid = np.linspace(0.0, 1.0, k)
+    lo, hi = values.min(axis=0), values.max(axis=0)
+    even = lo[:, None] + grid[None, :] * (hi - lo)[:, None]
+    return 0.5 * (np.quantile(values, grid, axis=0).T + even)
 
 
 def hats(u: np.ndarray, knots: np.ndarray) -> np.ndarray:
@@ -263,6 +269,13 @@ class Lead:
     def columns(self) -> int:
         return len(self.shape.legs) * self.shape.per_leg
 
+    @property
+    def points_at(self) -> str:
+        """The physics the covariate, in this shape, points at."""
+        if self.shape.kind == "sign" and self.covariate.signed:
+            return "play in a leg's joints, taken up one way or the other as its load reverses"
+        return self.covariate.points_at
+
     def text(self) -> str:
         c = self.covariate
         legs = self.shape.legs
@@ -283,7 +296,7 @@ class Lead:
             "covariate": c.name,
             "label": c.label,
             "unit": c.unit,
-            "points_at": c.points_at,
+            "points_at": self.points_at,
             "share_of_excess": self.share,
             "chi2": self.score,
             "columns": self.columns,

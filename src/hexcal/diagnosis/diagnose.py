@@ -442,7 +442,16 @@ def _session_notes(effects: tuple[str, ...], verdict: Verdict, notes: list[str])
     session_effects = [e for e in effects if of_the_session(e)]
     if verdict in CATALOGUE and of_the_session(verdict):
         session_effects.append(verdict)
-    for e in session_effects:
+    for e in dict.fromkeys(session_effects):
+        if e == ZERO_STEP:
+            notes.append(
+                "zero_step is a property of this session, not of the robot: the step is fitted "
+                "to calibrate from these poses, but the calibrated model keeps each leg's zero as "
+                "the session started (the robot as homed) and records the step's time "
+                "(zero_steps); re-home before using it, and check the stepping leg's encoder "
+                "(its cable, its index pulse) and whether it was re-homed mid-session"
+            )
+            continue
         notes.append(
             f"{e} is a property of this session, not of the robot: it is fitted to calibrate from "
             "these poses, but a calibrated model does not carry it (another session drifts "

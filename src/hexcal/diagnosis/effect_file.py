@@ -11,6 +11,8 @@ range), passes the file back, adds the effect, and watches the error fall.
 
 from __future__ import annotations
 
+import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -91,9 +93,11 @@ _EFFECT = '''
 class {cls}(Effect):
     name = "{name}"
     physics = (
-        {physics!r}
+{physics}
     )
-    separating_motion = {motion!r}
+    separating_motion = (
+{motion}
+    )
     uses_geometry = {geometry}
 
     def params(self, robot) -> list[ParamSpec]:
@@ -139,18 +143,21 @@ def effect_file_text(
     physics = (
         f"The leg length departs from the model along the {cov.label}: {shape.describe()} per "
         f"leg (written by hexcal diagnose; replace it with the physics you suspect: "
-        f"{cov.points_at})."
+        f"{lead.points_at})."
     )
     motion = f"poses that spread each leg's {cov.label} over its whole range"
+    legs = ", ".join(map(str, shape.legs))
+    intro = (
+        f"{name}: the unexplained residual of {source} follows the {cov.label}. Written by "
+        f"hexcal diagnose: along it, {shape.describe()} on leg{'s' * (len(shape.legs) > 1)} "
+        f"{legs} explains {100 * lead.share:.0f} % of the excess over the noise floor; the "
+        "shape's constant is left to the leg offsets. Edit it to the physics you suspect (a "
+        "formula in place of the shape, fewer parameters, a plausible range), then pass the "
+        "file back and add the effect:"
+    )
     head = [
-        f'"""{name}: the unexplained residual of {source} follows the {cov.label}.',
+        *_wrapped(intro, first='"""'),
         "",
-        f"Written by hexcal diagnose: along the {cov.label}, {shape.describe()} on "
-        f"leg{'s' * (len(shape.legs) > 1)} {', '.join(map(str, shape.legs))}",
-        f"explains {100 * lead.share:.0f} % of the excess over the noise floor. The shape's "
-        "constant is left to the",
-        "leg offsets. Edit it to the physics you suspect (a formula in place of the shape, fewer",
-        "parameters, a plausible range), then pass the file back and add the effect:",
         f"    --effects FILE.py --add {name}",
         '"""',
         "",
@@ -164,18 +171,23 @@ def effect_file_text(
     ]
     if shape.kind == "poly" and shape.centre is not None and shape.half is not None:
         head += [
-            f"#: Each leg's shape is a polynomial of this degree in its {cov.label}{unit} about",
-            "#: CENTRE, over HALF (the session's own range of each leg; rows are legs 1-6).",
+            *_wrapped(
+                f"Each leg's shape is a polynomial of this degree in its {cov.label}{unit} "
+                "about CENTRE, over HALF (the session's own range of each leg; legs 1-6).",
+                first="#: ",
+            ),
             f"DEGREE = {shape.degree}",
             f"CENTRE = np.array({_row(shape.centre)})",
             f"HALF = np.array({_row(shape.half)})",
         ]
     if shape.kind == "knots" and shape.knots is not None:
         head += [
-            f"#: Knots of each leg's shape along the {cov.label}{unit}: rows are legs 1-6.",
+            *_wrapped(
+                f"Knots of each leg's shape along the {cov.label}{unit}: rows are legs 1-6.", "#: "
+            ),
             "KNOTS = np.array(",
             "    [",
-            *(f"        {_row(row)}," for row in shape.knots),
+            *(line for row in shape.knots for line in _knot_row(row)),
             "    ]",
             ")",
         ]
@@ -197,14 +209,36 @@ def effect_file_text(
     body = _EFFECT.format(
         cls=cls,
         name=name,
-        physics=physics,
-        motion=motion,
+        physics=_literal(physics),
+        motion=_literal(motion),
         geometry=cov.uses_geometry,
         plausible=PLAUSIBLE_UM,
         resolution=RESOLUTION_UM,
         missing=_NEEDS_TEMPERATURE if cov.name == "temperature" else "",
     )
-    return "\n".join(head + fn) + _SHAPES[shape.kind] + body
+    return "\n".join(head + fn) + "\n" + _SHAPES[shape.kind] + body
+
+
+def _wrapped(text: str, first: str = "", width: int = 88) -> list[str]:
+    """``text`` in lines of at most ``width`` characters, the first prefixed by ``first`` (and
+    the others too when it is a comment's ``#: ``)."""
+    later = first if first.startswith("#") else ""
+    return textwrap.wrap(first + text, width, subsequent_indent=later, break_on_hyphens=False)
+
+
+def _literal(text: str) -> str:
+    """``text`` as adjacent string literals, one per line, indented for a class attribute."""
+    parts = textwrap.wrap(text, 76, drop_whitespace=False, break_on_hyphens=False)
+    return "\n".join("        " + json.dumps(p, ensure_ascii=False) for p in parts)
+
+
+def _knot_row(values: np.ndarray) -> list[str]:
+    """One leg's knots as a list literal over lines of at most 88 characters."""
+    text = ", ".join(f"{float(v):.6g}" for v in np.asarray(values))
+    lines = textwrap.wrap(text, 76, break_on_hyphens=False)
+    if len(lines) == 1:
+        return [f"        [{lines[0]}],"]
+    return ["        [", *(f"            {line}" for line in lines), "        ],"]
 
 
 def _row(values: np.ndarray) -> str:
