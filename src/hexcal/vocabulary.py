@@ -3,9 +3,9 @@
 - :class:`Constraint` — how a step clamps its leg: ``direction``, ``direction+length``,
   ``length``, or ``free`` (nothing clamped).
 - :class:`Outcome` and :data:`Verdict` — a diagnosis' verdict is either a fixed outcome
-  (``none``, ``unexplained``, ``outliers``) or the name of the catalogue effect that is missing
-  (``gain``, ``backlash``...); :func:`verdict_of`, :func:`is_effect` and
-  :func:`names_an_addition` tell them apart.
+  (``none``, ``unexplained``, ``outliers``, ``noise_understated``) or the name of the
+  catalogue effect that is missing (``gain``, ``backlash``...); :func:`verdict_of`,
+  :func:`is_effect` and :func:`names_an_addition` tell them apart.
 - :class:`ModelKind` — the geometric model: 36 parameters (the drawing's leg offsets) or 42
   (the offsets fitted too).
 
@@ -60,6 +60,9 @@ class Outcome(str, Enum):
     NONE = "none"  #: nothing missing: the model is at the noise floor
     UNEXPLAINED = "unexplained"  #: an excess over the floor no catalogue effect explains
     OUTLIERS = "outliers"  #: gross outliers are the whole story
+    #: the excess is spread evenly over legs, steps, time and covariates: the stated noise
+    #: looks too low
+    NOISE_UNDERSTATED = "noise_understated"
 
     def __str__(self) -> str:
         return self.value
@@ -88,8 +91,9 @@ def is_effect(verdict: str) -> bool:
 
 def names_an_addition(verdict: str) -> bool:
     """The verdict names something to add to the model and diagnose again: an effect, or the
-    outliers to acknowledge (``--add outliers``); not ``none`` nor ``unexplained``."""
-    return verdict not in (Outcome.NONE, Outcome.UNEXPLAINED)
+    outliers to acknowledge (``--add outliers``); not ``none``, ``unexplained`` nor
+    ``noise_understated``."""
+    return verdict not in (Outcome.NONE, Outcome.UNEXPLAINED, Outcome.NOISE_UNDERSTATED)
 
 
 class ModelKind(IntEnum):

@@ -537,6 +537,9 @@ def model_of(
     outliers = getattr(last, "outlier_ids", [])
     if outliers:  # the diagnosis set them aside: the model is calibrated without them too
         inp = inp.without(outliers)
+    located = getattr(last.problem.design, "zero_steps", None)
+    if "zero_step" in effects and located:  # the steps the diagnosis located, with their times
+        inp = replace(inp, design=inp.design.model_copy(update={"zero_steps": located}))
     try:
         cal = calibrate(
             inp.meas,

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hexcal.diagnosis.changepoint import ChangePoint, locate, located, search
+from hexcal.diagnosis.covariates import Exploration, explore
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
@@ -37,7 +39,18 @@ from hexcal.diagnosis.outliers import (
     find_outliers,
     pose_chi2,
     pose_residuals,
+    robust_level,
     session_problem,
+)
+from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
+from hexcal.diagnosis.verdict import (
+    BIC_STRONG,
+    EXCESS_Z,
+    MOST,
+    Judgement,
+    judge,
+    of_the_session,
+    scaled,
 )
 from hexcal.diagnosis.where import concentrations
 from hexcal.effects import CATALOGUE, get_effect
@@ -50,7 +63,6 @@ from hexcal.estimate.effect_fit import (
     fit_model,
     heldout_accuracy,
     heldout_pose_errors,
-    noise_floor,
 )
 from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import Instruments
@@ -58,47 +70,25 @@ from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.model.robot import Robot
 from hexcal.vocabulary import ModelKind, Outcome, Verdict
 
-#: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
-BIC_STRONG = -10.0
-#: An effect must explain at least this share of the excess over the noise floor.
-MOST = 0.5
-#: Below this sine of the principal angle to the model's Jacobian, a parameter is absorbed
-#: outright (a rank failure).
-MIN_SINE = 1e-4
-#: Otherwise it is separable when its standard error, once the model's parameters are projected
-#: out (σ_alone / sin θ), resolves this fraction of its plausible range's half-width.
-RESOLVE = 0.1
-#: The residual exceeds the floor when χ²/dof is this many standard deviations of the χ²
-#: distribution above 1. Over clean simulated sessions the fitted χ²/dof spreads 15 % wider
-#: than theory (the whitening uses estimated geometry), hence 4 rather than 3.
-EXCESS_Z = 4.0
-#: How many leaders are refitted.
-N_LEADERS = 3
+__all__ = [
+    "BIC_STRONG",
+    "EXCESS_Z",
+    "MOST",
+    "Candidate",
+    "Diagnosis",
+    "diagnose",
+    "jacobian_basis",
+    "score_candidate",
+]
+
 #: The verdict when gross outliers are the whole story, and the name that, among the added
 #: effects, acknowledges them (they stay set aside, no longer a verdict).
 OUTLIERS = Outcome.OUTLIERS
-
-
-@dataclass
-class Candidate:
-    """One catalogue effect not in the model, scored against the current fit."""
-
-    effect: str
-    score: float  #: Δχ² the effect would remove, to first order
-    identifiable: bool
-    available: bool
-    reason: str = ""  #: why it is not available / not identifiable
-    absorbed_by: list[str] = field(default_factory=list)
-    separating_motion: str = ""
-    refit: ModelFit | None = None
-    delta_bic: float = float("nan")
-    explained: float = float("nan")  #: share of the excess χ² explained by the refit
-    closes: bool = False  #: the refit (alone or with ``with_effect``) is back at the noise floor
-    with_effect: str = ""  #: the second effect the remaining excess needs, if any
-
-    @property
-    def cv_rms_mm_after(self) -> float:
-        return self.refit.cv_rms_mm if self.refit is not None else float("nan")
+#: The effect whose times the change-point search locates.
+ZERO_STEP = "zero_step"
+#: ``noise_understated`` needs every catalogue effect to explain less than this share of the
+#: excess (a stated noise 2× too low leaves a few per cent to any of them).
+NOISE_SHARE = 0.1
 
 
 @dataclass
@@ -133,6 +123,15 @@ class Diagnosis:
     #: s²: the noise level the floor is relative to (1 with the stated noise; without it, the
     #: richest model's χ²/dof against a typical tracker and encoder)
     noise_level: float = 1.0
+    #: Other effects that fit these data as well as the verdict's (named with it)
+    alike: list[str] = field(default_factory=list)
+    #: Changes of a leg's zero located by the change-point search (``zero_step``'s times)
+    changes: list[ChangePoint] = field(default_factory=list)
+    #: Where an unexplained residual points (the covariate explorer); None unless the verdict
+    #: is ``unexplained`` or ``noise_understated``
+    exploration: Exploration | None = None
+    #: How many times too low the stated noise looks (``noise_understated``): √(χ²/dof)
+    noise_factor: float = float("nan")
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -211,6 +210,10 @@ class Diagnosis:
             "chi2_per_dof": self.chi2_per_dof,
             "excess_significant": self.excess_significant,
             "verdict": self.verdict,
+            "alike": list(self.alike),
+            "noise_factor": _nan_none(self.noise_factor),
+            "changes": [c.to_dict() for c in self.changes],
+            "explore": None if self.exploration is None else self.exploration.to_dict(),
             "rms_per_leg_mm": f.rms_per_leg.tolist(),
             "cv_rms_per_leg_mm": f.cv_rms_per_leg.tolist(),
             "rms_per_step": f.rms_per_step(self.problem.meas.step),
@@ -228,7 +231,7 @@ class Diagnosis:
                     "absorbed_by": c.absorbed_by,
                     "separating_motion": c.separating_motion,
                     "nonphysical": [p.name for p in c.refit.nonphysical()] if c.refit else [],
-                    "of_the_session": _of_the_session(c.effect),
+                    "of_the_session": of_the_session(c.effect),
                     "source": get_effect(c.effect).source.text(),
                 }
                 for c in self.candidates
@@ -258,124 +261,8 @@ class Diagnosis:
         }
 
 
-def _of_the_session(name: str) -> bool:
-    """A property of the session (the tracker drifting), not of the robot: such an effect is
-    fitted to calibrate from this session but not carried into the calibrated model."""
-    return bool(getattr(get_effect(name), "of_the_session", False))
-
-
 def _nan_none(v: float) -> float | None:
     return None if not np.isfinite(v) else float(v)
-
-
-def _orthonormal(a: np.ndarray) -> np.ndarray:
-    q, r = np.linalg.qr(a)
-    keep = np.abs(np.diag(r)) > 1e-10 * max(np.abs(np.diag(r)).max(), 1e-300)
-    return q[:, keep]
-
-
-def jacobian_basis(fit: ModelFit) -> np.ndarray:
-    """Orthonormal basis of the fit's whitened Jacobian (what :func:`score_candidate` projects
-    out); computed once per fit when several candidates are scored."""
-    jw, _, _ = fit.refinement.whitened()
-    return _orthonormal(jw)
-
-
-def score_candidate(
-    problem: Problem, fit: ModelFit, name: str, q: np.ndarray | None = None
-) -> Candidate:
-    """Score test and identifiability of one effect at the current fit (``q``: the fit's
-    :func:`jacobian_basis`, when already computed)."""
-    eff = get_effect(name)
-    why = problem.missing(name)
-    if why:
-        return Candidate(
-            name, 0.0, False, False, reason=why, separating_motion=eff.separating_motion
-        )
-    ref = fit.refinement
-    jw, rw, W = ref.whitened()
-    specs = eff.params(problem.design)
-    names = [s.name for s in specs]
-    basis = problem.basis(name)
-    bw = np.einsum("mij,mjp->mip", W, -basis).reshape(-1, basis.shape[-1])
-    q = _orthonormal(jw) if q is None else q
-    b_perp = bw - q @ (q.T @ bw)
-    norms = np.linalg.norm(bw, axis=0)
-    sines = np.linalg.norm(b_perp, axis=0) / np.where(norms > 0, norms, 1.0)
-    # Standard errors of the effect's parameters once the model's own are projected out.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        se = np.sqrt(np.diag(np.linalg.pinv(b_perp.T @ b_perp)))
-    half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
-    # What the data must resolve: the spec's own resolution, else a tenth of the half-width.
-    need = np.array(
-        [
-            r if (r := getattr(sp, "resolution", None)) is not None else RESOLVE * h
-            for sp, h in zip(specs, half, strict=True)
-        ]
-    )
-    unresolved = (sines < MIN_SINE) | ~(se < need)
-    absorbed = [names[i] for i in np.where(unresolved)[0]]
-    qb = _orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(rw), 0))
-    score = float(np.sum((qb.T @ rw) ** 2))
-    cand = Candidate(
-        name,
-        score,
-        identifiable=not absorbed,
-        available=True,
-        separating_motion=eff.separating_motion,
-    )
-    if absorbed:
-        # Name the model parameters that mimic the worst-absorbed column.
-        worst = int(np.argmin(sines))
-        coef, *_ = np.linalg.lstsq(jw, bw[:, worst], rcond=None)
-        share = np.abs(coef) * np.linalg.norm(jw, axis=0)
-        top = [ref.names[i] for i in np.argsort(-share)[:3]]
-        cand.absorbed_by = top
-        cand.reason = (
-            f"{', '.join(absorbed)} cannot be told apart from {', '.join(top)} with these poses "
-            f"(principal angle {np.degrees(np.arcsin(min(sines.min(), 1.0))):.2f}°, standard error "
-            f"{np.nanmax(se[unresolved] / half[unresolved]):.2g} of the plausible range); "
-            f"record {eff.separating_motion}"
-        )
-    return cand
-
-
-def _closes_excess(
-    problem: Problem,
-    c: Candidate,
-    candidates: list[Candidate],
-    expected_per_dof: float,
-    band: float,
-) -> tuple[bool, str]:
-    """Does adding ``c`` bring the residual back to the noise floor — alone, or with one more
-    catalogue effect (scored at ``c``'s refit)? An effect that leaves a significant excess only
-    nibbles at a structured residual, unless another catalogue effect accounts for the rest
-    (two hidden effects are then named one after the other)."""
-    ref = c.refit
-    if ref is None:
-        raise ValueError(f"{c.effect} has not been refitted: nothing to test")
-    if ref.chi2 / (ref.dof * expected_per_dof) <= band:
-        return True, ""
-    q = None
-    for other in candidates:
-        if other.effect == c.effect or not (other.available and other.identifiable):
-            continue
-        q = jacobian_basis(ref) if q is None else q
-        second = score_candidate(problem, ref, other.effect, q)
-        if not second.identifiable:
-            continue
-        n_extra = len(get_effect(other.effect).params(problem.design))
-        if (ref.chi2 - second.score) / ((ref.dof - n_extra) * expected_per_dof) <= band:
-            return True, other.effect
-    return False, ""
-
-
-def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
-    n = base.refinement.whitened()[1].size
-    dp = new.n_params - base.n_params
-    if problem.sigmas is not None:
-        return (new.chi2 - base.chi2) + dp * np.log(n)
-    return n * np.log(new.chi2 / base.chi2) + dp * np.log(n)
 
 
 def diagnose(
@@ -407,66 +294,51 @@ def diagnose(
     outliers: list[Outlier] = []
     threshold = float("nan")
     work = problem
+    if ZERO_STEP in effects and (given is None or not located(problem)):
+        _locate_first(problem, effects)
     if set_aside_outliers:
-        start = None
-        if isinstance(given, Subset):
-            start = np.setdiff1d(np.arange(len(problem.meas)), given.rows)
-        search = find_outliers(problem, effects, start)
-        outliers, threshold, work = search.outliers, search.threshold, search.problem
-        notes += search.notes
-        if (
-            isinstance(given, Subset)
-            and isinstance(work, Subset)
-            and np.array_equal(given.rows, work.rows)
-        ):
-            work = given  # the same poses: keep its cached bases and the drawing's accuracy
-    verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof = _verdict(
-        work, effects, sig, notes
-    )
+        outliers, threshold, work = _set_aside(problem, given, effects, notes)
+    j = judge(work, effects, sig, notes)
+    fit, verdict = j.fit, j.verdict
     if outliers:
-        story = ""
-        if verdict == Outcome.NONE:
-            story = "without them the model is at the noise floor"
-            if acknowledged:
-                story += " (they were acknowledged: set aside, no longer a verdict)"
-            elif _outliers_make_an_excess(problem, fit, outliers, s2):
-                verdict = OUTLIERS
-                story += ", with them far above it: they are the whole story"
-            else:
-                story += ", and with them it would still be: too few and too small to be a verdict"
-        else:
-            story = f"the verdict ({verdict}) is what the other poses say"
-        notes.insert(0, _outlier_note(outliers, threshold, len(problem.meas), story))
-    session_effects = [e for e in effects if _of_the_session(e)]
-    if verdict in CATALOGUE and _of_the_session(verdict):
-        session_effects.append(verdict)
-    for e in session_effects:
-        notes.append(
-            f"{e} is a property of this session, not of the robot: it is fitted to calibrate from "
-            "these poses, but a calibrated model does not carry it (another session drifts "
-            "otherwise); let the tracker warm up, fix its stand, and record the session again to "
-            "check"
-        )
-    where = concentrations(work, fit, floor)
-    floor_sig = sig if sig is not None else _scaled(DEFAULT_SIGMAS, float(np.sqrt(s2)))
+        verdict = _outlier_story(problem, j, outliers, threshold, acknowledged, notes)
+    _session_notes(effects, verdict, notes)
+    where = concentrations(
+        work,
+        fit,
+        j.floor,
+        excess=j.excess,
+        outliers=outliers,
+        changes=j.changes if verdict == ZERO_STEP else (),
+    )
+    exploration, noise_factor = None, float("nan")
+    if verdict == Outcome.UNEXPLAINED:
+        exploration = explore(work, fit, j.s2, max(j.level, j.s2))
+        if _noise_understated(j, where, exploration, sig is not None):
+            verdict, noise_factor = Outcome.NOISE_UNDERSTATED, float(np.sqrt(j.chi2_per_dof))
+            notes.append(_noise_note(noise_factor, j))
+    floor_sig = sig if sig is not None else scaled(DEFAULT_SIGMAS, float(np.sqrt(j.s2)))
     errors = heldout_pose_errors(work, fit)
     accuracy = heldout_accuracy(work, fit, floor_sig, errors)
     if work.design_pose_accuracy is None:
         work.design_pose_accuracy = design_accuracy(work, floor_sig)
-    candidates.sort(
-        key=lambda c: (np.isnan(c.delta_bic), c.delta_bic if np.isfinite(c.delta_bic) else -c.score)
+    candidates = sorted(
+        j.candidates,
+        key=lambda c: (
+            np.isnan(c.delta_bic),
+            c.delta_bic if np.isfinite(c.delta_bic) else -c.score,
+        ),
     )
-    floor_mm = float(np.sqrt(np.mean(floor**2)))
     return Diagnosis(
         fit,
-        floor_mm,
-        floor_source,
-        float(chi2_per_dof),
-        bool(excess),
+        float(np.sqrt(np.mean(j.floor**2))),
+        j.floor_source,
+        j.chi2_per_dof,
+        j.excess,
         verdict,
         candidates,
         where,
-        floor,
+        j.floor,
         work,
         notes,
         accuracy,
@@ -476,8 +348,117 @@ def diagnose(
         outliers=outliers,
         outlier_threshold=threshold,
         outliers_acknowledged=acknowledged,
-        noise_level=float(s2),
+        noise_level=j.s2,
+        alike=j.alike,
+        changes=j.changes,
+        exploration=exploration,
+        noise_factor=noise_factor,
     )
+
+
+def _locate_first(problem: Problem, effects: tuple[str, ...]) -> None:
+    """``zero_step`` in the model on a fresh session: locate its steps first, at the model
+    without it (a clear error when the search finds none)."""
+    fit0 = fit_model(problem, tuple(e for e in effects if e != ZERO_STEP), cross_validate=False)
+    locate(problem, search(problem, fit0, robust_level(problem, fit0)))
+    if not located(problem):
+        raise ValueError(
+            "zero_step: no change of a leg's zero is found in this session (the change-point "
+            "search on each leg's residual in recording order finds no step beyond its "
+            "threshold); leave zero_step out, or state zero_steps in robot.json"
+        )
+
+
+def _noise_understated(j: Judgement, where: dict, exploration: Exploration, stated: bool) -> bool:
+    """An excess over the stated noise that nothing structures: no group of poses stands out
+    from the rest, no leg's zero changed, no covariate leads and no catalogue effect explains a
+    share of it worth naming (a leg's zero step among them) — the noise is larger than
+    stated."""
+    if not (stated and j.excess and where.get("even")) or exploration.leads:
+        return False
+    return not any(
+        c.refit is not None and c.delta_bic < BIC_STRONG and c.explained >= NOISE_SHARE
+        for c in j.candidates
+    )
+
+
+def _noise_note(factor: float, j: Judgement) -> str:
+    return (
+        f"the residual is {factor:.2f}× the stated noise (χ²/dof {j.chi2_per_dof:.2f}) and "
+        "spread evenly: over the legs, the procedure's steps, time, the workspace and every "
+        "covariate, and no catalogue effect explains a share of it. The stated noise looks "
+        f"about {factor:.1f}× too low: measure the tracker's and the encoders' noise again "
+        "(the scatter of still poses), correct instruments.json, and diagnose again"
+    )
+
+
+def _set_aside(
+    problem: Problem, given: Problem | None, effects: tuple[str, ...], notes: list[str]
+) -> tuple[list[Outlier], float, Problem]:
+    """The gross outliers of the session ``problem`` (an earlier diagnosis' ``given`` tested
+    first): (outliers, their χ² threshold, the problem on the poses kept)."""
+    start = None
+    if isinstance(given, Subset):
+        start = np.setdiff1d(np.arange(len(problem.meas)), given.rows)
+    search = find_outliers(problem, effects, start)
+    notes += search.notes
+    work = search.problem
+    if (
+        isinstance(given, Subset)
+        and isinstance(work, Subset)
+        and np.array_equal(given.rows, work.rows)
+    ):
+        work = given  # the same poses: keep its cached bases and the drawing's accuracy
+    return search.outliers, search.threshold, work
+
+
+def _outlier_story(
+    session: Problem,
+    j: Judgement,
+    outliers: list[Outlier],
+    threshold: float,
+    acknowledged: bool,
+    notes: list[str],
+) -> Verdict:
+    """The verdict once outliers were set aside (``outliers`` when they are the whole story),
+    with the note that says so first among ``notes``."""
+    verdict = j.verdict
+    if verdict == Outcome.NONE:
+        story = "without them the model is at the noise floor"
+        if acknowledged:
+            story += " (they were acknowledged: set aside, no longer a verdict)"
+        elif _outliers_make_an_excess(session, j.fit, outliers, j.s2):
+            verdict = OUTLIERS
+            story += ", with them far above it: they are the whole story"
+        else:
+            story += ", and with them it would still be: too few and too small to be a verdict"
+    else:
+        story = f"the verdict ({verdict}) is what the other poses say"
+    notes.insert(0, _outlier_note(outliers, threshold, len(session.meas), story))
+    return verdict
+
+
+def _session_notes(effects: tuple[str, ...], verdict: Verdict, notes: list[str]) -> None:
+    """The note of each effect of the session (fitted, not shipped) in the model or named."""
+    session_effects = [e for e in effects if of_the_session(e)]
+    if verdict in CATALOGUE and of_the_session(verdict):
+        session_effects.append(verdict)
+    for e in dict.fromkeys(session_effects):
+        if e == ZERO_STEP:
+            notes.append(
+                "zero_step is a property of this session, not of the robot: the step is fitted "
+                "to calibrate from these poses, but the calibrated model keeps each leg's zero as "
+                "the session started (the robot as homed) and records the step's time "
+                "(zero_steps); re-home before using it, and check the stepping leg's encoder "
+                "(its cable, its index pulse) and whether it was re-homed mid-session"
+            )
+            continue
+        notes.append(
+            f"{e} is a property of this session, not of the robot: it is fitted to calibrate from "
+            "these poses, but a calibrated model does not carry it (another session drifts "
+            "otherwise); let the tracker warm up, fix its stand, and record the session again to "
+            "check"
+        )
 
 
 def _outlier_note(outliers: list[Outlier], threshold: float, m: int, story: str) -> str:
@@ -504,154 +485,3 @@ def _outliers_make_an_excess(
     chi2 = fit.chi2 + float(pose_chi2(session, fit)[rows].sum())
     dof = fit.dof + 6 * len(rows)
     return chi2 / (dof * s2) > 1.0 + EXCESS_Z * np.sqrt(2.0 / dof)
-
-
-def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None, notes: list):
-    """Fit, score, refit the leaders and decide, on ``problem``'s poses: (verdict, fit,
-    candidates, floor (M, 6), floor source, s² (noise level, 1 when stated), excess
-    significant, χ²/dof over the floor). Notes are appended to ``notes``."""
-    fit = fit_model(problem, effects)
-
-    q = jacobian_basis(fit)
-    candidates = [score_candidate(problem, fit, n, q) for n in CATALOGUE if n not in effects]
-    ranked = sorted(candidates, key=lambda c: (not (c.available and c.identifiable), -c.score))
-    for c in ranked[:N_LEADERS]:
-        if not (c.available and c.identifiable):
-            continue
-        try:
-            c.refit = fit_model(problem, (*effects, c.effect), seed_fit=fit)
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            c.reason = f"refit failed: {exc}"
-            continue
-        c.delta_bic = _bic_delta(problem, fit, c.refit)
-
-    # The noise floor: the stated noise propagated through the model; without it, the noise
-    # level s (relative to a typical tracker and encoder) of the richest model these data allow.
-    if sig is not None:
-        floor = noise_floor(problem, fit)
-        floor_source = "stated instrument noise, propagated through the fitted model"
-        s2 = 1.0
-    else:
-        richest = tuple(effects) + tuple(
-            c.effect for c in candidates if c.available and c.identifiable
-        )
-        try:
-            rich = fit_model(problem, richest, cross_validate=False, seed_fit=fit)
-        except (ValueError, np.linalg.LinAlgError):
-            rich = fit
-        s2 = rich.chi2 / rich.dof
-        r = fit.refinement
-        cov = leg_covariance(r.a, r.b, problem.meas.position, problem.R, DEFAULT_SIGMAS)
-        floor = np.sqrt(s2 * np.einsum("mkk->mk", cov))
-        floor_source = (
-            "estimated (no instruments file): the residual level of a fit with every identifiable "
-            f"catalogue effect ({', '.join(richest)}); an effect outside the catalogue would inflate it"
-        )
-        notes.append(
-            "the noise floor is estimated, not stated: pass --instruments for a firmer verdict"
-        )
-    expected = fit.dof * s2  # χ² the current fit would have from noise alone
-    chi2_per_dof = fit.chi2 / expected
-    excess = chi2_per_dof > 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
-    for c in candidates:
-        if c.refit is not None and fit.chi2 > expected:
-            c.explained = float((fit.chi2 - c.refit.chi2) / (fit.chi2 - expected))
-
-    # "Explains most of the excess" only means something when there is a significant excess to
-    # explain; below it, the excess is mostly noise and strong evidence (ΔBIC) decides alone.
-    band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
-    for c in candidates:
-        if c.refit is not None and excess:
-            c.closes, c.with_effect = _closes_excess(
-                problem, c, candidates, expected_per_dof=s2, band=band
-            )
-    winners = [
-        c
-        for c in candidates
-        if c.refit is not None
-        and c.delta_bic < BIC_STRONG
-        and (not excess or (c.explained >= MOST and c.closes))
-    ]
-    best = min(winners, key=lambda c: c.delta_bic) if winners else None
-    if best is not None and _of_the_session(best.effect):
-        best = _robot_before_session(best, candidates, winners, excess, notes)
-    verdict: Verdict
-    if best is not None:
-        verdict = best.effect
-        notes += _look_alike(problem, best)
-        if best.with_effect:
-            notes.append(
-                f"{best.effect} leaves an excess that {best.with_effect} would explain: "
-                f"add {best.effect}, then diagnose again"
-            )
-    elif excess:
-        verdict = Outcome.UNEXPLAINED
-        helpful = [
-            (c, c.refit) for c in candidates if c.refit is not None and c.delta_bic < BIC_STRONG
-        ]
-        if helpful:
-            notes.append(
-                "some effects help but none brings the residual to the noise floor, alone or with one more "
-                "catalogue effect: "
-                + ", ".join(
-                    f"{c.effect} (explains {100 * c.explained:.0f} % of the excess, leaves χ²/dof "
-                    f"{refit.chi2 / (refit.dof * s2):.2f})"
-                    for c, refit in helpful
-                )
-            )
-    else:
-        verdict = Outcome.NONE
-    return verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof
-
-
-def _look_alike(problem: Problem, named: Candidate) -> list[str]:
-    """What else leaves the residual the named effect explains (the effect's
-    :meth:`~hexcal.effects.base.Effect.look_alike`, at its fitted values), as a note."""
-    if named.refit is None:
-        return []
-    eff = get_effect(named.effect)
-    names = [s.name for s in eff.params(problem.design)]
-    fitted = {p.name: p.value for p in named.refit.params}
-    text = eff.look_alike(np.array([fitted[n] for n in names]), problem.design)
-    return [text] if text else []
-
-
-def _robot_before_session(
-    best: Candidate, candidates: list[Candidate], winners: list[Candidate], excess: bool, notes
-) -> Candidate | None:
-    """A property of the session (drift) is named only when the evidence prefers it to every
-    effect of the robot that also brings the residual to the floor. A steady temperature rise
-    follows the clock, and a uniform expansion of the legs lifts the platform like a vertical
-    drift of the tracker: when the robot's own effect explains the residual as well, it is not
-    blamed on the session (``best`` yields to the best winner of the robot, or to none)."""
-    rivals = [
-        c
-        for c in candidates
-        if c.refit is not None
-        and not _of_the_session(c.effect)
-        and c.delta_bic < BIC_STRONG
-        and (c.closes or not excess)
-        and c.delta_bic <= best.delta_bic
-    ]
-    if not rivals:
-        return best
-    rival = min(rivals, key=lambda c: c.delta_bic)
-    of_robot = [c for c in winners if not _of_the_session(c.effect)]
-    fallback = min(of_robot, key=lambda c: c.delta_bic) if of_robot else None
-    notes.append(
-        f"{best.effect} and {rival.effect} both bring the residual to the noise floor, and the "
-        f"evidence prefers {rival.effect} (ΔBIC {rival.delta_bic:.0f} against "
-        f"{best.delta_bic:.0f}), which explains only {100 * rival.explained:.0f} % of the "
-        f"excess: with the temperature rising steadily over the session the two are hard to "
-        f"tell apart, so {best.effect} is not named"
-        + (
-            f"; the verdict is {fallback.effect}, the robot's best effect that explains most of it"
-            if fallback is not None
-            else "; a session whose temperature changes unevenly (or holds) separates them"
-        )
-    )
-    return fallback
-
-
-def _scaled(sig: NoiseSigmas, s: float) -> NoiseSigmas:
-    return NoiseSigmas(s * sig.position_mm, s * sig.orientation_rad, s * sig.reading_mm)

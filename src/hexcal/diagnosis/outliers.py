@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from hexcal.diagnosis.scoring import jacobian_basis, score_candidate
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.effects.drift import T_MID
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
@@ -170,8 +171,6 @@ def pose_chi2(problem: Problem, fit: ModelFit, residuals: np.ndarray | None = No
 
 
 def _richest(problem: Problem, fit: ModelFit, effects: tuple[str, ...]) -> tuple[str, ...]:
-    from hexcal.diagnosis.diagnose import jacobian_basis, score_candidate
-
     q = jacobian_basis(fit)
     extra = []
     for name in CATALOGUE:
@@ -191,6 +190,15 @@ def _noise_level(chi2: np.ndarray, n_params: int, stated: bool) -> float:
     shrink = max(1.0 - n_params / (6.0 * n), 0.5)
     s2 = float(np.median(chi2) / (chi2_ppf(0.5, 6) * shrink))
     return max(s2, 1.0) if stated else s2
+
+
+def robust_level(problem: Problem, fit: ModelFit) -> float:
+    """s²: the noise level of ``fit``'s residual over ``problem``'s poses from its median pose
+    (:func:`_noise_level`): robust to a few poses or a stretch far out, never below the stated
+    noise. The outlier search, the change-point search, ``where`` and the covariate explorer
+    judge against it, so that a noise understated alike everywhere makes none of them point
+    at a particular pose, leg or time."""
+    return _noise_level(pose_chi2(problem, fit), fit.n_params, problem.sigmas is not None)
 
 
 def find_outliers(

@@ -61,6 +61,7 @@ PLOT_NAMES = (
     "periodogram.png",
     "predicted_vs_measured.png",
     "per_leg_rms.png",
+    "residuals_vs_covariate.png",
 )
 
 
@@ -584,6 +585,28 @@ def _plot_per_leg_rms(view: _View, outdir: Path, name: str) -> Path:
     return _finish(fig, outdir, name, [handles[i] for i in order])
 
 
+def _plot_covariate(view: _View, outdir: Path, name: str) -> Path:
+    """The residual against the covariate an unexplained residual follows (the covariate
+    explorer's lead), on the legs that carry its shape."""
+    x = view.diag.exploration
+    lead = None if x is None else x.lead
+    if lead is None:
+        raise ValueError("no covariate leads: nothing to plot against")
+    cov = lead.covariate
+    unit = f" ({cov.unit})" if cov.unit else ""
+    legs = lead.shape.legs
+    on = "" if len(legs) == 6 else f" on leg{'s' * (len(legs) > 1)} {', '.join(map(str, legs))}"
+    return _leg_scatter(
+        view,
+        lead.values,
+        f"{cov.label}{unit}",
+        f"residual against the {cov.name.replace('_', ' ')}",
+        outdir,
+        name,
+        note=f"{100 * lead.share:.0f} % of the excess: {lead.shape.describe()}{on}",
+    )
+
+
 _PLOTS: dict[str, Callable[[_View, Path, str], Path]] = {
     "residuals_vs_reading.png": _plot_reading,
     "residuals_vs_motion.png": _plot_motion,
@@ -595,6 +618,7 @@ _PLOTS: dict[str, Callable[[_View, Path, str], Path]] = {
     "periodogram.png": _plot_periodogram,
     "predicted_vs_measured.png": _plot_normalised,
     "per_leg_rms.png": _plot_per_leg_rms,
+    "residuals_vs_covariate.png": _plot_covariate,
 }
 
 
@@ -609,6 +633,8 @@ def write_plots(
     needed), each named ``prefix`` + one of :data:`PLOT_NAMES`; return the paths written, in
     that order. ``only``: a subset of :data:`PLOT_NAMES` to write (all by default).
 
+    ``residuals_vs_covariate.png`` (the residual against the covariate an unexplained residual
+    follows) is written only when one leads.
     ``residuals_vs_temperature.png`` is skipped when the measurements have no temperature; the
     periodogram is drawn without the pitch marker when robot.json has no lead-screw pitch.
     ``on_plot`` is called with each plot's name once it is drawn (a progress bar).
@@ -628,7 +654,14 @@ def write_plots(
             continue
         if name == "residuals_vs_temperature.png" and view.meas.temperature is None:
             continue
+        if name == "residuals_vs_covariate.png" and _no_lead(diag):
+            continue
         paths.append(plot(view, outdir, prefix + name))
         if on_plot is not None:
             on_plot(name)
     return paths
+
+
+def _no_lead(diag: Diagnosis) -> bool:
+    x = getattr(diag, "exploration", None)
+    return x is None or x.lead is None

@@ -27,6 +27,7 @@ import hexcal
 from hexcal.diagnosis.compare_plots import before_after, pose_error_map
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.diagnosis.plots import write_plots
+from hexcal.diagnosis.report_pointer import pointer_section
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.effects import get_effect
 from hexcal.estimate.effect_fit import ParamRow
@@ -82,6 +83,11 @@ REPORT_PLOTS = (
         "periodogram.png",
         "Periodogram against the reading",
         "A peak above the dotted noise level at the pitch is the lead screw.",
+    ),
+    (
+        "residuals_vs_covariate.png",
+        "Against the covariate it follows",
+        "The quantity an unexplained residual follows, with the running median per leg.",
     ),
 )
 
@@ -182,10 +188,15 @@ def _value_ci(p: ParamRow) -> str:
 
 
 #: The verdict's CSS class and header label; any other verdict names an effect (or outliers).
-_VERDICT_CLASS: dict[Verdict, str] = {Outcome.NONE: "v-none", Outcome.UNEXPLAINED: "v-unexplained"}
+_VERDICT_CLASS: dict[Verdict, str] = {
+    Outcome.NONE: "v-none",
+    Outcome.UNEXPLAINED: "v-unexplained",
+    Outcome.NOISE_UNDERSTATED: "v-unexplained",
+}
 _VERDICT_LABEL: dict[Verdict, str] = {
     Outcome.NONE: "verdict — nothing missing",
     Outcome.UNEXPLAINED: "verdict — unexplained residual",
+    Outcome.NOISE_UNDERSTATED: "verdict — the stated noise looks too low",
 }
 
 
@@ -237,10 +248,23 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
                 )
         return text + "."
     if d.verdict == Outcome.UNEXPLAINED:
+        lead = None if d.exploration is None else d.exploration.lead
+        points = (
+            f"; it follows the {lead.covariate.label} ({100 * lead.share:.0f} % of the excess)"
+            if lead is not None
+            else ""
+        )
         return (
             f"{fit.model_name} leaves a residual above the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, "
             f"floor {floor}, χ²/dof {d.chi2_per_dof:.2f}) that no catalogue effect explains; "
-            f"{d.where.get('summary', '')}."
+            f"{d.where.get('summary', '')}{points}."
+        )
+    if d.verdict == Outcome.NOISE_UNDERSTATED:
+        return (
+            f"{fit.model_name} leaves a residual {d.noise_factor:.2f}× the stated noise, spread "
+            "evenly over legs, steps, time, the workspace and every covariate: the stated noise "
+            f"looks about {d.noise_factor:.1f}× too low (held-out RMS {_um(fit.cv_rms_mm)} µm, "
+            f"floor {floor})."
         )
     if d.verdict == Outcome.OUTLIERS:
         return (
@@ -252,8 +276,9 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
     if c is None or c.refit is None:
         return f"{fit.model_name} is missing {d.verdict}."
     share = f" and explains {100 * c.explained:.0f} % of the excess" if _finite(c.explained) else ""
+    alike = f" ({' and '.join(d.alike)} fit{'s' * (len(d.alike) == 1)} alike)" if d.alike else ""
     return (
-        f"{fit.model_name} is missing {d.verdict}: adding it lowers the held-out RMS from "
+        f"{fit.model_name} is missing {d.verdict}{alike}: adding it lowers the held-out RMS from "
         f"{_um(fit.cv_rms_mm)} to {_um(c.cv_rms_mm_after)} µm (floor {floor}) with ΔBIC "
         f"{_stat(c.delta_bic)}{share}."
     )
@@ -628,6 +653,8 @@ def _plots(d: Diagnosis, sid: str, tmp: Path) -> str:
         skipped = (
             "the measurements have no temperature column" if "temperature" in name else "not drawn"
         )
+        if "covariate" in name:
+            skipped = "drawn when an unexplained residual follows a covariate"
         figs.append(_figure(f"{sid}-plot-{stem}", made.get(name), title, caption, skipped))
     return f'<div id="{sid}-plots"><h3>Residual plots</h3>{"".join(figs)}</div>'
 
@@ -643,6 +670,7 @@ def _step(d: Diagnosis, i: int, tmp: Path | None) -> str:
         + _leg_table(d, sid)
         + _candidate_table(d, sid)
         + _where(d, sid)
+        + pointer_section(d, sid)
         + _param_table(d, sid)
         + plots
         + "</section>"

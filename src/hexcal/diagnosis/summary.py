@@ -114,6 +114,18 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
             f"{1000 * d.fit.cv_rms_mm:.0f} µm where the noise alone gives "
             f"{1000 * d.noise_floor_mm:.0f} µm. " + str(d.where.get("summary", "")).capitalize()
         )
+        lead = None if d.exploration is None else d.exploration.lead
+        if lead is not None:
+            out.append(
+                f"It follows the {lead.covariate.label} ({100 * lead.share:.0f} % of the excess), "
+                f"which points at {lead.points_at}."
+            )
+    elif d.verdict == Outcome.NOISE_UNDERSTATED:
+        out.append(
+            f"The model misses the legs by {1000 * d.fit.cv_rms_mm:.0f} µm where the stated noise "
+            f"gives {1000 * d.noise_floor_mm:.0f} µm, evenly everywhere: the instruments look "
+            f"about {d.noise_factor:.1f}× noisier than stated, rather than an effect missing."
+        )
     elif d.verdict == Outcome.OUTLIERS:
         out.append(
             f"{len(d.outliers)} poses disagree grossly with every model (mis-recorded, knocked, "

@@ -61,37 +61,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             + ", ".join(f"#{o.pose_id} ({o.step}, t {o.t:g} s)" for o in d.outliers[:10])
         )
     lines.append("")
-    v = d.verdict
-    if v == Outcome.NONE:
-        lines.append(
-            "verdict: none — the residual is at the noise floor; nothing in the catalogue is missing"
-        )
-    elif v == Outcome.UNEXPLAINED:
-        lines.append(
-            "verdict: unexplained — the residual is above the noise floor but no catalogue effect explains most of it"
-        )
-        lines.append(f"  look at: {d.where['summary']}")
-    elif v == Outcome.OUTLIERS:
-        lines.append(
-            f"verdict: outliers — {len(d.outliers)} poses no model explains (a bumped tracker, a "
-            "pose taken mid-move); without them the model is at the noise floor. They stay in the "
-            "session, set aside: --add outliers acknowledges them"
-        )
-    else:
-        won = d.candidate(v)
-        if won is None:
-            raise ValueError(f"the verdict {v!r} is none of the scored candidates")
-        lines.append(
-            f"verdict: {v} — it explains {100 * won.explained:.0f} % of the excess over the noise floor "
-            f"(ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → {_um(won.cv_rms_mm_after)} µm "
-            f"(floor {_um(d.noise_floor_mm)} µm). Add it: --add {v}"
-        )
-        from hexcal.effects import get_effect
-
-        eff = get_effect(v)
-        lines.append(f"  physics: {eff.physics}")
-        if eff.source.kind != "catalogue":
-            lines.append(f"  (an effect from outside the catalogue: {eff.source.text()})")
+    lines += verdict_lines(d)
     bad = f.nonphysical()
     notes = d.notes + f.notes
     if notes:
@@ -104,6 +74,69 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             "it means; set plausible in robot.json if this hardware allows it)"
         )
     return "\n".join(lines)
+
+
+def verdict_lines(d: Diagnosis) -> list[str]:
+    """The verdict in words, what it rests on, and what to do next."""
+    f = d.fit
+    v = d.verdict
+    if v == Outcome.NONE:
+        return [
+            "verdict: none — the residual is at the noise floor; nothing in the catalogue is missing"
+        ]
+    if v == Outcome.UNEXPLAINED:
+        return [
+            "verdict: unexplained — the residual is above the noise floor but no catalogue effect "
+            "explains most of it",
+            f"  look at: {d.where['summary']}",
+            *pointer_lines(d),
+        ]
+    if v == Outcome.NOISE_UNDERSTATED:
+        return [
+            f"verdict: noise_understated — the residual is {d.noise_factor:.2f}× the stated noise "
+            "and spread evenly over legs, steps, time, the workspace and every covariate: the "
+            f"stated noise looks about {d.noise_factor:.1f}× too low (check instruments.json)"
+        ]
+    if v == Outcome.OUTLIERS:
+        return [
+            f"verdict: outliers — {len(d.outliers)} poses no model explains (a bumped tracker, a "
+            "pose taken mid-move); without them the model is at the noise floor. They stay in the "
+            "session, set aside: --add outliers acknowledges them"
+        ]
+    won = d.candidate(v)
+    if won is None:
+        raise ValueError(f"the verdict {v!r} is none of the scored candidates")
+    from hexcal.effects import get_effect
+
+    alike = f" (or {' or '.join(d.alike)}: they fit alike, see the notes)" if d.alike else ""
+    out = [
+        f"verdict: {v}{alike} — it explains {100 * won.explained:.0f} % of the excess over the "
+        f"noise floor (ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → "
+        f"{_um(won.cv_rms_mm_after)} µm (floor {_um(d.noise_floor_mm)} µm). Add it: --add {v}",
+        f"  physics: {get_effect(v).physics}",
+    ]
+    if get_effect(v).source.kind != "catalogue":
+        out.append(f"  (an effect from outside the catalogue: {get_effect(v).source.text()})")
+    if v == "zero_step":
+        out += [f"  {c.text()}" for c in d.changes]
+    return out
+
+
+def pointer_lines(d: Diagnosis) -> list[str]:
+    """Where an unexplained residual points: the covariates it follows, with their shares."""
+    x = d.exploration
+    if x is None:
+        return []
+    if not x.leads:
+        return ["  where it points: " + x.summary()]
+    out = ["  where it points (the residual regressed on each covariate; share of the excess):"]
+    out += [f"    {t.text()}" for t in x.leads[:4]]
+    lead = x.leads[0]
+    out.append(
+        f"  the {lead.covariate.label} points at {lead.points_at}; --effect-file "
+        "FILE.py writes an effect with that shape to edit and pass back"
+    )
+    return out
 
 
 def _accuracy_lines(d: Diagnosis) -> list[str]:

@@ -22,6 +22,7 @@ from hexcal.effects import (  # noqa: F401
     offset,
     thermal,
     ujoint,
+    zero_step,
 )
 from hexcal.effects.base import (
     API_VERSION,

@@ -75,6 +75,16 @@ class Home(BaseModel):
         return q
 
 
+class ZeroStep(BaseModel):
+    """A change of one leg's encoder zero during a session (lost counts, a re-home): from
+    ``t_s`` (s, the session's clock) on, leg ``leg`` reads differently for the same length.
+    Located by ``hexcal diagnose`` (its change-point search), or stated in robot.json."""
+
+    model_config = ConfigDict(extra="forbid")
+    leg: int = Field(ge=1, le=6)
+    t_s: float = Field(allow_inf_nan=False)
+
+
 class Robot(BaseModel):
     """A Gough platform's geometry as in robot.json (docs/formats.md). Unknown keys are kept."""
 
@@ -93,6 +103,9 @@ class Robot(BaseModel):
     platform_com_mm: Vec3 | None = None
     #: The stroke as limits on the encoder readings, [min, max] mm.
     leg_range_mm: Annotated[list[Millimetres], Field(min_length=2, max_length=2)] | None = None
+    #: Changes of a leg's encoder zero during the session (at most one per leg), for the
+    #: ``zero_step`` effect.
+    zero_steps: Annotated[list[ZeroStep], Field(max_length=6)] | None = None
     #: Half-angle of each joint's cone about the leg's direction at home, deg (both ends).
     joint_limit_deg: Number | None = Field(None, gt=0, le=180, allow_inf_nan=False)
     #: Plausible ranges replacing the catalogue's: by effect (``gain``) or by parameter's full
@@ -131,6 +144,14 @@ class Robot(BaseModel):
                 if not float(np.linalg.norm(axis)) > 1e-9:
                     raise ValueError(f"joint {k}'s axis is {axis}: give a direction, not zero")
         return axes
+
+    @field_validator("zero_steps")
+    @classmethod
+    def _one_per_leg(cls, steps: list[ZeroStep] | None) -> list[ZeroStep] | None:
+        legs = [s.leg for s in steps or []]
+        if len(set(legs)) != len(legs):
+            raise ValueError(f"at most one zero step per leg (legs {legs})")
+        return steps
 
     @field_validator("plausible")
     @classmethod

@@ -85,3 +85,19 @@ def realistic_values(
         f"effect {name!r} gives no typical size (its typical_values method): give its values "
         "(hexcal simulate --effect-values)"
     )
+
+
+def zero_jump_hook(leg: int, first: int, size_mm: float) -> LengthEffect:
+    """Leg ``leg`` (1-based) reads ``size_mm`` longer from the ``first``-th pose of the session
+    on (0-based, recording order): a zero step as the ``zero_step`` effect describes it (lost
+    counts, a re-home). The hook sees the whole session's times at once, so the step's time
+    is that pose's."""
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        out = np.zeros_like(readings)
+        t = np.asarray(ctx.t, float)
+        out[:, leg - 1] = -size_mm * (t >= t[first])
+        return out
+
+    hook.__name__ = "hidden_zero_step"
+    return hook

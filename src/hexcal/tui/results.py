@@ -258,6 +258,8 @@ class DiagnosisScreen(HexcalScreen):
             return "the residual is at the noise floor: there is no effect to add"
         if d.verdict == Outcome.UNEXPLAINED:
             return "no catalogue effect explains the residual: there is none to add"
+        if d.verdict == Outcome.NOISE_UNDERSTATED:
+            return "the stated noise looks too low: there is no effect to add"
         return None
 
     @work(thread=True, exclusive=True, group="compute")
@@ -309,6 +311,17 @@ class DiagnosisScreen(HexcalScreen):
             lines.append(
                 "[yellow]a structured residual no catalogue effect explains[/yellow]: "
                 + escape(d.where["summary"])
+            )
+            lead = None if d.exploration is None else d.exploration.lead
+            if lead is not None:
+                lines.append(
+                    f"it follows the [b]{escape(lead.covariate.label)}[/b] "
+                    f"({100 * lead.share:.0f} % of the excess): {escape(lead.points_at)}"
+                )
+        elif d.verdict == Outcome.NOISE_UNDERSTATED:
+            lines.append(
+                f"[yellow]the stated noise looks about {d.noise_factor:.1f}× too low[/yellow]: the "
+                "residual is spread evenly everywhere"
             )
         else:
             lines.append(f"press [b]a[/b] to add [b]{d.verdict}[/b] and refit")

@@ -60,6 +60,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     d.add_argument("--force", action="store_true", help="replace an existing --out file")
     d.add_argument(
+        "--effect-file",
+        type=Path,
+        metavar="FILE.py",
+        help="when the residual is unexplained, write a ready-to-edit effect whose basis is the "
+        "covariate it follows (pass it back with --effects)",
+    )
+    d.add_argument(
         "--exclude-at-limits",
         action="store_true",
         help="leave out the poses with a leg at the end of its stroke or a joint at its limit",
@@ -81,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     )
     load_effects(args)
     inp = read_inputs(args)
-    for out_path in (args.out, args.residuals, args.report):
+    for out_path in (args.out, args.residuals, args.report, args.effect_file):
         if out_path:
             refuse_overwrite(Path(out_path), inp, force=True)
     if args.out:
@@ -96,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
         inp = inp.without([int(inp.meas.pose_id[r]) for r in limits.rows])
     with progress(wanted(args.json)) as bar:
         steps, result, mismatch = _diagnose_and_write(inp, args, bar, limit_lines)
+    effect_written = (
+        _write_effect_file(steps[-1], args.effect_file, inp) if args.effect_file else None
+    )
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
@@ -115,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
         if result is not None:
             out["written"] = {"path": str(args.out), "model": result.name}
+        if args.effect_file:
+            out["effect_file"] = effect_written
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         if limit_lines:
@@ -137,7 +149,42 @@ def run(args: argparse.Namespace) -> int:
             print(f"report written to {args.report}")
         if result is not None and not mismatch:
             print(f"calibrated model ({result.name}) written to {args.out}")
+        if args.effect_file:
+            print(_effect_file_line(effect_written))
     return report_mismatch(mismatch, args)
+
+
+def _write_effect_file(d: Diagnosis, path: Path, inp: Inputs) -> dict:
+    """The effect file of the chain's last step, when its residual points somewhere:
+    ``{"path", "effect", "covariate"}``, or ``{"path": None, "reason"}``."""
+    from hexcal.diagnosis.effect_file import effect_name, write_effect_file
+    from hexcal.effects.backlash import deadband_mm
+
+    lead = None if d.exploration is None else d.exploration.lead
+    if lead is None:
+        why = (
+            f"the verdict is {d.verdict}"
+            if d.exploration is None
+            else "the residual follows none of the covariates"
+        )
+        return {"path": None, "reason": f"no effect file written: {why}"}
+    write_effect_file(
+        lead,
+        path,
+        inp.label,
+        t0_s=float(inp.meas.t.min()),
+        deadband_mm=deadband_mm(d.problem.data),
+    )
+    return {"path": str(path), "effect": effect_name(lead), "covariate": lead.covariate.name}
+
+
+def _effect_file_line(written: dict | None) -> str:
+    if not written or written.get("path") is None:
+        return (written or {}).get("reason", "no effect file written")
+    return (
+        f"effect {written['effect']} (along the {written['covariate']}) written to "
+        f"{written['path']}: edit it, then --effects {written['path']} --add {written['effect']}"
+    )
 
 
 def _diagnose_and_write(

@@ -1,0 +1,144 @@
+"""Where one leg's zero changed during the session: a change-point search on each leg's
+residual in recording order.
+
+A leg that loses counts, or is re-homed, mid-session reads a constant amount longer or shorter
+from that pose on. The fit spreads the step over the leg's offset, so the residual shows it as
+a mean shift between two stretches of the session. For every leg and every split of the poses
+in recording order, the score statistic of a step there (the model's own parameters projected
+out, :func:`hexcal.diagnosis.scoring.projected_scores`) says how much χ² the step would remove;
+the best split of a leg is a change point when its score, over the session's noise level,
+exceeds the Bonferroni-corrected χ²(1) threshold over all the splits tried
+(:data:`STEP_ALPHA`). Located steps become the ``zero_step`` effect's times
+(:func:`locate`), so that the effect is scored, refitted and named like any other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from hexcal.diagnosis.outliers import Subset
+from hexcal.diagnosis.scoring import jacobian_basis, whitened_columns
+from hexcal.effects.zero_step import steps_of
+from hexcal.estimate.effect_fit import ModelFit, Problem
+from hexcal.estimate.quantiles import chi2_isf
+from hexcal.model.robot import ZeroStep
+
+#: Family-wise false-alarm probability of the search over a session (Bonferroni over the six
+#: legs and every split): a sound session shows a change point once in a thousand.
+STEP_ALPHA = 1e-3
+#: Poses on each side of a split at least.
+MIN_SIDE = 3
+
+
+@dataclass(frozen=True)
+class ChangePoint:
+    """A located change of one leg's zero."""
+
+    leg: int  #: 1-based
+    index: int  #: row of the first pose after the change
+    pose_id: int  #: that pose's id
+    t_s: float  #: s, halfway between the last pose before and the first after
+    size_mm: float  #: δ: how much longer the leg reads after the change (first order)
+    chi2: float  #: Δχ² the step removes, over the noise level
+    threshold: float  #: what it had to exceed
+
+    def text(self) -> str:
+        how = "long" if self.size_mm > 0 else "short"
+        return (
+            f"leg {self.leg} reads {abs(1000 * self.size_mm):.0f} µm {how} from pose "
+            f"{self.pose_id} on (t {self.t_s:g} s; a step there removes χ² {self.chi2:.0f}, "
+            f"threshold {self.threshold:.0f}): lost counts, or a re-home?"
+        )
+
+    def to_dict(self) -> dict:
+        return {
+            "leg": self.leg,
+            "index": self.index,
+            "pose_id": self.pose_id,
+            "t_s": self.t_s,
+            "size_mm": self.size_mm,
+            "chi2": self.chi2,
+            "threshold": self.threshold,
+            "text": self.text(),
+        }
+
+
+def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePoint]:
+    """The change points of ``problem``'s poses at ``fit`` (see the module docstring); scores
+    are divided by the noise ``level`` (s², at least 1 with the stated noise). Legs are taken
+    greedily: the strongest step first, then each further leg's best step scored with the
+    steps already found projected out (one real step leaks into the other legs' residual
+    through the shared geometry). Empty when the poses' times do not increase in table order
+    (no recording order to search)."""
+    meas = problem.meas
+    m = len(meas)
+    t = np.asarray(meas.t, float)
+    if m < 2 * MIN_SIDE + 1 or not np.all(np.diff(t) > 0):
+        return []
+    splits = np.arange(MIN_SIDE, m - MIN_SIDE + 1)
+    threshold = float(chi2_isf(STEP_ALPHA / (6 * len(splits)), 1))
+    _, rw, _ = fit.refinement.whitened()
+    q = jacobian_basis(fit)
+    after = (np.arange(m)[:, None] >= splits[None, :]).astype(float)  # (M, S)
+    cols = []
+    for k in range(6):
+        basis = np.zeros((m, 6, len(splits)))
+        basis[:, k, :] = -after  # reads δ longer after: length = reading + offset − δ
+        cols.append(whitened_columns(fit, basis))
+    found: list[ChangePoint] = []
+    while len(found) < 6:
+        best = None
+        for k in set(range(6)) - {c.leg - 1 for c in found}:
+            perp = cols[k] - q @ (q.T @ cols[k])
+            norm2 = np.einsum("ij,ij->j", perp, perp)
+            dot = perp.T @ rw
+            ok = norm2 > 0
+            scores = np.where(ok, dot**2 / np.where(ok, norm2, 1.0), 0.0) / level
+            j = int(np.argmax(scores))
+            if scores[j] > threshold and (best is None or scores[j] > best[0]):
+                best = (float(scores[j]), k, j, float(dot[j] / norm2[j]))
+        if best is None:
+            break
+        score, k, j, coef = best
+        i = int(splits[j])
+        # The whitened residual is the model's prediction less the reading: a positive
+        # coefficient of the column −[after] is a leg reading short.
+        found.append(
+            ChangePoint(
+                k + 1,
+                i,
+                int(meas.pose_id[i]),
+                float(0.5 * (t[i - 1] + t[i])),
+                -coef,
+                score,
+                threshold,
+            )
+        )
+        # Condition the other legs on this step: project it out with the model's parameters.
+        step = cols[k][:, j : j + 1]
+        step = step - q @ (q.T @ step)
+        q = np.hstack([q, step / np.linalg.norm(step)])
+    return found
+
+
+def locate(problem: Problem, changes: list[ChangePoint]) -> None:
+    """Give ``problem`` (and the session it is part of) the design with ``changes`` as its
+    ``zero_steps``, so that the ``zero_step`` effect is evaluated at them; an empty list
+    leaves the design's own (stated in robot.json) as they are."""
+    if not changes:
+        return
+    steps = [ZeroStep(leg=c.leg, t_s=c.t_s) for c in changes]
+    p: Problem | None = problem
+    while p is not None:
+        design = p.design.model_copy(update={"zero_steps": steps})
+        p.design = design
+        p.data = replace(p.data, robot=design)
+        p._bases.pop("zero_step", None)
+        p = p.parent if isinstance(p, Subset) else None
+
+
+def located(problem: Problem) -> bool:
+    """Whether the problem's design holds zero steps (located or stated)."""
+    return bool(steps_of(problem.design))
