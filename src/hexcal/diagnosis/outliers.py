@@ -33,7 +33,7 @@ from hexcal.effects.drift import T_MID
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
 from hexcal.estimate.quantiles import chi2_isf, chi2_ppf
 from hexcal.estimate.refine import _model
-from hexcal.model.noise import DEFAULT_SIGMAS, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, leg_whiteners
 
 #: Family-wise false-alarm probability of the outlier test over a whole session (Bonferroni:
 #: each of the M poses is tested at OUTLIER_ALPHA / M against χ²(6)). Strict on purpose: a sound
@@ -164,8 +164,8 @@ def pose_chi2(problem: Problem, fit: ModelFit, residuals: np.ndarray | None = No
     res = pose_residuals(problem, fit) if residuals is None else residuals
     ref = fit.refinement
     sig = problem.sigmas if problem.sigmas is not None else DEFAULT_SIGMAS
-    cov = leg_covariance(ref.a, ref.b, problem.meas.position, problem.R, sig)
-    w = np.linalg.solve(np.linalg.cholesky(cov), res[..., None])[..., 0]
+    W = leg_whiteners(ref.a, ref.b, problem.meas.position, problem.R, sig)
+    w = (W @ res[..., None])[..., 0]
     return np.sum(w**2, axis=1)
 
 

@@ -26,10 +26,9 @@ from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.leg_rows import (
     BLOCK,
     LegData,
-    leg_covariances,
     leg_normal,
     leg_residuals,
-    whiteners,
+    pose_whiteners,
 )
 from hexcal.estimate.lm import scaled_solve
 
@@ -150,7 +149,7 @@ class ClampProblem:
         self.free = np.flatnonzero(free)
         clamped = np.flatnonzero(~free)
         self.legs = LegData.of(P[free], R[free], rho[free], fixed, basis[free])
-        self.W_free = whiteners(leg_covariances(x[None], self.legs, self.lay, sig))
+        self.W_free = pose_whiteners(x[None], self.legs, self.lay, sig)
         self.blocks: list[tuple[ClampModel, np.ndarray, np.ndarray]] = []
         for start in range(0, len(clamped), BLOCK):
             rows = clamped[start : start + BLOCK]

@@ -26,7 +26,7 @@ from hexcal.estimate.lm import scaled_solve
 
 #: Poses per block: large enough that numpy's per-call cost is amortised, small enough that a
 #: block's temporaries (about 4 kB per pose) stay in the cache and bounded in memory.
-BLOCK = 8192
+BLOCK = 1024
 
 
 @dataclass(frozen=True)
@@ -183,6 +183,11 @@ def _accumulate_block(out: Normal, e, jc, W, basis, cols, lay: ParameterLayout) 
     if basis.shape[-1]:
         jw = np.concatenate([jw, -(W @ basis).reshape(bsz, c * LEGS, -1)], axis=-1)
     idx = np.concatenate([cols.reshape(-1), np.arange(lay.n_geometry, lay.size)])
+    if bsz == 1:  # one problem: a plain matrix product, which BLAS does best
+        jw2 = jw[0]
+        out.A[0][idx[:, None], idx[None, :]] += jw2.T @ jw2
+        out.g[0, idx] += jw2.T @ rw.reshape(-1)
+        return
     jt = np.swapaxes(jw, -1, -2)
     out.A[:, idx[:, None], idx[None, :]] += jt @ jw
     out.g[:, idx] += (jt @ rw.reshape(bsz, -1, 1))[..., 0]
@@ -204,15 +209,10 @@ def leg_normal(
     return out
 
 
-def leg_covariances(x: np.ndarray, d: LegData, lay: ParameterLayout, sig) -> np.ndarray:
-    """Covariance (B, M, 6, 6) mm² of each pose's six rows at the geometry of x (B, p)
-    (:func:`hexcal.model.noise.leg_covariance`, for a batch)."""
-    from hexcal.model.noise import leg_covariance
+def pose_whiteners(x: np.ndarray, d: LegData, lay: ParameterLayout, sig) -> np.ndarray:
+    """W (B, M, 6, 6), W Σ Wᵀ = I, of each pose's six rows at the geometry of x (B, p)
+    (:func:`hexcal.model.noise.leg_whiteners`, for a batch)."""
+    from hexcal.model.noise import leg_whiteners
 
     a, b = lay.a(x), lay.b(x)
-    return np.stack([leg_covariance(a[i], b[i], d.P[i], d.R[i], sig) for i in range(x.shape[0])])
-
-
-def whiteners(cov: np.ndarray) -> np.ndarray:
-    """W (…, 6, 6) of covariances (…, 6, 6): W Σ Wᵀ = I, the inverse Cholesky factor."""
-    return np.linalg.inv(np.linalg.cholesky(cov))
+    return np.stack([leg_whiteners(a[i], b[i], d.P[i], d.R[i], sig) for i in range(x.shape[0])])

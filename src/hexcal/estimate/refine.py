@@ -30,14 +30,13 @@ from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.leg_rows import (
     LegData,
     Normal,
-    leg_covariances,
     leg_normal,
     leg_residuals,
-    whiteners,
+    pose_whiteners,
 )
 from hexcal.estimate.lm import minimise
 from hexcal.estimate.quantiles import norm_ppf, t_ppf
-from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_whiteners
 
 #: Function evaluations one least-squares pass may take (a converging fit takes about 10): a
 #: fit that needs more is pulled somewhere by poses that do not belong (:class:`FitStalled`).
@@ -163,8 +162,7 @@ class Refinement:
 
 def _whiteners(a, b, P, R, sig: NoiseSigmas) -> np.ndarray:
     """W (M, 6, 6) with ``W Σ Wᵀ = I``: the inverse Cholesky factor of each pose's covariance."""
-    chol = np.linalg.cholesky(leg_covariance(a, b, P, R, sig))
-    return np.linalg.inv(chol)
+    return leg_whiteners(a, b, P, R, sig)
 
 
 def _unpack(x: np.ndarray, fixed_offsets: np.ndarray, fit_offsets: bool):
@@ -255,7 +253,7 @@ def refine(
     nfev = 0
     W = np.zeros((1, 0, 6, 6))
     for _ in range(passes):
-        W = whiteners(leg_covariances(x[None], d, lay, sig))
+        W = pose_whiteners(x[None], d, lay, sig)
         sol = minimise(partial(_legs_at, d=d, W=W, lay=lay), x[None], MAX_NFEV)
         _check(sol, d, lay, "")
         x, nfev = sol.x[0], nfev + int(sol.nfev[0])

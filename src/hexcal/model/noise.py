@@ -49,18 +49,84 @@ def pose_sensitivities(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Unit leg vectors N (M, 6, 3) and orientation rows G (M, 6, 3) for poses P (M, 3) mm,
     R (M, 3, 3): ``dL = N dP + G dθ`` with dθ in the platform frame."""
-    v = P[:, None, :] + np.einsum("mij,kj->mki", R, b) - a[None]
-    n = v / np.linalg.norm(v, axis=-1, keepdims=True)
-    g = np.cross(b[None], np.einsum("mji,mkj->mki", R, n))
+    n, g = _sensitivities(a, b, P, R)
+    return np.ascontiguousarray(n.transpose(2, 1, 0)), np.ascontiguousarray(g.transpose(2, 1, 0))
+
+
+def _sensitivities(
+    a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """N and G of :func:`pose_sensitivities` laid out (3, 6, M): axis, leg, pose, so that the
+    covariances below are built from whole rows over the poses."""
+    # R b_k for every leg at once, (M, 3, 3) @ (3, 6): a matrix product, not an einsum.
+    v = R @ b.T + (P[:, :, None] - a.T[None])  # (M, 3, 6)
+    v = np.ascontiguousarray(v.transpose(1, 2, 0))  # (3, 6, M)
+    n = v / np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    # Rᵀ n, then b × Rᵀ n: dL/dθ with θ about the platform's axes.
+    rt = np.ascontiguousarray(R.transpose(1, 2, 0))  # (3, 3, M): R[i, j] over the poses
+    u = [rt[0, c] * n[0] + rt[1, c] * n[1] + rt[2, c] * n[2] for c in range(3)]  # (6, M) each
+    bx, by, bz = (b[:, c, None] for c in range(3))
+    g = np.stack([by * u[2] - bz * u[1], bz * u[0] - bx * u[2], bx * u[1] - by * u[0]])
     return n, g
+
+
+def _covariance_soa(n: np.ndarray, g: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
+    """Σ (6, 6, M) from N, G laid out (3, 6, M)."""
+    m = n.shape[-1]
+    cov = np.empty((6, 6, m))
+    sp2, st2 = sig.position_mm**2, sig.orientation_rad**2
+    for k in range(6):
+        for j in range(k + 1):
+            c = sp2 * (n[0, k] * n[0, j] + n[1, k] * n[1, j] + n[2, k] * n[2, j])
+            c += st2 * (g[0, k] * g[0, j] + g[1, k] * g[1, j] + g[2, k] * g[2, j])
+            cov[k, j] = c
+            cov[j, k] = c
+        cov[k, k] += sig.reading_mm**2
+    return cov
 
 
 def leg_covariance(
     a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray, sig: NoiseSigmas
 ) -> np.ndarray:
     """Covariance (M, 6, 6) mm² of the six leg-length residuals of each pose."""
-    n, g = pose_sensitivities(a, b, P, R)
-    cov = sig.position_mm**2 * n @ n.transpose(0, 2, 1) + sig.orientation_rad**2 * g @ g.transpose(
-        0, 2, 1
-    )
-    return cov + sig.reading_mm**2 * np.eye(a.shape[0])
+    n, g = _sensitivities(a, b, P, R)
+    return np.ascontiguousarray(_covariance_soa(n, g, sig).transpose(2, 0, 1))
+
+
+def leg_whiteners(
+    a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray, sig: NoiseSigmas
+) -> np.ndarray:
+    """W (M, 6, 6) with ``W Σ Wᵀ = I`` for each pose's :func:`leg_covariance`: the inverse of
+    its lower Cholesky factor (lower triangular).
+
+    Computed over all poses at once, entry by entry (a 6 × 6 factorisation is a few hundred
+    arithmetic operations; done as whole-array operations over the poses they cost far less
+    than one LAPACK call per pose). Raises ``numpy.linalg.LinAlgError`` when a covariance is
+    not positive definite, as ``numpy.linalg.cholesky`` does."""
+    n, g = _sensitivities(a, b, P, R)
+    return inverse_cholesky(_covariance_soa(n, g, sig))
+
+
+def inverse_cholesky(cov: np.ndarray) -> np.ndarray:
+    """L⁻¹ (M, k, k) of covariances laid out (k, k, M), L their lower Cholesky factors."""
+    k = cov.shape[0]
+    L = [[np.zeros(0)] * k for _ in range(k)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(k):
+            d = cov[j, j] - sum((L[j][i] ** 2 for i in range(j)), np.zeros(cov.shape[-1]))
+            if not np.all(d > 0):
+                raise np.linalg.LinAlgError("Matrix is not positive definite")
+            L[j][j] = np.sqrt(d)
+            for r in range(j + 1, k):
+                s = cov[r, j] - sum((L[r][i] * L[j][i] for i in range(j)), np.zeros(cov.shape[-1]))
+                L[r][j] = s / L[j][j]
+    W = np.zeros((cov.shape[-1], k, k))
+    inv = [[np.zeros(0)] * k for _ in range(k)]
+    for r in range(k):
+        inv[r][r] = 1.0 / L[r][r]
+        W[:, r, r] = inv[r][r]
+        for c in range(r):
+            s = sum((L[r][i] * inv[i][c] for i in range(c, r)), np.zeros(cov.shape[-1]))
+            inv[r][c] = -s * inv[r][r]
+            W[:, r, c] = inv[r][c]
+    return W
