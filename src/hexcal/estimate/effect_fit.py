@@ -10,12 +10,14 @@ import numpy as np
 from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
 from hexcal.effects.backlash import deadband_for_noise
 from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors, pose_errors, pose_floor
+from hexcal.estimate.folds import fold_fits
 from hexcal.estimate.layout import ParameterLayout
+from hexcal.estimate.leg_rows import LegData, leg_residuals
 from hexcal.estimate.predict import LegModel
-from hexcal.estimate.refine import Refinement, _model, refine
+from hexcal.estimate.refine import Refinement, refine
 from hexcal.estimate.solvers.whole_robot import LinearCalibration, calibrate_linear
 from hexcal.io.measurements import Measurements
-from hexcal.model.noise import NoiseSigmas, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.model.robot import Robot
 from hexcal.vocabulary import ModelKind
 
@@ -367,39 +369,30 @@ def _folds(m: int, blocked: bool, seed: int = 0) -> list[np.ndarray]:
 def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None:
     """Held-out residuals over whole poses: random folds and folds blocked in time.
 
-    Each fold is refitted from the full fit's solution (one covariance pass); the held-out
-    poses' residuals use the fold's parameters.
+    Each fold is refitted from the full fit's solution (one covariance pass, evaluated there);
+    the held-out poses' residuals use the fold's parameters. The folds share the evaluations
+    at the full fit's solution (:func:`hexcal.estimate.folds.fold_fits`).
     """
     ref = fit.refinement
     fit_offsets = "offset" in fit.effects
-    fixed = problem.design.offsets
-    P, R, rho = problem.meas.position, problem.R, problem.meas.readings
-    m = len(P)
-    for blocked in (False, True):
+    m = len(problem.meas)
+    lay = ParameterLayout.of_vector(ref.x, fit_offsets)
+    d = LegData.of(
+        problem.meas.position,
+        problem.R,
+        problem.meas.readings,
+        problem.design.offsets,
+        basis if basis.shape[-1] else None,
+    )
+    sig = problem.sigmas if problem.sigmas is not None else DEFAULT_SIGMAS
+    partitions = [_folds(m, False), _folds(m, True)]
+    fitted = fold_fits(d, ref.x, lay, sig, partitions)
+    for blocked, part, xs in zip((False, True), partitions, fitted, strict=True):
         held = np.zeros((m, 6))
-        for test in _folds(m, blocked):
-            train = np.setdiff1d(np.arange(m), test)
-            x0, lay = ref.x, ParameterLayout.of_vector(ref.x, fit_offsets)
-            a0, b0, off0 = lay.a(x0), lay.b(x0), lay.offsets(x0, fixed)
-            q = basis.shape[-1]
-            r = refine(
-                P[train],
-                R[train],
-                rho[train],
-                a0,
-                b0,
-                off0,
-                fit_offsets,
-                problem.sigmas,
-                basis=basis[train],
-                basis_names=fit.basis_names,
-                theta0=lay.effects(x0) if q else None,
-                passes=1,
-            )
-            res, _ = _model(r.x, P[test], R[test], rho[test], fixed, fit_offsets, basis[test])
-            held[test] = -res
+        for test, x in zip(part, xs, strict=True):
+            held[test] = -leg_residuals(x[None], d.take(test), lay)[0]
             if not blocked:
-                fit.folds.append((test, r.x))
+                fit.folds.append((test, x))
         if blocked:
             fit.cv_blocked_residuals = held
             fit.cv_blocked_rms_mm = float(np.sqrt(np.mean(held**2)))

@@ -14,9 +14,10 @@ costs one evaluation (residual and normal equations together) at the trial point
   too small for χ² to resolve, :data:`UNRESOLVED`, is taken as it is);
 - a problem has converged when its Gauss–Newton step is negligible: ``δᵀAδ`` (the χ² the step
   would remove, i.e. its length in units of the parameters' standard errors, squared) at most
-  :data:`STEP_TOL` (or 1e-15 of χ² when the model misfits by far). That step is taken without
-  another evaluation: the parameters are then within a millionth of a standard error of the
-  optimum, and quadratically closer.
+  :data:`STEP_TOL` (or :data:`REL_STEP_TOL` of χ² when the model misfits by far), or when the
+  steps, already too small for χ² to resolve, stop shrinking (the rounding floor). That step
+  is taken without another evaluation: the parameters are then within a millionth of a
+  standard error of the optimum, and closer still after it.
 
 A problem not converged within ``max_nfev`` evaluations, or whose residual stops being finite,
 is reported as not converged (the caller raises its own error); the others are not held back
@@ -33,6 +34,10 @@ import numpy as np
 
 #: A Gauss–Newton step whose δᵀAδ is below this (χ² units) is the last.
 STEP_TOL = 1e-12
+#: ... or this fraction of χ² when that is larger: a model that misfits by far (χ²/dof in the
+#: thousands) converges only linearly, and its rounding floor rises with χ² (measured on the
+#: Jugglebot: 1e-26 of χ²).
+REL_STEP_TOL = 1e-18
 #: Directions of the scaled normal matrix with a relative eigenvalue below this are left out of
 #: a step (the data do not determine them).
 RANK_TOL = 1e-14
@@ -103,26 +108,35 @@ class Solution(Generic[S]):
 
 
 def minimise(
-    evaluate: Callable[[np.ndarray, np.ndarray], S], x0: np.ndarray, max_nfev: int
+    evaluate: Callable[[np.ndarray, np.ndarray], S],
+    x0: np.ndarray,
+    max_nfev: int,
+    first: S | None = None,
 ) -> Solution[S]:
     """Levenberg–Marquardt from x0 (B, n). ``evaluate(x, i)`` returns the :class:`System` of
-    the problems ``i`` (indices into the batch) at their points x (len(i), n)."""
+    the problems ``i`` (indices into the batch) at their points x (len(i), n); ``first``: the
+    system at x0 when already known (it counts as an evaluation)."""
     x = np.array(x0, float)
     nb = len(x)
     everyone = np.arange(nb)
-    eq = evaluate(x, everyone)
+    eq = evaluate(x, everyone) if first is None else first
     nfev = np.ones(nb, int)
     finite = np.isfinite(eq.chi2)
     converged = np.zeros(nb, bool)
     active = finite.copy()
     lam = np.zeros(nb)
+    previous = np.full(nb, np.inf)  # the last Gauss–Newton step's size, per problem
     while active.any():
         i = np.flatnonzero(active)
         sub = eq.take(i)
         delta = sub.step(lam[i])
         size = sub.quad(delta)
-        last = (lam[i] == 0) & (size <= np.maximum(STEP_TOL, 1e-15 * sub.chi2))
+        gn = lam[i] == 0
+        last = gn & (size <= np.maximum(STEP_TOL, REL_STEP_TOL * sub.chi2))
+        # At the rounding floor the steps stop shrinking: then the point is the optimum too.
+        last |= gn & (size <= UNRESOLVED * np.abs(sub.chi2)) & (size >= 0.5 * previous[i])
         last &= np.all(np.isfinite(delta), axis=-1)
+        previous[i] = np.where(gn, size, np.inf)
         x[i[last]] += delta[last]
         converged[i[last]] = True
         active[i[last]] = False
