@@ -33,6 +33,7 @@ import numpy as np
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
+    OutlierSearch,
     Subset,
     find_outliers,
     pose_chi2,
@@ -45,6 +46,7 @@ from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors
 from hexcal.estimate.effect_fit import (
     ModelFit,
     Problem,
+    cross_validated,
     design_accuracy,
     design_pose_errors,
     fit_model,
@@ -406,6 +408,7 @@ def diagnose(
     outliers: list[Outlier] = []
     threshold = float("nan")
     work = problem
+    search = None
     if set_aside_outliers:
         start = None
         if isinstance(given, Subset):
@@ -420,7 +423,7 @@ def diagnose(
         ):
             work = given  # the same poses: keep its cached bases and the drawing's accuracy
     verdict, fit, candidates, floor, floor_source, s2, excess, chi2_per_dof = _verdict(
-        work, effects, sig, notes
+        work, effects, sig, notes, search
     )
     if outliers:
         story = ""
@@ -505,11 +508,22 @@ def _outliers_make_an_excess(
     return chi2 / (dof * s2) > 1.0 + EXCESS_Z * np.sqrt(2.0 / dof)
 
 
-def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None, notes: list):
+def _verdict(
+    problem: Problem,
+    effects: tuple[str, ...],
+    sig: NoiseSigmas | None,
+    notes: list,
+    search: OutlierSearch | None = None,
+):
     """Fit, score, refit the leaders and decide, on ``problem``'s poses: (verdict, fit,
     candidates, floor (M, 6), floor source, s² (noise level, 1 when stated), excess
-    significant, χ²/dof over the floor). Notes are appended to ``notes``."""
-    fit = fit_model(problem, effects)
+    significant, χ²/dof over the floor). Notes are appended to ``notes``. The outlier
+    ``search``'s fits on these poses are reused, not made again."""
+    made = search.fit if search is not None else None
+    if made is not None and made.effects == effects:
+        fit = cross_validated(problem, made)
+    else:
+        fit, search = fit_model(problem, effects), None
 
     q = jacobian_basis(fit)
     candidates = [score_candidate(problem, fit, n, q) for n in CATALOGUE if n not in effects]
@@ -534,10 +548,13 @@ def _verdict(problem: Problem, effects: tuple[str, ...], sig: NoiseSigmas | None
         richest = tuple(effects) + tuple(
             c.effect for c in candidates if c.available and c.identifiable
         )
-        try:
-            rich = fit_model(problem, richest, cross_validate=False, seed_fit=fit)
-        except (ValueError, np.linalg.LinAlgError):
-            rich = fit
+        if search is not None and search.rich is not None and search.rich.effects == richest:
+            rich = search.rich
+        else:
+            try:
+                rich = fit_model(problem, richest, cross_validate=False, seed_fit=fit)
+            except (ValueError, np.linalg.LinAlgError):
+                rich = fit
         s2 = rich.chi2 / rich.dof
         r = fit.refinement
         cov = leg_covariance(r.a, r.b, problem.meas.position, problem.R, DEFAULT_SIGMAS)

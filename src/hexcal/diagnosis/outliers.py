@@ -134,6 +134,11 @@ class OutlierSearch:
     model: tuple[str, ...]  #: the richest model the poses were tested against
     iterations: int
     notes: list[str] = field(default_factory=list)
+    #: The fits made on :attr:`problem`'s poses (without cross-validation), for the diagnosis
+    #: to reuse: the model searched with, and the richest one; None when the search ended on
+    #: other poses than those it last fitted.
+    fit: ModelFit | None = None
+    rich: ModelFit | None = None
 
     @property
     def pose_ids(self) -> list[int]:
@@ -211,6 +216,7 @@ def find_outliers(
     s2 = 1.0
     chi2 = np.zeros(m)
     iterations = 0
+    fitted: tuple[Problem, ModelFit, ModelFit] | None = None
     for _ in range(MAX_ITERATIONS):
         iterations += 1
         sub = Subset.of(problem, np.where(~out)[0]) if out.any() else problem
@@ -220,6 +226,7 @@ def find_outliers(
             rich = fit0
             if len(model) > len(effects):
                 rich = fit_model(sub, model, cross_validate=False, seed_fit=fit0)
+            fitted = (sub, fit0, rich)
         except (ValueError, np.linalg.LinAlgError) as exc:
             notes.append(f"the search for outliers stopped: the fit without poses failed ({exc})")
             out[:] = False
@@ -264,4 +271,7 @@ def find_outliers(
                 float(residuals[i, k]),
             )
         )
-    return OutlierSearch(outliers, sub, threshold, s2, model, iterations, notes)
+    search = OutlierSearch(outliers, sub, threshold, s2, model, iterations, notes)
+    if fitted is not None and fitted[0] is sub:
+        search.fit, search.rich = fitted[1], fitted[2]
+    return search

@@ -3,7 +3,7 @@ fitted jointly by the weighted refinement, with cross-validation on held-out pos
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -232,11 +232,14 @@ def fit_model(
     effects: tuple[str, ...] | list[str],
     cross_validate: bool = True,
     seed_fit: ModelFit | None = None,
+    refinement: Refinement | None = None,
 ) -> ModelFit:
     """Fit the geometry with ``effects`` jointly; cross-validate on held-out poses.
 
     Seeded by the linear methods (Model 42's when ``offset`` is in the model), or by
     ``seed_fit``'s geometry when given (a model one effect larger than a fitted one).
+    ``refinement``: that very fit, already made elsewhere (``calibrate``'s from the same linear
+    seed, of a model without effects): it is used as it is, not made again.
     """
     effects = tuple(dict.fromkeys(effects))
     for e in effects:
@@ -257,19 +260,24 @@ def fit_model(
             off0 = r.offsets(problem.design.offsets)
         theta0 = np.array([r.value(s.name) if s.name in r.names else 0.0 for s in specs])
     names = [s.name for s in specs]
-    ref = refine(
-        problem.meas.position,
-        problem.R,
-        problem.meas.readings,
-        a0,
-        b0,
-        off0,
-        fit_offsets,
-        problem.sigmas,
-        basis=basis,
-        basis_names=names,
-        theta0=theta0,
-    )
+    if refinement is not None:
+        if names:
+            raise ValueError("a refinement made elsewhere is reused for models without effects")
+        ref = refinement
+    else:
+        ref = refine(
+            problem.meas.position,
+            problem.R,
+            problem.meas.readings,
+            a0,
+            b0,
+            off0,
+            fit_offsets,
+            problem.sigmas,
+            basis=basis,
+            basis_names=names,
+            theta0=theta0,
+        )
     if any(get_effect(e).uses_geometry for e in effects if e != "offset"):
         ref, basis = _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names)
     fit = ModelFit(effects, ref, ref.residuals, _param_rows(ref, specs, problem.design), names)
@@ -278,6 +286,16 @@ def fit_model(
         cross_validation(problem, fit, basis)
     fit.notes = [out_of_range_note(p, problem.design) for p in fit.nonphysical()] + ref.notes
     return fit
+
+
+def cross_validated(problem: Problem, fit: ModelFit) -> ModelFit:
+    """A fit made without cross-validation (``fit_model(..., cross_validate=False)``) with it
+    added: a copy, the fit itself not made again (the outlier search's fit, reused)."""
+    if fit.basis is None:
+        raise ValueError(f"{fit.model_name} has no basis recorded: fit it with fit_model")
+    out = replace(fit, folds=[], notes=list(fit.notes))
+    cross_validation(problem, out, fit.basis)
+    return out
 
 
 def out_of_range_note(p: ParamRow, design: Robot) -> str:

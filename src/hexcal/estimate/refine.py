@@ -105,6 +105,9 @@ class Refinement:
     #: the whitened arrays above are then left None (their rows are not the six leg lengths).
     clamp_steps: ClampSteps | None = None
     clamp_nuisance: Nuisance | None = None
+    #: Started from the design's geometry, the linear seed's fit having failed
+    #: (:func:`hexcal.estimate.calibrate.refine_from_seeds`)
+    from_design: bool = False
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
