@@ -37,13 +37,18 @@ class PoseErrors:
         return PoseErrors(self.position_mm[rows], self.orientation_deg[rows], self.closed[rows])
 
 
-def pose_errors(model: LegModel, meas) -> PoseErrors:
+def pose_errors(model: LegModel, meas, rows: np.ndarray | None = None) -> PoseErrors:
     """The model's pose from each row's readings against the tracker's pose (every row of the
-    measurement table ``meas``, in recording order: backlash needs the history)."""
+    measurement table ``meas``, or the rows ``rows``; the effects see the whole table in
+    recording order: backlash needs the history)."""
     rot = meas.rotations.as_matrix()
     guess = Poses(meas.position, rot)
-    poses, closed = model.solve_poses(meas.readings, meas.t, meas.temperature, guess)
-    dp = np.linalg.norm(poses.position - meas.position, axis=1)
+    poses, closed = model.solve_poses(meas.readings, meas.t, meas.temperature, guess, rows)
+    if rows is not None:
+        rot = rot[rows]
+    dp = np.linalg.norm(
+        poses.position - (meas.position if rows is None else meas.position[rows]), axis=1
+    )
     rel = np.einsum("nji,njk->nik", rot, poses.rotation)  # Rᵀ_tracker R_model
     cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     return PoseErrors(dp, np.degrees(np.arccos(cos)), closed)

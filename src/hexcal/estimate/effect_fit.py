@@ -425,7 +425,7 @@ def heldout_pose_errors(problem: Problem, fit: ModelFit) -> PoseErrors:
     m = len(problem.meas)
     pos, ang, closed = np.zeros(m), np.zeros(m), np.ones(m, bool)
     for test, x in fit.folds:
-        e = pose_errors(leg_model(problem.design, fit.effects, x), problem.meas).take(test)
+        e = pose_errors(leg_model(problem.design, fit.effects, x), problem.meas, test)
         pos[test], ang[test], closed[test] = e.position_mm, e.orientation_deg, e.closed
     return PoseErrors(pos, ang, closed)
 

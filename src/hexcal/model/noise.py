@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hexcal.model.batched import inverse_cholesky
+
 if TYPE_CHECKING:
     from hexcal.model.instruments import Instruments
 
@@ -105,28 +107,3 @@ def leg_whiteners(
     not positive definite, as ``numpy.linalg.cholesky`` does."""
     n, g = _sensitivities(a, b, P, R)
     return inverse_cholesky(_covariance_soa(n, g, sig))
-
-
-def inverse_cholesky(cov: np.ndarray) -> np.ndarray:
-    """L⁻¹ (M, k, k) of covariances laid out (k, k, M), L their lower Cholesky factors."""
-    k = cov.shape[0]
-    L = [[np.zeros(0)] * k for _ in range(k)]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for j in range(k):
-            d = cov[j, j] - sum((L[j][i] ** 2 for i in range(j)), np.zeros(cov.shape[-1]))
-            if not np.all(d > 0):
-                raise np.linalg.LinAlgError("Matrix is not positive definite")
-            L[j][j] = np.sqrt(d)
-            for r in range(j + 1, k):
-                s = cov[r, j] - sum((L[r][i] * L[j][i] for i in range(j)), np.zeros(cov.shape[-1]))
-                L[r][j] = s / L[j][j]
-    W = np.zeros((cov.shape[-1], k, k))
-    inv = [[np.zeros(0)] * k for _ in range(k)]
-    for r in range(k):
-        inv[r][r] = 1.0 / L[r][r]
-        W[:, r, r] = inv[r][r]
-        for c in range(r):
-            s = sum((L[r][i] * inv[i][c] for i in range(c, r)), np.zeros(cov.shape[-1]))
-            inv[r][c] = -s * inv[r][r]
-            W[:, r, c] = inv[r][c]
-    return W

@@ -1,0 +1,93 @@
+"""Small dense linear algebra (6 × 6) over many poses at once.
+
+numpy's batched ``linalg`` calls LAPACK once per matrix, which for 6 × 6 matrices costs far
+more than the arithmetic. Here the matrices are laid out entry-major, ``(k, k, N)``: every
+entry is a row over the N poses, and a factorisation is a few hundred whole-row operations,
+whatever N.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def inverse_cholesky(cov: np.ndarray) -> np.ndarray:
+    """L⁻¹ (N, k, k), lower triangular, of symmetric positive definite matrices ``cov``
+    (k, k, N), L their lower Cholesky factors (so ``L⁻¹ Σ L⁻ᵀ = I``). Raises
+    ``numpy.linalg.LinAlgError`` when one is not positive definite, as
+    ``numpy.linalg.cholesky`` does."""
+    k, n = cov.shape[0], cov.shape[-1]
+    zero = np.zeros(n)
+    L = [[zero] * k for _ in range(k)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(k):
+            d = cov[j, j] - sum((L[j][i] ** 2 for i in range(j)), zero)
+            if not np.all(d > 0):
+                raise np.linalg.LinAlgError("Matrix is not positive definite")
+            L[j][j] = np.sqrt(d)
+            for r in range(j + 1, k):
+                s = cov[r, j] - sum((L[r][i] * L[j][i] for i in range(j)), zero)
+                L[r][j] = s / L[j][j]
+    W = np.zeros((n, k, k))
+    inv = [[zero] * k for _ in range(k)]
+    for r in range(k):
+        inv[r][r] = 1.0 / L[r][r]
+        W[:, r, r] = inv[r][r]
+        for c in range(r):
+            s = sum((L[r][i] * inv[i][c] for i in range(c, r)), zero)
+            inv[r][c] = -s * inv[r][r]
+            W[:, r, c] = inv[r][c]
+    return W
+
+
+#: A matrix whose scaled normal matrix has a pivot below this is rank deficient (a condition
+#: number above 1e7).
+RANK_TOL = 1e-14
+
+
+def solve(A: np.ndarray, b: np.ndarray, singular: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """x (N, k) solving ``A x = b`` for A (N, k, k), b (N, k), and ok (N,): False where
+    ``|det A| ≤ singular`` or A is rank deficient (:data:`RANK_TOL`); x is 0 there.
+
+    Solved through the normal equations ``AᵀA x = Aᵀb`` by Cholesky, the columns of A scaled
+    to unit norm first (no pivoting to do per matrix, unlike elimination). That squares the
+    condition number: meant for Newton steps on well-posed kinematics (condition in the
+    hundreds), where a step good to 1e-10 relative is exact enough — the iteration, not the
+    step, sets the final accuracy."""
+    n, k = b.shape
+    cols = [A[:, :, c] for c in range(k)]  # (N, k) each: column c over the poses
+    norm = [np.sqrt(np.einsum("nr,nr->n", c, c)) for c in cols]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cols = [c / np.where(s > 0, s, 1.0)[:, None] for c, s in zip(cols, norm, strict=True)]
+    zero = np.zeros(n)
+    L = [[zero] * k for _ in range(k)]
+    logdet = np.zeros(n)
+    ok = np.ones(n, bool)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(k):
+            for r in range(j, k):
+                s = np.einsum("nr,nr->n", cols[r], cols[j]) - sum(
+                    (L[r][i] * L[j][i] for i in range(j)), zero
+                )
+                if r == j:
+                    # A pivot this small relative to its unit column: rank deficient (the
+                    # normal equations square the rounding, so the test is on the square).
+                    ok &= s > RANK_TOL
+                    s = np.sqrt(np.where(s > 0, s, 1.0))
+                    logdet += np.log(s)
+                    L[j][j] = s
+                else:
+                    L[r][j] = s / L[j][j]
+        # det A = det(scaled A) · Π column norms; det(scaled A)² = Π L_jj².
+        logdet += sum(np.log(np.where(s > 0, s, 1.0)) for s in norm)
+        ok &= np.all([s > 0 for s in norm], axis=0) & (logdet > np.log(singular))
+        y: list[np.ndarray] = []
+        for r in range(k):
+            rhs = np.einsum("nr,nr->n", cols[r], b)
+            y.append((rhs - sum((L[r][i] * y[i] for i in range(r)), zero)) / L[r][r])
+        x: list[np.ndarray] = [zero] * k
+        for r in range(k - 1, -1, -1):
+            x[r] = (y[r] - sum((L[i][r] * x[i] for i in range(r + 1, k)), zero)) / L[r][r]
+    out = np.stack([xr / np.where(s > 0, s, 1.0) for xr, s in zip(x, norm, strict=True)], 1)
+    out[~ok] = 0.0
+    return out, ok
