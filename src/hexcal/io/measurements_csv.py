@@ -51,6 +51,7 @@ from hexcal.io.measurements import (
     _object_array,
     _raise_issues,
 )
+from hexcal.io.measurements_fast import read_plain
 from hexcal.io.safe_read import (
     MAX_COORDINATE_MM,
     MAX_POSE_ID,
@@ -681,9 +682,18 @@ def read_measurements(path: str | Path) -> Measurements:
         return MeasurementError.single(path, None, None, message.removeprefix(f"{path}: "))
 
     with open_binary(path, "measurements", error) as fh:
+        try:
+            raw = fh.read()
+        except OSError as exc:
+            raise error(f"cannot be read ({exc.strerror or exc})") from None
+        # A plain, valid table goes straight into column arrays; any other file is streamed
+        # row by row below, every problem named.
+        plain = read_plain(raw, path)
+        if plain is not None:
+            return plain
         # utf-8-sig drops a leading byte-order mark (spreadsheet exports); newline="" keeps
         # line ends as they are, as the csv module wants.
-        stream = io.TextIOWrapper(fh, encoding="utf-8-sig", newline="")
+        stream = io.TextIOWrapper(io.BytesIO(raw), encoding="utf-8-sig", newline="")
         try:
             return _read_table(stream, path)
         except UnicodeDecodeError:
