@@ -21,7 +21,7 @@ from hexcal.estimate import refine as refine_module
 from hexcal.estimate.clamp_normal import Blocked
 from hexcal.estimate.clamp_rows import ClampModel, ClampSteps, Nuisance
 from hexcal.estimate.layout import ParameterLayout
-from hexcal.estimate.leg_rows import BLOCK, LegData, leg_normal, pose_whiteners
+from hexcal.estimate.leg_rows import BLOCK, LegData, leg_normal, pose_precisions
 from hexcal.estimate.lm import minimise, scaled_solve
 from hexcal.estimate.model_file import load_robot
 from hexcal.estimate.refine import FitStalled, _model, refine
@@ -99,7 +99,8 @@ def _session_1k(tmp_path):
 def _gn_gap(x, P, R, rho, W) -> float:
     """The largest entry of the Gauss–Newton step at x (mm): how far x is from the optimum."""
     lay = ParameterLayout(True)
-    n = leg_normal(x[None], LegData.of(P, R, rho, np.zeros(6)), W[None], lay)
+    S = np.einsum("mri,mrj->ijm", W, W)[None]  # the precisions, pose axis last
+    n = leg_normal(x[None], LegData.of(P, R, rho, np.zeros(6)), S, lay)
     return float(np.max(np.abs(n.step(np.zeros(1)))))
 
 
@@ -149,8 +150,8 @@ def test_normal_equations_equal_the_dense_ones(design):
             basis = rng.normal(size=(len(P), 6, q)) if q else None
             x = lay.pack(design.a, design.b, design.offsets, rng.normal(size=q))
             d = LegData.of(P, R, rho, design.offsets, basis)
-            W = pose_whiteners(x[None], d, lay, sig)
-            n = leg_normal(x[None], d, W, lay)
+            W, S = pose_precisions(x[None], d, lay, sig)
+            n = leg_normal(x[None], d, S, lay)
             res, jac = _model(x, P, R, rho, design.offsets, fit_offsets, basis)
             jw = (W[0] @ jac).reshape(-1, len(x))
             rw = (W[0] @ res[..., None]).ravel()

@@ -28,7 +28,7 @@ from hexcal.estimate.leg_rows import (
     LegData,
     leg_normal,
     leg_residuals,
-    pose_whiteners,
+    pose_precisions,
 )
 from hexcal.estimate.lm import scaled_solve
 
@@ -149,7 +149,7 @@ class ClampProblem:
         self.free = np.flatnonzero(free)
         clamped = np.flatnonzero(~free)
         self.legs = LegData.of(P[free], R[free], rho[free], fixed, basis[free])
-        self.W_free = pose_whiteners(x[None], self.legs, self.lay, sig)
+        self.W_free, self.S_free = pose_precisions(x[None], self.legs, self.lay, sig)
         self.blocks: list[tuple[ClampModel, np.ndarray, np.ndarray]] = []
         for start in range(0, len(clamped), BLOCK):
             rows = clamped[start : start + BLOCK]
@@ -170,7 +170,7 @@ class ClampProblem:
         xf = xfs[0]
         p = self.lay.size
         out = Blocked.zeros(p, self.sizes)
-        legs = leg_normal(xf[None, :p], self.legs, self.W_free, self.lay)
+        legs = leg_normal(xf[None, :p], self.legs, self.S_free, self.lay)
         out.A += legs.A
         out.g += legs.g
         out.chi2 += legs.chi2

@@ -22,7 +22,7 @@ from functools import partial
 import numpy as np
 
 from hexcal.estimate.layout import ParameterLayout
-from hexcal.estimate.leg_rows import LegData, Normal, leg_normal, pose_whiteners
+from hexcal.estimate.leg_rows import LegData, Normal, leg_normal, pose_precisions
 from hexcal.estimate.lm import minimise
 from hexcal.estimate.refine import MAX_NFEV, FitStalled, _check
 
@@ -40,7 +40,7 @@ def fold_fits(
     the other poses from x0 (p,), with the pose covariances at x0 and the noise ``sig``.
     Raises :class:`~hexcal.estimate.refine.FitStalled` when a fold does not converge."""
     m = d.n_poses
-    W = pose_whiteners(x0[None], d, lay, sig)
+    _, S = pose_precisions(x0[None], d, lay, sig)
     code = np.zeros(m, np.int64)
     for part in partitions:
         label = np.empty(m, np.int64)
@@ -49,7 +49,7 @@ def fold_fits(
         code = code * len(part) + label
     cells: dict[int, Normal] = {}
     for c in np.unique(code):
-        cells[int(c)] = leg_normal(x0[None], d, W, lay, np.flatnonzero(code == c))
+        cells[int(c)] = leg_normal(x0[None], d, S, lay, np.flatnonzero(code == c))
     total = Normal.zeros(1, lay.size)
     for n in cells.values():
         total += n
@@ -64,9 +64,9 @@ def fold_fits(
                 if (c // stride) % len(part) == f:
                     held += n
             train = np.setdiff1d(np.arange(m), test)
-            dt, Wt = d.take(train), W[:, train]
+            dt, St = d.take(train), S[..., train]
             sol = minimise(
-                partial(_train_normal, d=dt, W=Wt, lay=lay),
+                partial(_train_normal, d=dt, S=St, lay=lay),
                 x0[None],
                 MAX_NFEV if max_nfev is None else max_nfev,
                 first=total - held,
@@ -77,8 +77,8 @@ def fold_fits(
     return out
 
 
-def _train_normal(x: np.ndarray, i: np.ndarray, d: LegData, W: np.ndarray, lay) -> Normal:
-    return leg_normal(x, d, W, lay)
+def _train_normal(x: np.ndarray, i: np.ndarray, d: LegData, S: np.ndarray, lay) -> Normal:
+    return leg_normal(x, d, S, lay)
 
 
 __all__ = ["FitStalled", "fold_fits"]

@@ -32,7 +32,7 @@ from hexcal.estimate.leg_rows import (
     Normal,
     leg_normal,
     leg_residuals,
-    pose_whiteners,
+    pose_precisions,
 )
 from hexcal.estimate.lm import minimise
 from hexcal.estimate.quantiles import norm_ppf, t_ppf
@@ -254,10 +254,10 @@ def refine(
     x = lay.pack(a0, b0, fixed, th)
     d = LegData.of(P, R, rho, fixed, basis if q else None)
     nfev = 0
-    W = np.zeros((1, 0, 6, 6))
+    W = S = np.zeros((1, 0, 6, 6))
     for _ in range(passes):
-        W = pose_whiteners(x[None], d, lay, sig)
-        sol = minimise(partial(_legs_at, d=d, W=W, lay=lay), x[None], MAX_NFEV)
+        W, S = pose_precisions(x[None], d, lay, sig)
+        sol = minimise(partial(_legs_at, d=d, S=S, lay=lay), x[None], MAX_NFEV)
         _check(sol, d, lay, "")
         x, nfev = sol.x[0], nfev + int(sol.nfev[0])
     res = leg_residuals(x[None], d, lay)[0]
@@ -275,11 +275,11 @@ def refine(
     return out
 
 
-def _legs_at(x: np.ndarray, i: np.ndarray, d: LegData, W: np.ndarray, lay) -> Normal:
+def _legs_at(x: np.ndarray, i: np.ndarray, d: LegData, S: np.ndarray, lay) -> Normal:
     """The leg rows' normal equations of the problems ``i`` of a batch at their x."""
-    if len(i) == W.shape[0]:  # the whole batch, in order (minimise never reorders)
-        return leg_normal(x, d, W, lay)
-    return leg_normal(x, d.take_batch(i), W[i], lay)
+    if len(i) == S.shape[0]:  # the whole batch, in order (minimise never reorders)
+        return leg_normal(x, d, S, lay)
+    return leg_normal(x, d.take_batch(i), S[i], lay)
 
 
 def _check(sol, d: LegData, lay: ParameterLayout, what: str) -> None:

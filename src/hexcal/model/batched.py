@@ -16,6 +16,25 @@ def inverse_cholesky(cov: np.ndarray) -> np.ndarray:
     (k, k, N), L their lower Cholesky factors (so ``L⁻¹ Σ L⁻ᵀ = I``). Raises
     ``numpy.linalg.LinAlgError`` when one is not positive definite, as
     ``numpy.linalg.cholesky`` does."""
+    return _inverse_factor(cov)[0]
+
+
+def inverse_and_precision(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(W, S): W = L⁻¹ (N, k, k) as :func:`inverse_cholesky`, and the inverse S = WᵀW = Σ⁻¹
+    laid out (k, k, N)."""
+    W, inv = _inverse_factor(cov)
+    k, n = cov.shape[0], cov.shape[-1]
+    S = np.empty((k, k, n))
+    for r in range(k):
+        for c in range(r + 1):
+            s = sum(inv[i][r] * inv[i][c] for i in range(r, k))
+            S[r, c] = s
+            S[c, r] = s
+    return W, S
+
+
+def _inverse_factor(cov: np.ndarray) -> tuple[np.ndarray, list[list[np.ndarray]]]:
+    """(W (N, k, k), the same as rows ``inv[r][c]`` (N,) each) of :func:`inverse_cholesky`."""
     k, n = cov.shape[0], cov.shape[-1]
     zero = np.zeros(n)
     L = [[zero] * k for _ in range(k)]
@@ -37,7 +56,7 @@ def inverse_cholesky(cov: np.ndarray) -> np.ndarray:
             s = sum((L[r][i] * inv[i][c] for i in range(c, r)), zero)
             inv[r][c] = -s * inv[r][r]
             W[:, r, c] = inv[r][c]
-    return W
+    return W, inv
 
 
 #: A matrix whose scaled normal matrix has a pivot below this is rank deficient (a condition
