@@ -111,15 +111,8 @@ def _legs(x: np.ndarray, d: LegData, lay: ParameterLayout, rows: slice):
     ``rows`` at the geometry of x (B, p)."""
     a, b = lay.a(x), lay.b(x)  # (B, 6, 3)
     R, P = d.R[..., rows], d.P[..., rows]
-    v = np.stack(
-        [
-            R[:, i, 0, None] * b[:, :, 0, None]
-            + R[:, i, 1, None] * b[:, :, 1, None]
-            + R[:, i, 2, None] * b[:, :, 2, None]
-            + (P[:, i, None] - a[:, :, i, None])
-            for i in range(3)
-        ]
-    )
+    # (R b_k)_i = Σ_j b_k,j R_ij: one (6, 3) × (3, c) product per coordinate.
+    v = np.stack([b @ R[:, i] + (P[:, i, None] - a[:, :, i, None]) for i in range(3)])
     return v, np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]), R
 
 
@@ -202,30 +195,24 @@ class Normal:
         return np.einsum("bi,bij,bj->b", delta, self.A, delta)
 
 
-def _accumulate_block(out: Normal, e, jc, S, basis, cols, lay: ParameterLayout) -> None:
-    """Add one block's JᵀSJ, JᵀSe and eᵀSe to ``out``: e (B, 6, c), jc (B, 6, nc, c),
+def _accumulate_block(out: Normal, Ac, e, jc, S, basis, lay: ParameterLayout) -> None:
+    """Add one block's JᵀSJ, JᵀSe and eᵀSe: the geometry's part of JᵀSJ to ``Ac`` (B, 6, nc,
+    6, nc), in the compact columns, the rest to ``out``; e (B, 6, c), jc (B, 6, nc, c),
     S (B, 6, 6, c), basis (B, 6, q, c)."""
-    nc = jc.shape[2]
     Se = np.einsum("bklc,blc->bkc", S, e)
     out.chi2 += np.einsum("bkc,bkc->b", e, Se)
     for k in range(LEGS):
-        ck = cols[k]
         for j in range(k, LEGS):
             # Σ_c S[k, j] jc[k] jc[j]ᵀ: leg k's rows against leg j's, one matrix product.
-            blk = jc[:, k] @ np.swapaxes(S[:, k, j, None] * jc[:, j], -1, -2)
-            out.A[:, ck[:, None], cols[j][None, :]] += blk
-            if j != k:
-                out.A[:, cols[j][:, None], ck[None, :]] += np.swapaxes(blk, -1, -2)
-    g = np.einsum("bkac,bkc->bka", jc, Se)
-    out.g[:, cols.reshape(-1)] += g.reshape(g.shape[0], LEGS * nc)
+            Ac[:, k, :, j] += jc[:, k] @ np.swapaxes(S[:, k, j, None] * jc[:, j], -1, -2)
+    out.g[:, : Ac.shape[1] * Ac.shape[2]] += np.einsum("bkac,bkc->bka", jc, Se).reshape(len(Se), -1)
     if basis.shape[2]:
-        eff = np.arange(lay.effects_slice.start, lay.effects_slice.stop)
+        eff = lay.effects_slice
+        ng = Ac.shape[1] * Ac.shape[2]
         SB = np.einsum("bklc,blqc->bkqc", S, basis)  # (B, 6, q, c)
         cross = -np.einsum("bkac,bkqc->bkaq", jc, SB)
-        cross = cross.reshape(cross.shape[0], LEGS * nc, -1)
-        out.A[:, cols.reshape(-1)[:, None], eff[None, :]] += cross
-        out.A[:, eff[:, None], cols.reshape(-1)[None, :]] += np.swapaxes(cross, -1, -2)
-        out.A[:, eff[:, None], eff[None, :]] += np.einsum("bkqc,bkrc->bqr", basis, SB)
+        out.A[:, :ng, eff] += cross.reshape(cross.shape[0], ng, -1)
+        out.A[:, eff, eff] += np.einsum("bkqc,bkrc->bqr", basis, SB)
         out.g[:, eff] -= np.einsum("bkqc,bkc->bq", basis, Se)
 
 
@@ -235,15 +222,52 @@ def leg_normal(
     """Normal equations (:class:`Normal`) of the leg rows at x (B, p), each pose weighted by
     its precision S (B, 6, 6, M) 1/mm² (:func:`pose_precisions`); ``rows``: only these poses
     (indices)."""
-    cols = compact_columns(lay)
-    out = Normal.zeros(x.shape[0], lay.size)
+    nb = x.shape[0]
+    nc = 7 if lay.fit_offsets else 6
+    ng = LEGS * nc
+    # Accumulated in the compact order (leg by leg: a_k, b_k, offset_k), mapped to the
+    # layout's columns at the end.
+    work = Normal.zeros(nb, lay.size)
+    Ac = np.zeros((nb, LEGS, nc, LEGS, nc))
     if rows is not None:
         d, S = d.take(rows), S[..., rows]
     for start in range(0, d.n_poses, BLOCK):
         blk = slice(start, start + BLOCK)
         e, jc = leg_terms(x, d, lay, blk)
-        _accumulate_block(out, e, jc, S[..., blk], d.basis[..., blk], cols, lay)
+        _accumulate_block(work, Ac, e, jc, S[..., blk], d.basis[..., blk], lay)
+    flat = Ac.reshape(nb, ng, ng)
+    upper = np.triu(np.ones((LEGS, LEGS), bool))  # leg pairs j ≥ k were summed
+    work.A[:, :ng, :ng] = np.where(
+        np.kron(upper, np.ones((nc, nc), bool)), flat, np.swapaxes(flat, 1, 2)
+    )
+    work.A[:, ng:, :ng] = np.swapaxes(work.A[:, :ng, ng:], 1, 2)
+    order = np.concatenate([compact_columns(lay).reshape(-1), np.arange(ng, lay.size)])
+    out = Normal.zeros(nb, lay.size)
+    out.A[:, order[:, None], order[None, :]] = work.A
+    out.g[:, order] = work.g
+    out.chi2 = work.chi2
     return out
+
+
+def leg_gradient(
+    x: np.ndarray, d: LegData, S: np.ndarray, lay: ParameterLayout
+) -> tuple[np.ndarray, np.ndarray]:
+    """(g (B, p) = JᵀSe, χ² (B,)) of the leg rows at x (B, p): :func:`leg_normal` without
+    the normal matrix."""
+    nb = x.shape[0]
+    nc = 7 if lay.fit_offsets else 6
+    g = np.zeros((nb, lay.size))
+    chi2 = np.zeros(nb)
+    cols = compact_columns(lay).reshape(-1)
+    for start in range(0, d.n_poses, BLOCK):
+        blk = slice(start, start + BLOCK)
+        e, jc = leg_terms(x, d, lay, blk)
+        Se = np.einsum("bklc,blc->bkc", S[..., blk], e)
+        chi2 += np.einsum("bkc,bkc->b", e, Se)
+        g[:, cols] += np.einsum("bkac,bkc->bka", jc, Se).reshape(nb, LEGS * nc)
+        if d.q:
+            g[:, lay.effects_slice] -= np.einsum("bkqc,bkc->bq", d.basis[..., blk], Se)
+    return g, chi2
 
 
 def pose_precisions(
