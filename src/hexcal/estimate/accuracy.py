@@ -20,8 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexcal.estimate.predict import LegModel, Poses
-from hexcal.model.kinematics import platform_jacobian
+from hexcal.model.batched import inverse_and_precision
 from hexcal.model.noise import NoiseSigmas
+
+#: Poses per block of :func:`pose_floor`'s whole-array computations.
+FLOOR_BLOCK = 8192
 
 
 @dataclass(frozen=True)
@@ -56,14 +59,36 @@ def pose_errors(model: LegModel, meas, rows: np.ndarray | None = None) -> PoseEr
 
 def pose_floor(a: np.ndarray, b: np.ndarray, meas, sig: NoiseSigmas) -> tuple[float, float]:
     """(position mm, orientation deg): the RMS pose error the noise alone gives at the table's
-    poses, for geometry a, b (6, 3) mm (see module docstring)."""
-    rot = meas.rotations
-    jac = platform_jacobian(a, b, meas.position, rot)
-    jinv = np.linalg.inv(jac)
-    cov = sig.reading_mm**2 * jinv @ jinv.transpose(0, 2, 1)
-    pos = np.einsum("nii->n", cov[:, :3, :3]) + 3 * sig.position_mm**2
-    ang = np.einsum("nii->n", cov[:, 3:, 3:]) + 3 * sig.orientation_rad**2
-    return float(np.sqrt(pos.mean())), float(np.degrees(np.sqrt(ang.mean())))
+    poses, for geometry a, b (6, 3) mm (see module docstring).
+
+    ``J⁻¹J⁻ᵀ = (JᵀJ)⁻¹``: its diagonal blocks' traces come from the normal matrix's inverse,
+    computed over all poses at once (:mod:`hexcal.model.batched`), in blocks."""
+    R = meas.rotations.as_matrix()
+    pos = ang = 0.0
+    for start in range(0, len(R), FLOOR_BLOCK):
+        blk = slice(start, start + FLOOR_BLOCK)
+        p, r = meas.position[blk].T, R[blk].transpose(1, 2, 0)
+        rb = [b @ r[i] for i in range(3)]  # (R b_k)_i, (6, n)
+        v = [rb[i] + (p[i] - a[:, i, None]) for i in range(3)]
+        norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        n = [c / norm for c in v]
+        cols = [
+            *n,
+            rb[1] * n[2] - rb[2] * n[1],
+            rb[2] * n[0] - rb[0] * n[2],
+            rb[0] * n[1] - rb[1] * n[0],
+        ]
+        jtj = np.empty((6, 6, len(norm[0])))
+        for i in range(6):
+            for j in range(i + 1):
+                jtj[i, j] = jtj[j, i] = np.sum(cols[i] * cols[j], axis=0)
+        inv = inverse_and_precision(jtj)[1]  # (JᵀJ)⁻¹, (6, 6, n)
+        pos += float(np.sum(inv[0, 0] + inv[1, 1] + inv[2, 2]))
+        ang += float(np.sum(inv[3, 3] + inv[4, 4] + inv[5, 5]))
+    m = len(R)
+    pos = sig.reading_mm**2 * pos / m + 3 * sig.position_mm**2
+    ang = sig.reading_mm**2 * ang / m + 3 * sig.orientation_rad**2
+    return float(np.sqrt(pos)), float(np.degrees(np.sqrt(ang)))
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from hexcal.effects import EffectData, ParamSpec, get_effect
 from hexcal.errors import InputError
-from hexcal.model.batched import solve as batched_solve
+from hexcal.model.batched import solve_columns as batched_solve_columns
 from hexcal.model.kinematics import ForwardKinematicsError, forward_kinematics
 from hexcal.model.robot import Robot
 
@@ -329,7 +329,8 @@ def _newton(
     a few vectorised steps rather than N library calls), or of the poses ``rows`` only (the
     others stay at P0, R0). The model's lengths are re-evaluated at each step, over the whole
     table, so pose-dependent effects (compliance) converge with the pose; without effects they
-    are the readings plus the offsets, evaluated once."""
+    are the readings plus the offsets, evaluated once, and the poses that have converged
+    leave the batch."""
     a, b = model.robot.a, model.robot.b
     P = np.array(P0, float).reshape(-1, 3).copy()
     R = np.array(R0, float).reshape(-1, 3, 3).copy()
@@ -337,36 +338,46 @@ def _newton(
     fixed = None
     if not model.effects:
         fixed = np.asarray(readings, float)[todo] + model.robot.offsets
+    # The poses being solved, pose axis last: p (3, n), r (3, 3, n).
+    p, r = np.ascontiguousarray(P[todo].T), np.ascontiguousarray(R[todo].transpose(1, 2, 0))
     for _ in range(MAX_NEWTON):
         if fixed is None:
-            lengths = model.lengths(readings, P, R, t, temperature)[todo]
+            P[todo], R[todo] = p.T, r.transpose(2, 0, 1)
+            lengths = model.lengths(readings, P, R, t, temperature)[todo].T
         else:
-            lengths = fixed
-        rb = np.swapaxes(R[todo] @ b.T, -1, -2)  # (n, 6, 3)
-        v = rb + (P[todo][:, None, :] - a[None])
-        norm = np.sqrt(np.einsum("nki,nki->nk", v, v))
-        f = norm - lengths
-        active = np.max(np.abs(f), axis=1) >= CLOSE_MM
+            lengths = fixed.T
+        rb = [b @ r[i] for i in range(3)]  # (R b_k)_i, (6, n) each
+        v = [rb[i] + (p[i] - a[:, i, None]) for i in range(3)]
+        norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        f = norm - lengths  # (6, n)
+        active = np.max(np.abs(f), axis=0) >= CLOSE_MM
         if not active.any():
             break
-        if fixed is not None:  # the lengths do not move: converged poses leave the batch
-            todo, fixed, f, v, norm, rb = (
-                todo[active],
-                fixed[active],
-                f[active],
-                v[active],
-                norm[active],
-                rb[active],
-            )
+        if fixed is not None and not active.all():
+            # The lengths do not move: converged poses leave the batch.
+            P[todo[~active]], R[todo[~active]] = p[:, ~active].T, r[..., ~active].transpose(2, 0, 1)
+            todo, fixed, p, r = todo[active], fixed[active], p[:, active], r[..., active]
+            f, norm = f[:, active], norm[:, active]
+            rb, v = [c[:, active] for c in rb], [c[:, active] for c in v]
             active = np.ones(len(todo), bool)
-        n = v / norm[..., None]
-        jac = np.concatenate([n, np.cross(rb, n)], axis=-1)
-        step, _ = batched_solve(jac, -f)
-        step[~active] = 0.0
+        n = [c / norm for c in v]
+        # Row k of the Jacobian: [n_k, (R b_k) × n_k]; here by columns.
+        cols = [
+            *n,
+            rb[1] * n[2] - rb[2] * n[1],
+            rb[2] * n[0] - rb[0] * n[2],
+            rb[0] * n[1] - rb[1] * n[0],
+        ]
+        step, _ = batched_solve_columns(cols, -f)
+        step[:, ~active] = 0.0
         # Damp steps that would jump across the workspace (a poor guess): Newton then stays in
         # the guess's assembly mode.
-        size = np.linalg.norm(step[:, :3], axis=1) / 50.0 + np.linalg.norm(step[:, 3:], axis=1)
-        step *= np.minimum(1.0, 1.0 / np.maximum(size, 1e-300))[:, None]
-        P[todo] += step[:, :3]
-        R[todo] = Rotation.from_rotvec(step[:, 3:]).as_matrix() @ R[todo]
+        size = np.sqrt(np.sum(step[:3] ** 2, axis=0)) / 50.0 + np.sqrt(
+            np.sum(step[3:] ** 2, axis=0)
+        )
+        step *= np.minimum(1.0, 1.0 / np.maximum(size, 1e-300))
+        p += step[:3]
+        turn = Rotation.from_rotvec(step[3:].T).as_matrix()  # (n, 3, 3)
+        r = np.einsum("nij,jkn->ikn", turn, r)
+    P[todo], R[todo] = p.T, r.transpose(2, 0, 1)
     return P, R

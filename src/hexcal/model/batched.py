@@ -66,18 +66,37 @@ RANK_TOL = 1e-14
 
 def solve(A: np.ndarray, b: np.ndarray, singular: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
     """x (N, k) solving ``A x = b`` for A (N, k, k), b (N, k), and ok (N,): False where
-    ``|det A| ≤ singular`` or A is rank deficient (:data:`RANK_TOL`); x is 0 there.
+    ``|det A| ≤ singular`` or A is rank deficient (:data:`RANK_TOL`); x is 0 there
+    (:func:`solve_columns` on A's columns)."""
+    k = b.shape[1]
+    cols = [np.ascontiguousarray(A[:, :, c].T) for c in range(k)]
+    x, ok = solve_columns(cols, np.ascontiguousarray(b.T), singular)
+    return x.T, ok
+
+
+def solve_columns(
+    cols: list[np.ndarray], b: np.ndarray, singular: float = 1e-12
+) -> tuple[np.ndarray, np.ndarray]:
+    """x (k, N) solving ``A x = b`` for the matrices A given by their columns ``cols`` (k of
+    them, each (k, N): column c's entries, row by row, over the N matrices) and b (k, N); ok
+    (N,) as :func:`solve`.
 
     Solved through the normal equations ``AᵀA x = Aᵀb`` by Cholesky, the columns of A scaled
     to unit norm first (no pivoting to do per matrix, unlike elimination). That squares the
     condition number: meant for Newton steps on well-posed kinematics (condition in the
     hundreds), where a step good to 1e-10 relative is exact enough — the iteration, not the
     step, sets the final accuracy."""
-    n, k = b.shape
-    cols = [A[:, :, c] for c in range(k)]  # (N, k) each: column c over the poses
-    norm = [np.sqrt(np.einsum("nr,nr->n", c, c)) for c in cols]
+    k, n = b.shape
+
+    def dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        out = u[0] * v[0]
+        for r in range(1, len(u)):
+            out += u[r] * v[r]
+        return out
+
+    norm = [np.sqrt(dot(c, c)) for c in cols]
     with np.errstate(divide="ignore", invalid="ignore"):
-        cols = [c / np.where(s > 0, s, 1.0)[:, None] for c, s in zip(cols, norm, strict=True)]
+        cols = [c / np.where(s > 0, s, 1.0) for c, s in zip(cols, norm, strict=True)]
     zero = np.zeros(n)
     L = [[zero] * k for _ in range(k)]
     logdet = np.zeros(n)
@@ -85,9 +104,9 @@ def solve(A: np.ndarray, b: np.ndarray, singular: float = 1e-12) -> tuple[np.nda
     with np.errstate(invalid="ignore", divide="ignore"):
         for j in range(k):
             for r in range(j, k):
-                s = np.einsum("nr,nr->n", cols[r], cols[j]) - sum(
-                    (L[r][i] * L[j][i] for i in range(j)), zero
-                )
+                s = dot(cols[r], cols[j])
+                for i in range(j):
+                    s -= L[r][i] * L[j][i]
                 if r == j:
                     # A pivot this small relative to its unit column: rank deficient (the
                     # normal equations square the rounding, so the test is on the square).
@@ -98,15 +117,22 @@ def solve(A: np.ndarray, b: np.ndarray, singular: float = 1e-12) -> tuple[np.nda
                 else:
                     L[r][j] = s / L[j][j]
         # det A = det(scaled A) · Π column norms; det(scaled A)² = Π L_jj².
-        logdet += sum(np.log(np.where(s > 0, s, 1.0)) for s in norm)
-        ok &= np.all([s > 0 for s in norm], axis=0) & (logdet > np.log(singular))
+        for s in norm:
+            ok &= s > 0
+            logdet += np.log(np.where(s > 0, s, 1.0))
+        ok &= logdet > np.log(singular)
         y: list[np.ndarray] = []
         for r in range(k):
-            rhs = np.einsum("nr,nr->n", cols[r], b)
-            y.append((rhs - sum((L[r][i] * y[i] for i in range(r)), zero)) / L[r][r])
+            v = dot(cols[r], b)
+            for i in range(r):
+                v -= L[r][i] * y[i]
+            y.append(v / L[r][r])
         x: list[np.ndarray] = [zero] * k
         for r in range(k - 1, -1, -1):
-            x[r] = (y[r] - sum((L[i][r] * x[i] for i in range(r + 1, k)), zero)) / L[r][r]
-    out = np.stack([xr / np.where(s > 0, s, 1.0) for xr, s in zip(x, norm, strict=True)], 1)
-    out[~ok] = 0.0
+            v = y[r].copy()
+            for i in range(r + 1, k):
+                v -= L[i][r] * x[i]
+            x[r] = v / L[r][r]
+    out = np.stack([xr / np.where(s > 0, s, 1.0) for xr, s in zip(x, norm, strict=True)])
+    out[:, ~ok] = 0.0
     return out, ok
