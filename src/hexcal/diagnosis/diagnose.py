@@ -278,8 +278,10 @@ def _orthonormal(a: np.ndarray) -> np.ndarray:
 def jacobian_basis(fit: ModelFit) -> np.ndarray:
     """Orthonormal basis of the fit's whitened Jacobian (what :func:`score_candidate` projects
     out); computed once per fit when several candidates are scored."""
-    jw, _, _ = fit.refinement.whitened()
-    return _orthonormal(jw)
+    derived = fit.refinement.derived
+    if "jacobian_basis" not in derived:  # once per fit: a QR of 6M rows
+        derived["jacobian_basis"] = _orthonormal(fit.refinement.whitened()[0])
+    return derived["jacobian_basis"]
 
 
 def score_candidate(

@@ -150,6 +150,7 @@ class Problem:
     linear42: LinearCalibration
     data: EffectData
     _bases: dict[str, np.ndarray] = field(default_factory=dict)
+    _missing: dict[str, str | None] = field(default_factory=dict)
     #: The drawing's pose accuracy, computed once per session (see :func:`design_accuracy`)
     design_pose_accuracy: PoseAccuracy | None = None
     design_errors: PoseErrors | None = None
@@ -182,7 +183,10 @@ class Problem:
         return self._bases[name]
 
     def missing(self, name: str) -> str | None:
-        return get_effect(name).missing(self.data)
+        """Why these data cannot carry effect ``name`` (None when they can); asked once."""
+        if name not in self._missing:
+            self._missing[name] = get_effect(name).missing(self.data)
+        return self._missing[name]
 
     def stack(
         self, effects: tuple[str, ...], robot: Robot | None = None

@@ -108,6 +108,9 @@ class Refinement:
     #: Started from the design's geometry, the linear seed's fit having failed
     #: (:func:`hexcal.estimate.calibrate.refine_from_seeds`)
     from_design: bool = False
+    #: What later stages derive from this fit once (e.g. the diagnosis' orthonormal basis of
+    #: the whitened Jacobian), by name
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
