@@ -40,6 +40,7 @@ from hexcal.diagnosis.outliers import (
     pose_residuals,
     session_problem,
 )
+from hexcal.diagnosis.score import Projection, column_norms, score_columns
 from hexcal.diagnosis.where import concentrations
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors
@@ -269,26 +270,20 @@ def _nan_none(v: float) -> float | None:
     return None if not np.isfinite(v) else float(v)
 
 
-def _orthonormal(a: np.ndarray) -> np.ndarray:
-    q, r = np.linalg.qr(a)
-    keep = np.abs(np.diag(r)) > 1e-10 * max(np.abs(np.diag(r)).max(), 1e-300)
-    return q[:, keep]
-
-
-def jacobian_basis(fit: ModelFit) -> np.ndarray:
-    """Orthonormal basis of the fit's whitened Jacobian (what :func:`score_candidate` projects
-    out); computed once per fit when several candidates are scored."""
-    derived = fit.refinement.derived
-    if "jacobian_basis" not in derived:  # once per fit: a QR of 6M rows
-        derived["jacobian_basis"] = _orthonormal(fit.refinement.whitened()[0])
-    return derived["jacobian_basis"]
+def jacobian_basis(fit: ModelFit, problem: Problem | None = None) -> Projection | None:
+    """What :func:`score_candidate` projects out: the fit's whitened Jacobian, as its normal
+    equations (:class:`~hexcal.diagnosis.score.Projection`); made once per fit, when first
+    asked for with the fit's ``problem``."""
+    if problem is None:
+        return fit.refinement.derived.get("projection")
+    return Projection.of(problem, fit)
 
 
 def score_candidate(
-    problem: Problem, fit: ModelFit, name: str, q: np.ndarray | None = None
+    problem: Problem, fit: ModelFit, name: str, q: Projection | None = None
 ) -> Candidate:
     """Score test and identifiability of one effect at the current fit (``q``: the fit's
-    :func:`jacobian_basis`, when already computed)."""
+    :func:`jacobian_basis`, when already made; it is made here otherwise)."""
     eff = get_effect(name)
     why = problem.missing(name)
     if why:
@@ -296,18 +291,10 @@ def score_candidate(
             name, 0.0, False, False, reason=why, separating_motion=eff.separating_motion
         )
     ref = fit.refinement
-    jw, rw, W = ref.whitened()
     specs = eff.params(problem.design)
     names = [s.name for s in specs]
-    basis = problem.basis(name)
-    bw = np.einsum("mij,mjp->mip", W, -basis).reshape(-1, basis.shape[-1])
-    q = _orthonormal(jw) if q is None else q
-    b_perp = bw - q @ (q.T @ bw)
-    norms = np.linalg.norm(bw, axis=0)
-    sines = np.linalg.norm(b_perp, axis=0) / np.where(norms > 0, norms, 1.0)
-    # Standard errors of the effect's parameters once the model's own are projected out.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        se = np.sqrt(np.diag(np.linalg.pinv(b_perp.T @ b_perp)))
+    test = score_columns(problem, fit, name)
+    sines, se = test.sines, test.se
     half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
     # What the data must resolve: the spec's own resolution, else a tenth of the half-width.
     need = np.array(
@@ -318,11 +305,9 @@ def score_candidate(
     )
     unresolved = (sines < MIN_SINE) | ~(se < need)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
-    qb = _orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(rw), 0))
-    score = float(np.sum((qb.T @ rw) ** 2))
     cand = Candidate(
         name,
-        score,
+        test.score(~unresolved),
         identifiable=not absorbed,
         available=True,
         separating_motion=eff.separating_motion,
@@ -330,8 +315,7 @@ def score_candidate(
     if absorbed:
         # Name the model parameters that mimic the worst-absorbed column.
         worst = int(np.argmin(sines))
-        coef, *_ = np.linalg.lstsq(jw, bw[:, worst], rcond=None)
-        share = np.abs(coef) * np.linalg.norm(jw, axis=0)
+        share = np.abs(test.coef[:, worst]) * column_norms(problem, fit)
         top = [ref.names[i] for i in np.argsort(-share)[:3]]
         cand.absorbed_by = top
         cand.reason = (
@@ -363,7 +347,7 @@ def _closes_excess(
     for other in candidates:
         if other.effect == c.effect or not (other.available and other.identifiable):
             continue
-        q = jacobian_basis(ref) if q is None else q
+        q = jacobian_basis(ref, problem) if q is None else q
         second = score_candidate(problem, ref, other.effect, q)
         if not second.identifiable:
             continue
@@ -374,7 +358,7 @@ def _closes_excess(
 
 
 def _bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
-    n = base.refinement.whitened()[1].size
+    n = base.refinement.dof + len(base.refinement.x)  # the residual rows
     dp = new.n_params - base.n_params
     if problem.sigmas is not None:
         return (new.chi2 - base.chi2) + dp * np.log(n)
@@ -527,7 +511,7 @@ def _verdict(
     else:
         fit, search = fit_model(problem, effects), None
 
-    q = jacobian_basis(fit)
+    q = jacobian_basis(fit, problem)
     candidates = [score_candidate(problem, fit, n, q) for n in CATALOGUE if n not in effects]
     ranked = sorted(candidates, key=lambda c: (not (c.available and c.identifiable), -c.score))
     for c in ranked[:N_LEADERS]:

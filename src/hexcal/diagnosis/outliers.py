@@ -177,7 +177,7 @@ def pose_chi2(problem: Problem, fit: ModelFit, residuals: np.ndarray | None = No
 def _richest(problem: Problem, fit: ModelFit, effects: tuple[str, ...]) -> tuple[str, ...]:
     from hexcal.diagnosis.diagnose import jacobian_basis, score_candidate
 
-    q = jacobian_basis(fit)
+    q = jacobian_basis(fit, problem)
     extra = []
     for name in CATALOGUE:
         if name in effects:
