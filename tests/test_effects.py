@@ -113,3 +113,37 @@ def test_noise_free_effect_fit_is_exact(design):
     fit = fit_model(Problem.build(meas, design, SIG), ("offset", "gain"), cross_validate=False)
     est = np.array([p.value for p in fit.params if p.name.startswith("gain.")])
     assert np.allclose(est, values, atol=1e-6)
+
+
+def _motion_state_reference(readings: np.ndarray, deadband: float) -> np.ndarray:
+    """The definition, pose by pose: a move is a reading more than the dead band from the
+    reading at the leg's last move."""
+    state = np.zeros_like(readings)
+    current = np.zeros(readings.shape[1])
+    last = readings[0].copy()
+    for m in range(len(readings)):
+        step = readings[m] - last
+        moved = np.abs(step) > deadband
+        current = np.where(moved, np.sign(step), current)
+        last = np.where(moved, readings[m], last)
+        state[m] = current
+    return state
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_motion_state_follows_its_definition(seed):
+    """Runs of moves, still stretches, jitter about the dead band, readings on a coarse grid
+    (steps exactly at the dead band): the scan by runs gives the pose-by-pose definition."""
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 3000))
+    scale = rng.choice([0.001, 0.01, 1.0])
+    r = np.cumsum(rng.normal(0, scale, (m, 6)), axis=0)
+    # Still stretches (a pose repeats the one before), then jitter on some poses.
+    still = rng.random(m) < 0.3
+    r = r[np.maximum.accumulate(np.where(still, 0, np.arange(m)))]
+    jitter = rng.random(m) < 0.2
+    r[jitter] += rng.normal(0, 0.01, (int(jitter.sum()), 6))
+    if seed % 2:
+        r = np.round(r / 0.01) * 0.01
+    for deadband in (0.0, 0.01, 0.02):
+        assert np.array_equal(motion_state(r, deadband), _motion_state_reference(r, deadband))

@@ -466,8 +466,11 @@ def calibrate_model(
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
     base = ("offset",) if model == ModelKind.M42 else ()
     chain = [base] if not cal.effects else [base, (*base, *cal.effects)]
+    # The calibration's own fit from the leg lengths is the first model's: not made again
+    # (the same seed, when the seed is the paper's forms).
+    made = cal.lengths_fit if form == "paper" else None
     try:
-        fits = [fit_model(problem, c) for c in chain]
+        fits = [fit_model(problem, c, refinement=made if c == base else None) for c in chain]
     except (FitStalled, GeometryOutOfRange) as exc:
         raise _stall_message(inp, exc) from None
     r = cal.refinement

@@ -35,6 +35,7 @@ from hexcal.diagnosis.covariates import Exploration, explore
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
+    OutlierSearch,
     Subset,
     find_outliers,
     pose_chi2,
@@ -294,11 +295,12 @@ def diagnose(
     outliers: list[Outlier] = []
     threshold = float("nan")
     work = problem
+    search: OutlierSearch | None = None
     if ZERO_STEP in effects and (given is None or not located(problem)):
         _locate_first(problem, effects)
     if set_aside_outliers:
-        outliers, threshold, work = _set_aside(problem, given, effects, notes)
-    j = judge(work, effects, sig, notes)
+        outliers, threshold, work, search = _set_aside(problem, given, effects, notes)
+    j = judge(work, effects, sig, notes, outliers=search)
     fit, verdict = j.fit, j.verdict
     if outliers:
         verdict = _outlier_story(problem, j, outliers, threshold, acknowledged, notes)
@@ -394,9 +396,10 @@ def _noise_note(factor: float, j: Judgement) -> str:
 
 def _set_aside(
     problem: Problem, given: Problem | None, effects: tuple[str, ...], notes: list[str]
-) -> tuple[list[Outlier], float, Problem]:
+) -> tuple[list[Outlier], float, Problem, OutlierSearch]:
     """The gross outliers of the session ``problem`` (an earlier diagnosis' ``given`` tested
-    first): (outliers, their χ² threshold, the problem on the poses kept)."""
+    first): (outliers, their χ² threshold, the problem on the poses kept, the search, whose
+    fits the verdict reuses)."""
     start = None
     if isinstance(given, Subset):
         start = np.setdiff1d(np.arange(len(problem.meas)), given.rows)
@@ -409,7 +412,7 @@ def _set_aside(
         and np.array_equal(given.rows, work.rows)
     ):
         work = given  # the same poses: keep its cached bases and the drawing's accuracy
-    return search.outliers, search.threshold, work
+    return search.outliers, search.threshold, work, search
 
 
 def _outlier_story(

@@ -28,13 +28,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from hexcal.diagnosis.scoring import jacobian_basis, score_candidate
+from hexcal.diagnosis.score import Projection
+from hexcal.diagnosis.scoring import score_candidate
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.effects.drift import T_MID
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
 from hexcal.estimate.quantiles import chi2_isf, chi2_ppf
 from hexcal.estimate.refine import _model
-from hexcal.model.noise import DEFAULT_SIGMAS, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, leg_whiteners
 
 #: Family-wise false-alarm probability of the outlier test over a whole session (Bonferroni:
 #: each of the M poses is tested at OUTLIER_ALPHA / M against χ²(6)). Strict on purpose: a sound
@@ -135,6 +136,11 @@ class OutlierSearch:
     model: tuple[str, ...]  #: the richest model the poses were tested against
     iterations: int
     notes: list[str] = field(default_factory=list)
+    #: The fits made on :attr:`problem`'s poses (without cross-validation), for the diagnosis
+    #: to reuse: the model searched with, and the richest one; None when the search ended on
+    #: other poses than those it last fitted.
+    fit: ModelFit | None = None
+    rich: ModelFit | None = None
 
     @property
     def pose_ids(self) -> list[int]:
@@ -165,13 +171,13 @@ def pose_chi2(problem: Problem, fit: ModelFit, residuals: np.ndarray | None = No
     res = pose_residuals(problem, fit) if residuals is None else residuals
     ref = fit.refinement
     sig = problem.sigmas if problem.sigmas is not None else DEFAULT_SIGMAS
-    cov = leg_covariance(ref.a, ref.b, problem.meas.position, problem.R, sig)
-    w = np.linalg.solve(np.linalg.cholesky(cov), res[..., None])[..., 0]
+    W = leg_whiteners(ref.a, ref.b, problem.meas.position, problem.R, sig)
+    w = (W @ res[..., None])[..., 0]
     return np.sum(w**2, axis=1)
 
 
 def _richest(problem: Problem, fit: ModelFit, effects: tuple[str, ...]) -> tuple[str, ...]:
-    q = jacobian_basis(fit)
+    q = Projection.of(problem, fit)
     extra = []
     for name in CATALOGUE:
         if name in effects:
@@ -219,6 +225,7 @@ def find_outliers(
     s2 = 1.0
     chi2 = np.zeros(m)
     iterations = 0
+    fitted: tuple[Problem, ModelFit, ModelFit] | None = None
     for _ in range(MAX_ITERATIONS):
         iterations += 1
         sub = Subset.of(problem, np.where(~out)[0]) if out.any() else problem
@@ -228,6 +235,7 @@ def find_outliers(
             rich = fit0
             if len(model) > len(effects):
                 rich = fit_model(sub, model, cross_validate=False, seed_fit=fit0)
+            fitted = (sub, fit0, rich)
         except (ValueError, np.linalg.LinAlgError) as exc:
             notes.append(f"the search for outliers stopped: the fit without poses failed ({exc})")
             out[:] = False
@@ -272,4 +280,7 @@ def find_outliers(
                 float(residuals[i, k]),
             )
         )
-    return OutlierSearch(outliers, sub, threshold, s2, model, iterations, notes)
+    search = OutlierSearch(outliers, sub, threshold, s2, model, iterations, notes)
+    if fitted is not None and fitted[0] is sub:
+        search.fit, search.rich = fitted[1], fitted[2]
+    return search

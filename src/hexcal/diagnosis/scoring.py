@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hexcal.diagnosis.score import Projection, column_norms, score_columns
 from hexcal.effects import get_effect
 from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.model.noise import DEFAULT_SIGMAS, leg_covariance
@@ -103,10 +104,11 @@ def block_score(fit: ModelFit, columns: np.ndarray, q: np.ndarray | None = None)
 
 
 def score_candidate(
-    problem: Problem, fit: ModelFit, name: str, q: np.ndarray | None = None
+    problem: Problem, fit: ModelFit, name: str, q: Projection | None = None
 ) -> Candidate:
-    """Score test and identifiability of one effect at the current fit (``q``: the fit's
-    :func:`jacobian_basis`, when already computed)."""
+    """Score test and identifiability of one effect at the current fit, from the fit's normal
+    equations (:mod:`hexcal.diagnosis.score`; ``q``: the fit's :class:`Projection`, when
+    already made; it is made here otherwise)."""
     eff = get_effect(name)
     why = problem.missing(name)
     if why:
@@ -114,17 +116,10 @@ def score_candidate(
             name, 0.0, False, False, reason=why, separating_motion=eff.separating_motion
         )
     ref = fit.refinement
-    jw, rw, _ = ref.whitened()
     specs = eff.params(problem.design)
     names = [s.name for s in specs]
-    bw = whitened_columns(fit, problem.basis(name))
-    q = orthonormal(jw) if q is None else q
-    b_perp = bw - q @ (q.T @ bw)
-    norms = np.linalg.norm(bw, axis=0)
-    sines = np.linalg.norm(b_perp, axis=0) / np.where(norms > 0, norms, 1.0)
-    # Standard errors of the effect's parameters once the model's own are projected out.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        se = np.sqrt(np.diag(np.linalg.pinv(b_perp.T @ b_perp)))
+    test = score_columns(problem, fit, name)
+    sines, se = test.sines, test.se
     half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
     # What the data must resolve: the spec's own resolution, else a tenth of the half-width.
     need = np.array(
@@ -135,11 +130,9 @@ def score_candidate(
     )
     unresolved = (sines < MIN_SINE) | ~(se < need)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
-    qb = orthonormal(b_perp[:, ~unresolved]) if (~unresolved).any() else np.zeros((len(rw), 0))
-    score = float(np.sum((qb.T @ rw) ** 2))
     cand = Candidate(
         name,
-        score,
+        test.score(~unresolved),
         identifiable=not absorbed,
         available=True,
         separating_motion=eff.separating_motion,
@@ -147,8 +140,7 @@ def score_candidate(
     if absorbed:
         # Name the model parameters that mimic the worst-absorbed column.
         worst = int(np.argmin(sines))
-        coef, *_ = np.linalg.lstsq(jw, bw[:, worst], rcond=None)
-        share = np.abs(coef) * np.linalg.norm(jw, axis=0)
+        share = np.abs(test.coef[:, worst]) * column_norms(problem, fit)
         top = [ref.names[i] for i in np.argsort(-share)[:3]]
         cand.absorbed_by = top
         cand.reason = (
@@ -164,7 +156,7 @@ def identifiable_candidates(
     problem: Problem, fit: ModelFit, effects: tuple[str, ...], catalogue
 ) -> list[Candidate]:
     """Every effect of ``catalogue`` not in ``effects``, scored at ``fit``."""
-    q = jacobian_basis(fit)
+    q = Projection.of(problem, fit)
     return [score_candidate(problem, fit, n, q) for n in catalogue if n not in effects]
 
 

@@ -33,19 +33,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.diagnosis.changepoint import ChangePoint, locate, search
-from hexcal.diagnosis.outliers import robust_level
+from hexcal.diagnosis.outliers import OutlierSearch, robust_level
+from hexcal.diagnosis.score import Projection
 from hexcal.diagnosis.scoring import (
     Candidate,
     block_score,
     heldout_gain,
     identifiable_candidates,
-    jacobian_basis,
     pose_whiteners,
     score_candidate,
     whitened_columns,
 )
 from hexcal.effects import CATALOGUE, get_effect
-from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, noise_floor
+from hexcal.estimate.effect_fit import ModelFit, Problem, cross_validated, fit_model, noise_floor
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.vocabulary import Outcome, Verdict
 
@@ -104,7 +104,7 @@ def of_the_session(name: str) -> bool:
 def bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
     """ΔBIC of ``new`` against ``base`` (χ² with the stated noise, else the Gaussian
     likelihood with the level estimated)."""
-    n = base.refinement.whitened()[1].size
+    n = base.refinement.dof + len(base.refinement.x)  # the residual rows
     dp = new.n_params - base.n_params
     if problem.sigmas is not None:
         return (new.chi2 - base.chi2) + dp * np.log(n)
@@ -122,10 +122,18 @@ def judge(
     sig: NoiseSigmas | None,
     notes: list[str],
     fit: ModelFit | None = None,
+    outliers: OutlierSearch | None = None,
 ) -> Judgement:
     """Fit (unless ``fit`` is given), score, refit the leaders and decide, on ``problem``'s
-    poses (see the module docstring). Notes are appended to ``notes``."""
-    fit = fit_model(problem, effects) if fit is None else fit
+    poses (see the module docstring). Notes are appended to ``notes``. The fits the
+    ``outliers`` search made on these poses are reused, not made again."""
+    rich = None
+    if fit is None:
+        made = outliers.fit if outliers is not None else None
+        if made is not None and made.effects == effects:
+            fit, rich = cross_validated(problem, made), outliers.rich if outliers else None
+        else:
+            fit = fit_model(problem, effects)
     level = robust_level(problem, fit)
     changes: list[ChangePoint] = []
     if "zero_step" not in effects:
@@ -133,7 +141,7 @@ def judge(
         locate(problem, changes)
     candidates = identifiable_candidates(problem, fit, effects, CATALOGUE)
     _refit_leaders(problem, fit, candidates, effects)
-    floor, floor_source, s2 = _floor(problem, fit, effects, candidates, sig, notes)
+    floor, floor_source, s2 = _floor(problem, fit, effects, candidates, sig, notes, rich)
     expected = fit.dof * s2  # χ² the current fit would have from noise alone
     chi2_per_dof = fit.chi2 / expected
     band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
@@ -204,7 +212,7 @@ def _search_penalty(problem: Problem, fit: ModelFit, name: str) -> float:
     per = getattr(get_effect(name), "searched_params", 0)
     if not per:
         return 0.0
-    n = fit.refinement.whitened()[1].size
+    n = fit.refinement.dof + len(fit.refinement.x)  # the residual rows
     return float(per * len(get_effect(name).params(problem.design)) * np.log(n))
 
 
@@ -215,6 +223,7 @@ def _floor(
     candidates: list[Candidate],
     sig: NoiseSigmas | None,
     notes: list[str],
+    made: ModelFit | None = None,
 ) -> tuple[np.ndarray, str, float]:
     """(floor (M, 6) mm, where it comes from, s²): the stated noise propagated through the
     model; without it, the noise level s (relative to a typical tracker and encoder) of the
@@ -223,10 +232,13 @@ def _floor(
         floor = noise_floor(problem, fit)
         return floor, "stated instrument noise, propagated through the fitted model", 1.0
     richest = tuple(effects) + tuple(c.effect for c in candidates if c.available and c.identifiable)
-    try:
-        rich = fit_model(problem, richest, cross_validate=False, seed_fit=fit)
-    except (ValueError, np.linalg.LinAlgError):
-        rich = fit
+    if made is not None and made.effects == richest:
+        rich = made  # the outlier search's richest fit on these poses
+    else:
+        try:
+            rich = fit_model(problem, richest, cross_validate=False, seed_fit=fit)
+        except (ValueError, np.linalg.LinAlgError):
+            rich = fit
     s2 = rich.chi2 / rich.dof
     r = fit.refinement
     cov = leg_covariance(r.a, r.b, problem.meas.position, problem.R, DEFAULT_SIGMAS)
@@ -297,7 +309,7 @@ def _closes_excess(
     for other in candidates:
         if other.effect == c.effect or not (other.available and other.identifiable):
             continue
-        q = jacobian_basis(ref) if q is None else q
+        q = Projection.of(problem, ref) if q is None else q
         second = score_candidate(problem, ref, other.effect, q)
         if not second.identifiable:
             continue

@@ -54,16 +54,46 @@ def deadband_mm(data: EffectData) -> float:
 def motion_state(readings: np.ndarray, deadband: float = DEADBAND_MM) -> np.ndarray:
     """(M, 6) in {−1, 0, +1}: the sign of each leg's last motion before each pose (in recording
     order); a leg that did not move keeps its state; 0 until a leg first moves."""
+    readings = np.asarray(readings, float)
     state = np.zeros_like(readings)
-    current = np.zeros(readings.shape[1])
-    last = readings[0].copy()
-    for m in range(len(readings)):
-        step = readings[m] - last
-        moved = np.abs(step) > deadband
-        current = np.where(moved, np.sign(step), current)
-        last = np.where(moved, readings[m], last)
-        state[m] = current
+    for k in range(readings.shape[1]):
+        state[:, k] = _leg_state(readings[:, k], deadband)
     return state
+
+
+def _leg_state(r: np.ndarray, deadband: float) -> np.ndarray:
+    """One leg's :func:`motion_state` (M,). A move is a reading more than the dead band from
+    the reading at the leg's last move. While the leg moves at every pose that is the previous
+    pose's reading, so runs of moves are found whole; only after a pose that did not move is
+    the next move searched for, from the reading it must depart from."""
+    m = len(r)
+    sign = np.zeros(m)
+    if m < 2:
+        return sign
+    jump = np.zeros(m, bool)
+    jump[1:] = np.abs(r[1:] - r[:-1]) > deadband  # pose i moved, if pose i − 1 was a move
+    stops = np.flatnonzero(~jump)  # the poses where a run of moves ends
+    ref, pos = 0, 1  # the reading to depart from; the first pose to test
+    while pos < m:
+        # The first pose from pos on more than the dead band from the reference reading.
+        j, width = -1, 64
+        while pos < m:
+            hit = np.flatnonzero(np.abs(r[pos : pos + width] - r[ref]) > deadband)
+            if len(hit):
+                j = pos + int(hit[0])
+                break
+            pos += width
+            width *= 2
+        if j < 0:
+            break
+        sign[j] = 1.0 if r[j] > r[ref] else -1.0
+        # The run of moves after it: each pose more than the dead band from the previous.
+        end = stops[np.searchsorted(stops, j + 1)] if stops[-1] > j else m
+        sign[j + 1 : end] = np.sign(r[j + 1 : end] - r[j : end - 1])
+        ref, pos = end - 1, end
+    # Each pose keeps the sign of the last move at or before it.
+    last = np.maximum.accumulate(np.where(sign != 0, np.arange(m), 0))
+    return sign[last]
 
 
 @register

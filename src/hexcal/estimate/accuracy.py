@@ -20,8 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexcal.estimate.predict import LegModel, Poses
-from hexcal.model.kinematics import platform_jacobian
+from hexcal.model.batched import inverse_and_precision
 from hexcal.model.noise import NoiseSigmas
+
+#: Poses per block of :func:`pose_floor`'s whole-array computations.
+FLOOR_BLOCK = 8192
 
 
 @dataclass(frozen=True)
@@ -37,13 +40,18 @@ class PoseErrors:
         return PoseErrors(self.position_mm[rows], self.orientation_deg[rows], self.closed[rows])
 
 
-def pose_errors(model: LegModel, meas) -> PoseErrors:
+def pose_errors(model: LegModel, meas, rows: np.ndarray | None = None) -> PoseErrors:
     """The model's pose from each row's readings against the tracker's pose (every row of the
-    measurement table ``meas``, in recording order: backlash needs the history)."""
+    measurement table ``meas``, or the rows ``rows``; the effects see the whole table in
+    recording order: backlash needs the history)."""
     rot = meas.rotations.as_matrix()
     guess = Poses(meas.position, rot)
-    poses, closed = model.solve_poses(meas.readings, meas.t, meas.temperature, guess)
-    dp = np.linalg.norm(poses.position - meas.position, axis=1)
+    poses, closed = model.solve_poses(meas.readings, meas.t, meas.temperature, guess, rows)
+    if rows is not None:
+        rot = rot[rows]
+    dp = np.linalg.norm(
+        poses.position - (meas.position if rows is None else meas.position[rows]), axis=1
+    )
     rel = np.einsum("nji,njk->nik", rot, poses.rotation)  # Rᵀ_tracker R_model
     cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     return PoseErrors(dp, np.degrees(np.arccos(cos)), closed)
@@ -51,14 +59,36 @@ def pose_errors(model: LegModel, meas) -> PoseErrors:
 
 def pose_floor(a: np.ndarray, b: np.ndarray, meas, sig: NoiseSigmas) -> tuple[float, float]:
     """(position mm, orientation deg): the RMS pose error the noise alone gives at the table's
-    poses, for geometry a, b (6, 3) mm (see module docstring)."""
-    rot = meas.rotations
-    jac = platform_jacobian(a, b, meas.position, rot)
-    jinv = np.linalg.inv(jac)
-    cov = sig.reading_mm**2 * jinv @ jinv.transpose(0, 2, 1)
-    pos = np.einsum("nii->n", cov[:, :3, :3]) + 3 * sig.position_mm**2
-    ang = np.einsum("nii->n", cov[:, 3:, 3:]) + 3 * sig.orientation_rad**2
-    return float(np.sqrt(pos.mean())), float(np.degrees(np.sqrt(ang.mean())))
+    poses, for geometry a, b (6, 3) mm (see module docstring).
+
+    ``J⁻¹J⁻ᵀ = (JᵀJ)⁻¹``: its diagonal blocks' traces come from the normal matrix's inverse,
+    computed over all poses at once (:mod:`hexcal.model.batched`), in blocks."""
+    R = meas.rotations.as_matrix()
+    pos = ang = 0.0
+    for start in range(0, len(R), FLOOR_BLOCK):
+        blk = slice(start, start + FLOOR_BLOCK)
+        p, r = meas.position[blk].T, R[blk].transpose(1, 2, 0)
+        rb = [b @ r[i] for i in range(3)]  # (R b_k)_i, (6, n)
+        v = [rb[i] + (p[i] - a[:, i, None]) for i in range(3)]
+        norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        n = [c / norm for c in v]
+        cols = [
+            *n,
+            rb[1] * n[2] - rb[2] * n[1],
+            rb[2] * n[0] - rb[0] * n[2],
+            rb[0] * n[1] - rb[1] * n[0],
+        ]
+        jtj = np.empty((6, 6, len(norm[0])))
+        for i in range(6):
+            for j in range(i + 1):
+                jtj[i, j] = jtj[j, i] = np.sum(cols[i] * cols[j], axis=0)
+        inv = inverse_and_precision(jtj)[1]  # (JᵀJ)⁻¹, (6, 6, n)
+        pos += float(np.sum(inv[0, 0] + inv[1, 1] + inv[2, 2]))
+        ang += float(np.sum(inv[3, 3] + inv[4, 4] + inv[5, 5]))
+    m = len(R)
+    pos = sig.reading_mm**2 * pos / m + 3 * sig.position_mm**2
+    ang = sig.reading_mm**2 * ang / m + 3 * sig.orientation_rad**2
+    return float(np.sqrt(pos)), float(np.degrees(np.sqrt(ang)))
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,16 @@ class Calibration:
         return self.linear.methods
 
     @property
+    def lengths_fit(self) -> Refinement | None:
+        """The refinement from the leg lengths alone, from the linear seed (the one
+        ``effect_fit.fit_model`` makes of a model without effects), when this calibration made
+        it: None with effects, without refinement, or when the fit started from the design."""
+        if self.effects or self.refinement is None:
+            return None
+        r = self.clamp_check.lengths_only if self.clamp_check is not None else self.refinement
+        return None if r.from_design else r
+
+    @property
     def model_name(self) -> str:
         """e.g. ``"Model 42 + gain"``."""
         return f"Model {self.model}" + "".join(f" + {e}" for e in self.effects)
@@ -219,6 +229,7 @@ def refine_from_seeds(P, R, rho, lin_a, lin_b, lin_off, design: Robot, fit_offse
             f"the fit from the linear seed did not converge ({stalled}); started from the "
             "design's geometry it did: that fit is kept"
         )
+        alt.from_design = True
         return alt
     first = ref.chi2 / max(ref.dof, 1)
     if np.isfinite(first) and first <= RETRY_CHI2_PER_DOF:
@@ -234,6 +245,7 @@ def refine_from_seeds(P, R, rho, lin_a, lin_b, lin_off, design: Robot, fit_offse
             f"the fit from the linear seed stopped at χ²/dof {first:.1f}; started from the design's "
             f"geometry it reached {alt.chi2 / max(alt.dof, 1):.2f}: that fit is kept"
         )
+        alt.from_design = True
         return alt
     return ref
 

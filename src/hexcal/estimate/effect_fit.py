@@ -3,19 +3,21 @@ fitted jointly by the weighted refinement, with cross-validation on held-out pos
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
 from hexcal.effects.backlash import deadband_for_noise
 from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors, pose_errors, pose_floor
+from hexcal.estimate.folds import fold_fits
 from hexcal.estimate.layout import ParameterLayout
+from hexcal.estimate.leg_rows import LegData, leg_residuals
 from hexcal.estimate.predict import LegModel
-from hexcal.estimate.refine import Refinement, _model, refine
+from hexcal.estimate.refine import Refinement, refine
 from hexcal.estimate.solvers.whole_robot import LinearCalibration, calibrate_linear
 from hexcal.io.measurements import Measurements
-from hexcal.model.noise import NoiseSigmas, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.model.robot import Robot
 from hexcal.vocabulary import ModelKind
 
@@ -148,6 +150,7 @@ class Problem:
     linear42: LinearCalibration
     data: EffectData
     _bases: dict[str, np.ndarray] = field(default_factory=dict)
+    _missing: dict[str, str | None] = field(default_factory=dict)
     #: The drawing's pose accuracy, computed once per session (see :func:`design_accuracy`)
     design_pose_accuracy: PoseAccuracy | None = None
     design_errors: PoseErrors | None = None
@@ -180,7 +183,10 @@ class Problem:
         return self._bases[name]
 
     def missing(self, name: str) -> str | None:
-        return get_effect(name).missing(self.data)
+        """Why these data cannot carry effect ``name`` (None when they can); asked once."""
+        if name not in self._missing:
+            self._missing[name] = get_effect(name).missing(self.data)
+        return self._missing[name]
 
     def stack(
         self, effects: tuple[str, ...], robot: Robot | None = None
@@ -230,11 +236,14 @@ def fit_model(
     effects: tuple[str, ...] | list[str],
     cross_validate: bool = True,
     seed_fit: ModelFit | None = None,
+    refinement: Refinement | None = None,
 ) -> ModelFit:
     """Fit the geometry with ``effects`` jointly; cross-validate on held-out poses.
 
     Seeded by the linear methods (Model 42's when ``offset`` is in the model), or by
     ``seed_fit``'s geometry when given (a model one effect larger than a fitted one).
+    ``refinement``: that very fit, already made elsewhere (``calibrate``'s from the same linear
+    seed, of a model without effects): it is used as it is, not made again.
     """
     effects = tuple(dict.fromkeys(effects))
     for e in effects:
@@ -255,19 +264,24 @@ def fit_model(
             off0 = r.offsets(problem.design.offsets)
         theta0 = np.array([r.value(s.name) if s.name in r.names else 0.0 for s in specs])
     names = [s.name for s in specs]
-    ref = refine(
-        problem.meas.position,
-        problem.R,
-        problem.meas.readings,
-        a0,
-        b0,
-        off0,
-        fit_offsets,
-        problem.sigmas,
-        basis=basis,
-        basis_names=names,
-        theta0=theta0,
-    )
+    if refinement is not None:
+        if names:
+            raise ValueError("a refinement made elsewhere is reused for models without effects")
+        ref = refinement
+    else:
+        ref = refine(
+            problem.meas.position,
+            problem.R,
+            problem.meas.readings,
+            a0,
+            b0,
+            off0,
+            fit_offsets,
+            problem.sigmas,
+            basis=basis,
+            basis_names=names,
+            theta0=theta0,
+        )
     if any(get_effect(e).uses_geometry for e in effects if e != "offset"):
         ref, basis = _at_fitted_geometry(problem, effects, ref, basis, fit_offsets, names)
     fit = ModelFit(effects, ref, ref.residuals, _param_rows(ref, specs, problem.design), names)
@@ -276,6 +290,16 @@ def fit_model(
         cross_validation(problem, fit, basis)
     fit.notes = [out_of_range_note(p, problem.design) for p in fit.nonphysical()] + ref.notes
     return fit
+
+
+def cross_validated(problem: Problem, fit: ModelFit) -> ModelFit:
+    """A fit made without cross-validation (``fit_model(..., cross_validate=False)``) with it
+    added: a copy, the fit itself not made again (the outlier search's fit, reused)."""
+    if fit.basis is None:
+        raise ValueError(f"{fit.model_name} has no basis recorded: fit it with fit_model")
+    out = replace(fit, folds=[], notes=list(fit.notes))
+    cross_validation(problem, out, fit.basis)
+    return out
 
 
 def out_of_range_note(p: ParamRow, design: Robot) -> str:
@@ -367,39 +391,30 @@ def _folds(m: int, blocked: bool, seed: int = 0) -> list[np.ndarray]:
 def cross_validation(problem: Problem, fit: ModelFit, basis: np.ndarray) -> None:
     """Held-out residuals over whole poses: random folds and folds blocked in time.
 
-    Each fold is refitted from the full fit's solution (one covariance pass); the held-out
-    poses' residuals use the fold's parameters.
+    Each fold is refitted from the full fit's solution (one covariance pass, evaluated there);
+    the held-out poses' residuals use the fold's parameters. The folds share the evaluations
+    at the full fit's solution (:func:`hexcal.estimate.folds.fold_fits`).
     """
     ref = fit.refinement
     fit_offsets = "offset" in fit.effects
-    fixed = problem.design.offsets
-    P, R, rho = problem.meas.position, problem.R, problem.meas.readings
-    m = len(P)
-    for blocked in (False, True):
+    m = len(problem.meas)
+    lay = ParameterLayout.of_vector(ref.x, fit_offsets)
+    d = LegData.of(
+        problem.meas.position,
+        problem.R,
+        problem.meas.readings,
+        problem.design.offsets,
+        basis if basis.shape[-1] else None,
+    )
+    sig = problem.sigmas if problem.sigmas is not None else DEFAULT_SIGMAS
+    partitions = [_folds(m, False), _folds(m, True)]
+    fitted = fold_fits(d, ref.x, lay, sig, partitions)
+    for blocked, part, xs in zip((False, True), partitions, fitted, strict=True):
         held = np.zeros((m, 6))
-        for test in _folds(m, blocked):
-            train = np.setdiff1d(np.arange(m), test)
-            x0, lay = ref.x, ParameterLayout.of_vector(ref.x, fit_offsets)
-            a0, b0, off0 = lay.a(x0), lay.b(x0), lay.offsets(x0, fixed)
-            q = basis.shape[-1]
-            r = refine(
-                P[train],
-                R[train],
-                rho[train],
-                a0,
-                b0,
-                off0,
-                fit_offsets,
-                problem.sigmas,
-                basis=basis[train],
-                basis_names=fit.basis_names,
-                theta0=lay.effects(x0) if q else None,
-                passes=1,
-            )
-            res, _ = _model(r.x, P[test], R[test], rho[test], fixed, fit_offsets, basis[test])
-            held[test] = -res
+        for test, x in zip(part, xs, strict=True):
+            held[test] = -leg_residuals(x[None], d.take(test), lay)[0]
             if not blocked:
-                fit.folds.append((test, r.x))
+                fit.folds.append((test, x))
         if blocked:
             fit.cv_blocked_residuals = held
             fit.cv_blocked_rms_mm = float(np.sqrt(np.mean(held**2)))
@@ -414,7 +429,7 @@ def heldout_pose_errors(problem: Problem, fit: ModelFit) -> PoseErrors:
     m = len(problem.meas)
     pos, ang, closed = np.zeros(m), np.zeros(m), np.ones(m, bool)
     for test, x in fit.folds:
-        e = pose_errors(leg_model(problem.design, fit.effects, x), problem.meas).take(test)
+        e = pose_errors(leg_model(problem.design, fit.effects, x), problem.meas, test)
         pos[test], ang[test], closed[test] = e.position_mm, e.orientation_deg, e.closed
     return PoseErrors(pos, ang, closed)
 

@@ -22,7 +22,7 @@ import numpy as np
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.estimate.accuracy import PoseAccuracy, pose_errors, pose_floor
 from hexcal.estimate.predict import LegModel
-from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance, leg_whiteners
 from hexcal.vocabulary import ModelKind, Outcome, Verdict
 
 #: χ²/dof above 1 + EXCESS_Z·√(2/dof) is above the noise floor (as in the diagnosis).
@@ -140,8 +140,7 @@ class Validation:
 def _whitened(model: LegModel, meas, sig: NoiseSigmas) -> tuple[np.ndarray, np.ndarray]:
     """Whiteners W (M, 6, 6) and whitened residual (6M,) of the model on the table."""
     rot = meas.rotations.as_matrix()
-    cov = leg_covariance(model.robot.a, model.robot.b, meas.position, rot, sig)
-    w = np.linalg.inv(np.linalg.cholesky(cov))
+    w = leg_whiteners(model.robot.a, model.robot.b, meas.position, rot, sig)
     res = model.residuals(meas)
     return w, (w @ res[..., None])[..., 0].ravel()
 

@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from hexcal.effects import EffectData, ParamSpec, get_effect
 from hexcal.errors import InputError
+from hexcal.model.batched import solve_columns as batched_solve_columns
 from hexcal.model.kinematics import ForwardKinematicsError, forward_kinematics
 from hexcal.model.robot import Robot
 
@@ -177,16 +178,20 @@ class LegModel:
         t: np.ndarray | None = None,
         temperature: np.ndarray | None = None,
         guess: Poses | None = None,
+        rows: np.ndarray | None = None,
     ) -> tuple[Poses, np.ndarray]:
         """Like :meth:`poses` without refusing: (poses, closed (N,) bool) — a row whose legs
-        do not close (out of the workspace) is left at its best attempt."""
+        do not close (out of the workspace) is left at its best attempt. ``rows``: solve these
+        rows only (indices into the table, which the effects see whole, in order); then both
+        are of those rows."""
         readings = np.atleast_2d(np.asarray(readings, float))
         n = len(readings)
         if guess is None:
             guess = self.home(n)
-        P, R = _newton(self, readings, t, temperature, guess.position, guess.rotation)
-        err = self._closure(readings, t, temperature, P, R)
-        bad = np.where(~(err < REFUSE_MM))[0]
+        todo = np.arange(n) if rows is None else np.asarray(rows, int)
+        P, R = _newton(self, readings, t, temperature, guess.position, guess.rotation, todo)
+        err = self._closure(readings, t, temperature, P, R, todo)
+        bad = todo[~(err < REFUSE_MM)]
         # Newton from a poor guess may stall or reach another assembly mode: the library
         # solver with restarts gives a better start for those rows.
         for i in bad:
@@ -203,13 +208,17 @@ class LegModel:
                 continue
             P[i], R[i] = p, rot.as_matrix()
         if len(bad):
-            P, R = _newton(self, readings, t, temperature, P, R)
-            err = self._closure(readings, t, temperature, P, R)
-        return Poses(P, R), err < REFUSE_MM
+            P, R = _newton(self, readings, t, temperature, P, R, todo)
+            err = self._closure(readings, t, temperature, P, R, todo)
+        return Poses(P[todo], R[todo]), err < REFUSE_MM
 
-    def _closure(self, readings, t, temperature, P, R) -> np.ndarray:
-        lengths = self.lengths(readings, P, R, t, temperature)
-        return np.max(np.abs(self.geometric(P, R) - lengths), axis=1)
+    def _closure(self, readings, t, temperature, P, R, rows) -> np.ndarray:
+        """(n,) mm: each of ``rows``' largest leg mismatch, geometric against the model's."""
+        if self.effects:
+            lengths = self.lengths(readings, P, R, t, temperature)[rows]
+        else:
+            lengths = readings[rows] + self.robot.offsets
+        return np.max(np.abs(self.geometric(P[rows], R[rows]) - lengths), axis=1)
 
     def home(self, n: int = 1) -> Poses:
         """The robot's home pose, repeated n times."""
@@ -307,38 +316,68 @@ def _rows(rows: np.ndarray) -> str:
 
 
 def _leg_vectors(a, b, position, rotation) -> np.ndarray:
+    """(N, 6, 3) mm ``P + R b_k − a_k``."""
     P = np.atleast_2d(np.asarray(position, float))
     R = np.asarray(rotation, float).reshape(-1, 3, 3)
-    return P[:, None, :] + np.einsum("nij,kj->nki", R, b) - a[None]
+    return np.swapaxes(R @ b.T, -1, -2) + (P[:, None, :] - a[None])
 
 
-def _newton(model: LegModel, readings, t, temperature, P0, R0) -> tuple[np.ndarray, np.ndarray]:
+def _newton(
+    model: LegModel, readings, t, temperature, P0, R0, rows: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Batched Newton on the six leg lengths of every pose at once (an N-pose table solves in
-    a few vectorised steps rather than N library calls). The model's lengths are re-evaluated at
-    each step, so pose-dependent effects (compliance) converge with the pose."""
+    a few vectorised steps rather than N library calls), or of the poses ``rows`` only (the
+    others stay at P0, R0). The model's lengths are re-evaluated at each step, over the whole
+    table, so pose-dependent effects (compliance) converge with the pose; without effects they
+    are the readings plus the offsets, evaluated once, and the poses that have converged
+    leave the batch."""
     a, b = model.robot.a, model.robot.b
     P = np.array(P0, float).reshape(-1, 3).copy()
     R = np.array(R0, float).reshape(-1, 3, 3).copy()
-    active = np.ones(len(P), bool)
+    todo = np.arange(len(P)) if rows is None else np.asarray(rows, int)
+    fixed = None
+    if not model.effects:
+        fixed = np.asarray(readings, float)[todo] + model.robot.offsets
+    # The poses being solved, pose axis last: p (3, n), r (3, 3, n).
+    p, r = np.ascontiguousarray(P[todo].T), np.ascontiguousarray(R[todo].transpose(1, 2, 0))
     for _ in range(MAX_NEWTON):
-        lengths = model.lengths(readings, P, R, t, temperature)
-        v = _leg_vectors(a, b, P, R)
-        norm = np.linalg.norm(v, axis=-1)
-        f = norm - lengths
-        active = np.max(np.abs(f), axis=1) >= CLOSE_MM
+        if fixed is None:
+            P[todo], R[todo] = p.T, r.transpose(2, 0, 1)
+            lengths = model.lengths(readings, P, R, t, temperature)[todo].T
+        else:
+            lengths = fixed.T
+        rb = [b @ r[i] for i in range(3)]  # (R b_k)_i, (6, n) each
+        v = [rb[i] + (p[i] - a[:, i, None]) for i in range(3)]
+        norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        f = norm - lengths  # (6, n)
+        active = np.max(np.abs(f), axis=0) >= CLOSE_MM
         if not active.any():
             break
-        n = v / norm[..., None]
-        rb = np.einsum("nij,kj->nki", R, b)
-        jac = np.concatenate([n, np.cross(rb, n)], axis=-1)[active]
-        step = np.zeros((len(P), 6))
-        ok = np.abs(np.linalg.det(jac)) > 1e-12
-        idx = np.where(active)[0]
-        step[idx[ok]] = np.linalg.solve(jac[ok], -f[active][ok][..., None])[..., 0]
+        if fixed is not None and not active.all():
+            # The lengths do not move: converged poses leave the batch.
+            P[todo[~active]], R[todo[~active]] = p[:, ~active].T, r[..., ~active].transpose(2, 0, 1)
+            todo, fixed, p, r = todo[active], fixed[active], p[:, active], r[..., active]
+            f, norm = f[:, active], norm[:, active]
+            rb, v = [c[:, active] for c in rb], [c[:, active] for c in v]
+            active = np.ones(len(todo), bool)
+        n = [c / norm for c in v]
+        # Row k of the Jacobian: [n_k, (R b_k) × n_k]; here by columns.
+        cols = [
+            *n,
+            rb[1] * n[2] - rb[2] * n[1],
+            rb[2] * n[0] - rb[0] * n[2],
+            rb[0] * n[1] - rb[1] * n[0],
+        ]
+        step, _ = batched_solve_columns(cols, -f)
+        step[:, ~active] = 0.0
         # Damp steps that would jump across the workspace (a poor guess): Newton then stays in
         # the guess's assembly mode.
-        size = np.linalg.norm(step[:, :3], axis=1) / 50.0 + np.linalg.norm(step[:, 3:], axis=1)
-        step *= np.minimum(1.0, 1.0 / np.maximum(size, 1e-300))[:, None]
-        P += step[:, :3]
-        R = Rotation.from_rotvec(step[:, 3:]).as_matrix() @ R
+        size = np.sqrt(np.sum(step[:3] ** 2, axis=0)) / 50.0 + np.sqrt(
+            np.sum(step[3:] ** 2, axis=0)
+        )
+        step *= np.minimum(1.0, 1.0 / np.maximum(size, 1e-300))
+        p += step[:3]
+        turn = Rotation.from_rotvec(step[3:].T).as_matrix()  # (n, 3, 3)
+        r = np.einsum("nij,jkn->ikn", turn, r)
+    P[todo], R[todo] = p.T, r.transpose(2, 0, 1)
     return P, R

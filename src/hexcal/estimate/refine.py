@@ -1,9 +1,13 @@
 """Statistical refinement of the geometry over every recorded pose and all six legs.
 
-``scipy.optimize.least_squares`` minimises the leg-length residual ``|P + R b_k − a_k| − ρ_k −
-Δρ_k`` whitened by each pose's full 6×6 covariance (the six legs share the pose's tracker
-noise; see :mod:`hexcal.model.noise`). The covariance depends on the geometry, so it is evaluated at
-the linear seed, the fit is run, and it is re-evaluated at the solution for a second fit.
+The fit minimises the leg-length residual ``|P + R b_k − a_k| − ρ_k − Δρ_k`` whitened by each
+pose's full 6×6 covariance (the six legs share the pose's tracker noise; see
+:mod:`hexcal.model.noise`), by Levenberg–Marquardt on the normal equations
+(:mod:`hexcal.estimate.lm`), accumulated pose block by pose block
+(:mod:`hexcal.estimate.leg_rows`; with the clamp rows, the steps' nuisance unknowns eliminated
+by their Schur complement, :mod:`hexcal.estimate.clamp_normal`): time and memory grow linearly
+with the poses. The covariance depends on the geometry, so it is evaluated at the linear seed,
+the fit is run, and it is re-evaluated at the solution for a second fit.
 
 The parameter covariance is ``(JᵀJ)⁻¹`` of the whitened Jacobian. With the instruments' noise
 stated, it is scaled by ``max(1, χ²/dof)`` (an under-fitting model widens the intervals, never
@@ -13,16 +17,26 @@ scaled by ``χ²/dof``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from hexcal.errors import RefusedError
-from hexcal.estimate.clamp_rows import ClampModel, ClampSteps, Nuisance
+from hexcal.estimate.clamp_normal import ClampProblem
+from hexcal.estimate.clamp_rows import ClampSteps, Nuisance
 from hexcal.estimate.layout import ParameterLayout
+from hexcal.estimate.leg_rows import (
+    LegData,
+    Normal,
+    leg_normal,
+    leg_residuals,
+    pose_precisions,
+)
+from hexcal.estimate.lm import minimise
 from hexcal.estimate.quantiles import norm_ppf, t_ppf
-from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
+from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_whiteners
 
 #: Function evaluations one least-squares pass may take (a converging fit takes about 10): a
 #: fit that needs more is pulled somewhere by poses that do not belong (:class:`FitStalled`).
@@ -39,10 +53,11 @@ class FitStalled(RefusedError, ValueError):
         super().__init__(why)
 
 
-def _stalled(x, P, R, rho, fixed, fit_offsets, basis, what: str) -> FitStalled:
-    """The stall, naming the rows with the largest residual at ``x`` (the geometry part)."""
+def _stalled(x, d: LegData, lay: ParameterLayout, what: str) -> FitStalled:
+    """The stall, naming the rows with the largest residual at ``x`` (the parameters of
+    ``lay``)."""
     with np.errstate(all="ignore"):
-        res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
+        res = leg_residuals(x[None, : lay.size], d, lay)[0]
     norm = np.linalg.norm(res, axis=1)
     norm = np.where(np.isfinite(norm), norm, np.inf)
     rows = [int(i) for i in np.argsort(-norm)[:3]]
@@ -84,10 +99,18 @@ class Refinement:
     whitened_jacobian: np.ndarray | None = None  #: (6M, p) at the solution
     whitened_residual: np.ndarray | None = None  #: (6M,)
     whiteners: np.ndarray | None = None  #: (M, 6, 6) W with W Σ Wᵀ = I
+    #: Computes the two whitened arrays above when first asked for (they take 6M × p floats)
+    _whiten: Callable[[], tuple[np.ndarray, np.ndarray]] | None = field(default=None, repr=False)
     #: With clamp rows (``refine(clamps=...)``): the steps and their fitted nuisance values;
     #: the whitened arrays above are then left None (their rows are not the six leg lengths).
     clamp_steps: ClampSteps | None = None
     clamp_nuisance: Nuisance | None = None
+    #: Started from the design's geometry, the linear seed's fit having failed
+    #: (:func:`hexcal.estimate.calibrate.refine_from_seeds`)
+    from_design: bool = False
+    #: What later stages derive from this fit once (e.g. the diagnosis' orthonormal basis of
+    #: the whitened Jacobian), by name
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -95,6 +118,8 @@ class Refinement:
     def whitened(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(whitened Jacobian (6M, p), whitened residual (6M,), whiteners (M, 6, 6)) at the
         solution. A refinement with clamp rows has none: asking for them is a bug."""
+        if self.whitened_jacobian is None and self._whiten is not None:
+            self.whitened_jacobian, self.whitened_residual = self._whiten()
         jw, rw, w = self.whitened_jacobian, self.whitened_residual, self.whiteners
         if jw is None or rw is None or w is None:
             raise ValueError(
@@ -143,8 +168,7 @@ class Refinement:
 
 def _whiteners(a, b, P, R, sig: NoiseSigmas) -> np.ndarray:
     """W (M, 6, 6) with ``W Σ Wᵀ = I``: the inverse Cholesky factor of each pose's covariance."""
-    chol = np.linalg.cholesky(leg_covariance(a, b, P, R, sig))
-    return np.linalg.inv(chol)
+    return leg_whiteners(a, b, P, R, sig)
 
 
 def _unpack(x: np.ndarray, fixed_offsets: np.ndarray, fit_offsets: bool):
@@ -229,65 +253,49 @@ def refine(
     fixed = np.asarray(offsets0, float)
     q = 0 if basis is None else basis.shape[-1]
     th = np.zeros(q) if theta0 is None else np.asarray(theta0, float)
-    x = ParameterLayout(fit_offsets, q).pack(a0, b0, fixed, th)
+    lay = ParameterLayout(fit_offsets, q)
+    x = lay.pack(a0, b0, fixed, th)
+    d = LegData.of(P, R, rho, fixed, basis if q else None)
     nfev = 0
+    W = S = np.zeros((1, 0, 6, 6))
     for _ in range(passes):
-        a, b, _off, _ = _unpack(x, fixed, fit_offsets)
-        W = _whiteners(a, b, P, R, sig)
+        W, S = pose_precisions(x[None], d, lay, sig)
+        sol = minimise(partial(_legs_at, d=d, S=S, lay=lay), x[None], MAX_NFEV)
+        _check(sol, d, lay, "")
+        x, nfev = sol.x[0], nfev + int(sol.nfev[0])
+    res = leg_residuals(x[None], d, lay)[0]
+    wres = (W[0] @ res[..., None])[..., 0]
+    names = lay.names(basis_names)
+    chi2 = float(np.sum(wres**2))
+    out = _statistics(x, res, sol.system.A[0], chi2, 6 * len(P), known, names, nfev, True)
+    out.whiteners = W[0]
 
-        def fun(xx, W=W):
-            res, _ = _model(xx, P, R, rho, fixed, fit_offsets, basis)
-            return (W @ res[..., None]).ravel()
+    def whiten(x=x, W=W[0], res=res) -> tuple[np.ndarray, np.ndarray]:
+        _, j = _model(x, P, R, rho, fixed, fit_offsets, basis if q else None)
+        return (W @ j).reshape(-1, len(x)), (W @ res[..., None]).ravel()
 
-        def jac(xx, W=W):
-            _, j = _model(xx, P, R, rho, fixed, fit_offsets, basis)
-            return (W @ j).reshape(-1, len(xx))
-
-        sol = _solve(fun, x, jac)
-        if sol.status == 0 or not np.all(np.isfinite(sol.fun)):
-            raise _stalled(
-                sol.x,
-                P,
-                R,
-                rho,
-                fixed,
-                fit_offsets,
-                basis,
-                f"no convergence in {sol.nfev} evaluations",
-            )
-        x, nfev = sol.x, nfev + sol.nfev
-    res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis)
-    jw = jac(x)
-    names = ParameterLayout(fit_offsets, q).names(basis_names)
-    out = _statistics(x, res, jw, sol.fun, known, names, nfev, bool(sol.success))
-    out.whitened_jacobian = jw
-    out.whitened_residual = sol.fun
-    out.whiteners = W
+    out._whiten = whiten
     return out
 
 
-def _solve(fun, x0, jac):
-    """One least-squares pass; a residual that is not finite at the start (a geometry that puts
-    a leg at zero length, a non-finite input) is reported as a stalled fit, not as scipy's own
-    message."""
-    try:
-        return least_squares(
-            fun,
-            x0,
-            jac=jac,
-            method="lm",
-            xtol=1e-12,
-            ftol=1e-12,
-            gtol=1e-12,
-            x_scale="jac",
-            max_nfev=MAX_NFEV,
-        )
-    except ValueError:  # scipy: "Residuals are not finite in the initial point"
+def _legs_at(x: np.ndarray, i: np.ndarray, d: LegData, S: np.ndarray, lay) -> Normal:
+    """The leg rows' normal equations of the problems ``i`` of a batch at their x."""
+    if len(i) == S.shape[0]:  # the whole batch, in order (minimise never reorders)
+        return leg_normal(x, d, S, lay)
+    return leg_normal(x, d.take_batch(i), S[i], lay)
+
+
+def _check(sol, d: LegData, lay: ParameterLayout, what: str) -> None:
+    """Raise :class:`FitStalled` unless the fit converged; a residual that is not finite at
+    the start (a geometry that puts a leg at zero length, a non-finite input) is said so."""
+    if not sol.finite[0]:
         raise FitStalled(
             [],
             "the fit cannot start: the residual is not finite at the starting geometry (a "
             "non-finite value in the table, or a leg of zero length)",
-        ) from None
+        )
+    if not sol.converged[0]:
+        raise _stalled(sol.x[0], d, lay, f"no convergence in {int(sol.nfev[0])} evaluations{what}")
 
 
 def _refine_with_clamps(
@@ -307,38 +315,24 @@ def _refine_with_clamps(
     nu = Nuisance.seed(clamps, lay.a(x), lay.b(x), P, R)
     nfev = 0
     for _ in range(passes):
-        model = ClampModel(clamps, P, R, rho, fixed, fit_offsets, basis, nu.u)
-        xf = np.concatenate([x, model.nuisance_vector(nu)])
-        W = model.whiteners(xf, sig.position_mm, sig.orientation_rad, sig.reading_mm)
-        mask = model.mask
-
-        def fun(xx, W=W, model=model, mask=mask):
-            res, _, _ = model.evaluate(xx, want_jac=False, want_jz=False)
-            return (W @ res[..., None])[..., 0][mask]
-
-        def jac(xx, W=W, model=model, mask=mask):
-            _, j, _ = model.evaluate(xx, want_jz=False)
-            return (W @ j)[mask]
-
-        sol = _solve(fun, xf, jac)
-        if sol.status == 0 or not np.all(np.isfinite(sol.fun)):
-            raise _stalled(
-                sol.x[:p0],
-                P,
-                R,
-                rho,
-                fixed,
-                fit_offsets,
-                basis if q else None,
-                f"no convergence in {sol.nfev} evaluations (with the clamp rows)",
-            )
-        nfev += sol.nfev
-        x, nu = sol.x[:p0], model.nuisance_values(sol.x)
-    res, _ = _model(x, P, R, rho, fixed, fit_offsets, basis if q else None)
-    jw = jac(sol.x)
-    names = ParameterLayout(fit_offsets, q).names(basis_names)
+        prob = ClampProblem(clamps, P, R, rho, fixed, fit_offsets, basis, nu, x, sig)
+        sol = minimise(prob.normal, prob.xf0[None], MAX_NFEV)
+        _check(sol, LegData.of(P, R, rho, fixed, basis), lay, " (with the clamp rows)")
+        nfev += int(sol.nfev[0])
+        xf = sol.x[0]
+        x, nu = xf[:p0], prob.template.nuisance_values(xf)
+    res = leg_residuals(x[None], LegData.of(P, R, rho, fixed, basis), lay)[0]
+    names = lay.names(basis_names)
     full = _statistics(
-        sol.x, res, jw, sol.fun, known, names + clamps.nuisance_names, nfev, bool(sol.success)
+        xf,
+        res,
+        sol.system.full(),
+        prob.chi2(xf),
+        prob.n_rows,
+        known,
+        names + clamps.nuisance_names,
+        nfev,
+        True,
     )
     # The marginal covariance of the parameters is their block of the full inverse: the
     # nuisance unknowns are eliminated (Schur complement), not held fixed.
@@ -369,14 +363,14 @@ def _refine_with_clamps(
     return out
 
 
-def _statistics(x, res, jw, wres, known, names, nfev, success) -> Refinement:
+def _statistics(x, res, jtj, chi2, n_rows, known, names, nfev, success) -> Refinement:
+    """The fit's statistics from its normal matrix ``jtj`` (p, p) (the whitened Jacobian's
+    JᵀJ), χ² and the rows in use; ``res`` (M, 6) mm geometric − predicted length."""
     p = len(x)
-    chi2 = float(wres @ wres)
-    dof = max(jw.shape[0] - p, 1)
+    dof = max(n_rows - p, 1)
     s2 = chi2 / dof
     scale2 = max(1.0, s2) if known else s2
 
-    jtj = jw.T @ jw
     d = 1.0 / np.sqrt(np.maximum(np.diag(jtj), 1e-300))
     A = d[:, None] * jtj * d[None, :]
     lam, V = np.linalg.eigh(A)

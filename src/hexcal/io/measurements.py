@@ -267,11 +267,14 @@ def _value_issues(m: Measurements) -> list[Issue]:
             ),
         )
     add(
-        np.array([s == "" for s in m.step.tolist()], dtype=bool),
+        np.asarray(m.step == "", dtype=bool),
         "step",
         lambda i: "the step is empty; name the procedure step",
     )
-    known = np.array([c in CONSTRAINTS for c in m.constraint.tolist()], dtype=bool)
+    # Whole-column comparisons: no Python loop over the rows.
+    known = np.zeros(len(m), dtype=bool)
+    for c in CONSTRAINTS:
+        known |= np.asarray(m.constraint == c, dtype=bool)
     add(
         ~known,
         "constraint",
@@ -280,7 +283,7 @@ def _value_issues(m: Measurements) -> list[Issue]:
     in_range = (m.leg >= 0) & (m.leg <= 6)
     add(~in_range, "leg", lambda i: f"leg {m.leg[i]} is outside 0..6 (0 = free pose)")
     free_ = Constraint.FREE.value  # once, as plain text: the fastest comparison
-    free = np.array([c == free_ for c in m.constraint.tolist()], dtype=bool)
+    free = np.asarray(m.constraint == free_, dtype=bool)
     add(
         known & in_range & ((m.leg == 0) != free),
         "constraint",

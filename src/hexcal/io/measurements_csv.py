@@ -45,6 +45,7 @@ from hexcal.io.measurements import (
     _object_array,
     _raise_issues,
 )
+from hexcal.io.measurements_fast import read_plain
 from hexcal.io.safe_read import (
     MAX_COORDINATE_MM,
     MAX_POSE_ID,
@@ -450,17 +451,21 @@ def read_measurements(path: str | Path, notices: list[str] | None = None) -> Mea
 
     with open_binary(path, "measurements", error) as fh:
         try:
-            head = fh.read(HEAD_BYTES)
-            fh.seek(0)
+            raw = fh.read()
         except OSError as exc:
             raise error(f"cannot be read ({exc.strerror or exc})") from None
         try:
-            dialect = sniff(head, REQUIRED_COLUMNS, NUMERIC_COLUMNS)
+            dialect = sniff(raw[:HEAD_BYTES], REQUIRED_COLUMNS, NUMERIC_COLUMNS)
         except DialectError as exc:
             raise MeasurementError.single(path, 2, None, str(exc)) from None
+        # A plain, valid table in hexcal's own dialect goes straight into column arrays; any
+        # other file is streamed row by row below, every problem named.
+        plain = read_plain(raw, path) if dialect.standard else None
+        if plain is not None:
+            return plain
         # newline="" keeps line ends as they are, as the csv module wants; utf-8-sig drops a
         # leading byte-order mark (spreadsheet exports).
-        stream = io.TextIOWrapper(fh, encoding=dialect.encoding, newline="")
+        stream = io.TextIOWrapper(io.BytesIO(raw), encoding=dialect.encoding, newline="")
         try:
             table = _read_table(stream, path, dialect)
         except UnicodeDecodeError:

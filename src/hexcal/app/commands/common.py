@@ -40,6 +40,9 @@ def number(kind: type, lo: float | None = None, hi: float | None = None, lo_open
 
 
 COUNT = number(int, 0, 100_000)  # poses or trials
+#: A simulated session's free poses: a lab's motion capture at 100 Hz gives 120,000 in twenty
+#: minutes, and hexcal's fit is linear in the poses (docs/performance.md).
+SESSION_POSES = number(int, 0, 1_000_000)
 POSITIVE_COUNT = number(int, 1, 100_000)
 SEED = number(int, 0, 2**32 - 1)
 SIGMA = number(float, 0.0, 1000.0)

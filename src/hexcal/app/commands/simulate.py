@@ -8,6 +8,7 @@ from pathlib import Path
 from hexcal.app.commands.common import (
     COUNT,
     SEED,
+    SESSION_POSES,
     SIGMA,
     add_effects_option,
     check_outputs,
@@ -51,7 +52,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     m.add_argument(
         "--n-type-iii", help="poses of each Type III (length-clamped) step", type=COUNT, default=8
     )
-    m.add_argument("--n-free", help="free poses (no clamp)", type=COUNT, default=40)
+    m.add_argument(
+        "--n-free", help="free poses (no clamp), up to 1,000,000", type=SESSION_POSES, default=40
+    )
     m.add_argument("--sigma-p-mm", help="tracker position noise σ, mm", type=SIGMA, default=0.01)
     m.add_argument(
         "--sigma-a-deg", help="tracker orientation noise σ, deg", type=SIGMA, default=0.002
