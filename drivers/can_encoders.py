@@ -273,6 +273,8 @@ class LegEncoders(_ReceivePath, Device):
         self._network: _Network | None = None
         self._recorder: _Recorder | None = None
         self._listener = _Listener(self)
+        # Whether the bus marks the echoes of our own frames (is_rx False): set at start.
+        self._echo_marked = True
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -302,6 +304,8 @@ class LegEncoders(_ReceivePath, Device):
         self._emcy_count = 0
         self._sync_sent = 0
         self._foreign_syncs = 0
+        # The SYNCs sent lately (their sets, open or closed): echoes are matched against them.
+        self._own_syncs: deque[_Pending] = deque(maxlen=64)
         self._t_start = time.monotonic()
         self._last_hb: list[float | None] = [None] * 6
         self._hb_state: list[int | None] = [None] * 6
@@ -356,10 +360,18 @@ class LegEncoders(_ReceivePath, Device):
         # can.Listener.
         net.listeners.append(self._listener)  # type: ignore[arg-type]
         try:
+            self._echo_marked = self._bus_in is None
             if self._bus_in is None:
                 # Our own SYNCs echoed back, stamped when they were on the wire (SocketCAN's
                 # loopback, the virtual bus): each set's exact SYNC time (_confirm_sync).
-                net.connect(**cfg.bus_kwargs(), receive_own_messages=self._producing)
+                try:
+                    net.connect(**cfg.bus_kwargs(), receive_own_messages=self._producing)
+                except can.CanInterfaceNotImplementedError:
+                    # An interface without the option (python-can's udp_multicast) may loop
+                    # our frames back all the same, unmarked: told apart by _confirm_sync.
+                    self._echo_marked = False
+                    net.connect(**cfg.bus_kwargs())
+                    log.info("%s cannot mark echoes of sent frames", self._bus_name)
             else:
                 net.connect()
         except Exception as exc:  # python-can raises many types for a missing adapter
@@ -654,6 +666,7 @@ class LegEncoders(_ReceivePath, Device):
             # between): its set is not closed, nor its answers judged late, before that is known.
             t = time.monotonic()
             s = self._open_set(t, self._clock.to_bus(t), self._sync_counter, math.inf)
+            self._own_syncs.append(s)
         try:
             # No counter byte for nodes whose 0x1019 is 0: they answer one with EMCY 0x8240.
             net.sync.transmit(self._sync_counter or None)
