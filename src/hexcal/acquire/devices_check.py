@@ -93,7 +93,12 @@ def node_lines(node: dict[str, Any] | None) -> list[str]:
     has = [
         f"TPDO{'s' if len(tpdos) != 1 else ''} {listed}" if tpdos else "no TPDO probed",
         "SYNC counter 0x1019" if node.get("has_sync_counter") else "no SYNC counter 0x1019",
-        f"position 0x6004 {node['position_type']}",
+        f"position 0x6004 {node['position_type']}"
+        + (
+            " (as hexcal's generic EDS types it: name the vendor's EDS if it says UNSIGNED32)"
+            if node.get("eds_source") == "hexcal generic"
+            else ""
+        ),
         f"wraps at {rng} counts (0x6002)" if rng else "no measuring range (0x6002)",
     ]
     if node.get("manufacturer_objects"):
