@@ -275,6 +275,8 @@ class LegEncoders(_ReceivePath, Device):
         self._listener = _Listener(self)
         # Whether the bus marks the echoes of our own frames (is_rx False): set at start.
         self._echo_marked = True
+        # EDS files read from the devices (0x1021), by (vendor, product, revision).
+        self._eds_cache: dict[tuple[int, ...], bytes] = {}
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -417,7 +419,7 @@ class LegEncoders(_ReceivePath, Device):
             nodes, silent = [], []
             for leg in cfg.legs:
                 try:
-                    nodes.append(configure_node(net, leg, cfg))
+                    nodes.append(configure_node(net, leg, cfg, self._eds_cache))
                 except EncoderConfigError as exc:
                     if not exc.silent:
                         raise

@@ -14,7 +14,8 @@ device (0x1021), manufacturer areas. So, per node, :func:`configure_node`:
    names one, else from the EDS the device stores at 0x1021 (storage format 0x1022 = 0, plain
    text), else hexcal's generic CiA 406 EDS — which only types the position (INTEGER32);
    everything else is asked of the device;
-3. reads the identity 0x1018 (sub-indices 1..4, each optional);
+3. reads the identity 0x1018 (sub-indices 1..4, each optional; before step 2, which reads a
+   stored EDS once per kind of device: vendor, product and revision);
 4. probes each TPDO communication record's sub-index 0 (0x1800..0x1803: which TPDOs exist, and
    their highest sub-index), then maps 0x6004 alone into the TPDO the rig file names (``tpdo``,
    default 2), transmission type 1 (every SYNC), in the order CiA 301 requires (PDO invalid,
@@ -196,12 +197,26 @@ def _device_type(sdo: SdoAccess) -> int:
     return device_type
 
 
-def _adopt_dictionary(node: Any, sdo: SdoAccess, bus: CanBusConfig) -> tuple[str, str]:
-    """The object dictionary to use (module docstring, step 2), put into ``node``: (eds, source)."""
+def _adopt_dictionary(
+    node: Any,
+    sdo: SdoAccess,
+    bus: CanBusConfig,
+    ident: tuple[int | None, ...],
+    cache: dict[tuple[int, ...], bytes] | None,
+) -> tuple[str, str]:
+    """The object dictionary to use (module docstring, step 2), put into ``node``: (eds, source).
+    ``cache``: EDS files already read from devices, by (vendor, product, revision): six encoders
+    of one kind store one EDS, and a segmented SDO upload of tens of kB is not free."""
     leg = sdo.leg
     if leg.eds or bus.eds:
         return str(eds_for(bus, leg)), EDS_RIG
-    stored = sdo.read_bytes(STORE_EDS, 0, optional=True)
+    key = tuple(v for v in ident[:3] if v is not None)
+    known = cache is not None and len(key) == 3
+    stored = cache.get(key) if known and cache is not None else None
+    if stored is None:
+        stored = sdo.read_bytes(STORE_EDS, 0, optional=True)
+        if stored and known and cache is not None:
+            cache[key] = stored
     if stored:
         fmt = sdo.read(STORAGE_FORMAT, 0, optional=True) or 0
         note = f"{len(stored)} bytes at 0x{STORE_EDS:04X}"
@@ -359,16 +374,23 @@ def _position_type(node: Any, sdo: SdoAccess) -> str:
     return "INTEGER32" if od is None or od.data_type in SIGNED_TYPES else "UNSIGNED32"
 
 
-def configure_node(network: canopen.Network, leg: LegEncoderConfig, bus: CanBusConfig) -> NodeInfo:
+def configure_node(
+    network: canopen.Network,
+    leg: LegEncoderConfig,
+    bus: CanBusConfig,
+    eds_cache: dict[tuple[int, ...], bytes] | None = None,
+) -> NodeInfo:
     """Set up leg ``leg``'s encoder (steps in the module docstring); the node must be in
     PRE-OPERATIONAL (it may be OPERATIONAL for the reads, not for the PDO writes). Returns what
-    was found and set; raises :class:`EncoderConfigError`."""
+    was found and set; raises :class:`EncoderConfigError`. ``eds_cache``: a dict kept across the
+    nodes of one start, so that an EDS stored in the devices is read from the first of a kind
+    only."""
     node = _remote(network, leg, bus)
     node.sdo.RESPONSE_TIMEOUT = bus.sdo_timeout_s
     sdo = SdoAccess(node, leg, bus)
     device_type = _device_type(sdo)
-    eds, source = _adopt_dictionary(node, sdo, bus)
-    ident = [sdo.read(IDENTITY, s, optional=True) for s in (1, 2, 3, 4)]
+    ident = tuple(sdo.read(IDENTITY, s, optional=True) for s in (1, 2, 3, 4))
+    eds, source = _adopt_dictionary(node, sdo, bus, ident, eds_cache)
     position_type = _position_type(node, sdo)
     tpdos = _probe_tpdos(sdo)
     fixed = _map_position(sdo, tpdos, bus)

@@ -149,6 +149,7 @@ class _ReceivePath:
     _late_discarded: int
     _foreign_syncs: int
     _own_syncs: deque[_Pending]
+    _eds_cache: dict[tuple[int, ...], bytes]
     _echo_marked: bool
     _error_frames: int
     _bus_state: str
@@ -550,7 +551,7 @@ class _ReceivePath:
         try:
             if net is None:
                 return
-            info = configure_node(net, self.config.legs[k], self.config)
+            info = configure_node(net, self.config.legs[k], self.config, self._eds_cache)
             with self._lock:
                 if self.nodes:
                     self.nodes[k] = info
