@@ -34,7 +34,8 @@ returned (put on the bus clock by the offset between the two clocks: the smalles
 time seen over the last few seconds); a busy host can stall the sender in between. Its echo
 (the bus is opened with ``receive_own_messages``: SocketCAN's loopback, the virtual bus) gives
 the wire time itself; without one, positions are placed after the first stamp and judged late
-against the second. Several sets may
+against the second. Where echoes come unmarked (``udp_multicast``), a SYNC that fits one just
+sent is its echo, not another producer's (:meth:`_ReceivePath._confirm_sync`). Several sets may
 be open at once; a set closes once a frame stamped more than ``tpdo_deadline_s`` after its SYNC
 has been handled (frames on one bus arrive in order, so nothing in time for it can still come),
 or, when the bus goes quiet, ``close_after`` after its SYNC. A position for a set already closed
@@ -368,9 +369,7 @@ class LegEncoders(_ReceivePath, Device):
                 # loopback, the virtual bus): each set's exact SYNC time (_confirm_sync).
                 try:
                     net.connect(**cfg.bus_kwargs(), receive_own_messages=self._producing)
-                except can.CanInterfaceNotImplementedError:
-                    # An interface without the option (python-can's udp_multicast) may loop
-                    # our frames back all the same, unmarked: told apart by _confirm_sync.
+                except can.CanInterfaceNotImplementedError:  # udp_multicast: unmarked echoes
                     self._echo_marked = False
                     net.connect(**cfg.bus_kwargs())
                     log.info("%s cannot mark echoes of sent frames", self._bus_name)

@@ -79,9 +79,9 @@ CASES = [
             "multi-turn absolute rotary encoder (device type 0x00020196); vendor 0x00000F01, "
             "product ?, revision ?, serial ?",
             "has: TPDOs 1, 2 (sub-indices 0..2); no SYNC counter 0x1019",
-            "absent (optional, skipped): 0x1021:00 (store EDS), 0x1018:02 (identity, product "
-            "code), 0x1018:03 (identity, revision), 0x1018:04 (identity, serial number), 0x1802:00 "
-            "(TPDO3 highest sub-index), 0x1803:00 (TPDO4 highest sub-index), 0x1019:00 (SYNC "
+            "absent (optional, skipped): 0x1018:02 (identity, product code), 0x1018:03 "
+            "(identity, revision), 0x1018:04 (identity, serial number), 0x1021:00 (store EDS), "
+            "0x1802:00 (TPDO3 highest sub-index), 0x1803:00 (TPDO4 highest sub-index), 0x1019:00 (SYNC "
             "counter overflow), 0x6002:00 (total measuring range), 0x6003:00 (preset value)",
             "in TPDO2 (COB-ID 0x2A{k}) on every SYNC (its fixed mapping kept); TPDO 1 disabled; "
             "heartbeat every 125 ms; SYNC without counter",
