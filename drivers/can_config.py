@@ -160,6 +160,22 @@ class CanBusConfig(BaseModel):
     sync_counter: int | None = Field(default=None, ge=0, le=240)
     #: How long to wait for an SDO answer, s.
     sdo_timeout_s: float = Field(default=0.3, gt=0, le=MAX_TIMEOUT_S, allow_inf_nan=False)
+    #: Further keyword arguments for ``can.Bus``, as the interface documents them (e.g.
+    #: ``port`` of python-can's udp_multicast, ``fd`` of an adapter).
+    bus_options: dict[str, str | int | float | bool] = Field(default_factory=dict)
+
+    @field_validator("bus_options")
+    @classmethod
+    def _options_not_the_fields(
+        cls, v: dict[str, str | int | float | bool]
+    ) -> dict[str, str | int | float | bool]:
+        taken = sorted(set(v) & {"interface", "channel", "bitrate", "receive_own_messages"})
+        if taken:
+            raise ValueError(
+                f"bus_options may not set {', '.join(taken)}: give interface, channel and bitrate "
+                "as the [can] table's own keys (hexcal sets receive_own_messages itself)"
+            )
+        return v
 
     @field_validator("legs")
     @classmethod
@@ -262,7 +278,12 @@ class CanBusConfig(BaseModel):
 
     def bus_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``can.Bus``."""
-        return {"interface": self.interface, "channel": self.channel, "bitrate": self.bitrate}
+        return {
+            **self.bus_options,
+            "interface": self.interface,
+            "channel": self.channel,
+            "bitrate": self.bitrate,
+        }
 
 
 def default_can_config(**overrides: object) -> CanBusConfig:

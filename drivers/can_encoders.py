@@ -34,7 +34,8 @@ returned (put on the bus clock by the offset between the two clocks: the smalles
 time seen over the last few seconds); a busy host can stall the sender in between. Its echo
 (the bus is opened with ``receive_own_messages``: SocketCAN's loopback, the virtual bus) gives
 the wire time itself; without one, positions are placed after the first stamp and judged late
-against the second. Several sets may
+against the second. Where echoes come unmarked (``udp_multicast``), a SYNC that fits one just
+sent is its echo, not another producer's (:meth:`_ReceivePath._confirm_sync`). Several sets may
 be open at once; a set closes once a frame stamped more than ``tpdo_deadline_s`` after its SYNC
 has been handled (frames on one bus arrive in order, so nothing in time for it can still come),
 or, when the bus goes quiet, ``close_after`` after its SYNC. A position for a set already closed
@@ -273,6 +274,10 @@ class LegEncoders(_ReceivePath, Device):
         self._network: _Network | None = None
         self._recorder: _Recorder | None = None
         self._listener = _Listener(self)
+        # Whether the bus marks the echoes of our own frames (is_rx False): set at start.
+        self._echo_marked = True
+        # EDS files read from the devices (0x1021), by (vendor, product, revision).
+        self._eds_cache: dict[tuple[int, ...], bytes] = {}
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -302,6 +307,8 @@ class LegEncoders(_ReceivePath, Device):
         self._emcy_count = 0
         self._sync_sent = 0
         self._foreign_syncs = 0
+        # The SYNCs sent lately (their sets, open or closed): echoes are matched against them.
+        self._own_syncs: deque[_Pending] = deque(maxlen=64)
         self._t_start = time.monotonic()
         self._last_hb: list[float | None] = [None] * 6
         self._hb_state: list[int | None] = [None] * 6
@@ -356,10 +363,16 @@ class LegEncoders(_ReceivePath, Device):
         # can.Listener.
         net.listeners.append(self._listener)  # type: ignore[arg-type]
         try:
+            self._echo_marked = self._bus_in is None
             if self._bus_in is None:
                 # Our own SYNCs echoed back, stamped when they were on the wire (SocketCAN's
                 # loopback, the virtual bus): each set's exact SYNC time (_confirm_sync).
-                net.connect(**cfg.bus_kwargs(), receive_own_messages=self._producing)
+                try:
+                    net.connect(**cfg.bus_kwargs(), receive_own_messages=self._producing)
+                except can.CanInterfaceNotImplementedError:  # udp_multicast: unmarked echoes
+                    self._echo_marked = False
+                    net.connect(**cfg.bus_kwargs())
+                    log.info("%s cannot mark echoes of sent frames", self._bus_name)
             else:
                 net.connect()
         except Exception as exc:  # python-can raises many types for a missing adapter
@@ -405,7 +418,7 @@ class LegEncoders(_ReceivePath, Device):
             nodes, silent = [], []
             for leg in cfg.legs:
                 try:
-                    nodes.append(configure_node(net, leg, cfg))
+                    nodes.append(configure_node(net, leg, cfg, self._eds_cache))
                 except EncoderConfigError as exc:
                     if not exc.silent:
                         raise
@@ -654,6 +667,7 @@ class LegEncoders(_ReceivePath, Device):
             # between): its set is not closed, nor its answers judged late, before that is known.
             t = time.monotonic()
             s = self._open_set(t, self._clock.to_bus(t), self._sync_counter, math.inf)
+            self._own_syncs.append(s)
         try:
             # No counter byte for nodes whose 0x1019 is 0: they answer one with EMCY 0x8240.
             net.sync.transmit(self._sync_counter or None)

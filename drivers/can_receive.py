@@ -148,6 +148,9 @@ class _ReceivePath:
     _discarded: int
     _late_discarded: int
     _foreign_syncs: int
+    _own_syncs: deque[_Pending]
+    _eds_cache: dict[tuple[int, ...], bytes]
+    _echo_marked: bool
     _error_frames: int
     _bus_state: str
     _bus_detail: str
@@ -214,14 +217,15 @@ class _ReceivePath:
         self._index += 1
         return s
 
-    def _confirm_sync(self, counter: int, ts: float) -> None:
-        """The echo of the driver's own SYNC (counter byte ``counter``, 0 without one), on the
-        wire at bus time ``ts``: the set it opened now has its exact SYNC time. Echoes come in
-        the order sent; one that fits no open set (its set closed already) changes nothing.
+    def _confirm_sync(self, counter: int, ts: float) -> bool:
+        """A SYNC on the wire at bus time ``ts`` (counter byte ``counter``, 0 without one) that
+        may be the echo of one the driver sent: True when it is, and the set that SYNC opened
+        then has its exact SYNC time. Echoes come in the order sent; the recent sends are kept
+        (``_own_syncs``), so an echo handled after its set closed is still told for what it is.
         Between the host's two stamps, give or take half the answer deadline for the clocks'
         offset: the next SYNC goes a whole deadline after this one's send returned."""
         margin = self._deadline / 2
-        for s in self._open:
+        for s in self._own_syncs:
             if s.echoed or (counter and s.counter != counter):
                 continue
             if not s.t_bus - margin <= ts <= s.t_bus_hi + margin:
@@ -229,7 +233,8 @@ class _ReceivePath:
             s.t_sync += ts - s.t_bus
             s.t_bus = s.t_bus_hi = ts
             s.echoed = True
-            return
+            return True
+        return False
 
     def _close_until(self, evidence: float) -> None:
         """Close the open sets whose answers are all due before bus time ``evidence``."""
@@ -321,24 +326,25 @@ class _ReceivePath:
         t = time.monotonic()  # stamped on arrival, before anything else
         rec = self._recorder
         if rec is not None:
-            with rec.lock:
-                if msg.is_rx:  # an echo of our own frame was logged when it was sent
+            with rec.lock:  # held across both: the log keeps the order the driver saw
+                own = self._dispatch(msg, t)
+                if msg.is_rx and not own:  # an echo of our own frame was logged when it was sent
                     rec.write(msg)
-                self._dispatch(msg, t)
         else:
             self._dispatch(msg, t)
 
-    def _dispatch(self, msg: can.Message, t: float) -> None:
+    def _dispatch(self, msg: can.Message, t: float) -> bool:
+        """Handle one frame; True when it is the echo of the driver's own SYNC."""
         if not msg.is_rx:
             self._on_own_frame(msg, t)
-            return
+            return True
         with self._lock:
             ts, trusted = self._bus_time(msg, t)
         if msg.is_error_frame:
             self._on_error_frame(msg, t)
-            return
+            return False
         if msg.is_remote_frame or msg.is_extended_id:
-            return
+            return False
         cid = msg.arbitration_id
         entry = self.decoder.table.get(cid)
         if entry is not None:
@@ -348,7 +354,8 @@ class _ReceivePath:
             else:
                 self._on_unplaced_tpdo(entry[0] - 1, t - ts)
         elif cid == SYNC_COB_ID:
-            self._on_bus_sync(msg, t, ts if trusted else None)
+            if self._on_bus_sync(msg, t, ts if trusted else None):
+                return True
         elif cid in self._leg_of_emcy:
             self._on_emcy(self._leg_of_emcy[cid], msg.data, ts if trusted else None)
         # Only positions close sets: a later position (bus time) shows the earlier SYNCs'
@@ -368,6 +375,7 @@ class _ReceivePath:
                     f"{self._bus_name} recovered from BUS-OFF (frames arrive again); sets taken "
                     "while it was off are flagged",
                 )
+        return False
 
     def _on_own_frame(self, msg: can.Message, t: float) -> None:
         """The echo of a frame this driver sent (``receive_own_messages``): only a SYNC's is
@@ -440,27 +448,36 @@ class _ReceivePath:
                 "timestamp",
             )
 
-    def _on_bus_sync(self, msg: can.Message, t: float, ts: float | None) -> None:
-        """A SYNC on the bus at bus time ``ts`` (None: not trusted, placed by arrival ``t``)."""
+    def _on_bus_sync(self, msg: can.Message, t: float, ts: float | None) -> bool:
+        """A SYNC on the bus at bus time ``ts`` (None: not trusted, placed by arrival ``t``);
+        True when it is the driver's own SYNC come back (an interface that does not mark
+        echoes)."""
         counter = _sync_counter(msg)
         with self._lock:
             if self._producing:
-                if msg.is_rx:
-                    self._foreign_syncs += 1
-                    self._note(
-                        "foreign_sync",
-                        f"another SYNC producer is on {self._bus_name} (SYNC not sent by hexcal) — "
-                        "the encoders answer both; switch it off, or set sync_period_s = 0 to follow it",
-                    )
-                return
+                # An interface that cannot mark echoes (python-can's udp_multicast loops every
+                # frame back as received) returns the driver's own SYNC as if another node had
+                # sent it: one that fits a SYNC just sent is that SYNC, not another producer's.
+                if not self._echo_marked and self._confirm_sync(
+                    counter, self._clock.to_bus(t) if ts is None else ts
+                ):
+                    return True
+                self._foreign_syncs += 1
+                self._note(
+                    "foreign_sync",
+                    f"another SYNC producer is on {self._bus_name} (SYNC not sent by hexcal) — "
+                    "the encoders answer both; switch it off, or set sync_period_s = 0 to follow it",
+                )
+                return False
             if ts is None:
                 self._open_set(t, self._clock.to_bus(t), counter)
                 self._open[-1].faults["sync_stamp"] = (
                     f"SYNC {counter} on {self._bus_name} carried a timestamp off the bus clock: "
                     "placed by its arrival instead, so its positions may be misplaced — set flagged"
                 )
-                return
+                return False
             self._open_set(ts + self._clock.offset, ts, counter)
+        return False
 
     def _on_emcy(self, k: int, data: bytearray, ts: float | None) -> None:
         """An EMCY of leg ``k + 1``'s node at bus time ``ts`` (None: not trusted): it flags the
@@ -534,7 +551,7 @@ class _ReceivePath:
         try:
             if net is None:
                 return
-            info = configure_node(net, self.config.legs[k], self.config)
+            info = configure_node(net, self.config.legs[k], self.config, self._eds_cache)
             with self._lock:
                 if self.nodes:
                     self.nodes[k] = info

@@ -54,7 +54,8 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 import can
@@ -88,6 +89,11 @@ CAN_ERR_RESTARTED = 0x100
 #: SDO abort codes (CiA 301 table 22) the nodes answer with.
 ABORT_DEVICE_STATE = 0x08000022
 ABORT_NOT_MAPPABLE = 0x06040041
+ABORT_VALUE_RANGE = 0x06090030
+#: A TPDO COB-ID's bit 30: no remote transmission request (RTR) for this PDO.
+RTR_NOT_ALLOWED = 0x40000000
+#: CiA 301 "store EDS": the device's own EDS, read by SDO.
+STORE_EDS = 0x1021
 #: EMCY: unexpected SYNC data length; error register bits 0 (generic) and 4 (communication).
 EMCY_SYNC_LENGTH = 0x8240
 REGISTER_COMMUNICATION = 0x11
@@ -190,9 +196,20 @@ class _Encoder:
     def state(self) -> int:
         return _STATE_CODES.get(self.node.nmt.state, PRE_OPERATIONAL)
 
-    def value(self, index: int, sub: int = 0) -> int:
+    def has(self, index: int, sub: int = 0) -> bool:
+        """Whether this node's object dictionary (its EDS) holds ``index``:``sub``."""
+        od = self.node.object_dictionary
+        if index not in od:
+            return False
+        obj = od[index]
+        return isinstance(obj, ODVariable) or sub in obj
+
+    def value(self, index: int, sub: int = 0, default: int | None = None) -> int:
         """An object's value as the node holds it (written, else the EDS default), without the
-        SDO server's callbacks (the faults injected there are for the master's requests)."""
+        SDO server's callbacks (the faults injected there are for the master's requests).
+        ``default``: the value of an object this node's EDS does not hold (KeyError without)."""
+        if default is not None and not self.has(index, sub):
+            return default
         obj = self.node.object_dictionary[index]
         var = obj if isinstance(obj, ODVariable) else obj[sub]
         raw = self.node.data_store.get(index, {}).get(sub)
@@ -201,6 +218,8 @@ class _Encoder:
         return int(var.decode_raw(raw))
 
     def _on_read(self, index: int, subindex: int, od: ODVariable) -> Any:
+        if index == STORE_EDS:  # the device keeps its own EDS (CiA 301 0x1021, a DOMAIN)
+            return Path(self.eds).read_bytes()
         if index == 0x1000 and self.leg in self.owner._device_types:
             return self.owner._device_types[self.leg]
         if index == 0x6004:
@@ -216,6 +235,13 @@ class _Encoder:
         pdo_object = 0x1800 <= index <= 0x1803 or 0x1A00 <= index <= 0x1A03
         if (pdo_object or index == 0x1019) and self.state != PRE_OPERATIONAL:
             raise SdoAbortedError(ABORT_DEVICE_STATE)
+        if 0x1800 <= index <= 0x1803 and subindex == 1:
+            value = int.from_bytes(data, "little")
+            factory = int(od.default or 0)  # the COB-ID this device left the factory with
+            if factory & RTR_NOT_ALLOWED and not value & RTR_NOT_ALLOWED:
+                # A device whose TPDOs cannot be requested by RTR (bit 30 set at the factory)
+                # refuses a COB-ID that asks for it, as CiA 301 lets it.
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
         if 0x1A00 <= index <= 0x1A03 and subindex > 0:
             valid = not self.value(0x1800 + index - 0x1A00, 1) & 0x80000000
             if valid or self.value(index, 0) != 0:
@@ -258,6 +284,10 @@ class MockEncoderNodes(Device):
     (module docstring).
 
     ``jitter_s``: each synchronous TPDO is delayed by U(0, jitter_s) s. ``seed`` seeds the jitter.
+    ``eds``: the object dictionary the nodes are built from — one EDS for all six, or
+    {leg: EDS}; by default the one the configuration names for the driver (the nodes then agree
+    with the driver by construction: give another to test the driver against a device it was
+    not told about). A node whose EDS has 0x1021 (store EDS) serves that file's text there.
     ``factory_node_ids`` {leg: node id}: a node out of its box, answering at another node id
     than the configuration's until LSS sets it. ``device_types`` {leg: 0x1000 value}: a node
     that is another kind of device. ``sdo_aborts`` {leg: (index, abort code)}: a node refusing
@@ -281,6 +311,7 @@ class MockEncoderNodes(Device):
         device_types: dict[int, int] | None = None,
         sdo_aborts: dict[int, tuple[int, int]] | None = None,
         sdo_deaf: Iterable[int] = (),
+        eds: str | Path | Mapping[int, str | Path] | None = None,
     ):
         self.robot = robot
         self.config = config
@@ -299,9 +330,15 @@ class MockEncoderNodes(Device):
         self._sdo_aborts = dict(sdo_aborts or {})
         self._sdo_deaf = set(sdo_deaf)
         ids = factory_node_ids or {}
+        if eds is None or isinstance(eds, Mapping):
+            per_leg = {
+                c.leg: str((eds or {}).get(c.leg) or eds_for(config, c)) for c in config.legs
+            }
+        else:
+            per_leg = {c.leg: str(eds) for c in config.legs}
         self.encoders: dict[int, _Encoder] = {
             c.leg: _Encoder(
-                self, c.leg, ids.get(c.leg, c.node_id), str(eds_for(config, c)), 4_060_000 + c.leg
+                self, c.leg, ids.get(c.leg, c.node_id), per_leg[c.leg], 4_060_000 + c.leg
             )
             for c in config.legs
         }
@@ -530,9 +567,9 @@ class MockEncoderNodes(Device):
                 cob = enc.value(0x1800 + n - 1, 1)
                 if cob & 0x80000000 or enc.value(0x1800 + n - 1, 2) < 0xFE:
                     continue
-                period_ms = enc.value(0x1800 + n - 1, 5) or (
-                    enc.value(0x6200) if 0x6200 in enc.node.object_dictionary else 0
-                )
+                # The event timer (sub-index 5, where the device has one), else CiA 406's
+                # cyclic timer 0x6200.
+                period_ms = enc.value(0x1800 + n - 1, 5, default=0) or enc.value(0x6200, default=0)
                 if not period_ms:
                     continue
                 if now >= enc.next_cyclic[n]:
@@ -584,7 +621,7 @@ class MockEncoderNodes(Device):
         counts = cfg.mm_to_counts(reading_mm)
         od = _position_variable(enc.node)
         if od.data_type == canopen.objectdictionary.UNSIGNED32:
-            span = enc.value(0x6002) if 0x6002 in enc.node.object_dictionary else 0
+            span = enc.value(0x6002, default=0)
             return counts % (span or 2**32)
         return min(max(counts, -(2**31)), 2**31 - 1)
 
@@ -619,7 +656,7 @@ class MockEncoderNodes(Device):
             leg = enc.leg
             if self._silent[leg] or enc.state not in (OPERATIONAL, PRE_OPERATIONAL):
                 continue
-            overflow = enc.value(0x1019) if 0x1019 in enc.node.object_dictionary else 0
+            overflow = enc.value(0x1019, default=0)
             wrong = len(data) != (1 if overflow >= 2 else 0)
             if wrong != enc.sync_error:  # CiA 301: EMCY on the error, a reset once it is gone
                 enc.sync_error = wrong
@@ -679,7 +716,7 @@ class MockEncoderNodes(Device):
         for enc in self.encoders.values():
             if self._silent[enc.leg]:
                 continue
-            ident = [enc.value(0x1018, s) for s in (1, 2, 3, 4)]
+            ident = [enc.value(0x1018, s, default=0) for s in (1, 2, 3, 4)]
             reply = self._lss_reply
             if cs == 0x04:  # switch state global
                 enc.lss_config = data[1] == 1

@@ -1,13 +1,29 @@
 """Contract tests: the CAN leg-encoder driver against six mock CANopen nodes.
 
-By default both sides run on python-can's virtual bus, a fresh channel per test. To run the same
-contract on a real CAN channel (e.g. SocketCAN ``vcan0``, or two adapters wired together), set
+Where the contract runs (the ``target``):
+
+- ``virtual``: both sides on python-can's virtual bus in this process, a fresh channel per test;
+- ``udp``: the six encoders in another process (:class:`~hexcal.mock_hw.can_process.EncoderProcess`)
+  over python-can's ``udp_multicast`` interface on a port of its own per test — an interface
+  that loops every frame back to its sender unmarked, so the driver must tell its own SYNC from
+  another producer's;
+- ``vcan``: the same over SocketCAN ``vcan`` (``HEXCAL_VCAN``, default vcan0, created with ``ip
+  link`` when absent and permitted); skipped, with the reason, where the kernel has no CAN
+  sockets;
+- ``env``: a real channel, when
 
     HEXCAL_CAN_INTERFACE=socketcan HEXCAL_CAN_CHANNEL=vcan0 [HEXCAL_CAN_MOCK_CHANNEL=vcan0]
 
-The mock nodes then answer on ``HEXCAL_CAN_MOCK_CHANNEL`` (default: the same channel). Tests that
-need the virtual bus (injected error frames and bus-off, replay onto a virtual channel) are
-skipped for the real channel.
+  is set (the mock nodes then answer on ``HEXCAL_CAN_MOCK_CHANNEL``, default the same channel).
+
+Tests that need the virtual bus (injected error frames and bus-off, clock faults, replay onto a
+virtual channel) are skipped elsewhere.
+
+The core contract also runs against the mock EDS files (``device``): hexcal's generic one, and
+the minimal, vendor-like and linear ones of :mod:`hexcal.mock_hw.eds_files`, written from the
+CiA 301/406 object lists. On the virtual bus every device runs in the quick suite; in another
+process a few tests run in the quick suite (QUICK_IN_PROCESS) and the whole contract, against
+every device, under ``-m slow``.
 """
 
 from __future__ import annotations
@@ -16,10 +32,14 @@ import itertools
 import logging
 import math
 import os
+import random
 import re
+import socket
+import subprocess
 import threading
 import time
 import uuid
+from pathlib import Path
 
 import can
 import numpy as np
@@ -38,7 +58,9 @@ from hexcal.drivers.can_encoders import (
     describe_error_frame,
 )
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
+from hexcal.mock_hw.can_process import EncoderProcess
 from hexcal.mock_hw.can_replay import replay_log
+from hexcal.mock_hw.eds_files import mock_eds
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
 from hexcal.sim.robots import left_hand
 
@@ -53,18 +75,33 @@ ENCODER_SIGMA_MM = DEFAULT_NOISE.sigma_reading_mm
 ENV_INTERFACE = os.environ.get("HEXCAL_CAN_INTERFACE")
 ENV_CHANNEL = os.environ.get("HEXCAL_CAN_CHANNEL")
 
+#: Where the contract runs, and the object dictionaries of the devices (module docstring).
+TARGETS = ["virtual", "udp", "vcan", "env"]
+DEVICES = ["generic", "minimal", "vendor", "linear"]
+#: Devices without 0x1019 take no SYNC counter; an UNSIGNED32 position takes no negative counts,
+#: so its legs mounted the other way round (sign −1) have their zero beyond the leg's reach.
+NO_COUNTER = ("minimal", "linear")
+ZERO_UNSIGNED = [0.0, 2000.0, -25.5, 2350.0, 0.125, 3000.0]
 
-def make_config(interface: str, channel: str, **kw) -> CanBusConfig:
+
+def make_config(interface: str, channel: str, device: str = "generic", **kw) -> CanBusConfig:
+    zero = ZERO_UNSIGNED if device == "minimal" else ZERO
     legs = [
         LegEncoderConfig(
-            leg=k + 1, node_id=0x21 + k, counts_per_mm=CPM[k], sign=SIGN[k], zero_mm=ZERO[k]
+            leg=k + 1, node_id=0x21 + k, counts_per_mm=CPM[k], sign=SIGN[k], zero_mm=zero[k]
         )
         for k in range(6)
     ]
-    # SYNC with a counter (hexcal writes 0x1019 = 240 to every node): the contract matches
-    # each set to what the mock latched by its counter. The factory setting (no counter) has
-    # tests of its own (test_drivers_can_setup.py).
-    base = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": HB_TIMEOUT_S, "sync_counter": 240}
+    # SYNC with a counter where the device has 0x1019 (hexcal writes 240 to every node): the
+    # contract matches each set to what the mock latched by its counter; without one, by its
+    # number (latched_key). The rig file names the minimal and vendor-like devices' EDS (the
+    # minimal one's position is UNSIGNED32; reading the vendor-like one's from the device, 0x1021,
+    # is tested in test_drivers_can_devices.py); the linear one is set up from what it answers.
+    base: dict = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": HB_TIMEOUT_S}
+    if device not in NO_COUNTER:
+        base["sync_counter"] = 240
+    if device in ("minimal", "vendor"):
+        base["eds"] = str(mock_eds(device))
     return CanBusConfig(interface=interface, channel=channel, legs=legs, **{**base, **kw})
 
 
@@ -73,10 +110,81 @@ def unique_channel() -> str:
     return f"hexcal-test-{uuid.uuid4().hex[:8]}-bus"
 
 
-@pytest.fixture(params=["virtual", "env"])
+def every_device(test):
+    """Run ``test`` against every mock EDS (module docstring)."""
+    test.contract_devices = True
+    return test
+
+
+#: The tests that run in another process in the quick suite too (each costs a process start,
+#: about 1.5 s); the whole contract runs there under ``-m slow``.
+QUICK_IN_PROCESS = {
+    "test_readings_equal_the_robot_within_noise_and_quantisation",
+    "test_dropped_frame_marks_that_set_incomplete",
+    "test_another_sync_producer_is_flagged",
+    "test_own_sync_looped_back_is_not_another_producer",
+}
+
+
+def pytest_generate_tests(metafunc):
+    if "target" not in metafunc.fixturenames:
+        return
+    quick = metafunc.function.__name__ in QUICK_IN_PROCESS
+    devices = DEVICES if getattr(metafunc.function, "contract_devices", False) else ["generic"]
+
+    def slow(t: str, d: str) -> bool:
+        return t in ("udp", "vcan") and (d != "generic" or not quick)
+
+    combos = [
+        pytest.param(
+            t,
+            d,
+            marks=[pytest.mark.slow] if slow(t, d) else [],
+            id=f"{t}-{d}" if len(devices) > 1 else t,
+        )
+        for t in TARGETS
+        for d in devices
+    ]
+    if "device" in metafunc.fixturenames:
+        metafunc.parametrize(("target", "device"), combos, indirect=True)
+    else:  # builds its own nodes: the target alone
+        metafunc.parametrize(
+            "target",
+            [pytest.param(c.values[0], marks=c.marks, id=c.id) for c in combos],
+            indirect=True,
+        )
+
+
+def vcan_channel() -> str:
+    """A SocketCAN vcan interface, created if absent and permitted; skips with the reason."""
+    try:
+        socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW).close()
+    except (OSError, AttributeError) as exc:
+        pytest.skip(
+            f"SocketCAN vcan: this kernel has no CAN sockets (socket(AF_CAN, SOCK_RAW, CAN_RAW) "
+            f"fails: {exc}), so there is no vcan; the contract runs over udp_multicast instead"
+        )
+    name = os.environ.get("HEXCAL_VCAN", "vcan0")
+    if not Path(f"/sys/class/net/{name}").exists():
+        made = subprocess.run(
+            ["ip", "link", "add", "dev", name, "type", "vcan"], capture_output=True, text=True
+        )
+        if made.returncode:
+            pytest.skip(
+                f"SocketCAN vcan: `ip link add dev {name} type vcan` failed "
+                f"({made.stderr.strip()}): load the vcan module (modprobe vcan) or create it"
+            )
+    up = subprocess.run(["ip", "link", "set", "up", name], capture_output=True, text=True)
+    if up.returncode:
+        pytest.skip(f"SocketCAN vcan: `ip link set up {name}` failed ({up.stderr.strip()})")
+    return name
+
+
+@pytest.fixture
 def target(request) -> dict:
-    """Where the contract runs: a fresh virtual channel, or the channel from the environment."""
-    if request.param == "env":
+    """Where the contract runs (module docstring)."""
+    kind = request.param
+    if kind == "env":
         if not (ENV_INTERFACE and ENV_CHANNEL):
             pytest.skip("set HEXCAL_CAN_INTERFACE and HEXCAL_CAN_CHANNEL to run on a real channel")
         return {
@@ -84,9 +192,47 @@ def target(request) -> dict:
             "channel": ENV_CHANNEL,
             "mock_channel": os.environ.get("HEXCAL_CAN_MOCK_CHANNEL", ENV_CHANNEL),
             "virtual": False,
+            "process": False,
+            "options": {},
+        }
+    if kind == "udp":
+        # A port of its own: on Linux a socket bound to a port receives that port's datagrams
+        # for every group joined on the host, so the group alone would not keep tests apart.
+        port = random.SystemRandom().randint(20_000, 60_000)
+        return {
+            "interface": "udp_multicast",
+            "channel": "239.74.163.2",
+            "mock_channel": "239.74.163.2",
+            "virtual": False,
+            "process": True,
+            "options": {"port": port},
+        }
+    if kind == "vcan":
+        name = vcan_channel()
+        return {
+            "interface": "socketcan",
+            "channel": name,
+            "mock_channel": name,
+            "virtual": False,
+            "process": True,
+            "options": {},
         }
     ch = unique_channel()
-    return {"interface": "virtual", "channel": ch, "mock_channel": ch, "virtual": True}
+    return {
+        "interface": "virtual",
+        "channel": ch,
+        "mock_channel": ch,
+        "virtual": True,
+        "process": False,
+        "options": {},
+    }
+
+
+@pytest.fixture
+def device(request) -> str:
+    """The mock EDS the nodes are built from (module docstring); hexcal's generic one unless the
+    test runs against every device."""
+    return getattr(request, "param", "generic")
 
 
 def need_virtual(target: dict) -> None:
@@ -94,23 +240,59 @@ def need_virtual(target: dict) -> None:
         pytest.skip("needs python-can's virtual bus (fault emulation or replay)")
 
 
-@pytest.fixture
-def robot() -> MockRobot:
-    return MockRobot(left_hand(), noise=DEFAULT_NOISE, seed=4)
+def need_in_process(target: dict) -> None:
+    if target["process"]:
+        pytest.skip("builds its own mock nodes in this process")
+
+
+class TwinRobot:
+    """The robot of the encoders in another process, as the tests see it: a twin here (same
+    design and seed) for what the tests compute, moved together with the child's."""
+
+    def __init__(self, robot: MockRobot):
+        self._robot = robot
+        self.process: EncoderProcess | None = None
+
+    def __getattr__(self, name: str):
+        return getattr(self._robot, name)
+
+    def move_to(self, position, rotation) -> None:
+        assert self.process is not None
+        self._robot.move_to(position, rotation)
+        self.process.call("move_to", np.asarray(position).tolist(), np.asarray(rotation).tolist())
 
 
 @pytest.fixture
-def config(target) -> CanBusConfig:
-    return make_config(target["interface"], target["channel"])
+def robot(target):
+    twin = MockRobot(left_hand(), noise=DEFAULT_NOISE, seed=4)
+    return TwinRobot(twin) if target["process"] else twin
 
 
 @pytest.fixture
-def mock(robot, config, target):
+def config(target, device) -> CanBusConfig:
+    return make_config(
+        target["interface"], target["channel"], device, bus_options=target["options"]
+    )
+
+
+@pytest.fixture
+def mock(robot, config, target, device):
     mock_cfg = config.model_copy(update={"channel": target["mock_channel"]})
-    nodes = MockEncoderNodes(robot, mock_cfg, seed=1)
+    eds = None if device == "generic" else mock_eds(device)
+    if target["process"]:
+        nodes = EncoderProcess(mock_cfg, robot_seed=4, seed=1, eds=eds)
+        robot.process = nodes
+    else:
+        nodes = MockEncoderNodes(robot, mock_cfg, seed=1, eds=eds)
     nodes.start()
     yield nodes
     nodes.stop()
+
+
+def latched_key(s: ReadingSet) -> int:
+    """The key of what the mock latched at ``s``'s SYNC: its counter, or, for SYNCs without
+    one, its number since the mock started (1 for the driver's first)."""
+    return s.sync_counter if s.sync_counter else s.index + 1
 
 
 @pytest.fixture
@@ -130,7 +312,8 @@ def assert_contiguous(sets: list[ReadingSet]) -> None:
     idx = [s.index for s in sets]
     assert idx == list(range(idx[0], idx[0] + len(idx)))
     for a, b in itertools.pairwise(sets):
-        assert b.sync_counter == a.sync_counter % 240 + 1
+        if a.sync_counter or b.sync_counter:  # 0: SYNC without a counter (the device's 0x1019)
+            assert b.sync_counter == a.sync_counter % 240 + 1
         assert b.t_sync > a.t_sync
 
 
@@ -246,6 +429,7 @@ def test_describe_error_frames():
 
 
 # -- the contract: driver against the mock nodes --------------------------------------------------
+@every_device
 def test_nmt_start_and_heartbeats(driver, mock, config):
     for leg in config.legs:
         assert (0x01, leg.node_id) in mock.nmt_log  # started one by one, never by broadcast
@@ -259,6 +443,7 @@ def test_nmt_start_and_heartbeats(driver, mock, config):
     driver.check()  # all well: no exception
 
 
+@every_device
 def test_readings_equal_the_robot_within_noise_and_quantisation(driver, mock, robot, config):
     quantum = 0.5 / np.array(CPM)
     P, R = robot.true_pose()
@@ -274,7 +459,7 @@ def test_readings_equal_the_robot_within_noise_and_quantisation(driver, mock, ro
         sets = [s for s in sets if s.complete]
         history = mock.latched()
         for s in sets:
-            sent = history[s.sync_counter]  # what the mock latched at that SYNC, mm
+            sent = history[latched_key(s)]  # what the mock latched at that SYNC, mm
             assert np.all(np.abs(s.readings_mm - sent) <= quantum + 1e-9)
             assert np.all(np.abs(s.readings_mm - truth) <= 6 * ENCODER_SIGMA_MM + quantum)
         # Noise is really there and really Gaussian-sized: not a constant, not wild.
@@ -284,6 +469,7 @@ def test_readings_equal_the_robot_within_noise_and_quantisation(driver, mock, ro
         )
 
 
+@every_device
 def test_sets_are_stamped_on_arrival(driver):
     t0 = time.monotonic()
     sets = read_complete(driver, 10)
@@ -299,6 +485,7 @@ def test_sets_are_stamped_on_arrival(driver):
     assert driver.latest() is not None and driver.latest().index >= sets[-1].index
 
 
+@every_device
 def test_leg_source_for_acquisition(driver, mock):
     read_complete(driver, 1)
     s = driver.sample()
@@ -314,6 +501,7 @@ def test_leg_source_for_acquisition(driver, mock):
 
 
 # -- faults ----------------------------------------------------------------------------------------
+@every_device
 def test_dropped_frame_marks_that_set_incomplete(driver, mock, config):
     read_complete(driver, 2)
     mock.drop_next(2)
@@ -337,6 +525,7 @@ def test_dropped_frame_marks_that_set_incomplete(driver, mock, config):
     assert driver.status()["legs"][1]["missing"] >= 1
 
 
+@every_device
 def test_silent_node_is_named_and_never_kept(driver, mock, config):
     read_complete(driver, 2)
     mock.silence(3)
@@ -363,6 +552,7 @@ def test_silent_node_is_named_and_never_kept(driver, mock, config):
     driver.check()
 
 
+@every_device
 def test_jitter_flags_late_positions(driver, mock):
     read_complete(driver, 2)
     mock.jitter_s = 0.9 * SYNC_S  # deadline is half a SYNC period
@@ -426,6 +616,7 @@ def test_bus_off_is_reported_and_recovered(driver, mock, config, target):
     assert_contiguous(seen + more + again)
 
 
+@every_device
 def test_rebooted_node_is_restarted(driver, mock):
     read_sets(driver, 2)
     n_start = mock.nmt_log.count((0x01, 0x24))
@@ -441,12 +632,24 @@ def test_rebooted_node_is_restarted(driver, mock):
 
 
 def test_another_sync_producer_is_flagged(driver, config, target):
-    need_virtual(target)
+    """Another master's SYNC is flagged — also where the driver's own SYNCs come back unmarked
+    (udp_multicast), which must not be (test_own_sync_looped_back_is_not_another_producer)."""
     read_sets(driver, 2)
-    with can.Bus(interface="virtual", channel=config.channel) as other:
+    with can.Bus(**config.bus_kwargs()) as other:
         other.send(can.Message(arbitration_id=0x80, data=[], is_extended_id=False))
     _, bad = read_until(driver, lambda s: any("another SYNC producer" in f for f in s.faults))
     assert not bad.complete and driver.status()["foreign_syncs"] == 1
+
+
+def test_own_sync_looped_back_is_not_another_producer(driver, target):
+    """Every SYNC the driver sends comes back to it on udp_multicast, unmarked (python-can cannot
+    set receive_own_messages there): none may be taken for another producer's, and each gives
+    its set the SYNC's wire time."""
+    sets = read_complete(driver, 100, limit=130)
+    st = driver.status()
+    assert st["foreign_syncs"] == 0
+    assert not any("SYNC producer" in f for s in sets for f in s.faults)
+    assert st["sync_sent"] >= len(sets)
 
 
 #: The jumps as the driver tells them, to the ms (a frame's own latency moves the last digits).

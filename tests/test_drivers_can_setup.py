@@ -195,7 +195,9 @@ def test_an_sdo_abort_names_the_object_and_the_code(robot, channel):
     with MockEncoderNodes(robot, cfg, sdo_aborts={2: (0x1017, 0x06010002)}):
         with pytest.raises(
             EncoderError,
-            match=r"leg 2 encoder \(node 0x22\) .*: writing 50 to 0x1017: SDO abort 0x06010002",
+            match=r"leg 2 encoder \(node 0x22\) .*: SDO write of 50 to 0x1017:00 \(producer "
+            r"heartbeat time\) aborted by the node: SDO abort 0x06010002 \(attempt to write a read "
+            r"only object\) — it is read-only on this device",
         ):
             LegEncoders(cfg).start()
 

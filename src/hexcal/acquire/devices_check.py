@@ -73,7 +73,8 @@ CAN_INTERFACES = ["socketcan", "pcan", "kvaser", "vector", "ixxat", "gs_usb", "s
 
 
 def node_lines(node: dict[str, Any] | None) -> list[str]:
-    """What the configuration step read from and set on one node, for the report."""
+    """What the configuration step found on one node ("has": asked of the device, or read from
+    its EDS) and what it set there ("set"), for the report."""
     if node is None:
         return ["not set up by hexcal (can.configure = false): taken as configured"]
 
@@ -81,15 +82,48 @@ def node_lines(node: dict[str, Any] | None) -> list[str]:
         return "?" if v is None else f"0x{v:08X}"
 
     rng = node["total_range"]
+    tpdos: list[int] = list(node.get("tpdos") or ())
+    highest: list[int] = list(node.get("tpdo_highest") or ())
+    if len(set(highest)) == 1:  # the usual case: one layout for every TPDO
+        listed = ", ".join(str(n) for n in tpdos) + f" (sub-indices 0..{highest[0]})"
+    else:
+        listed = ", ".join(
+            f"{n} (sub-indices 0..{top})" for n, top in zip(tpdos, highest, strict=True)
+        )
+    has = [
+        f"TPDO{'s' if len(tpdos) != 1 else ''} {listed}" if tpdos else "no TPDO probed",
+        "SYNC counter 0x1019" if node.get("has_sync_counter") else "no SYNC counter 0x1019",
+        f"position 0x6004 {node['position_type']}"
+        + (
+            " (as hexcal's generic EDS types it: name the vendor's EDS if it says UNSIGNED32)"
+            if node.get("eds_source") == "hexcal generic"
+            else ""
+        ),
+        f"wraps at {rng} counts (0x6002)" if rng else "no measuring range (0x6002)",
+    ]
+    if node.get("manufacturer_objects"):
+        has.append(f"{node['manufacturer_objects']} manufacturer objects (0x2000..0x5FFF)")
     lines = [
         f"{node['encoder_type']} (device type 0x{node['device_type']:08X}); vendor "
         f"{h(node['vendor_id'])}, product {h(node['product_code'])}, revision "
         f"{h(node['revision'])}, serial {node['serial'] if node['serial'] is not None else '?'}",
-        f"position 0x6004 {node['position_type']} in TPDO{node['tpdo']} "
-        f"(COB-ID 0x{node['tpdo_cob_id']:03X}) on every SYNC; heartbeat every "
-        f"{node['heartbeat_ms']} ms; "
-        + (f"wraps at {rng} counts (0x6002)" if rng else "no measuring range set (0x6002)"),
+        "has: " + "; ".join(has),
     ]
+    if node.get("absent"):
+        lines.append("absent (optional, skipped): " + ", ".join(node["absent"]))
+    disabled = node.get("disabled_tpdos") or ()
+    lines.append(
+        f"set: position 0x6004 {node['position_type']} in TPDO{node['tpdo']} "
+        f"(COB-ID 0x{node['tpdo_cob_id']:03X}) on every SYNC"
+        + (" (its fixed mapping kept)" if node.get("static_mapping") else "")
+        + (f"; TPDO {', '.join(str(n) for n in disabled)} disabled" if disabled else "")
+        + f"; heartbeat every {node['heartbeat_ms']} ms"
+        + (
+            f"; SYNC counter 1..{node['sync_overflow']}"
+            if node["sync_overflow"]
+            else "; SYNC without counter"
+        )
+    )
     extra = []
     if node["operating_parameters"] is not None:
         cw = "CCW" if node["operating_parameters"] & 1 else "CW"
@@ -100,7 +134,7 @@ def node_lines(node: dict[str, Any] | None) -> list[str]:
         extra.append(f"step {node['step_nm']} nm per count (0x6005)")
     if extra:
         lines.append("; ".join(extra))
-    lines.append(f"EDS {node['eds']}")
+    lines.append(f"EDS {node['eds']} ({node.get('eds_source', 'rig file')})")
     return lines
 
 
