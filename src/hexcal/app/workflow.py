@@ -30,7 +30,9 @@ from hexcal.estimate.model_file import (
     CalibratedRobot,
     CalibrationBlock,
     FitRecord,
+    FittedPoses,
     Provenance,
+    covariance_record,
     effect_records,
     input_records,
     load_model,
@@ -297,6 +299,12 @@ def build_file(
         ),
         accuracy=[_record(a) for a in accuracy],
         provenance=Provenance(poses=len(inp.meas), inputs=input_records(dict(inp.files))),
+        covariance=None
+        if r is None
+        else covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42),
+        fitted_poses=FittedPoses(
+            pose_id=[int(i) for i in inp.meas.pose_id], t=[float(t) for t in inp.meas.t]
+        ),
     )
     data = cal.robot.model_dump(exclude_none=True)
     data.pop("calibration", None)

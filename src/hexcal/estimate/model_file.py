@@ -26,6 +26,7 @@ from hexcal import __version__
 from hexcal.effects import get_effect
 from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
+from hexcal.estimate.uncertainty import ParameterCovariance, model_parameter_names
 from hexcal.io.fileio import write_text_atomic
 from hexcal.io.safe_read import Count
 from hexcal.io.validation import format_validation_error, shown_value
@@ -39,7 +40,10 @@ MAX_PARAMETER = 1e12
 Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False)]
 
 FORMAT: Final = "hexcal-calibrated-model"
-FORMAT_VERSION = 1
+#: 2 adds ``covariance`` and ``fitted_poses`` (both optional); version 1 files are still read.
+FORMAT_VERSION = 2
+#: Largest magnitude of a covariance entry: the square of :data:`MAX_PARAMETER`.
+MAX_COVARIANCE = MAX_PARAMETER**2
 
 
 class ParameterValue(BaseModel):
@@ -116,6 +120,27 @@ class Provenance(BaseModel):
     inputs: list[InputRecord] = Field(default_factory=list)
 
 
+class CovarianceRecord(BaseModel):
+    """The covariance of the model's parameters (format version 2): ``parameters`` names them
+    in the fit's order (a1.x … b6.z, offset1 … offset6 for Model 42, then the effects'), and
+    ``matrix`` (p × p) is in their units squared (mm², mm·ppm, ppm²…)."""
+
+    model_config = ConfigDict(extra="forbid")
+    parameters: list[str]
+    matrix: list[
+        list[Annotated[float, Field(ge=-MAX_COVARIANCE, le=MAX_COVARIANCE, allow_inf_nan=False)]]
+    ]
+
+
+class FittedPoses(BaseModel):
+    """The poses the model was fitted on (format version 2): their ids and times (s), so that
+    ``hexcal validate`` knows when it is given them again."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose_id: list[Annotated[int, Field(ge=1, le=2**53 - 1)]]
+    t: list[Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)]]
+
+
 class CalibrationBlock(BaseModel):
     """The ``calibration`` key of calibrated.json."""
 
@@ -133,6 +158,10 @@ class CalibrationBlock(BaseModel):
         description="pose accuracy of the design, the geometry alone and each effect added",
     )
     provenance: Provenance
+    covariance: CovarianceRecord | None = Field(
+        None, description="the parameters' covariance (absent when the fit did not determine it)"
+    )
+    fitted_poses: FittedPoses | None = None
 
 
 class CalibratedRobot(Robot):
@@ -145,6 +174,20 @@ class CalibratedRobot(Robot):
         effects = tuple(e.name for e in self.calibration.effects)
         values = [p.value for e in self.calibration.effects for p in e.parameters]
         return LegModel(self.plain_robot(), effects, np.array(values, float))
+
+    def parameter_covariance(self) -> ParameterCovariance | None:
+        """The covariance of the model's parameters (None in a file without it)."""
+        c = self.calibration.covariance
+        if c is None:
+            return None
+        return ParameterCovariance(tuple(c.parameters), np.array(c.matrix, float))
+
+    def fitted_pose_keys(self) -> set[tuple[int, float]] | None:
+        """{(pose id, t rounded to 1 µs)} of the poses fitted (None when the file has no list)."""
+        f = self.calibration.fitted_poses
+        if f is None:
+            return None
+        return {(int(i), round(float(t), 6)) for i, t in zip(f.pose_id, f.t, strict=True)}
 
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""
@@ -172,6 +215,25 @@ def effect_records(model: LegModel, sigmas: dict[str, float] | None = None) -> l
             i += 1
         out.append(EffectRecord(name=e, parameters=params, physics=eff.physics))
     return out
+
+
+def covariance_record(
+    names: list[str], cov: np.ndarray, sigma: np.ndarray, model: LegModel, fit_offsets: bool
+) -> CovarianceRecord | None:
+    """The covariance of ``model``'s parameters out of a fit's (``names`` (q,), ``cov`` (q, q),
+    ``sigma`` (q,)): its rows and columns in the model's order, the session's own effects left
+    out. None when a parameter of the model is missing from the fit or undetermined (infinite
+    σ): a covariance that claims to know it would understate the uncertainty."""
+    wanted = model_parameter_names(model, fit_offsets)
+    if any(n not in names for n in wanted):
+        return None
+    idx = [names.index(n) for n in wanted]
+    if not np.all(np.isfinite(np.asarray(sigma)[idx])):
+        return None
+    m = np.asarray(cov, float)[np.ix_(idx, idx)]
+    if not np.all(np.isfinite(m)):
+        return None
+    return CovarianceRecord(parameters=wanted, matrix=(0.5 * (m + m.T)).tolist())
 
 
 def sha256_of(path: str | Path) -> str:
@@ -228,12 +290,51 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
         raise RobotFileError(str(exc)) from None
     if isinstance(robot, CalibratedRobot):
         try:
-            robot.leg_model()
+            model = robot.leg_model()
         except ValidationError as exc:
             raise RobotFileError(format_validation_error(exc, where)) from None
         except ValueError as exc:
             raise RobotFileError(f"{where}: field calibration.effects: {exc}") from None
+        _check_covariance(robot.calibration, model, where)
+        _check_fitted_poses(robot.calibration, where)
     return robot
+
+
+def _check_covariance(block: CalibrationBlock, model: LegModel, where: str) -> None:
+    """The covariance names the model's parameters in order, is square, symmetric and has no
+    negative variance; otherwise the file is refused with the field named."""
+    c = block.covariance
+    if c is None:
+        return
+    field = f"{where}: field calibration.covariance"
+    expected = model_parameter_names(model, block.kind == 42)
+    if c.parameters != expected:
+        raise RobotFileError(
+            f"{field}.parameters: expected the model's {len(expected)} parameters in order "
+            f"({expected[0]} … {expected[-1]}), got {len(c.parameters)}; the covariance does not "
+            "belong to this model: calibrate again, or remove the key"
+        )
+    p = len(expected)
+    if len(c.matrix) != p or any(len(row) != p for row in c.matrix):
+        raise RobotFileError(f"{field}.matrix: must be {p} rows of {p} numbers")
+    m = np.array(c.matrix, float)
+    scale = max(float(np.max(np.abs(m))), 1e-300)
+    if np.max(np.abs(m - m.T)) > 1e-9 * scale:
+        raise RobotFileError(f"{field}.matrix: not symmetric; a covariance matrix is")
+    if (np.diag(m) < 0).any():
+        k = int(np.argmin(np.diag(m)))
+        raise RobotFileError(
+            f"{field}.matrix: the variance of {expected[k]} is negative ({m[k, k]:g})"
+        )
+
+
+def _check_fitted_poses(block: CalibrationBlock, where: str) -> None:
+    f = block.fitted_poses
+    if f is not None and len(f.pose_id) != len(f.t):
+        raise RobotFileError(
+            f"{where}: field calibration.fitted_poses: {len(f.pose_id)} pose ids but "
+            f"{len(f.t)} times; each fitted pose has one of each"
+        )
 
 
 def load_model(path: str | Path) -> CalibratedRobot | Robot:
