@@ -44,17 +44,34 @@ class Target:
     readings: np.ndarray | None = None
 
 
+#: The targets of the last robots asked about, by their robot.json text: a step asks once per
+#: pose, and the cube's bisection is worth keeping.
+_CACHE: dict[tuple[str, str, int], tuple] = {}
+
+
+def _targets(pattern: str, design: Robot, n: int) -> tuple:
+    key = (design.model_dump_json(), pattern, n)
+    if key not in _CACHE:
+        if len(_CACHE) > 8:
+            _CACHE.clear()
+        if pattern == "iso9283":
+            _CACHE[key] = iso9283_sequence(design, 1)
+        else:
+            _CACHE[key] = tuple(iso230_targets(design, leg).sequence(n) for leg in range(1, 7))
+    return _CACHE[key]
+
+
 def target(pattern: str, design: Robot, index: int, cycles: int | None = None) -> Target:
     """The ``index``-th (0-based, wrapping) target of ``pattern`` for the robot ``design``."""
     n = cycles or PATTERNS[pattern]
     if pattern == "iso9283":
-        labels, P, R = iso9283_sequence(design, 1)
+        labels, P, R = _targets(pattern, design, n)
         i = index % len(labels)
         cycle = index // len(labels) % n + 1
         return Target(f"{labels[i]} (cycle {cycle} of {n})", P[i], R[i])
     per_leg = poses_per_cycle(pattern) // 6 * n
     leg = index // per_leg % 6 + 1
-    readings, direction = iso230_targets(design, leg).sequence(n)
+    readings, direction = _targets(pattern, design, n)[leg - 1]
     j = index % per_leg
     side = "from below" if direction[j] > 0 else "from above"
     return Target(f"leg {leg} to {readings[j, leg - 1]:.3f} mm {side}", readings=readings[j])
