@@ -220,3 +220,17 @@ def test_the_procedure_steps_visit_the_tests_targets_on_the_mock_rig():
     fig = metrology(LegModel(truth), "truth", meas, SIG, None)
     assert fig.iso9283 is not None and [p.visits for p in fig.iso9283.poses] == [30] * 5
     assert len(fig.iso230_2) == 6 and all(p.targets == 5 for p in fig.iso230_2)
+
+
+def test_simulate_appends_the_tests_to_a_session(tmp_path):
+    from hexcal.app.cli import main
+    from hexcal.io.measurements_csv import read_measurements
+
+    out = tmp_path / "s"
+    args = ["simulate", "--out", str(out), "--seed", "2", "--n-free", "10"]
+    assert main([*args, "--effect", "thermal", "--tests", "iso9283", "iso230-2"]) == 0
+    meas = read_measurements(out / "measurements.csv")
+    steps = list(dict.fromkeys(meas.step))
+    assert steps[-2:] == ["iso9283", "iso230-2"]
+    assert (meas.step == "iso9283").sum() == 150 and (meas.step == "iso230-2").sum() == 360
+    assert np.all(np.diff(meas.t) > 0) and len(set(meas.pose_id)) == len(meas)

@@ -181,3 +181,54 @@ def test_a_name_outside_the_model_is_refused(gain_model):
         )
     cov = ParameterCovariance(("a1.x",), np.eye(1))
     assert cov.subset(["a1.x"]).sigma.tolist() == [1.0]
+
+
+def test_predict_adds_each_rows_expanded_uncertainty(gain_model, tmp_path, capsys):
+    """hexcal predict with a model carrying its covariance: U_position_mm and
+    U_orientation_deg, both directions, equal to the propagation; none with a version 1 file."""
+    import csv
+
+    from hexcal.app.cli import main
+    from hexcal.io.measurements import write_measurements
+
+    result, inp = gain_model
+    cal = tmp_path / "cal.json"
+    cal.write_text(result.file.to_json())
+    table = tmp_path / "t.csv"
+    rows = np.where(inp.meas.leg == 0)[0][:5]
+    write_measurements(inp.meas.subset(rows), table)
+    for to in ("pose", "readings"):
+        out = tmp_path / f"{to}.csv"
+        assert main(["predict", str(cal), str(table), "--to", to, "--out", str(out)]) == 0
+        got = list(csv.DictReader(out.open()))
+        u = np.array([[float(r["U_position_mm"]), float(r["U_orientation_deg"])] for r in got])
+        model = result.file.leg_model()
+        if to == "pose":
+            readings = inp.meas.readings[rows]
+            P = np.array([[float(r[c]) for c in "xyz"] for r in got])
+            q = np.array([[float(r[c]) for c in ("qw", "qx", "qy", "qz")] for r in got])
+        else:
+            readings = np.array([[float(r[f"rho{k}"]) for k in range(1, 7)] for r in got])
+            P, q = inp.meas.position[rows], inp.meas.quaternion[rows]
+        from scipy.spatial.transform import Rotation
+
+        poses = Poses(P, Rotation.from_quat(q, scalar_first=True).as_matrix())
+        want = pose_uncertainty(
+            model,
+            result.file.parameter_covariance(),
+            poses,
+            readings,
+            inp.instruments.sigma_reading_mm,
+            inp.meas.t[rows],
+            inp.meas.temperature[rows],
+        )
+        assert np.allclose(u[:, 0], want.position_mm, rtol=1e-6)
+        assert np.allclose(u[:, 1], want.orientation_deg, rtol=1e-6)
+    old = tmp_path / "old.csv"
+    assert (
+        main(
+            ["predict", "tests/data/calibrated.json", str(table), "--to", "pose", "--out", str(old)]
+        )
+        == 0
+    )
+    assert "U_position_mm" not in old.read_text().splitlines()[0]

@@ -15,7 +15,7 @@ Each leg is one axis of the machine. For leg k at the poses of a session, in rec
   less the length the model gives for the reading **without its backlash term** (reading +
   offset + the other effects): backlash is what B measures, so it is never subtracted first.
 
-Then, per clause 3 (targets i, directions ↑ ↓, n approaches each): the mean unidirectional
+Then, with ISO 230-2's definitions (targets i, directions ↑ ↓, n approaches each): the mean unidirectional
 deviations x̄_i↑, x̄_i↓, their standard uncertainties s_i↑, s_i↓ (n − 1 in the denominator),
 the reversal value B_i = x̄_i↑ − x̄_i↓; unidirectional repeatability R_i↑ = 4 s_i↑;
 bidirectional repeatability R_i = max(2 s_i↑ + 2 s_i↓ + |B_i|, R_i↑, R_i↓);

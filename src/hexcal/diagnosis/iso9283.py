@@ -3,7 +3,7 @@
 The poses of a session's ``iso9283`` step (:mod:`hexcal.model.iso_tests`: P1…P5 in the test
 cube, 30 cycles) are assigned to the test pose they are nearest (within half the distance
 between two test poses; others are counted and left out). For each test pose, over its n
-visits j (clause 7.2):
+visits j (ISO 9283:1998, pose accuracy and repeatability, 7.2):
 
 - the **attained** pose is the tracker's: position x_j (mm) and orientation angles a_j, b_j,
   c_j (degrees, rotations about the measurement frame's x, y, z axes: R = R_z(c) R_y(b) R_x(a),

@@ -24,7 +24,13 @@ import numpy as np
 from hexcal.diagnosis.iso230_2 import LegPositioning, leg_positioning
 from hexcal.diagnosis.iso9283 import Iso9283, iso9283
 from hexcal.estimate.predict import LegModel, Poses
-from hexcal.estimate.uncertainty import K, ParameterCovariance, coverage, pose_uncertainty
+from hexcal.estimate.uncertainty import (
+    K,
+    ParameterCovariance,
+    coverage,
+    model_parameter_names,
+    pose_uncertainty,
+)
 from hexcal.model.noise import NoiseSigmas
 
 
@@ -103,7 +109,7 @@ class Metrology:
 
     def lines(self) -> list[str]:
         """The figures as text (the CLI and the text UI)."""
-        out = ["metrology:"]
+        out = [f"metrology ({self.model}):"]
         if self.uncertainty is not None:
             out += ["  " + line for line in self.uncertainty.lines()]
         if self.iso9283 is not None:
@@ -140,6 +146,30 @@ def metrology(
     out.iso9283 = iso9283(model, meas)
     out.iso230_2 = leg_positioning(model, meas)
     return out
+
+
+def of_diagnosis(d) -> Metrology:
+    """The figures of a diagnosis step's model on the poses it was fitted on (its own session:
+    the coverage there says how the uncertainties fit the data they came from, not new poses;
+    the label says so)."""
+    from hexcal.model.noise import DEFAULT_SIGMAS
+
+    problem = d.problem
+    model = d.fit.leg_model(problem.design)
+    ref = d.fit.refinement
+    names = model_parameter_names(model, "offset" in d.fit.effects)
+    cov = None
+    if all(n in ref.names for n in names):
+        cov = ParameterCovariance(tuple(ref.names), ref.cov).subset(names)
+        if not np.all(np.isfinite(cov.matrix)) or not np.all(np.isfinite(ref.sigma)):
+            cov = None
+    sig = problem.sigmas
+    if sig is None:  # the level the diagnosis estimated, on a typical tracker and encoder
+        s = float(np.sqrt(d.noise_level))
+        base = DEFAULT_SIGMAS
+        sig = NoiseSigmas(s * base.position_mm, s * base.orientation_rad, s * base.reading_mm)
+    label = f"{d.fit.model_name} on the poses it was fitted on"
+    return metrology(model, label, problem.meas, sig, cov, "some parameters are not determined")
 
 
 def _uncertainty(

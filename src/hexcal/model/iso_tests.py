@@ -2,7 +2,7 @@
 ISO 230-2's target readings of each leg. The procedure steps ``iso9283`` and ``iso230-2``
 visit them; the metrology (:mod:`hexcal.diagnosis.metrology`) finds them again in a session.
 
-**The ISO 9283 cube.** ISO 9283 (clause 6.2) places one cube in the working space, edges
+**The ISO 9283 cube.** ISO 9283:1998 (its poses to be tested, 6.8) places one cube in the working space, edges
 parallel to the base frame, of the largest volume the working space allows, where the robot is
 most used. For a hexapod hexcal takes: the measurement frame's axes (the tracker registered to
 the base), centred at the robot's home position (where the platform works), orientation the
@@ -13,14 +13,14 @@ stroke, :class:`~hexcal.model.workspace.PoseRanges`) — and each joint within i
 (``joint_limit_deg``, else :class:`~hexcal.model.workspace.Limits`' 50°). The edge is found by
 bisection to 0.1 mm.
 
-**The five test poses** (ISO 9283 clause 6.3) lie in the plane through two opposite edges of
+**The five test poses** (the same section) lie in the plane through two opposite edges of
 the cube, C1–C2 (x from −e/2 to +e/2 at y = z = −e/2) and C7–C8 (at y = z = +e/2): P1 at the
 cube's centre, P2–P5 on the plane's diagonals at 10 % of the diagonal's length L = e√3 from the
 corners C1, C2, C7, C8 (so at 0.8 of the way from the centre to each corner); every one at the
 home orientation. A cycle visits P1, P2, P3, P4, P5 in that order, so each pose is approached
-from the same side in every cycle (unidirectional, as clause 7.2 asks); 30 cycles.
+from the same side in every cycle (unidirectional, as the pose accuracy and repeatability test, 7.2, asks); 30 cycles.
 
-**ISO 230-2 targets** (clause 3.1 and 5.3): each leg is an axis of the machine. With the other
+**ISO 230-2 targets** (ISO 230-2:2014's target positions and standard test cycle): each leg is an axis of the machine. With the other
 five legs held at their home readings, leg k visits :data:`ISO230_TARGETS` target readings
 spread irregularly (so a periodic error of the screw does not alias) over the central 80 % of
 its range (± :data:`DEFAULT_STROKE_MM` of its reading at home, within ``leg_range_mm``: one
@@ -43,17 +43,17 @@ from hexcal.model.workspace import Limits, PoseRanges, Workspace
 
 #: A leg's stroke about its reading at home when robot.json states no ``leg_range_mm``, mm.
 DEFAULT_STROKE_MM = PoseRanges().stroke_mm
-#: ISO 9283: cycles of the five test poses (clause 7.2.3).
+#: ISO 9283: cycles of the five test poses for pose accuracy and repeatability.
 ISO9283_CYCLES = 30
 #: ISO 9283: the test poses sit at this fraction of the cube's diagonal from its corners.
 CORNER_FRACTION = 0.1
-#: ISO 230-2: target readings per leg, cycles of bidirectional approaches (clause 5.3.2: at
-#: least five targets, five approaches in each direction).
+#: ISO 230-2: target readings per leg, cycles of bidirectional approaches (the standard asks
+#: for at least five targets and five approaches in each direction).
 ISO230_TARGETS = 5
 ISO230_CYCLES = 5
 #: ISO 230-2: the overrun past the end targets, as a fraction of the leg's test range.
 OVERRUN_FRACTION = 0.05
-#: Irregular spacing of the targets over the test range (fractions 0..1), as clause 5.3.2 asks;
+#: Irregular spacing of the targets over the test range (fractions 0..1), as the standard asks;
 #: none at the middle, the leg's home reading, where other tests' poses would join it.
 TARGET_FRACTIONS = (0.0, 0.23, 0.56, 0.78, 1.0)
 #: The share of a leg's range the targets span (the rest leaves room for the overrun).

@@ -7,14 +7,15 @@ in joint space, as a controller drives a real hexapod:
 1. the **command**: the readings the controller sends — for ISO 9283 the readings its model
    (``controller``, a :class:`~hexcal.estimate.predict.LegModel`) gives for each test pose, for
    ISO 230-2 the target readings themselves;
-2. the **servo** settles each leg's encoder at the command within ``servo_sigma_mm`` (1σ): the
-   encoder's true position;
+2. the **servo** settles each leg it moves at the command within ``servo_sigma_mm`` (1σ): the
+   encoder's true position. A leg whose command did not change stays where it was;
 3. the **platform** goes where the true robot (``truth``: its geometry and hidden effects, as a
    LegModel — exactly the law the simulator's hidden effects follow) puts it for those true
    positions, the motion history (backlash) included;
 4. the **instruments** add their noise: the tracker's to the pose, the encoders' to the reading.
 
-The session's rows are free poses (leg 0) whose step is ``iso9283`` or ``leg{k}-iso230-2``.
+The session's rows are free poses (leg 0) whose step is ``iso9283`` or ``iso230-2``, as the
+procedure steps of those names record them.
 """
 
 from __future__ import annotations
@@ -50,11 +51,17 @@ def drive(
     rng: np.random.Generator,
     noise: NoiseModel,
     servo_sigma_mm: float,
+    temperature: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(measured P (M, 3) mm, measured R (M, 3, 3), recorded readings (M, 6) mm) of the
-    commands (M, 6) mm in order (module docstring, steps 2–4)."""
-    true_readings = commands + rng.normal(0.0, servo_sigma_mm, commands.shape)
-    poses = truth.poses(true_readings, check_limits=False)
+    commands (M, 6) mm in order (module docstring, steps 2–4); ``temperature`` (M,) degC for a
+    robot whose legs expand."""
+    error = rng.normal(0.0, servo_sigma_mm, commands.shape)
+    for m in range(1, len(commands)):  # a held leg keeps its place (and its error)
+        held = commands[m] == commands[m - 1]
+        error[m, held] = error[m - 1, held]
+    true_readings = commands + error
+    poses = truth.poses(true_readings, temperature=temperature, check_limits=False)
     return noise.apply(rng, poses.position, poses.rotation, true_readings)
 
 
@@ -71,7 +78,7 @@ def iso230_commands(design: Robot, legs: Sequence[int] = range(1, 7), cycles: in
     for leg in legs:
         readings, _ = iso230_targets(design, leg).sequence(cycles)
         parts.append(readings)
-        names += [f"leg{leg}-iso230-2"] * len(readings)
+        names += ["iso230-2"] * len(readings)
     return np.concatenate(parts), names
 
 
@@ -85,9 +92,11 @@ def simulate_tests(
     servo_sigma_mm: float | None = None,
     first_id: int = 1,
     t0: float = 0.0,
+    temperature_c: float | None = None,
 ) -> Measurements:
     """A session of the standard ``tests`` on the true robot, driven by ``controller`` (default
-    the design with no effects); ``servo_sigma_mm`` default: the encoders' noise."""
+    the design with no effects); ``servo_sigma_mm`` default: the encoders' noise; with
+    ``temperature_c`` the structure stays at that temperature (the table gets the column)."""
     controller = controller or LegModel(design)
     servo = noise.sigma_reading_mm if servo_sigma_mm is None else servo_sigma_mm
     cmds, names = [], []
@@ -100,7 +109,8 @@ def simulate_tests(
         cmds.append(c)
         names += n
     commands = np.concatenate(cmds)
-    P, R, rho = drive(truth, commands, rng, noise, servo)
+    temp = None if temperature_c is None else np.full(len(commands), float(temperature_c))
+    P, R, rho = drive(truth, commands, rng, noise, servo, temp)
     m = len(P)
     t = t0 + np.round(np.cumsum(rng.uniform(4.0, 8.0, m)), 3)
     return Measurements.from_arrays(
@@ -110,4 +120,5 @@ def simulate_tests(
         step=np.array(names, dtype=object),
         t=t,
         pose_id=np.arange(first_id, first_id + m),
+        temperature=temp,
     )

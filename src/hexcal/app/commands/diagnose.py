@@ -84,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
         inp = inp.without([int(inp.meas.pose_id[r]) for r in limits.rows])
     with progress(wanted(args.json)) as bar:
         steps, result, mismatch = _diagnose_and_write(inp, args, bar, limit_lines)
+    from hexcal.diagnosis.metrology import of_diagnosis
+
+    figures = of_diagnosis(steps[-1])
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
@@ -101,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
             ]
         out["at_limits"] = limits_json
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
+        out["metrology"] = figures.to_dict(per_pose=False)
         if result is not None:
             out["written"] = {"path": str(args.out), "model": result.name}
         print(json.dumps(out, indent=2, default=jsonable))
@@ -119,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
             print(diagnosis_text(d, inp.label))
             print()
         print(before_after_text(steps))
+        print()
+        print("\n".join(figures.lines()))
         if args.plots:
             print(f"plots written to {args.plots}/")
         if args.report:
