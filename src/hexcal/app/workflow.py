@@ -237,7 +237,7 @@ class ModelResult:
         return self.calibration.model_name
 
 
-def _floor_sigmas(inp: Inputs, chi2_per_dof: float) -> NoiseSigmas:
+def floor_sigmas(inp: Inputs, chi2_per_dof: float) -> NoiseSigmas:
     """The noise that sets the pose-error floor: the stated one, or the typical tracker and
     encoder scaled to the fit's residual."""
     if inp.sigmas is not None:
@@ -253,7 +253,7 @@ def _noise_record(inp: Inputs, cal: Calibration) -> tuple[Instruments | None, st
     r = cal.refinement
     if r is None:
         return None, "not known (linear methods only)"
-    sig = _floor_sigmas(inp, r.chi2 / r.dof)
+    sig = floor_sigmas(inp, r.chi2 / r.dof)
     if not (sig.position_mm <= 1000.0 and np.degrees(sig.orientation_rad) <= 180.0):
         return None, "estimated from the residual, beyond any instrument's noise: not recorded"
     source = "estimated from the residual (a typical tracker and encoder, scaled to χ²/dof)"
@@ -369,7 +369,7 @@ def calibrate_model(
     except FitStalled as exc:
         raise _stall_message(inp, exc) from None
     r = cal.refinement
-    sig = _floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
+    sig = floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
     # Without stated noise the only level is the fit's own residual: a floor from it would put
     # every model at its floor by construction, so none is shown.
     floor_sig = sig if inp.sigmas is not None else None

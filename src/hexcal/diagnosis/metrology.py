@@ -148,6 +148,19 @@ def metrology(
     return out
 
 
+def of_model_file(model_file, meas, sig: NoiseSigmas, label: str | None = None) -> Metrology:
+    """The figures of a model file (calibrated.json, or a plain robot.json: the drawing) on the
+    table ``meas``: its covariance propagated when it carries one."""
+    from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, model_label
+
+    cov, why = None, "a plain robot.json carries no parameter covariance"
+    if isinstance(model_file, CalibratedRobot):
+        cov = model_file.parameter_covariance()
+        why = "the model file carries no parameter covariance (written before format version 2)"
+    name = label or model_label(model_file)
+    return metrology(leg_model_of(model_file), name, meas, sig, cov, why)
+
+
 def of_diagnosis(d) -> Metrology:
     """The figures of a diagnosis step's model on the poses it was fitted on (its own session:
     the coverage there says how the uncertainties fit the data they came from, not new poses;

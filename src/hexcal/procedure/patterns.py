@@ -68,7 +68,8 @@ def target(pattern: str, design: Robot, index: int, cycles: int | None = None) -
         labels, P, R = _targets(pattern, design, n)
         i = index % len(labels)
         cycle = index // len(labels) % n + 1
-        return Target(f"{labels[i]} (cycle {cycle} of {n})", P[i], R[i])
+        where = ", ".join(f"{v:.1f}" for v in P[i])
+        return Target(f"{labels[i]} at ({where}) mm, cycle {cycle} of {n}", P[i], R[i])
     per_leg = poses_per_cycle(pattern) // 6 * n
     leg = index // per_leg % 6 + 1
     readings, direction = _targets(pattern, design, n)[leg - 1]

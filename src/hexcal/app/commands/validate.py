@@ -99,11 +99,6 @@ def _own_session(loaded, path: Path, meas) -> str | None:
 def _metrology(loaded, model, label: str, meas, sig):
     """The metrology figures of the model on the table (the poses' uncertainty from the
     model's covariance when the file has one)."""
-    from hexcal.diagnosis.metrology import metrology
-    from hexcal.estimate.model_file import CalibratedRobot
+    from hexcal.diagnosis.metrology import of_model_file
 
-    cov, why = None, "a plain robot.json carries no parameter covariance"
-    if isinstance(loaded, CalibratedRobot):
-        cov = loaded.parameter_covariance()
-        why = "the model file carries no parameter covariance (written before format version 2)"
-    return metrology(model, label, meas, sig, cov, why)
+    return of_model_file(loaded, meas, sig, label)
