@@ -323,3 +323,21 @@ def test_what_linuxcnc_cannot_hold_is_named_with_its_pose_error(tmp_path):
         assert "what LinuxCNC cannot express" in text
         assert "thermal at 30 °C: thermal.alpha" in text and "µm on the pose" not in text
         assert "on the pose" in text and "hexcal predict" in text
+
+
+def test_inch_machines_get_every_length_in_inches(tmp_path):
+    out = tmp_path / "lx"
+    assert main(["export", "linuxcnc", str(WALKTHROUGH), "--out", str(out), "--units", "inch"]) == 0
+    hal = read_hal(out / "genhexkins.hal")
+    ini = read_ini(out / "hexcal_joints.ini")
+    cal = load_model(WALKTHROUGH)
+    assert np.allclose(points(hal, "base") * 25.4, cal.a, atol=1e-7)
+    assert ini.get("TRAJ", "LINEAR_UNITS") == "inch"
+    assert ini.getfloat("JOINT_0", "HOME_OFFSET") * 25.4 == pytest.approx(cal.offsets[0], abs=1e-7)
+    P, R = _workspace_poses(WALKTHROUGH, 20, seed=3)
+    abc = Rotation.from_matrix(R).as_euler("xyz", degrees=True)
+    base, platform = points(hal, "base"), points(hal, "platform")
+    joints = np.array(
+        [genhex_inverse((*(p / 25.4), *e), base, platform) for p, e in zip(P, abc, strict=True)]
+    )
+    assert np.abs(joints * 25.4 - cal.leg_model().geometric(P, R)).max() < 1e-6
