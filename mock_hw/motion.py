@@ -208,6 +208,28 @@ class MockMotionController:
         self.moves += 1
         return P, R
 
+    def move_readings(self, readings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Move as a controller jogs the legs to ``readings`` (6,) mm: the true pose whose legs
+        have those readings on the true geometry (the hidden effects then show in what the
+        encoders report). Refused while a leg is clamped, or outside the limits."""
+        from hexcal.estimate.predict import LegModel, Poses
+
+        if self.clamp_state is not None:
+            raise MotionError(
+                f"leg {self.clamp_state.leg} is clamped: release it before jogging the legs"
+            )
+        P0, R0 = self.robot.true_pose()
+        model = LegModel(self.robot.truth)
+        poses, closed = model.solve_poses(
+            np.asarray(readings, float)[None], guess=Poses(P0[None], R0[None])
+        )
+        P, R = poses.position[0], poses.rotation[0]
+        if not closed[0] or not self.sim.feasible(P, R):
+            raise MotionError("those readings put the platform outside its joint limits or reach")
+        self.robot.move_to(P, R)
+        self.moves += 1
+        return P, R
+
     def home(self) -> None:
         """Back to the robot's home pose (refused while a leg is clamped away from it)."""
         home = self.robot.truth.home

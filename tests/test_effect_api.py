@@ -303,14 +303,13 @@ def test_from_a_file_the_effect_is_named_added_written_and_read_back(bowed, tmp_
     assert "pass --effects effect.py" in capsys.readouterr().err
 
 
-def test_a_catalogue_model_stays_format_version_1_and_a_changed_file_is_said(
-    bowed, tmp_path, capsys
-):
+def test_a_catalogue_model_records_no_source_and_a_changed_file_is_said(bowed, tmp_path, capsys):
     cal = tmp_path / "gain.json"
     assert main(["calibrate", *_inputs(bowed), "--add", "gain", "--out", str(cal), "--json"]) == 0
     capsys.readouterr()
     block = json.loads(cal.read_text())["calibration"]
-    assert block["format_version"] == 1 and "source" not in block["effects"][0]
+    # Version 2 for its covariance and fitted poses; a catalogue effect records no source.
+    assert block["format_version"] == 2 and "source" not in block["effects"][0]
 
     bow = tmp_path / "bow.json"
     assert (

@@ -64,7 +64,7 @@ def test_the_file_is_a_robot_json_and_records_its_provenance(tmp_path):
     plain = Robot.model_validate({k: v for k, v in data.items() if k != "calibration"})
     assert np.allclose(plain.a, result.calibration.robot.a)
     cal = data["calibration"]
-    assert cal["format"] == "hexcal-calibrated-model" and cal["format_version"] == 1
+    assert cal["format"] == "hexcal-calibrated-model" and cal["format_version"] == 2
     assert cal["fit"]["poses"] == len(inp.meas) == cal["provenance"]["poses"]
     assert {i["role"] for i in cal["provenance"]["inputs"]} == {
         "measurements",

@@ -165,3 +165,12 @@ def test_numbers_and_keys_are_bounded(tmp_path, line, match):
     p.write_text("name = 'x'\nmodel = 42\n" + GOOD_STEP + line + "\n")
     with pytest.raises(ProcedureError, match=match):
         load_procedure(p)
+
+
+def test_hexcal_run_offers_every_shipped_procedure():
+    from hexcal.app.cli import build_parser
+    from hexcal.procedure.steps import BUILTIN
+
+    run = build_parser()._subparsers._group_actions[0].choices["run"]
+    choices = next(a.choices for a in run._actions if a.dest == "procedure")
+    assert sorted(choices) == sorted(BUILTIN)

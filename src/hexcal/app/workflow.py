@@ -30,7 +30,9 @@ from hexcal.estimate.model_file import (
     CalibratedRobot,
     CalibrationBlock,
     FitRecord,
+    FittedPoses,
     Provenance,
+    covariance_record,
     effect_records,
     format_version_of,
     input_records,
@@ -332,7 +334,7 @@ class ModelResult:
         return self.calibration.model_name
 
 
-def _floor_sigmas(inp: Inputs, chi2_per_dof: float) -> NoiseSigmas:
+def floor_sigmas(inp: Inputs, chi2_per_dof: float) -> NoiseSigmas:
     """The noise that sets the pose-error floor: the stated one, or the typical tracker and
     encoder scaled to the fit's residual."""
     if inp.sigmas is not None:
@@ -348,7 +350,7 @@ def _noise_record(inp: Inputs, cal: Calibration) -> tuple[Instruments | None, st
     r = cal.refinement
     if r is None:
         return None, "not known (linear methods only)"
-    sig = _floor_sigmas(inp, r.chi2 / r.dof)
+    sig = floor_sigmas(inp, r.chi2 / r.dof)
     if not (sig.position_mm <= 1000.0 and np.degrees(sig.orientation_rad) <= 180.0):
         return None, "estimated from the residual, beyond any instrument's noise: not recorded"
     source = "estimated from the residual (a typical tracker and encoder, scaled to χ²/dof)"
@@ -380,7 +382,7 @@ def build_file(
         name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
     effects = effect_records(model, cal.sigmas())
     block = CalibrationBlock(
-        format_version=format_version_of(effects),
+        format_version=format_version_of(effects, covariance=r is not None, fitted_poses=True),
         model=name,
         kind=cal.model,
         effects=effects,
@@ -396,6 +398,12 @@ def build_file(
         ),
         accuracy=[_record(a) for a in accuracy],
         provenance=Provenance(poses=len(inp.meas), inputs=input_records(dict(inp.files))),
+        covariance=None
+        if r is None
+        else covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42),
+        fitted_poses=FittedPoses(
+            pose_id=[int(i) for i in inp.meas.pose_id], t=[float(t) for t in inp.meas.t]
+        ),
     )
     data = cal.robot.model_dump(exclude_none=True)
     data.pop("calibration", None)
@@ -474,7 +482,7 @@ def calibrate_model(
     except (FitStalled, GeometryOutOfRange) as exc:
         raise _stall_message(inp, exc) from None
     r = cal.refinement
-    sig = _floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
+    sig = floor_sigmas(inp, fits[-1].chi2 / fits[-1].dof if r is None else r.chi2 / r.dof)
     # Without stated noise the only level is the fit's own residual: a floor from it would put
     # every model at its floor by construction, so none is shown.
     floor_sig = sig if inp.sigmas is not None else None

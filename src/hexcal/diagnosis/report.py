@@ -26,6 +26,8 @@ import numpy as np
 import hexcal
 from hexcal.diagnosis.compare_plots import before_after, pose_error_map
 from hexcal.diagnosis.diagnose import Diagnosis
+from hexcal.diagnosis.metrology import of_diagnosis
+from hexcal.diagnosis.metrology_html import metrology_section
 from hexcal.diagnosis.plots import write_plots
 from hexcal.diagnosis.report_pointer import pointer_section
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
@@ -367,6 +369,7 @@ def _nav(diags: Sequence[Diagnosis]) -> str:
     items = [
         '<li><a href="#provenance">Provenance</a></li>',
         '<li><a href="#accuracy">Pose accuracy</a></li>',
+        '<li><a href="#metrology">Metrology</a></li>',
     ]
     for i, d in enumerate(diags, 1):
         items.append(
@@ -734,6 +737,7 @@ def render_report(
     with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
         tmp = Path(t) if plots else None
         parts.append(_accuracy(diags, tmp))
+        parts.append(metrology_section(of_diagnosis(d)))
         for i, step in enumerate(diags, 1):
             if i > 1:
                 parts.append(_change(diags[i - 2], step, i - 1, tmp))

@@ -31,6 +31,7 @@ from hexcal.effects import CATALOGUE, EffectSource, get_effect
 from hexcal.effects.plugins import failure_of
 from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
+from hexcal.estimate.uncertainty import ParameterCovariance, model_parameter_names
 from hexcal.io.fileio import write_text_atomic
 from hexcal.io.safe_read import Count, NotBool
 from hexcal.io.validation import format_validation_error, shown_value
@@ -45,10 +46,13 @@ Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False),
 
 FORMAT: Final = "hexcal-calibrated-model"
 #: The newest format version this hexcal reads and writes. 1: the catalogue's effects only;
-#: 2: an effect may come from outside the catalogue and records its ``source``.
+#: 2 adds ``covariance`` and ``fitted_poses`` (both optional), and an effect from outside the
+#: catalogue records its ``source``. Version 1 files are still read.
 FORMAT_VERSION = 2
 #: The version a file needs when an effect records its source.
 SOURCE_VERSION = 2
+#: Largest magnitude of a covariance entry: the square of :data:`MAX_PARAMETER`.
+MAX_COVARIANCE = MAX_PARAMETER**2
 
 
 class ParameterValue(BaseModel):
@@ -165,6 +169,27 @@ class Provenance(BaseModel):
     inputs: list[InputRecord] = Field(default_factory=list)
 
 
+class CovarianceRecord(BaseModel):
+    """The covariance of the model's parameters (format version 2): ``parameters`` names them
+    in the fit's order (a1.x … b6.z, offset1 … offset6 for Model 42, then the effects'), and
+    ``matrix`` (p × p) is in their units squared (mm², mm·ppm, ppm²…)."""
+
+    model_config = ConfigDict(extra="forbid")
+    parameters: list[str]
+    matrix: list[
+        list[Annotated[float, Field(ge=-MAX_COVARIANCE, le=MAX_COVARIANCE, allow_inf_nan=False)]]
+    ]
+
+
+class FittedPoses(BaseModel):
+    """The poses the model was fitted on (format version 2): their ids and times (s), so that
+    ``hexcal validate`` knows when it is given them again."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose_id: list[Annotated[int, Field(ge=1, le=2**53 - 1)]]
+    t: list[Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)]]
+
+
 class CalibrationBlock(BaseModel):
     """The ``calibration`` key of calibrated.json."""
 
@@ -182,14 +207,31 @@ class CalibrationBlock(BaseModel):
         description="pose accuracy of the design, the geometry alone and each effect added",
     )
     provenance: Provenance
+    covariance: CovarianceRecord | None = Field(
+        None, description="the parameters' covariance (absent when the fit did not determine it)"
+    )
+    fitted_poses: FittedPoses | None = None
 
     @model_validator(mode="after")
     def _version_holds_the_sources(self) -> CalibrationBlock:
-        need = format_version_of(self.effects)
+        has = [
+            what
+            for what, held in (
+                ("effect sources", any(e.source is not None for e in self.effects)),
+                ("covariance", self.covariance is not None),
+                ("fitted_poses", self.fitted_poses is not None),
+            )
+            if held
+        ]
+        need = format_version_of(
+            self.effects,
+            covariance=self.covariance is not None,
+            fitted_poses=self.fitted_poses is not None,
+        )
         if self.format_version < need:
             raise ValueError(
-                f"format_version {self.format_version} has no effect sources; a file whose "
-                f"effects record their source is format_version {need}"
+                f"format_version {self.format_version} has no {' nor '.join(has)}; a file "
+                f"holding them is format_version {need}"
             )
         return self
 
@@ -224,6 +266,20 @@ class CalibratedRobot(Robot):
             )
         return notes
 
+    def parameter_covariance(self) -> ParameterCovariance | None:
+        """The covariance of the model's parameters (None in a file without it)."""
+        c = self.calibration.covariance
+        if c is None:
+            return None
+        return ParameterCovariance(tuple(c.parameters), np.array(c.matrix, float))
+
+    def fitted_pose_keys(self) -> set[tuple[int, float]] | None:
+        """{(pose id, t rounded to 1 µs)} of the poses fitted (None when the file has no list)."""
+        f = self.calibration.fitted_poses
+        if f is None:
+            return None
+        return {(int(i), round(float(t), 6)) for i, t in zip(f.pose_id, f.t, strict=True)}
+
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""
         return Robot.model_validate(self.model_dump(exclude={"calibration"}, exclude_none=True))
@@ -243,9 +299,13 @@ def _same_source(a: EffectSource, b: EffectSource) -> bool:
     return a.module == b.module
 
 
-def format_version_of(effects: list[EffectRecord]) -> int:
-    """The format version a file holding ``effects`` needs: 2 when one records its source."""
-    return SOURCE_VERSION if any(e.source is not None for e in effects) else 1
+def format_version_of(
+    effects: list[EffectRecord], *, covariance: bool = False, fitted_poses: bool = False
+) -> int:
+    """The format version a file needs: 2 when an effect records its source, or the file holds
+    the parameters' ``covariance`` or its ``fitted_poses``; 1 otherwise."""
+    sources = any(e.source is not None for e in effects)
+    return SOURCE_VERSION if (sources or covariance or fitted_poses) else 1
 
 
 def effect_records(model: LegModel, sigmas: dict[str, float] | None = None) -> list[EffectRecord]:
@@ -270,6 +330,25 @@ def effect_records(model: LegModel, sigmas: dict[str, float] | None = None) -> l
             )
         )
     return out
+
+
+def covariance_record(
+    names: list[str], cov: np.ndarray, sigma: np.ndarray, model: LegModel, fit_offsets: bool
+) -> CovarianceRecord | None:
+    """The covariance of ``model``'s parameters out of a fit's (``names`` (q,), ``cov`` (q, q),
+    ``sigma`` (q,)): its rows and columns in the model's order, the session's own effects left
+    out. None when a parameter of the model is missing from the fit or undetermined (infinite
+    σ): a covariance that claims to know it would understate the uncertainty."""
+    wanted = model_parameter_names(model, fit_offsets)
+    if any(n not in names for n in wanted):
+        return None
+    idx = [names.index(n) for n in wanted]
+    if not np.all(np.isfinite(np.asarray(sigma)[idx])):
+        return None
+    m = np.asarray(cov, float)[np.ix_(idx, idx)]
+    if not np.all(np.isfinite(m)):
+        return None
+    return CovarianceRecord(parameters=wanted, matrix=(0.5 * (m + m.T)).tolist())
 
 
 def sha256_of(path: str | Path) -> str:
@@ -327,13 +406,52 @@ def parse_model(data: Any, where: str) -> CalibratedRobot | Robot:
     if isinstance(robot, CalibratedRobot):
         _check_effects_loaded(robot, where)
         try:
-            robot.leg_model()
+            model = robot.leg_model()
         except ValidationError as exc:
             raise RobotFileError(format_validation_error(exc, where)) from None
         except ValueError as exc:
             raise RobotFileError(f"{where}: field calibration.effects: {exc}") from None
         _check_parameter_names(robot, where)
+        _check_covariance(robot.calibration, model, where)
+        _check_fitted_poses(robot.calibration, where)
     return robot
+
+
+def _check_covariance(block: CalibrationBlock, model: LegModel, where: str) -> None:
+    """The covariance names the model's parameters in order, is square, symmetric and has no
+    negative variance; otherwise the file is refused with the field named."""
+    c = block.covariance
+    if c is None:
+        return
+    field = f"{where}: field calibration.covariance"
+    expected = model_parameter_names(model, block.kind == 42)
+    if c.parameters != expected:
+        raise RobotFileError(
+            f"{field}.parameters: expected the model's {len(expected)} parameters in order "
+            f"({expected[0]} … {expected[-1]}), got {len(c.parameters)}; the covariance does not "
+            "belong to this model: calibrate again, or remove the key"
+        )
+    p = len(expected)
+    if len(c.matrix) != p or any(len(row) != p for row in c.matrix):
+        raise RobotFileError(f"{field}.matrix: must be {p} rows of {p} numbers")
+    m = np.array(c.matrix, float)
+    scale = max(float(np.max(np.abs(m))), 1e-300)
+    if np.max(np.abs(m - m.T)) > 1e-9 * scale:
+        raise RobotFileError(f"{field}.matrix: not symmetric; a covariance matrix is")
+    if (np.diag(m) < 0).any():
+        k = int(np.argmin(np.diag(m)))
+        raise RobotFileError(
+            f"{field}.matrix: the variance of {expected[k]} is negative ({m[k, k]:g})"
+        )
+
+
+def _check_fitted_poses(block: CalibrationBlock, where: str) -> None:
+    f = block.fitted_poses
+    if f is not None and len(f.pose_id) != len(f.t):
+        raise RobotFileError(
+            f"{where}: field calibration.fitted_poses: {len(f.pose_id)} pose ids but "
+            f"{len(f.t)} times; each fitted pose has one of each"
+        )
 
 
 def _check_effects_loaded(robot: CalibratedRobot, where: str) -> None:

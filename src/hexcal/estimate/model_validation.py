@@ -1,5 +1,11 @@
 """Validate a model on poses it was never fitted on: the classic calibration / validation split.
 
+A model given the very measurements it was fitted on is not validated by them: when the file
+given is one of the model's inputs (its SHA-256 is in calibrated.json's provenance) or its poses
+are among those fitted (same pose ids and times, calibrated.json's ``fitted_poses``),
+:func:`own_session` says so; the report then says it at the top and gives no verdict that the
+model holds.
+
 The model (a calibrated.json, or a plain robot.json such as the drawing) is held fixed. On the
 new poses it gives the leg-length residual (what the readings say against the measured pose's
 lengths) and the pose error (the pose it computes from the readings against the tracker's),
@@ -53,6 +59,18 @@ class Validation:
     #: With ``rehome``: the same validation after re-estimating the offsets on these poses
     rehomed: Validation | None = None
     offset_shift_mm: np.ndarray | None = None  #: (6,) the re-estimated offsets − the model's
+    #: Why these poses are the model's own (its inputs), or None when they are new to it
+    own_session: str | None = None
+    #: The noise the figures used (stated, or estimated from these poses)
+    noise: NoiseSigmas | None = None
+
+    @property
+    def verdict_given(self) -> Verdict | None:
+        """The verdict as reported: none on the model's own poses (a fit sits at its floor on
+        the data it was fitted to, which says nothing about new poses)."""
+        if self.own_session and self.verdict == Outcome.NONE:
+            return None
+        return self.verdict
 
     def to_dict(self) -> dict:
         a = self.accuracy
@@ -75,7 +93,8 @@ class Validation:
             "noise_source": self.noise_source,
             "chi2_per_dof": self.chi2_per_dof,
             "excess_significant": self.excess_significant,
-            "verdict": self.verdict,
+            "own_session": self.own_session,
+            "verdict": self.verdict_given,
             "explained_fraction": self.explained,
             "shifted_legs": self.shifted_legs,
             "notes": self.notes,
@@ -90,8 +109,16 @@ class Validation:
     def text(self, source: str) -> str:
         a = self.accuracy
         um = 1000.0
+        if self.own_session:
+            head = [
+                f"hexcal validate: {self.model} on {source}: NOT A VALIDATION — {self.own_session}",
+                "  the figures below say how the model fits the data it was fitted to, not how it "
+                "predicts new poses: validate it on a second session",
+            ]
+        else:
+            head = [f"hexcal validate: {self.model} on {source}: poses it was not fitted on"]
         lines = [
-            f"hexcal validate: {self.model} on {source}: poses it was not fitted on",
+            *head,
             f"noise: {self.noise_source}",
             "",
             f"pose error:  position {a.position_rms_mm:.4f} mm RMS, 95 % {a.position_p95_mm:.4f} mm, "
@@ -107,7 +134,12 @@ class Validation:
         ]
         if a.failed:
             lines.append(f"{a.failed} poses' readings are outside the model's workspace")
-        if self.verdict == Outcome.NONE:
+        if self.verdict == Outcome.NONE and self.own_session:
+            lines.append(
+                "verdict: not given — at the noise floor on its own poses, as a fit is on the data "
+                "it was fitted to"
+            )
+        elif self.verdict == Outcome.NONE:
             lines.append("verdict: none — the model holds on these poses (at the noise floor)")
         elif self.verdict == Outcome.UNEXPLAINED:
             lines.append(
@@ -135,6 +167,31 @@ class Validation:
                 f"  leg lengths: RMS {1000 * r.leg_rms_mm:.2f} µm; verdict {r.verdict}",
             ]
         return "\n".join(lines)
+
+
+def own_session(
+    inputs: list[tuple[str, str]],
+    fitted: set[tuple[int, float]] | None,
+    sha256: str,
+    meas,
+) -> str | None:
+    """Why the table ``meas`` (whose file has SHA-256 ``sha256``) was among a model's inputs,
+    or None: ``inputs`` are the model's provenance (role, sha256) pairs, ``fitted`` its fitted
+    poses' (pose id, t rounded to 1 µs) keys (None when the model file does not list them)."""
+    for role, digest in inputs:
+        if digest == sha256 and role in ("measurements", "session"):
+            return f"this file is the model's own {role} input (its SHA-256 is in the provenance)"
+    if not fitted:
+        return None
+    keys = zip(meas.pose_id.tolist(), np.round(meas.t, 6).tolist(), strict=True)
+    shared = sum((int(i), float(t)) in fitted for i, t in keys)
+    if not shared:
+        return None
+    if shared == len(meas):
+        return f"all {shared} poses were fitted (same pose ids and times as the model's)"
+    return (
+        f"{shared} of these {len(meas)} poses were fitted (same pose ids and times as the model's)"
+    )
 
 
 def _whitened(model: LegModel, meas, sig: NoiseSigmas) -> tuple[np.ndarray, np.ndarray]:
@@ -225,6 +282,7 @@ def validate_model(
         explained,
         notes,
         shifted_legs,
+        noise=sig,
     )
 
 

@@ -42,6 +42,7 @@ from hexcal.estimate.solvers.paper import platform_point_positions
 from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.model.workspace import Workspace
+from hexcal.procedure import patterns
 from hexcal.procedure.recording import (
     BusStatus,
     ClampSlipped,
@@ -336,8 +337,17 @@ class GuidedSession:
         if st.at_home:
             mover.home()
             return "moved home"
+        if st.pattern:
+            return patterns.move_to(mover, self.pattern_target())
         mover.next_pose()
         return "moved to the next pose"
+
+    def pattern_target(self) -> patterns.Target:
+        """Where a pattern step's next pose is taken (:mod:`hexcal.procedure.patterns`)."""
+        st = self.step
+        if not st.pattern:
+            raise GuidedError(f"{st.name} has no set targets: the operator chooses its poses")
+        return patterns.target(st.pattern, self.sf.session.robot, self.n_poses, st.cycles)
 
     def record(self) -> tuple[bool, str]:
         """Record one pose of the current step: (recorded, operator message). Blocks for the
@@ -606,6 +616,8 @@ class GuidedSession:
         poses = self.recorder.poses if self.recorder else []
         if st.at_home:
             return "record the home pose"
+        if st.pattern:
+            return f"next: {self.pattern_target().label}"
         if len(poses) < 2:
             return {
                 Constraint.DIRECTION_LENGTH: "tilt the platform about the clamped point",

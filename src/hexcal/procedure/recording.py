@@ -35,6 +35,7 @@ from hexcal.estimate.solvers.direct import type_i_system, type_ii_system
 from hexcal.estimate.solvers.linalg import lstsq
 from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.model.robot import Robot
 from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
 
 #: The clamped steps of one leg, in the order an operator records them.
@@ -68,6 +69,10 @@ class Step:
     #: The predicted 1σ (mm) of the point that matters at which the step has enough poses: the
     #: next-best-pose suggestions stop there (None: no target, suggest until the count).
     target_sigma_mm: float | None = None
+    #: The targets it visits (:mod:`hexcal.procedure.patterns`: ``iso9283``, ``iso230-2``) and
+    #: how many cycles of them; None: poses where the operator chooses.
+    pattern: str | None = None
+    cycles: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "constraint", Constraint(self.constraint))
@@ -80,6 +85,8 @@ class Step:
 
     @property
     def name(self) -> str:
+        if self.pattern:
+            return self.pattern
         if self.leg == 0:
             return "home" if self.at_home else "free"
         return f"leg{self.leg}-{self.constraint}"
@@ -327,6 +334,7 @@ def record_procedure(
     on_event: Callable[[str], None] = lambda message: None,
     on_clamp: Callable[[Step, int], None] = lambda step, attempt: None,
     on_record: Callable[[str, Step, RecordedPose | None, str], None] | None = None,
+    design: Robot | None = None,
 ) -> SessionRecording:
     """Run a procedure end to end with a motion controller doing the operator's moves.
 
@@ -336,7 +344,8 @@ def record_procedure(
     sentence per thing that happened. ``on_record(kind, step, pose, reason)`` is told of every
     pose as it happens, so a session file can be saved after each: kind ``"pose"`` (recorded,
     pose given), ``"refused"`` (not recorded, pose None) and ``"set-aside"`` (a recorded pose
-    of a step that then failed; once per pose, in recording order)."""
+    of a step that then failed; once per pose, in recording order). ``design``: the robot a
+    pattern step's targets are computed from (needed only for those)."""
     settings = settings or RunSettings()
     session = SessionRecording()
     tell = on_record or (lambda kind, step, pose, reason: None)
@@ -347,7 +356,9 @@ def record_procedure(
                 mover.clamp(step.leg, step.constraint)
                 on_event(f"{step.name}: leg {step.leg} clamped ({step.constraint})")
             on_clamp(step, attempt)
-            failed = _record_step(acquisition, mover, rec, session, settings, on_event, tell)
+            failed = _record_step(
+                acquisition, mover, rec, session, settings, on_event, tell, design
+            )
             if step.leg:
                 mover.release()
             if failed is None:
@@ -370,11 +381,20 @@ def record_procedure(
     return session
 
 
-def _record_step(acq, mover, rec: StepRecorder, session, settings, on_event, tell) -> str | None:
+def _record_step(
+    acq, mover, rec: StepRecorder, session, settings, on_event, tell, design=None
+) -> str | None:
     """Record one step's poses; the reason the step must be repeated, or None."""
     while not rec.done:
         if rec.step.at_home:
             mover.home()
+        elif rec.step.pattern:
+            from hexcal.procedure import patterns
+
+            if design is None:
+                raise ValueError(f"{rec.step.name} visits targets computed from the robot: pass it")
+            t = patterns.target(rec.step.pattern, design, len(rec.poses), rec.step.cycles)
+            patterns.move_to(mover, t)
         else:
             mover.next_pose()
         time.sleep(settings.settle_s)

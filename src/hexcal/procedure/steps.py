@@ -21,6 +21,11 @@ A procedure file (see ``procedures/*.toml``, shipped as ``hexcal.procedures``)::
                                        # which the step has enough poses: suggestions stop there
     checks = ["clamp-length", "step-fit"]
     at_home = false                    # true: the step's poses are taken at the home pose
+    pattern = "iso9283"                # optional, free steps only: the targets it visits,
+                                       # "iso9283" (ISO 9283's five test poses) or "iso230-2"
+                                       # (each leg through ISO 230-2's targets), see
+                                       # hexcal.procedure.patterns
+    cycles = 30                        # optional, with pattern: cycles (default the standard's)
 
 Checks: ``clamp-length`` — the clamped leg's encoder must stay within ``tolerance_mm`` of its
 first reading in the step (a length clamp holds the length), checked at every pose;
@@ -52,6 +57,8 @@ BUILTIN = {
     "model36-direction": "model36-direction.toml",
     "model42-direction-length": "model42-direction-length.toml",
     "free-validation": "free-validation.toml",
+    "iso9283": "iso9283.toml",
+    "iso230-2": "iso230-2.toml",
 }
 
 Check = Literal["clamp-length", "step-fit"]
@@ -81,6 +88,8 @@ class ProcedureStep(BaseModel):
     target_sigma_mm: float | None = Field(None, gt=0, le=MAX_TOLERANCE_MM, allow_inf_nan=False)
     checks: list[Check] = Field(default_factory=list)
     at_home: bool = False
+    pattern: Literal["iso9283", "iso230-2"] | None = None
+    cycles: int | None = Field(None, ge=1, le=1000)
 
     @field_validator("legs")
     @classmethod
@@ -101,6 +110,13 @@ class ProcedureStep(BaseModel):
         free = self.constraint == Constraint.FREE
         if self.at_home and not free:
             raise ValueError("at_home = true is for a free step (the home pose clamps nothing)")
+        if self.pattern and (not free or self.at_home):
+            raise ValueError(
+                f"pattern = {self.pattern!r} is for a free step away from home (its targets "
+                "are the platform's poses or the legs' readings, nothing is clamped)"
+            )
+        if self.cycles is not None and not self.pattern:
+            raise ValueError("cycles counts the cycles of a pattern: give pattern too")
         if free and self.legs is not None:
             raise ValueError("a free step clamps no leg: remove 'legs'")
         if not free and self.legs is None:
@@ -167,6 +183,8 @@ def _step(s: ProcedureStep, leg: int) -> Step:
         checks=tuple(s.checks),
         at_home=s.at_home,
         target_sigma_mm=s.target_sigma_mm,
+        pattern=s.pattern,
+        cycles=s.cycles,
     )
 
 

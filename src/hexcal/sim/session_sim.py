@@ -112,6 +112,39 @@ def simulate_session(
     return meas, truth
 
 
+def _with_tests(meas, design, truth, effect, values, plan, tests, seed) -> Measurements:
+    """``meas`` with the standard ``tests`` recorded after it, at its last temperature."""
+    from hexcal.sim.metrology_sim import simulate_tests, true_model
+
+    model = true_model(truth, (effect,) if effect else (), values)
+    last_t = float(meas.temperature[-1]) if meas.temperature is not None else None
+    extra = simulate_tests(
+        model,
+        design,
+        np.random.default_rng([seed, 9283]),
+        plan.noise,
+        tests=tests,
+        first_id=int(meas.pose_id.max()) + 1,
+        t0=float(meas.t[-1]),
+        temperature_c=last_t,
+    )
+    both = [meas, extra]
+    temperature = None
+    if last_t is not None:
+        temperature = np.concatenate([meas.temperature, extra.temperature])
+    return Measurements.from_arrays(
+        np.concatenate([m.position for m in both]),
+        np.concatenate([m.quaternion for m in both]),
+        np.concatenate([m.readings for m in both]),
+        leg=np.concatenate([m.leg for m in both]),
+        constraint=np.concatenate([m.constraint for m in both]),
+        step=np.concatenate([m.step for m in both]),
+        t=np.concatenate([m.t for m in both]),
+        pose_id=np.concatenate([m.pose_id for m in both]),
+        temperature=temperature,
+    )
+
+
 def bump_poses(
     meas: Measurements, rng: np.random.Generator, n: int, size_mm: float = 0.5
 ) -> tuple[Measurements, np.ndarray]:
@@ -160,12 +193,15 @@ def write_session_dir(
     effect_scale: float = 1.0,
     pose_seed: int | None = None,
     effect_values: np.ndarray | None = None,
+    tests: Sequence[str] = (),
 ) -> Path:
     """Write robot.json (design), measurements.csv, instruments.json and truth.json; with
     ``effect``, that registered effect is hidden at a realistic size, or with ``effect_values``
     (its true values go to truth.json). ``seed`` draws the robot (its truth and effect); ``pose_seed`` (default
     ``seed``) the poses and the noise, so another ``pose_seed`` is a second session of the same
-    robot (for validation)."""
+    robot (for validation). ``tests`` (``iso9283``, ``iso230-2``) are appended after the
+    session, driven in joint space by a controller running the design
+    (:mod:`hexcal.sim.metrology_sim`)."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -182,6 +218,8 @@ def write_session_dir(
         label = effect
     poses = seed if pose_seed is None else pose_seed
     meas, truth = simulate_session(design, poses, plan, effects=hooks, truth=truth)
+    if tests:
+        meas = _with_tests(meas, design, truth, effect, values, plan, tests, poses)
     save_robot(design, outdir / "robot.json")
     write_measurements(meas, outdir / "measurements.csv")
     inst = Instruments(

@@ -140,6 +140,7 @@ class ResultScreen(HexcalScreen):
         text += escape(accuracy_table(result.accuracy))
         if rig is not None and rig.truth is not None and cal.refinement is not None:
             text += "\n\n" + truth_line(cal.refinement, rig.truth)
+        text += "\n\n" + escape("\n".join(metrology_lines(result, inp)))
         store(guided.sf, "calibration", result, inp.meas)
         self.hexcal.post(self._show, text + "\n\n[b]d[/b] diagnose   [b]e[/b] export")
 
@@ -171,6 +172,18 @@ class ResultScreen(HexcalScreen):
 
     def action_export(self) -> None:
         self.status(*export_text(self))
+
+
+def metrology_lines(result: Any, inp: Any) -> list[str]:
+    """The calibrated model's metrology figures on the session's own poses (the uncertainty of
+    its poses, ISO 9283 and ISO 230-2 when the session has their steps)."""
+    from hexcal.app.workflow import floor_sigmas
+    from hexcal.diagnosis.metrology import of_model_file
+
+    r = result.calibration.refinement
+    sig = floor_sigmas(inp, 1.0 if r is None else r.chi2 / r.dof)
+    label = f"{result.name} on the poses it was fitted on"
+    return of_model_file(result.file, inp.meas, sig, label).lines()
 
 
 def truth_line(refinement: Any, truth: Any) -> str:

@@ -106,6 +106,9 @@ def run(args: argparse.Namespace) -> int:
     effect_written = (
         _write_effect_file(steps[-1], args.effect_file, inp) if args.effect_file else None
     )
+    from hexcal.diagnosis.metrology import of_diagnosis
+
+    figures = of_diagnosis(steps[-1])
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
@@ -123,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
             ]
         out["at_limits"] = limits_json
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
+        out["metrology"] = figures.to_dict(per_pose=False)
         if result is not None:
             out["written"] = {"path": str(args.out), "model": result.name}
         if args.effect_file:
@@ -143,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
             print(diagnosis_text(d, inp.label))
             print()
         print(before_after_text(steps))
+        print()
+        print("\n".join(figures.lines()))
         if args.plots:
             print(f"plots written to {args.plots}/")
         if args.report:

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from hexcal.app.commands.common import add_effects_option, check_outputs, load_effects, number
 
 
@@ -20,7 +22,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "table",
         type=Path,
         help="CSV with rho1..rho6 (mm) to compute poses, or x,y,z (mm),qw,qx,qy,qz to compute "
-        "readings; optional t (s), temperature (degC); rows in motion order",
+        "readings; optional t (s), temperature (degC); rows in motion order. With a model that "
+        "carries its covariance, U_position_mm and U_orientation_deg (k = 2) are added",
     )
     pr.add_argument(
         "--to", choices=("pose", "readings"), help="what to compute (when the table has both)"
@@ -34,6 +37,39 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--force", action="store_true", help="replace an existing --out file")
     add_effects_option(pr)
     pr.set_defaults(func=run)
+
+
+def uncertainty_columns(loaded, model, table, to: str, values, temperature) -> np.ndarray | None:
+    """(N, 2): each row's expanded uncertainty (k = 2) of the pose, position mm and
+    orientation degrees, from the model's parameter covariance and its readings' noise (None
+    when the model file carries no covariance or no noise)."""
+    from scipy.spatial.transform import Rotation
+
+    from hexcal.estimate.model_file import CalibratedRobot
+    from hexcal.estimate.predict import Poses
+    from hexcal.estimate.predict_table import POSE, READINGS
+    from hexcal.estimate.uncertainty import pose_uncertainty
+
+    if not isinstance(loaded, CalibratedRobot):
+        return None
+    cov, noise = loaded.parameter_covariance(), loaded.calibration.noise
+    if cov is None or noise is None:
+        return None
+    t = table.column("t", required=False)
+    temp = table.column("temperature", required=False)
+    if temp is None and temperature is not None:
+        temp = np.full(len(table.rows), float(temperature))
+    if to == "pose":
+        readings = np.column_stack([table.column(c) for c in READINGS])
+        pose = values
+    else:
+        readings = values
+        pose = np.column_stack([table.column(c) for c in POSE])
+    rot = Rotation.from_quat(pose[:, 3:7], scalar_first=True).as_matrix()
+    u = pose_uncertainty(
+        model, cov, Poses(pose[:, :3], rot), readings, noise.sigma_reading_mm, t, temp
+    )
+    return np.column_stack([u.position_mm, u.orientation_deg])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
     table = read_table(args.table)
     to = direction(table, args.to)
     names, values = predict_table(model, table, to, args.temperature)
+    extra = uncertainty_columns(loaded, model, table, to, values, args.temperature)
+    if extra is not None:
+        names = [*names, "U_position_mm", "U_orientation_deg"]
+        values = np.column_stack([values, extra])
     text = write_table(table, names, values)
     if args.out:
         if Path(args.out).resolve() in (Path(args.table).resolve(), Path(args.model).resolve()):

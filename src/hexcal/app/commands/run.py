@@ -35,7 +35,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     rn.add_argument(
         "--procedure",
         default="model42-direction-length",
-        choices=["model42-direction-length", "model36-direction", "free-validation"],
+        # hexcal.procedure.steps.BUILTIN, named here so that --help imports no pydantic
+        choices=[
+            "model42-direction-length",
+            "model36-direction",
+            "free-validation",
+            "iso9283",
+            "iso230-2",
+        ],
         help="the procedure to walk through (procedures/*.toml; default: Model 42 by "
         "direction and length, then length clamping)",
     )

@@ -92,6 +92,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=1.5,
         help="structure temperature rise over the session, K",
     )
+    m.add_argument(
+        "--tests",
+        nargs="+",
+        choices=("iso9283", "iso230-2"),
+        default=(),
+        help="append these standard tests after the session, driven by a controller running "
+        "the design (docs/metrology.md)",
+    )
     m.set_defaults(func=run)
 
 
@@ -124,7 +132,15 @@ def run(args: argparse.Namespace) -> int:
     if args.robot and Path(args.robot).resolve() == (Path(args.out) / "robot.json").resolve():
         raise ValueError(f"{args.robot}: this is the robot input; choose another --out")
     out = write_session_dir(
-        args.out, design, args.seed, plan, args.effect, args.effect_scale, args.pose_seed, values
+        args.out,
+        design,
+        args.seed,
+        plan,
+        args.effect,
+        args.effect_scale,
+        args.pose_seed,
+        values,
+        tuple(args.tests),
     )
     hidden = f", hidden effect: {args.effect}" if args.effect else ""
     print(

@@ -1,4 +1,6 @@
-"""``hexcal validate``: a model on poses it was not fitted on."""
+"""``hexcal validate``: a model on poses it was not fitted on, with its metrology figures (the
+poses' expanded uncertainty and its coverage, ISO 9283, ISO 230-2); on the poses it was fitted
+on, it says so first."""
 
 from __future__ import annotations
 
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
             sig = NoiseSigmas.from_instruments(noise)
             source = f"the model's own ({args.model}: {loaded.calibration.noise_source})"
     v = validate_model(model, model_label(loaded), inp.meas, sig, source)
+    v.own_session = _own_session(loaded, args.measurements, inp.meas)
     if args.rehome:
         from hexcal.estimate.model_validation import estimated_noise, rehome
 
@@ -70,8 +73,37 @@ def run(args: argparse.Namespace) -> int:
         moved, shift = rehome(model, inp.meas, sig_r)
         v.rehomed = validate_model(moved, f"{v.model} re-homed", inp.meas, sig_r, source)
         v.offset_shift_mm = shift
+    figures = _metrology(loaded, model, v.model, inp.meas, v.noise)
     if args.json:
-        print(json_out.dumps(v.to_dict(), why=json_out.accuracy_reason, indent=2))
+        out = v.to_dict()
+        u = figures.uncertainty
+        out["position_coverage_95"] = (
+            None if u is None else u.to_dict(False)["position_coverage_95"]
+        )
+        out["metrology"] = figures.to_dict()
+        print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         print(v.text(inp.label))
+        print()
+        print("\n".join(figures.lines()))
     return 0
+
+
+def _own_session(loaded, path: Path, meas) -> str | None:
+    """Why the table was among the model's inputs (None: it was not, or the model is a plain
+    robot.json, which was fitted on nothing)."""
+    from hexcal.estimate.model_file import CalibratedRobot, sha256_of
+    from hexcal.estimate.model_validation import own_session
+
+    if not isinstance(loaded, CalibratedRobot):
+        return None
+    inputs = [(i.role, i.sha256) for i in loaded.calibration.provenance.inputs]
+    return own_session(inputs, loaded.fitted_pose_keys(), sha256_of(path), meas)
+
+
+def _metrology(loaded, model, label: str, meas, sig):
+    """The metrology figures of the model on the table (the poses' uncertainty from the
+    model's covariance when the file has one)."""
+    from hexcal.diagnosis.metrology import of_model_file
+
+    return of_model_file(loaded, meas, sig, label)
