@@ -10,6 +10,7 @@ from hexcal.app.commands import (
     demo,
     devices,
     diagnose,
+    examples,
     import_log,
     predict,
     run,
@@ -33,4 +34,5 @@ COMMANDS = (
     demo,
     run,
     session,
+    examples,
 )
