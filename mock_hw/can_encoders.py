@@ -51,6 +51,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -353,6 +354,9 @@ class MockEncoderNodes(Device):
         self.nmt_log: list[tuple[int, int]] = []
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=log_len)
         self.syncs_seen = 0
+        #: When the last SYNCs went on the bus (s, monotonic), oldest first.
+        self.sync_times: deque[float] = deque(maxlen=16)
+        self._offset, self._offset_at = 0.0, -math.inf  # see _wall_minus_monotonic
 
     @property
     def states(self) -> dict[int, int]:
@@ -638,17 +642,35 @@ class MockEncoderNodes(Device):
                 out += enc.node.get_data(index, sub)[: bits // 8]
         return out
 
+    def _wall_minus_monotonic(self, now: float) -> float:
+        """The wall clock less the monotonic one (s), measured again each second: across a wall
+        clock read bracketed most tightly by two monotonic ones. Read once in passing, a thread
+        held back between the two reads (a busy host) would put the SYNC milliseconds early."""
+        if now - self._offset_at > 1.0:
+            gap, offset = math.inf, 0.0
+            for _ in range(5):
+                m1 = time.monotonic()
+                wall = time.time()
+                m2 = time.monotonic()
+                if m2 - m1 < gap:
+                    gap, offset = m2 - m1, wall - (m1 + m2) / 2
+            self._offset, self._offset_at = offset, now
+        return self._offset
+
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         t = time.monotonic()
         # The SYNC's bus time (wall clock on python-can's buses) on the monotonic clock.
         t_bus = timestamp or time.time()
-        t_sync = t_bus - (time.time() - t)
-        at = t_sync if self.robot.clock is time.monotonic and t_sync <= t else None
+        t_sync = t_bus - self._wall_minus_monotonic(t)
+        # Latched at the SYNC's instant (never in the future: now at the latest), so each SYNC
+        # is one measurement of the robot's encoder stream, in order (MockRobot's noise).
+        at = min(t_sync, t) if self.robot.clock is time.monotonic else None
         readings = self.robot.encoder_readings(at)  # latched at the SYNC, as a CiA 406 encoder does
         counter = data[0] if len(data) >= 1 else self.syncs_seen + 1
         out: list[tuple[float, can.Message]] = []
         with self._lock:
             self.syncs_seen += 1
+            self.sync_times.append(t_sync)
             self.history.append((counter, readings))
             if self._bus_off:
                 return

@@ -17,6 +17,7 @@ would not); the acquisition side has to notice it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -75,6 +76,12 @@ class MockMotionController:
         self._slip: Slip | None = None
         self._slip_axis = np.zeros(3)
         self.moves = 0
+        #: Called before each move: the mock rig waits there for an instant between the
+        #: devices' measurements (:func:`hexcal.mock_hw.rig.mock_rig`). None: move at once.
+        self.before_move: Callable[[], None] | None = None
+        #: Told the ``robot.clock()`` time (s) from which each pose is in effect (the mock rig
+        #: starts the next still window there). None: nobody is told.
+        self.on_move: Callable[[float], None] | None = None
 
     # -- clamping ---------------------------------------------------------------------------
     def _leg_now(self, k: int) -> tuple[np.ndarray, float, np.ndarray]:
@@ -132,6 +139,14 @@ class MockMotionController:
         self.clamp_state = c
 
     # -- moving -----------------------------------------------------------------------------
+    def _move(self, position: np.ndarray, rotation: np.ndarray) -> None:
+        if self.before_move is not None:
+            self.before_move()
+        t = self.robot.move_to(position, rotation)
+        self.moves += 1
+        if self.on_move is not None:
+            self.on_move(t)
+
     def violation_mm(self, position: np.ndarray, rotation: np.ndarray) -> float:
         """How far (mm) the pose breaks the current clamp's constraint (0 when unclamped)."""
         c = self.clamp_state
@@ -158,8 +173,7 @@ class MockMotionController:
             )
         if not self.sim.feasible(P, R):
             raise MotionError("that pose is outside the robot's joint limits or leg stroke")
-        self.robot.move_to(P, R)
-        self.moves += 1
+        self._move(P, R)
 
     def next_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Move to a new random pose the current clamp allows (a free pose if none) and return
@@ -176,8 +190,7 @@ class MockMotionController:
             P, R = self.sim.type_ii(c.leg - 1, (1,), self._rng, point=c.point)
         # The drawn pose satisfies the (possibly crept) clamp exactly: bypass the tolerance
         # check only in so far as the clamp itself moved.
-        self.robot.move_to(P[0], R[0])
-        self.moves += 1
+        self._move(P[0], R[0])
         return P[0], R[0]
 
     def move_near(
@@ -204,8 +217,7 @@ class MockMotionController:
                 P = c.point - rb
         if not self.sim.feasible(P, R):
             raise MotionError("that pose is outside the robot's joint limits or leg stroke")
-        self.robot.move_to(P, R)
-        self.moves += 1
+        self._move(P, R)
         return P, R
 
     def move_readings(self, readings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -33,6 +34,12 @@ class MockRobot:
     ask for the pose that was in effect at a past instant (:meth:`tracker_sample` with ``at``):
     a tracker measures its frame at a fixed instant and answers later. For tests and benchmarks,
     :attr:`encoder_latches` records when each set of encoder readings was taken.
+
+    Noise: each measurement's noise is drawn from its own stream, seeded by (``seed``, the
+    instrument, the pose it measures — the n-th pose moved to —, how many measurements of that
+    pose the instrument took before it), not from one generator in the order the devices' threads
+    happen to ask. So the same seed and the same moves give the same numbers, however the host's
+    threads were scheduled and however long the operator waited between two keys.
     """
 
     #: How many (time, readings) entries :attr:`encoder_latches` keeps by default (10 s at 100 Hz
@@ -42,6 +49,14 @@ class MockRobot:
     #: How many poses the motion history keeps. History-dependent effects (backlash) only need
     #: each leg's last motion, so a long tail is enough; bounded so a soak's memory stays flat.
     POSE_LOG_LEN = 200
+    #: The noise streams: one per instrument, and one for measurements taken "now" rather than
+    #: at a device's own instant (set-up reads, the instant acquisition of the UI's tests).
+    _STREAMS: ClassVar[dict[str, int]] = {
+        "tracker": 0x54524B,
+        "encoders": 0x454E43,
+        "tracker now": 0x544E57,
+        "encoders now": 0x454E57,
+    }
 
     def __init__(
         self,
@@ -57,12 +72,17 @@ class MockRobot:
         self.truth = truth
         self.clock = clock
         self.temperature = temperature
-        self._rng = np.random.default_rng(seed)
+        self.seed = seed
         self._lock = threading.Lock()
+        #: How many poses the robot has been moved to (its first pose, at creation, is pose 0).
+        self.moves = 0
+        #: (instrument stream, pose) → measurements of that pose taken so far.
+        self._taken: dict[tuple[str, int], int] = {}
         self._t0 = clock()
         self._P = np.asarray(truth.home.position, float)
         self._R = Rotation.from_quat(truth.home.quaternion, scalar_first=True).as_matrix()
-        # (P, R, t, T, noise-free readings) of the last POSE_LOG_LEN poses moved to, in order.
+        # (P, R, t, T, noise-free readings, pose number) of the last POSE_LOG_LEN poses moved
+        # to, in order.
         self._poses: deque[tuple] = deque(maxlen=self.POSE_LOG_LEN)
         self.tool_visible = True
         #: (``clock()`` s, readings (6,) mm) of every :meth:`encoder_readings` call, oldest first:
@@ -74,12 +94,19 @@ class MockRobot:
         self._readings = self._true_readings()
 
     # -- motion ---------------------------------------------------------------------------------
-    def move_to(self, position: np.ndarray, rotation: np.ndarray) -> None:
-        """Set the true pose (the mock motion controller's job)."""
+    def move_to(self, position: np.ndarray, rotation: np.ndarray) -> float:
+        """Set the true pose (the mock motion controller's job); returns the ``clock()`` time
+        (s) from which it is in effect."""
         with self._lock:
             self._P = np.asarray(position, float).copy()
             self._R = np.asarray(rotation, float).copy()
+            self.moves += 1
             self._readings = self._true_readings()
+            # Drop the measurement counts of poses that left the log: memory stays flat.
+            oldest = self._poses[0][5]
+            for key in [key for key in self._taken if key[1] < oldest]:
+                del self._taken[key]
+            return self._t0 + self._poses[-1][2]
 
     def true_pose(self) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:
@@ -94,7 +121,8 @@ class MockRobot:
             return P.copy(), R.copy()
 
     def _pose_at_locked(self, at: float) -> tuple:
-        """The pose log entry (P, R, t, T, readings) in effect at ``clock()`` time ``at``."""
+        """The pose log entry (P, R, t, T, readings, pose number) in effect at ``clock()`` time
+        ``at``."""
         rel = at - self._t0
         # Searched from the newest: instruments ask about the last few tens of ms.
         for entry in reversed(self._poses):
@@ -116,8 +144,15 @@ class MockRobot:
             R = np.array([p[1] for p in hist])
             ctx = PoseContext(P, R, np.array([p[2] for p in hist]), np.array([p[3] for p in hist]))
             rho = self.sim.readings(P, R, ctx)[-1]
-        self._poses.append((P0, R0, t, T, rho))
+        self._poses.append((P0, R0, t, T, rho, self.moves))
         return rho
+
+    def _noise_rng(self, stream: str, pose: int) -> np.random.Generator:
+        """The generator of the next measurement of pose number ``pose`` by ``stream`` (see the
+        class docstring). Called with the lock held."""
+        n = self._taken.get((stream, pose), 0)
+        self._taken[stream, pose] = n + 1
+        return np.random.default_rng([self.seed, self._STREAMS[stream], pose, n])
 
     # -- what the instruments see ----------------------------------------------------------------
     def tracker_sample(
@@ -132,8 +167,10 @@ class MockRobot:
         with self._lock:
             if not self.tool_visible:
                 return None
-            P0, R0 = (self._P, self._R) if at is None else self._pose_at_locked(at)[:2]
-            P, R, _ = self.sim.noise.apply(self._rng, P0[None], R0[None])
+            entry = self._poses[-1] if at is None else self._pose_at_locked(at)
+            P0, R0 = (self._P, self._R) if at is None else entry[:2]
+            rng = self._noise_rng("tracker now" if at is None else "tracker", entry[5])
+            P, R, _ = self.sim.noise.apply(rng, P0[None], R0[None])
         q = Rotation.from_matrix(R[0]).as_quat(scalar_first=True)
         return P[0], q, float(self.sim.noise.sigma_position_mm)
 
@@ -144,11 +181,13 @@ class MockRobot:
         :attr:`encoder_latches`."""
         with self._lock:
             if at is None:
-                t, rho = self.clock(), self._readings.copy()
+                t, rho, pose = self.clock(), self._readings.copy(), self._poses[-1][5]
             else:
-                t, rho = at, self._pose_at_locked(at)[4].copy()
+                entry = self._pose_at_locked(at)
+                t, rho, pose = at, entry[4].copy(), entry[5]
             sig = self.sim.noise
             if sig.reading_mm:
-                rho = rho + sig._draw(self._rng, sig.reading_mm, (6,))
+                rng = self._noise_rng("encoders now" if at is None else "encoders", pose)
+                rho = rho + sig._draw(rng, sig.reading_mm, (6,))
             self.encoder_latches.append((t, rho))
         return rho

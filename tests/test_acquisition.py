@@ -297,3 +297,83 @@ def test_a_window_whose_average_is_not_finite_is_refused():
     ts = [TrackerSample(s.t, np.array([1e308, 2.0, 200.0]), s.quaternion, 0.01) for s in ts]
     with pytest.raises(PoseRefused, match=r"averaged position is not a finite number"):
         record_pose(ts, ls, WINDOW, t_end=0.5)
+
+
+# -- windows a motion controller anchors (the mock rig's reproducible sessions) ---------------------
+class _Clocked:
+    """A source giving samples stamped on a fixed grid (period s, first at ``t0``), each the
+    next of ``values``: what a device measures at its own instants, whatever the host does."""
+
+    def __init__(self, make, period: float, t0: float):
+        self.make, self.period, self.n, self.t0 = make, period, 0, t0
+
+    def sample(self):
+        t = self.t0 + self.n * self.period
+        time.sleep(max(0.0, t - time.monotonic()))
+        self.n += 1
+        return self.make(t, self.n)
+
+
+def _grid_acquisition(window: StillWindow) -> Acquisition:
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    t0 = time.monotonic()
+    tracker = _Clocked(
+        lambda t, n: TrackerSample(t, np.array([0.0, 0.0, n * 1e-4]), q, 0.01), 0.01, t0
+    )
+    legs = _Clocked(lambda t, n: LegSample(t, np.full(6, 50.0 + n * 1e-5)), 0.004, t0 + 0.001)
+    return Acquisition(tracker, legs, window)
+
+
+def test_an_anchored_window_starts_where_the_platform_came_to_rest_not_at_the_request():
+    """Told when the platform came to rest, the window is the samples from there on, even when
+    record() is called later; the next window at that pose goes on from the first's end."""
+    with _grid_acquisition(StillWindow(duration_s=0.1, max_position_drift_mm=1.0)) as acq:
+        time.sleep(0.05)
+        rest = time.monotonic() + 0.0055
+        acq.anchor(rest)
+        time.sleep(0.3)  # the operator takes a while to press the key
+        first = acq.record()
+        second = acq.record()
+    t_first = [s.t for s in first.tracker_samples]
+    assert rest <= t_first[0] < rest + 0.01 and t_first[-1] <= rest + 0.1
+    assert min(s.t for s in first.leg_samples) >= rest
+    assert max(s.t for s in first.leg_samples) <= rest + 0.1
+    # Contiguous: the second window starts where the first ended.
+    assert t_first[-1] < second.tracker_samples[0].t <= t_first[-1] + 0.0101
+    assert max(s.t for s in first.leg_samples) < min(s.t for s in second.leg_samples)
+
+
+def test_a_counted_window_holds_exactly_its_samples_and_goes_on_from_them():
+    """tracker_samples / leg_samples: the first so many of each stream from the window's start,
+    and the next window the next so many — the same samples however the host was timed."""
+    window = StillWindow(
+        duration_s=0.1, max_position_drift_mm=1.0, tracker_samples=7, leg_samples=20
+    )
+    with _grid_acquisition(window) as acq:
+        time.sleep(0.05)
+        rest = time.monotonic() + 0.0055
+        acq.anchor(rest)
+        first, second = acq.record(), acq.record()
+    assert (len(first.tracker_samples), len(first.leg_samples)) == (7, 20)
+    assert (len(second.tracker_samples), len(second.leg_samples)) == (7, 20)
+    n_trk = [round(s.position[2] / 1e-4) for s in first.tracker_samples + second.tracker_samples]
+    assert n_trk == list(range(n_trk[0], n_trk[0] + 14))  # consecutive: none skipped or repeated
+    n_leg = [round((s.readings[0] - 50.0) / 1e-5) for s in first.leg_samples + second.leg_samples]
+    assert n_leg == list(range(n_leg[0], n_leg[0] + 40))
+    assert first.tracker_samples[0].t >= rest > first.tracker_samples[0].t - 0.01
+
+
+def test_a_counted_window_whose_stream_stops_is_short():
+    window = StillWindow(duration_s=0.05, tracker_samples=500, leg_samples=5)
+    with _grid_acquisition(window) as acq:
+        time.sleep(0.02)
+        with pytest.raises(PoseRefused, match=r"the tracker gave \d+ of 500 samples in time"):
+            acq.record()
+
+
+def test_without_an_anchor_a_window_starts_at_the_request():
+    with _grid_acquisition(StillWindow(duration_s=0.1, max_position_drift_mm=1.0)) as acq:
+        time.sleep(0.05)
+        asked = time.monotonic()
+        pose = acq.record()
+    assert pose.tracker_samples[0].t >= asked

@@ -1,5 +1,5 @@
 """A lab's own log into the measurement table (the Jugglebot's, real data, MIT; see
-tests/data/jugglebot/README.md), and what the diagnosis says of it: the stroke ends."""
+examples/jugglebot/README.md), and what the diagnosis says of it: the stroke ends."""
 
 from __future__ import annotations
 
@@ -18,9 +18,10 @@ from hexcal.io.log_import import LogImportError, import_log, load_map
 from hexcal.io.measurements_csv import read_measurements
 
 ROOT = Path(__file__).resolve().parents[1]
-LOG = ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv"
-DESIGN = ROOT / "tests" / "data" / "jugglebot" / "design-robot.json"
-MAP = ROOT / "examples" / "jugglebot" / "map.toml"
+JUGGLEBOT = ROOT / "examples" / "jugglebot"
+LOG = JUGGLEBOT / "108_calibration_poses.csv"
+DESIGN = JUGGLEBOT / "design-robot.json"
+MAP = JUGGLEBOT / "map.toml"
 MM_PER_REV = [75.6920, 71.1967, 72.3416, 70.8009, 70.6211, 71.2628]
 
 

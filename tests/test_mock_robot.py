@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from hexcal.mock_hw.robot import MockRobot
@@ -79,3 +80,55 @@ def test_encoder_latches_record_when_each_reading_was_taken():
     assert robot.encoder_latches.maxlen == MockRobot.ENCODER_LOG_LEN
     with pytest.raises(IndexError):
         robot.encoder_latches[2]
+
+
+def _measure(robot: MockRobot, clock: FakeClock, encoders_first: bool, reads_now: bool):
+    """Three moves; at each, four tracker and four encoder measurements (the devices' own
+    instants), taken in one order or the other, with or without reads "now" in between."""
+    P, R = robot.true_pose()
+    trk, enc = [], []
+    for k in range(3):
+        clock.t += 1.0
+        robot.move_to(P + [k + 1.0, 0.0, 0.0], R)
+        ats = [clock.t + 0.01 * n for n in range(4)]
+        order = ["enc"] * 4 + ["trk"] * 4 if encoders_first else ["trk", "enc"] * 4
+        it = {"trk": iter(ats), "enc": iter(ats)}
+        for kind in order:
+            if reads_now:
+                robot.encoder_readings()
+                robot.tracker_sample()
+            if kind == "trk":
+                trk.append(robot.tracker_sample(at=next(it["trk"]))[0])
+            else:
+                enc.append(robot.encoder_readings(at=next(it["enc"])))
+    return np.array(trk), np.array(enc)
+
+
+def test_a_measurement_is_the_same_whatever_else_was_measured_meanwhile():
+    """The n-th measurement of a pose by an instrument depends on the seed, the pose and n
+    only: not on the order the devices' threads asked in, nor on reads "now" in between."""
+    runs = []
+    for encoders_first, reads_now in [(False, False), (True, True)]:
+        clock = FakeClock()
+        robot = MockRobot(left_hand(), seed=9, clock=clock)
+        runs.append(_measure(robot, clock, encoders_first, reads_now))
+    (trk_a, enc_a), (trk_b, enc_b) = runs
+    np.testing.assert_array_equal(trk_a, trk_b)
+    np.testing.assert_array_equal(enc_a, enc_b)
+    clock = FakeClock()
+    trk_c, enc_c = _measure(MockRobot(left_hand(), seed=10, clock=clock), clock, False, False)
+    assert not np.any(trk_c == trk_a) and not np.any(enc_c == enc_a)  # another seed
+
+
+def test_the_keyed_noise_has_the_stated_sigma_and_no_memory():
+    """Drawn per measurement from its own stream, the noise is still white with the stated σ:
+    800 readings of one pose (χ² bounds on the variance at 1e-4, lag-one correlation within 4σ)."""
+    clock = FakeClock()
+    robot = MockRobot(left_hand(), noise=NoiseModel(0.01, 0.002, 0.002), clock=clock, seed=3)
+    truth = robot.sim.readings(*[x[None] for x in robot.true_pose()])[0]
+    r = np.array([robot.encoder_readings(at=50.0 + 1e-3 * n) for n in range(800)]) - truth
+    n = r.size
+    lo, hi = stats.chi2.ppf([1e-4, 1 - 1e-4], n) / n
+    assert lo < np.var(r) / 0.002**2 < hi
+    lag = np.corrcoef(r[:-1].ravel(), r[1:].ravel())[0, 1]
+    assert abs(lag) < 4 / np.sqrt(n)

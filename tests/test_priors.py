@@ -20,8 +20,8 @@ from hexcal.model.robot import Robot, RobotFileError, save_robot
 from hexcal.sim.inject import effect_hook, realistic_values
 from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
 
-JUGGLEBOT = Path(__file__).parent / "data" / "jugglebot"
-MAP = Path(__file__).parents[1] / "examples" / "jugglebot" / "map.toml"
+JUGGLEBOT = Path(__file__).parents[1] / "examples" / "jugglebot"
+MAP = JUGGLEBOT / "map.toml"
 
 
 def _with(design: Robot, **keys) -> Robot:

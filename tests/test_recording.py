@@ -88,9 +88,12 @@ def test_a_slipping_length_clamp_refuses_the_pose(rig_parts):
     ctl.slip(mm_per_move=0.05)
     ctl.next_pose()
     with pytest.raises(
-        ClampSlipped, match=r"leg 2 is clamped in length but its encoder moved \+0\.05"
-    ):
+        ClampSlipped, match=r"leg 2 is clamped in length but its encoder moved \+0\.0\d+ mm"
+    ) as caught:
         rec.accept(fake_pose(robot, rng))
+    # The slip (0.05 mm), within the reading noise of two poses' means (σ a few µm).
+    moved = float(re.search(r"moved \+(\d\.\d+) mm", str(caught.value)).group(1))
+    assert moved == pytest.approx(0.05, abs=0.003)
     assert len(rec.poses) == 3
 
 

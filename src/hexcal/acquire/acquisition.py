@@ -109,6 +109,17 @@ class StillWindow:
     #: Largest share of a stream's samples in the window that may be flagged and left out of
     #: the average; 0 (the default): any flagged sample refuses the pose.
     max_fault_share: float = 0.0
+    #: When both are set, a window holds exactly this many tracker samples and leg reading
+    #: sets: the first measured from its start, however long they take (a host too busy to
+    #: read a frame waits for the next one), up to ``3 × duration_s``. None (the default):
+    #: every sample measured within ``duration_s``.
+    tracker_samples: int | None = None
+    leg_samples: int | None = None
+
+    @property
+    def counted(self) -> bool:
+        """Whether a window is so many samples (else so many seconds)."""
+        return self.tracker_samples is not None and self.leg_samples is not None
 
 
 @dataclass
@@ -232,11 +243,30 @@ def record_pose(
     """The recorded pose from the samples in ``[t_end − duration, t_end]``, or PoseRefused. A
     tracker sample that may have been measured before the window began (its time less its
     uncertainty) is not in it: the platform may have been moving then."""
-    t0 = t_end - window.duration_s
-    ts_all = [
-        checked_tracker_sample(s) for s in tracker if t0 <= s.t - _uncertainty(s) and s.t <= t_end
-    ]
-    ls_all = [s for s in legs if t0 <= s.t <= t_end]
+    return pose_from_window(
+        *in_window(tracker, legs, t_end - window.duration_s, t_end), window, t_end
+    )
+
+
+def in_window(
+    tracker: list[TrackerSample], legs: list[LegSample], t0: float, t_end: float
+) -> tuple[list[TrackerSample], list[LegSample]]:
+    """The samples of ``[t0, t_end]`` (monotonic s). A tracker sample that may have been
+    measured before ``t0`` (its time less its uncertainty) is not in it: the platform may have
+    been moving then."""
+    return (
+        [s for s in tracker if t0 <= s.t - _uncertainty(s) and s.t <= t_end],
+        [s for s in legs if t0 <= s.t <= t_end],
+    )
+
+
+def pose_from_window(
+    tracker: list[TrackerSample], legs: list[LegSample], window: StillWindow, t_end: float
+) -> RecordedPose:
+    """The recorded pose from a still window's samples (all of them, flagged ones included;
+    ``t_end`` its end, monotonic s), or PoseRefused: the checks of :func:`record_pose`."""
+    ts_all = [checked_tracker_sample(s) for s in tracker]
+    ls_all = legs
     ts = [s for s in ts_all if not s.fault and s.position is not None]
     ls = [s for s in ls_all if s.complete]
     t_faults = [s.fault or "no pose" for s in ts_all if s.fault or s.position is None]
@@ -328,7 +358,12 @@ def record_pose(
 class Acquisition:
     """Reads both sources in background threads into time-stamped buffers; :meth:`record`
     waits out a still window (and up to ``late_s`` for samples measured in it to arrive) and
-    returns the recorded pose (or raises PoseRefused)."""
+    returns the recorded pose (or raises PoseRefused).
+
+    A window starts when :meth:`record` is called, unless a motion controller said when the
+    platform came to rest (:meth:`anchor`): then it starts there, or where the last window
+    ended if that is later, even when the request comes after it — the samples are buffered —,
+    so what is recorded does not depend on when the operator pressed the key."""
 
     #: How many more still windows :meth:`record` takes when a stream came short while its
     #: device showed nothing wrong (no error, not waiting on it): the computer was too busy to
@@ -355,6 +390,9 @@ class Acquisition:
         #: Per stream, since when its thread has waited for the device's next sample (None: not).
         self._waiting: dict[str, float | None] = {}
         self.buffer_s = buffer_s
+        #: Where the next window starts, per stream (tracker, legs; clock s), once a motion
+        #: controller said when the platform came to rest (:meth:`anchor`); else None.
+        self._next: tuple[float, float] | None = None
 
     def _pump(self, source: PoseSource | LegSource, buf: deque[Any], name: str) -> None:
         while not self._stop.is_set():
@@ -406,6 +444,23 @@ class Acquisition:
                 self._lbuf[-1] if self._lbuf else None
             )
 
+    def anchor(self, t: float) -> None:
+        """The platform came to rest at ``t`` (s, on :attr:`clock`), as a motion controller
+        reports: the next still window starts there (see the class docstring). A rig without
+        a motion controller never calls this: its windows start at the request."""
+        with self._lock:
+            self._next = (t, t)
+
+    def _window_start(self) -> tuple[float, float]:
+        """Where the next still window starts, per stream (tracker, legs; s on :attr:`clock`)."""
+        now = self.clock()
+        with self._lock:
+            start = self._next
+        # The buffers hold buffer_s of samples: a window older than that is gone.
+        if start is None or min(start) < now - self.buffer_s + 3 * self.window.duration_s:
+            return now, now
+        return start
+
     def record(self) -> RecordedPose:
         """Wait one still window from now and record the pose from it. A window in which a
         stream came short with nothing wrong with its device is taken again (at most
@@ -434,8 +489,31 @@ class Acquisition:
             return pose
 
     def _record_window(self) -> RecordedPose:
-        t_start = self.clock()
+        starts = self._window_start()
+        if self.window.counted:
+            ts, ls, t_end = self._counted_window(*starts)
+        else:
+            ts, ls, t_end = self._timed_window(starts[0])
+        try:
+            if len(ts) < (self.window.tracker_samples or 0):
+                raise StreamShort(
+                    f"the tracker gave {len(ts)} of {self.window.tracker_samples} samples in time: is it tracking the platform's tool?"
+                )
+            if len(ls) < (self.window.leg_samples or 0):
+                raise StreamShort(
+                    f"the leg encoders gave {len(ls)} of {self.window.leg_samples} reading sets in time: is the CAN bus running?"
+                )
+            return pose_from_window(ts, ls, self.window, t_end)
+        except StreamShort as exc:
+            raise self._short(exc, min(starts)) from None
+
+    def _timed_window(self, t_start: float) -> tuple[list[TrackerSample], list[LegSample], float]:
+        """Every sample measured in ``[t_start, t_start + duration_s]`` (see :func:`record_pose`)
+        and the window's end."""
         t_end = t_start + self.window.duration_s
+        with self._lock:
+            if self._next is not None:
+                self._next = (t_end, t_end)
         while self.clock() < t_end:
             time.sleep(min(0.01, max(t_end - self.clock(), 0.0)))
         # Samples are stamped with their measurement instant and arrive a little later (a
@@ -447,21 +525,43 @@ class Acquisition:
                     break
             time.sleep(0.005)
         with self._lock:
-            ts, ls = list(self._tbuf), list(self._lbuf)
-        try:
-            return record_pose(ts, ls, self.window, t_end)
-        except StreamShort as exc:
-            # A device that stopped answering leaves no sample in the window to name the
-            # fault: what it last raised (a timeout, a lost port) says more than the count.
-            now = self.clock()
-            stalled = [
-                f"the {name} {'have' if name.endswith('s') else 'has'} not answered for "
-                f"{now - since:.1f} s (waiting for a reply)"
-                for name, since in self._waiting.items()
-                if since is not None and now - since > self.window.duration_s / 2
-            ]
-            recent = [f"the device said: {m}" for t, m in list(self._errors) if t >= t_start - 2.0]
-            if stalled or recent:
-                message = " — ".join([str(exc), *stalled, *recent[-1:]])
-                raise StreamShort(message, device_trouble=True) from None
-            raise
+            ts, ls = in_window(list(self._tbuf), list(self._lbuf), t_start, t_end)
+        return ts, ls, t_end
+
+    def _counted_window(
+        self, t_tracker: float, t_legs: float
+    ) -> tuple[list[TrackerSample], list[LegSample], float]:
+        """The first ``tracker_samples`` tracker samples measured from ``t_tracker`` and the
+        first ``leg_samples`` reading sets from ``t_legs`` (fewer when they do not come within
+        ``3 × duration_s``), and the window's end: its last sample's time."""
+        n_t, n_l = self.window.tracker_samples or 0, self.window.leg_samples or 0
+        give_up = max(t_tracker, t_legs) + 3 * self.window.duration_s + self.late_s
+        while True:
+            with self._lock:
+                ts = [s for s in self._tbuf if s.t - _uncertainty(s) >= t_tracker][:n_t]
+                ls = sorted((s for s in self._lbuf if s.t >= t_legs), key=lambda s: s.t)[:n_l]
+            if (len(ts) == n_t and len(ls) == n_l) or self.clock() > give_up:
+                break
+            time.sleep(0.005)
+        # The next window at this pose goes on from the samples after these.
+        ends = (ts[-1].t + 1e-9 if ts else t_tracker, ls[-1].t + 1e-9 if ls else t_legs)
+        with self._lock:
+            if self._next is not None:
+                self._next = ends
+        return ts, ls, max(ends)
+
+    def _short(self, exc: StreamShort, t_start: float) -> StreamShort:
+        """``exc``, or, when a device stopped answering, the same with what it last raised:
+        such a device leaves no sample in the window to name the fault, and what it said (a
+        timeout, a lost port) says more than the count."""
+        now = self.clock()
+        stalled = [
+            f"the {name} {'have' if name.endswith('s') else 'has'} not answered for "
+            f"{now - since:.1f} s (waiting for a reply)"
+            for name, since in self._waiting.items()
+            if since is not None and now - since > self.window.duration_s / 2
+        ]
+        recent = [f"the device said: {m}" for t, m in list(self._errors) if t >= t_start - 2.0]
+        if stalled or recent:
+            return StreamShort(" — ".join([str(exc), *stalled, *recent[-1:]]), device_trouble=True)
+        return exc

@@ -228,6 +228,7 @@ def _record_session(
         )
         on_event(f"session file: {path}")
         with open_rig(rig.config, window) as live:
+            rig.reproducible(live.acquisition)  # the same seeds, the same session
             record_procedure(
                 live.acquisition,
                 rig.motion,

@@ -15,12 +15,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from textual import events, on, work
+from textual import on, work
 from textual.app import App, ComposeResult
-from textual.containers import Grid, Horizontal, Vertical, VerticalScroll
-from textual.content import Content
+from textual.containers import Grid, Horizontal, VerticalScroll
 from textual.message import Message
-from textual.screen import Screen
 from textual.widgets import Button, DataTable, Header, Input, Label, Select, Static
 
 from hexcal.procedure.guided import GuidedSession
@@ -34,73 +32,8 @@ from hexcal.procedure.sessions_dir import (
 )
 from hexcal.procedure.steps import BUILTIN, Procedure, load_procedure
 from hexcal.tui.backend import Backend, Rig
-from hexcal.tui.keys import KeyBar
-
-
-class HexcalScreen(Screen):
-    """A screen of hexcal's UI: ``hexcal`` is the app it runs in, as a :class:`HexcalApp`.
-
-    Every key answers: a key the state does not allow is greyed out in the key bar
-    (:class:`~hexcal.tui.keys.KeyBar`) and, pressed, says why in the screen's status line
-    (:meth:`why_not`), whether or not the bar shows it (:meth:`hidden`)."""
-
-    #: Narrow and short screens get the classes ``-narrow`` / ``-short``: the CSS tightens them.
-    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (100, "-wide")]
-    VERTICAL_BREAKPOINTS = [(0, "-short"), (32, "-tall")]
-
-    def why_not(self, action: str) -> str | None:
-        """Why this screen's ``action`` cannot run now, one line for the operator (None: it
-        can)."""
-        return None
-
-    def hidden(self, action: str) -> bool:
-        """Whether the key bar leaves ``action`` out while it cannot run (pressed, it still
-        says why)."""
-        return False
-
-    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
-        if self.why_not(action) is None:
-            return True
-        return False if self.hidden(action) else None
-
-    def on_key(self, event: events.Key) -> None:
-        """A key whose action cannot run says why instead of doing nothing; one that can
-        clears the last reason."""
-        for binding in self._bindings.key_to_bindings.get(event.key, ()):
-            why = self.why_not(binding.action)
-            if why is not None:
-                event.stop()
-                event.prevent_default()
-                self.status(why, "yellow")
-            else:
-                self.status("")
-            return
-
-    def status(self, text: str, style: str = "") -> None:
-        """One line for the operator in the status line, above the key bar."""
-        self.query_one("#status", Static).update(Content.styled(text, style))
-
-    def action_press(self, key: str) -> None:
-        """A click on the key bar: as if the key were pressed."""
-        self.app.simulate_key(key)
-
-    @property
-    def hexcal(self) -> HexcalApp:
-        app = self.app
-        if not isinstance(app, HexcalApp):
-            raise TypeError(f"hexcal's screens run in a HexcalApp, not in a {type(app).__name__}")
-        return app
-
-
-class Foot(Vertical):
-    """The foot of a screen, docked at the bottom: what is given (buttons...), then the status
-    line (``#status``, see :meth:`HexcalScreen.status`), then the keys."""
-
-    DEFAULT_CSS = "Foot { dock: bottom; height: auto; }"
-
-    def compose(self) -> ComposeResult:
-        yield Static("", id="status")
-        yield KeyBar()
+from hexcal.tui.record import RecordScreen
+from hexcal.tui.screen import Foot, HexcalScreen
 
 
 class StartScreen(HexcalScreen):
@@ -297,8 +230,6 @@ class HexcalApp(App):
         """A message from the devices: into the recording log. Elsewhere it waits for the
         recording screen (never drawn over the results' charts); a warning says so in the
         screen's status line."""
-        from hexcal.tui.record import RecordScreen
-
         if isinstance(self.screen, RecordScreen):
             self.screen.log_line(text, "yellow" if level >= logging.WARNING else "")
             return
@@ -351,8 +282,6 @@ class HexcalApp(App):
             screen._say(f"could not open the devices: {exc}", "red")
 
     def _show_recording(self) -> None:
-        from hexcal.tui.record import RecordScreen
-
         self.switch_screen(RecordScreen())
         for text in self.notices:
             self.call_later(self.device_message, text)

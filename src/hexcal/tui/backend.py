@@ -86,6 +86,7 @@ class MockBackend(Backend):
         live = self._stack.enter_context(
             open_rig(rig.config, StillWindow(duration_s=self.window_s))
         )
+        rig.reproducible(live.acquisition)  # the same seed, the same session
         robot = rig.robot
         return Rig(
             live.acquisition,

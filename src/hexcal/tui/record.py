@@ -22,8 +22,8 @@ from textual.widgets import Header, ProgressBar, RichLog, Static
 from hexcal.estimate.nbp import Suggestion, motion_text
 from hexcal.procedure.guided import GuidedError, GuidedSession, Live
 from hexcal.procedure.recording import MotionError
-from hexcal.tui.app import Foot, HexcalScreen
 from hexcal.tui.prompt import TextPrompt
+from hexcal.tui.screen import Foot, HexcalScreen
 from hexcal.vocabulary import Constraint
 
 #: Width of a live number's column: eight characters and a space (``+219.735``).

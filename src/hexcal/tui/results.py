@@ -24,8 +24,8 @@ from textual_plotext import PlotextPlot
 
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.steps import Procedure
-from hexcal.tui.app import Foot, HexcalScreen
 from hexcal.tui.backend import Rig
+from hexcal.tui.screen import Foot, HexcalScreen
 from hexcal.tui.working import Working
 from hexcal.vocabulary import Outcome
 

@@ -10,6 +10,7 @@ from hexcal.app.commands import (
     demo,
     devices,
     diagnose,
+    examples,
     export,
     import_log,
     predict,
@@ -35,4 +36,5 @@ COMMANDS = (
     demo,
     run,
     session,
+    examples,
 )
