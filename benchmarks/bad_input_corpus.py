@@ -47,7 +47,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "left-hand-sim"
-JUGGLEBOT = ROOT / "tests" / "data" / "jugglebot"
+JUGGLEBOT = ROOT / "examples" / "jugglebot"
 LIMIT_S = 30.0
 KINDS = ("table", "robot", "instruments", "session", "model", "log", "map")
 

@@ -74,13 +74,13 @@ def jugglebot(work: Path) -> dict:
     from hexcal.model.noise import NoiseSigmas
 
     meas = import_log(
-        ROOT / "tests/data/jugglebot/108_calibration_poses.csv",
+        ROOT / "examples/jugglebot/108_calibration_poses.csv",
         ROOT / "examples/jugglebot/map.toml",
     )
     half = len(meas) // 2
     write_measurements(meas.subset(slice(0, half)), work / "first.csv")
     write_measurements(meas.subset(slice(half, None)), work / "second.csv")
-    robot = ROOT / "tests/data/jugglebot/design-robot.json"
+    robot = ROOT / "examples/jugglebot/design-robot.json"
     result = calibrate_model(read_inputs(work / "first.csv", robot), 42, effects=("gain",))
     model = result.file.leg_model()
     val = read_inputs(work / "second.csv", robot)

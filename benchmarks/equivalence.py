@@ -5,7 +5,7 @@
     python benchmarks/equivalence.py --compare before.json after.json
 
 Runs, in-process, what a user runs on four sessions — the example (examples/left-hand-sim), the
-walkthrough (docs/walkthrough/session, hidden backlash), the Jugglebot (tests/data/jugglebot,
+walkthrough (docs/walkthrough/session, hidden backlash), the Jugglebot (examples/jugglebot,
 real, 108 poses by motion capture, imported with examples/jugglebot/map.toml) and a simulated
 1,000 free-pose session (``hexcal simulate --n-free 1000``, seed 1) — and keeps every number:
 
@@ -44,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "left-hand-sim"
 WALKTHROUGH = ROOT / "docs" / "walkthrough" / "session"
-JUGGLEBOT = ROOT / "tests" / "data" / "jugglebot"
+JUGGLEBOT = ROOT / "examples" / "jugglebot"
 #: Parameters (mm) must agree to this.
 X_TOL_MM = 1e-9
 #: Every other number to this, relative (to 1e-12 absolute near zero).

@@ -20,7 +20,7 @@ from hexcal.io.measurements_csv import read_measurements
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "left-hand-sim"
-JUGGLEBOT = ROOT / "tests" / "data" / "jugglebot"
+JUGGLEBOT = ROOT / "examples" / "jugglebot"
 
 
 def _table(tmp_path: Path, name: str, edit) -> Path:

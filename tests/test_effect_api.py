@@ -199,6 +199,9 @@ def bowed(tmp_path_factory):
             )
             == 0
         )
+        # A second session of the same robot (other poses and noise), to validate on.
+        second = [*("simulate", "--out", str(out / "second"), "--seed", "3", "--pose-seed", "4")]
+        assert main([*second, "--effect", "scalebow", "--effects", str(SCALEBOW)]) == 0
     finally:
         CATALOGUE.clear()
         CATALOGUE.update(saved)
@@ -281,7 +284,7 @@ def test_from_a_file_the_effect_is_named_added_written_and_read_back(bowed, tmp_
             [
                 "validate",
                 str(cal),
-                *_inputs(bowed)[:1],
+                str(bowed / "second" / "measurements.csv"),
                 "--instruments",
                 str(bowed / "instruments.json"),
                 *fx,

@@ -143,7 +143,7 @@ def test_predict_reads_a_spreadsheets_table(tmp_path):
 
 
 def test_import_reads_a_log_saved_with_semicolons_and_decimal_commas(tmp_path):
-    log = ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv"
+    log = ROOT / "examples" / "jugglebot" / "108_calibration_poses.csv"
     mapping = ROOT / "examples" / "jugglebot" / "map.toml"
     plain = import_log(log, mapping)
     rows = list(csv.reader(log.open()))

@@ -92,7 +92,7 @@ def test_load_robot_reads_the_geometry_and_refuses_a_newer_format(tmp_path):
     path.write_text(json.dumps(data))
     with pytest.raises(RobotFileError, match=r"format version 7.*upgrade hexcal"):
         load_robot(path)
-    data["calibration"]["format_version"] = 1
+    data["calibration"]["format_version"] = 2  # the version written
     data["calibration"]["effects"][0]["parameters"].pop()
     path.write_text(json.dumps(data))
     with pytest.raises(RobotFileError, match=r"calibration\.effects: .*take 6 parameter values"):

@@ -23,7 +23,12 @@ def _poses(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return P, R, 20.0 + np.linspace(0.0, 4.0, n)
 
 
-@pytest.mark.parametrize("effect", sorted(CATALOGUE))
+# zero_step is a change during one session, located there and never carried into a model that
+# predicts (of_the_session): no round trip to make.
+PREDICTING = sorted(e for e in CATALOGUE if e != "zero_step")
+
+
+@pytest.mark.parametrize("effect", PREDICTING)
 def test_readings_pose_readings_round_trip_for_every_effect(effect):
     """Noise-free: the readings for a pose, then the pose for those readings, then the readings
     again, agree to 1e-6 mm (and the pose to 1e-6 mm and rad), each effect at a realistic size

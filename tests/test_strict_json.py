@@ -95,7 +95,7 @@ def test_json_output_over_the_bad_input_corpus_is_strict_or_absent(name, capsys)
 # -- output paths, checked before any work ----------------------------------------------------
 
 
-JUGGLEBOT_LOG = str(ROOT / "tests" / "data" / "jugglebot" / "108_calibration_poses.csv")
+JUGGLEBOT_LOG = str(ROOT / "examples" / "jugglebot" / "108_calibration_poses.csv")
 JUGGLEBOT_MAP = str(ROOT / "examples" / "jugglebot" / "map.toml")
 CALIBRATE = ["calibrate", str(TABLE), "--robot", str(ROBOT)]
 OUTPUTS = [

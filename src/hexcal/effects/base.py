@@ -403,12 +403,26 @@ def get_effect(name: str) -> Effect:
     try:
         return CATALOGUE[name]
     except KeyError:
-        from hexcal.effects.plugins import unavailable
-
         raise EffectError(
             f"unknown effect {name!r}; {unavailable(name)}the catalogue has: "
             f"{', '.join(sorted(CATALOGUE))}"
         ) from None
+
+
+#: An installed effect's name (its entry point's) → why its package failed to load; filled by
+#: :mod:`hexcal.effects.plugins`.
+FAILED_PACKAGES: dict[str, str] = {}
+
+
+def unavailable(name: str) -> str:
+    """Why ``name`` is not registered, as the start of a sentence (empty when nothing is known
+    beyond its absence): an installed package that failed, or how outside effects are given."""
+    if name in FAILED_PACKAGES:
+        return f"{FAILED_PACKAGES[name]}; "
+    return (
+        "an effect from outside the catalogue is known once its package is installed, or its "
+        "file given with --effects FILE.py; "
+    )
 
 
 def source_of(name: str) -> EffectSource:

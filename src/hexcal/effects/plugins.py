@@ -27,15 +27,24 @@ from collections.abc import Iterable
 from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 
-from hexcal.effects.base import CATALOGUE, Effect, EffectError, EffectSource, loading_from, register
+from hexcal.effects.base import (
+    CATALOGUE,
+    FAILED_PACKAGES,
+    Effect,
+    EffectError,
+    EffectSource,
+    loading_from,
+    register,
+)
 
 #: The entry-point group installed packages declare their effects in.
 ENTRY_POINT_GROUP = "hexcal.effects"
 #: Largest effect file hexcal runs, bytes (an effect is a page of code, not a data set).
 MAX_FILE_BYTES = 1 << 20
 
-#: Entry point name (the effect's name) → why its package failed to load.
-_failed: dict[str, str] = {}
+#: Entry point name (the effect's name) → why its package failed to load (kept in
+#: :mod:`hexcal.effects.base`, whose :func:`~hexcal.effects.base.get_effect` says it).
+_failed = FAILED_PACKAGES
 #: SHA-256 of a file already run → the effects it registered.
 _files: dict[str, list[str]] = {}
 _installed_loaded = False
@@ -97,17 +106,6 @@ def failures() -> list[str]:
 def failure_of(name: str) -> str | None:
     """Why the installed effect ``name`` failed to load (None when it did not fail)."""
     return _failed.get(name)
-
-
-def unavailable(name: str) -> str:
-    """Why ``name`` is not registered, as the start of a sentence (empty when nothing is known
-    beyond its absence): an installed package that failed, or how outside effects are given."""
-    if name in _failed:
-        return f"{_failed[name]}; "
-    return (
-        "an effect from outside the catalogue is known once its package is installed, or its "
-        "file given with --effects FILE.py; "
-    )
 
 
 def load_file(path: str | Path) -> list[str]:
