@@ -566,3 +566,43 @@ def test_the_start_screen_lists_the_sessions_and_resumes_one_with_a_key(tmp_path
 
     asyncio.run(resume())
     assert not (tmp_path / "unused.json").exists()
+
+
+def test_the_diagnosis_screen_says_where_an_unexplained_residual_points(tmp_path, monkeypatch):
+    """An unexplained verdict on the diagnosis screen names the covariate the residual
+    follows, with its share of the excess and what it points at (the diagnosis is a simulated
+    session's with joint play outside the catalogue, handed to the screen's worker); the key
+    to add an effect says there is none. A stated noise too low is said with its factor."""
+    from hexcal.app import workflow
+    from hexcal.app.workflow import Inputs, diagnose_chain
+    from hexcal.diagnosis import diagnose
+    from hexcal.sim import verdict_cases as vc
+
+    c = vc.foreign("joint play", 41)
+    (play,) = diagnose_chain(Inputs(c.meas, c.design, c.instruments, "stated", "play"), 42)
+    assert play.verdict == "unexplained" and play.exploration.lead is not None
+    n = vc.noise_understated(41)
+    noisy = diagnose(n.meas, n.design, 42, instruments=n.instruments)
+    assert noisy.verdict == "noise_understated"
+    shown = iter([play, noisy])
+    monkeypatch.setattr(workflow, "diagnose_chain", lambda *a, **k: [next(shown)])
+    app = instant_app(tmp_path / "session.json")
+
+    async def run() -> None:
+        async with app.run_test(size=SMALL) as pilot:
+            await _record_all(pilot)
+            await pilot.press("d")
+            await _settle(pilot)
+            summary = _text(app.screen.query_one("#diag-summary"))
+            assert "it follows the axial leg force" in summary, summary
+            assert "% of the excess" in summary
+            await pilot.press("a")
+            await pilot.pause()
+            assert "there is none to add" in _text(app.screen.query_one("#status"))
+            _assert_fits(pilot)
+            app.screen._diagnose(())
+            await _settle(pilot)
+            summary = _text(app.screen.query_one("#diag-summary"))
+            assert "the stated noise looks about 2.0× too low" in summary, summary
+
+    asyncio.run(run())

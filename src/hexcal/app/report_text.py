@@ -70,7 +70,7 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
         lines.append(f"chi²/dof = {ref.chi2 / ref.dof:.3f} over {ref.dof} degrees of freedom")
         if ref.exceeds_stated_noise:
             lines.append(
-                f"  warning: the residual is {ref.noise_scale:.2f}× the stated noise: the model misses "
+                f"  warning: the residual is {ref.noise_scale:.2f}× the instruments' noise: the model misses "
                 "something (an effect, a wrong known offset, a slipping clamp); the intervals above are "
                 "widened by that factor"
             )

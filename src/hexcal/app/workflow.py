@@ -529,12 +529,20 @@ def diagnose_chain(
         except (FitStalled, GeometryOutOfRange) as exc:
             raise _stall_message(inp, exc) from None
         problem = d.problem
+        _name_the_floor(d, inp)
         steps.append(d)
         if on_step is not None:
             on_step(d)
         if not auto or not names_an_addition(d.verdict) or len(steps) >= MAX_AUTO_STEPS:
             return steps
         added.append(d.verdict)
+
+
+def _name_the_floor(d: Any, inp: Inputs) -> None:
+    """The noise floor's source in the inputs' own words when they were not stated in a file
+    (a session's still windows): one name for the noise on every screen and in every report."""
+    if inp.instruments is not None and not inp.noise_source.startswith("stated"):
+        d.floor_source = f"{inp.noise_source}, propagated through the fitted model"
 
 
 def model_of(

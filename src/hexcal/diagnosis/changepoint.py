@@ -136,6 +136,7 @@ def locate(problem: Problem, changes: list[ChangePoint]) -> None:
         p.design = design
         p.data = replace(p.data, robot=design)
         p._bases.pop("zero_step", None)
+        p._missing.pop("zero_step", None)  # asked before the steps were located
         p = p.parent if isinstance(p, Subset) else None
 
 

@@ -406,4 +406,5 @@ def _carried(
     p = cols.shape[1]
     score = block_score(fit, cols, q) / level
     threshold = float(chi2_isf(EXPLORE_ALPHA / tests, p))
-    return Lead(cov, values, shape, score, threshold, 0.0, 0.0, bool(legs) and score > threshold)
+    significant = bool(legs) and bool(score > threshold)
+    return Lead(cov, values, shape, float(score), threshold, 0.0, 0.0, significant)

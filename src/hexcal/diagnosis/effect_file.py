@@ -234,7 +234,7 @@ def _literal(text: str) -> str:
 
 def _knot_row(values: np.ndarray) -> list[str]:
     """One leg's knots as a list literal over lines of at most 88 characters."""
-    text = ", ".join(f"{float(v):.6g}" for v in np.asarray(values))
+    text = ", ".join(f"{float(v):.10g}" for v in np.asarray(values))
     lines = textwrap.wrap(text, 76, break_on_hyphens=False)
     if len(lines) == 1:
         return [f"        [{lines[0]}],"]
@@ -242,7 +242,7 @@ def _knot_row(values: np.ndarray) -> list[str]:
 
 
 def _row(values: np.ndarray) -> str:
-    return "[" + ", ".join(f"{float(v):.6g}" for v in np.asarray(values)) + "]"
+    return "[" + ", ".join(f"{float(v):.10g}" for v in np.asarray(values)) + "]"
 
 
 def write_effect_file(

@@ -141,15 +141,15 @@ class ClampCheck:
         if self.used and self.model_misfit:
             return (
                 f"clamp constraints used: {head}: the clamp rows fit as well as the leg lengths "
-                f"do, but those alone leave χ²/dof {fit.chi2 / fit.dof:.2f} against the stated "
-                "noise: the model misses an effect (run hexcal diagnose, then --add it)"
+                f"do, but those alone leave χ²/dof {fit.chi2 / fit.dof:.2f} against the "
+                "instruments' noise: the model misses an effect (run hexcal diagnose, then --add it)"
             )
         if self.used:
             return f"clamp constraints used: {head}: the clamps held"
         if self.model_misfit:
             return (
                 f"clamp constraints not used: {head}, but the leg lengths alone already leave "
-                f"χ²/dof {fit.chi2 / fit.dof:.2f} against the stated noise: the model misses an "
+                f"χ²/dof {fit.chi2 / fit.dof:.2f} against the instruments' noise: the model misses an "
                 "effect (run hexcal diagnose, then --add it) and the clamps can be judged only "
                 "once it fits; the geometry is fitted from the leg lengths alone"
             )

@@ -254,7 +254,10 @@ class CalibratedRobot(Robot):
         notes = []
         for e in self.calibration.effects:
             recorded = None if e.source is None else e.source.effect_source()
-            now = CATALOGUE[e.name].source
+            loaded = CATALOGUE.get(e.name)
+            if loaded is None:  # not loaded at all: parse_model refuses such a model
+                continue
+            now = loaded.source
             if recorded is None and now.kind == "catalogue":
                 continue
             if recorded is not None and _same_source(recorded, now):

@@ -62,9 +62,11 @@ class HiddenCase:
     case: str
     #: The verdict the diagnosis should reach (the last one of ``--auto`` for the chains)
     expected: str
-    #: ``zero jump``: the leg (1-based) and the row of the first pose after the jump
+    #: ``zero jump``: the leg (1-based), the row of the first pose after the jump, and how
+    #: much longer the leg reads from then on (mm)
     jump_leg: int | None = None
     jump_row: int | None = None
+    jump_mm: float | None = None
     #: ``foreign`` cases: the covariate the residual follows
     covariate: str | None = None
     #: ``noise understated``: the true noise over the stated
@@ -113,7 +115,7 @@ def zero_jump(seed: int) -> HiddenCase:
     size = float(rng.choice([-1.0, 1.0]) * JUMP_MM)
     hooks = [zero_jump_hook(leg, row, size)]
     meas, _ = simulate_session(design, seed, plan, effects=hooks, truth=truth)
-    return HiddenCase(meas, design, INSTRUMENTS, "zero jump", "zero_step", leg, row)
+    return HiddenCase(meas, design, INSTRUMENTS, "zero jump", "zero_step", leg, row, size)
 
 
 def noise_understated(seed: int) -> HiddenCase:

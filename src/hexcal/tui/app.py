@@ -205,7 +205,7 @@ class HexcalApp(App):
         self.notices: list[str] = []
         #: Device messages waiting for the recording log (the last 200).
         self.device_backlog: deque[tuple[str, int]] = deque(maxlen=200)
-        self.sub_title = backend.label
+        self.sub_title = backend.title or backend.label
 
     def post(self, fn: Callable[..., object], *args: object) -> None:
         """Run ``fn(*args)`` on the app's thread, from any thread, without waiting for it

@@ -41,6 +41,8 @@ class Backend:
     design: Robot
     label: str
     simulated: bool = False
+    #: The label in the screens' title bar, short enough for 80 columns (None: ``label``).
+    title: str | None = None
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
 
     def open(self) -> Rig:
@@ -56,6 +58,10 @@ class RealBackend(Backend):
     """The lab's rig from a device configuration file (see ``hexcal devices check``)."""
 
     config_path: Path = field(kw_only=True)
+
+    def __post_init__(self) -> None:
+        if self.title is None:
+            self.title = f"rig {self.config_path.name}"
 
     def open(self) -> Rig:
         from hexcal.acquire.devices import load_devices_config
@@ -129,6 +135,7 @@ def mock_backend(seed: int = 1, effect: str | None = None, window_s: float = 0.2
         f"mock rig (simulated robot, seed {seed}, hidden effect"
         + (f": {effect})" if effect else " drawn at random)"),
         simulated=True,
+        title=f"mock rig, seed {seed}" + (f", {effect}" if effect else ""),
         seed=seed,
         effect=effect,
         window_s=window_s,

@@ -10,6 +10,7 @@ a still window, so it runs in a worker thread and the screen stays live.
 from __future__ import annotations
 
 import logging
+import textwrap
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -47,9 +48,21 @@ def _row(label: str, values: np.ndarray | None, label_width: int) -> str:
     return f"{label:<{label_width}} {nums}"
 
 
+def _status(text: str, width: int) -> list[str]:
+    """A status line at ``width`` columns: wrapped at spaces under its label, never cut."""
+    label = text.split("  ")[0] + "  " if "  " in text else ""
+    return textwrap.wrap(
+        text,
+        max(width, 20),
+        subsequent_indent=" " * min(len(label), 4),
+        break_long_words=False,
+        break_on_hyphens=False,
+    ) or [""]
+
+
 def live_text(lv: Live, structure: str, width: int) -> str:
     """The live panel at ``width`` columns: every row of numbers in fixed columns that fit —
-    long labels from 40 columns, short ones below; the status lines are cut (…), not wrapped."""
+    long labels from 40 columns, short ones below; the status lines wrapped, never cut."""
     wide = width >= 13 + 1 + 3 * COL - 1
     labels = (
         ("position mm", "rotation deg", "legs 1-3 mm", "legs 4-6 mm")
@@ -59,13 +72,13 @@ def live_text(lv: Live, structure: str, width: int) -> str:
     lw = 12 if wide else 7
     return "\n".join(
         [
-            f"tracker  {lv.tracker_status}",
+            *_status(f"tracker  {lv.tracker_status}", width),
             _row(labels[0], lv.position, lw),
             _row(labels[1], lv.rotvec_deg, lw),
-            f"legs  {lv.bus_status}",
+            *_status(f"legs  {lv.bus_status}", width),
             _row(labels[2], lv.readings[:3], lw),
             _row(labels[3], lv.readings[3:], lw),
-            structure,
+            *_status(structure, width),
         ]
     )
 

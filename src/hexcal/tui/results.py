@@ -9,8 +9,6 @@ session file; ``e`` exports the session as plain files. Computations run in work
 
 from __future__ import annotations
 
-import re
-import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -25,39 +23,10 @@ from textual_plotext import PlotextPlot
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.steps import Procedure
 from hexcal.tui.backend import Rig
+from hexcal.tui.fit import reflow
 from hexcal.tui.screen import Foot, HexcalScreen
 from hexcal.tui.working import Working
 from hexcal.vocabulary import Outcome
-
-
-def _gaps(line: str) -> int:
-    return len(re.findall(r"\S {2,}(?=\S)", line.strip()))
-
-
-def reflow(text: str, width: int) -> str:
-    """``text`` with its prose wrapped at ``width`` (at spaces, never inside a number), its
-    tables left whole (they scroll sideways): a table row is a line with two gaps of two
-    spaces or more, next to another such line."""
-    lines = text.split("\n")
-    out = []
-    for i, line in enumerate(lines):
-        if len(line) <= width or (
-            _gaps(line) >= 2
-            and any(_gaps(lines[j]) >= 2 for j in (i - 1, i + 1) if 0 <= j < len(lines))
-        ):
-            out.append(line)
-            continue
-        indent = line[: len(line) - len(line.lstrip())]
-        out.extend(
-            textwrap.wrap(
-                line,
-                max(20, width),
-                subsequent_indent=indent + "  ",
-                break_long_words=False,
-                break_on_hyphens=False,
-            )
-        )
-    return "\n".join(out)
 
 
 def _app_state(screen: HexcalScreen) -> tuple[GuidedSession, Procedure, Rig | None]:

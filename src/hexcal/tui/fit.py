@@ -1,0 +1,175 @@
+"""Text that fits the screen: the result and diagnosis screens show the command line's text
+(:mod:`hexcal.app.report_text`, :mod:`hexcal.diagnosis.text`) in a box of any width. Prose is
+wrapped at spaces, never inside a number; a table wider than the box is cut between its columns
+into blocks stacked one under the other, each led by the table's first column (the leg, the
+model), so no number is cut and nothing needs scrolling sideways."""
+
+from __future__ import annotations
+
+import re
+import textwrap
+
+#: A table row: two gaps of two spaces or more between words.
+_GAP = re.compile(r"\S {2,}(?=\S)")
+
+
+def _gaps(line: str) -> int:
+    return len(_GAP.findall(line.strip()))
+
+
+def _is_row(lines: list[str], i: int) -> bool:
+    """Whether line ``i`` is a table row: two wide gaps, and a neighbour that has them too."""
+    return _gaps(lines[i]) >= 2 and any(
+        _gaps(lines[j]) >= 2 for j in (i - 1, i + 1) if 0 <= j < len(lines)
+    )
+
+
+#: Characters that join the words on either side of a single space into one cell.
+_JOINERS = set("±→×")
+
+
+def _joins(a: str, b: str) -> bool:
+    """Whether a single space between ``a`` and ``b`` lies inside a cell: between words
+    ("Model 42", "held-out after") or around a joiner ("1.2 ± 0.3")."""
+    if a == " " or b == " ":
+        return False
+    return a.isalpha() or b.isalpha() or a in _JOINERS or b in _JOINERS
+
+
+def _columns(rows: list[str]) -> list[tuple[int, int]]:
+    """The columns of a table, as (start, end) character spans of text: cut where every row
+    has two spaces or more at the same place, or one space that no row uses inside a cell (a
+    leg number before a negative coordinate: "6 -128.0297")."""
+    width = max(len(r) for r in rows)
+    padded = [r.ljust(width + 1) for r in rows]
+    blank = [all(r[c] == " " for r in padded) for c in range(width)]
+    spans: list[tuple[int, int]] = []
+    start: int | None = None
+    c = 0
+    while c < width:
+        if not blank[c]:
+            start = c if start is None else start
+            c += 1
+            continue
+        run = c
+        while run < width and blank[run]:
+            run += 1
+        cut = run - c >= 2 or not any(_joins(r[c - 1], r[run]) for r in padded if c > 0)
+        if start is not None and cut:
+            spans.append((start, c))
+            start = None
+        c = run
+    if start is not None:
+        spans.append((start, width))
+    return spans
+
+
+def _number(text: str) -> bool:
+    try:
+        float(text.replace("−", "-"))
+    except ValueError:
+        return False
+    return True
+
+
+def _families(rows: list[str], cells: list[tuple[int, int]]) -> list[int]:
+    """A family number per column, to keep together in one block where they fit: the columns of
+    one point (headers ``a.x``, ``a.y``, ``a.z``), and numbers with no header of their own under
+    the header before them ("per-leg held-out" over six legs)."""
+    out: list[int] = []
+    last = ""
+    for i, (s, e) in enumerate(cells):
+        head = rows[0][s:e].strip()
+        values = [r[s:e].strip() for r in rows[1:] if r[s:e].strip()]
+        if i and not head and values and all(_number(v) for v in values):
+            out.append(out[-1])
+            continue
+        key = head.split(".")[0] if "." in head else head
+        out.append(out[-1] if i and key and key == last else i)
+        last = key
+    return out
+
+
+def fit_table(rows: list[str], width: int) -> list[str]:
+    """``rows`` (a table, its header first) as blocks of columns at most ``width`` wide, each
+    led by the first column, a family of columns (a point's x, y, z) kept in one block where it
+    fits in one; the table as it is when it fits, or when a column alone does not."""
+    if max(len(r) for r in rows) <= width:
+        return rows
+    spans = _columns(rows)
+    if len(spans) < 3:
+        return rows
+    lead_end = spans[0][1] + 2  # the first column and a gap of two spaces
+    padded = [r.ljust(spans[-1][1]) for r in rows]
+    cells = spans[1:]
+    families = _families(padded, cells)
+    groups: list[list[tuple[int, int]]] = []
+    group: list[tuple[int, int]] = []
+    used = lead_end
+    for i, (s, e) in enumerate(cells):
+        if lead_end + (e - s) > width:
+            return rows
+        gap = s - cells[i - 1][1] if group else 0
+        j = i
+        while j + 1 < len(cells) and families[j + 1] == families[i]:
+            j += 1
+        family_width = cells[j][1] - s
+        starts_family = i == 0 or families[i - 1] != families[i]
+        if group and (
+            used + gap + (e - s) > width
+            or (
+                starts_family
+                and used + gap + family_width > width
+                and lead_end + family_width <= width
+            )
+        ):
+            groups.append(group)
+            group, used, gap = [], lead_end, 0
+        group.append((s, e))
+        used += gap + (e - s)
+    groups.append(group)
+    out: list[str] = []
+    for g, block in enumerate(groups):
+        if g:
+            out.append("")
+        for k, r in enumerate(padded):
+            if k and not any(r[s:e].strip() for s, e in block):
+                continue  # a row with nothing in this block's columns
+            line, prev = r[: spans[0][1]] + "  ", None
+            for s, e in block:
+                line += ("" if prev is None else r[prev:s]) + r[s:e]
+                prev = e
+            out.append(line.rstrip())
+    return out
+
+
+def reflow(text: str, width: int) -> str:
+    """``text`` at ``width`` columns: prose wrapped at spaces (never inside a number or a word),
+    tables stacked in blocks of columns (:func:`fit_table`)."""
+    lines = text.split("\n")
+    out: list[str] = []
+    i = 0
+    while i < len(lines):
+        if _is_row(lines, i):
+            j = i
+            while j < len(lines) and _is_row(lines, j):
+                j += 1
+            out.extend(fit_table(lines[i:j], width))
+            i = j
+            continue
+        line = lines[i]
+        i += 1
+        if len(line) <= width:
+            out.append(line)
+            continue
+        indent = line[: len(line) - len(line.lstrip())]
+        out.extend(
+            textwrap.wrap(
+                line,
+                max(20, width),
+                subsequent_indent=indent + "  ",
+                break_long_words=False,
+                break_on_hyphens=False,
+            )
+        )
+    return "\n".join(out)

@@ -1,0 +1,98 @@
+"""The verdict when several effects hide at once, and when none does: the rules of
+:mod:`hexcal.diagnosis.verdict` on constructed candidates, ``--auto`` through three hidden
+catalogue effects, and one story from the outlier search and ``where``. The rates over 50
+sessions per case are measured by benchmarks/diagnosis_rates.py; here seeded sessions."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hexcal.app.workflow import Inputs, diagnose_chain
+from hexcal.diagnosis import diagnose
+from hexcal.diagnosis.scoring import Candidate
+from hexcal.diagnosis.text import diagnosis_text
+from hexcal.diagnosis.verdict import (
+    ALIKE_DCHI2,
+    BIC_STRONG,
+    CLEAR,
+    HELDOUT_Z,
+    MOST,
+    _alike,
+    _wins,
+)
+from hexcal.sim import verdict_cases as vc
+from hexcal.sim.session_sim import bump_poses
+
+
+def _cand(name="gain", dbic=-50.0, explained=0.6, z=5.0, closes=False, chain=False, chi2=1000.0):
+    c = Candidate(name, 100.0, True, True)
+    c.refit = SimpleNamespace(chi2=chi2, cv_rms_mm=0.011)  # type: ignore[assignment]
+    c.delta_bic, c.explained, c.heldout_z, c.closes, c.chain = dbic, explained, z, closes, chain
+    return c
+
+
+def test_at_the_floor_an_effect_is_named_only_when_it_predicts_held_out_poses_better():
+    strong = BIC_STRONG - 5
+    assert _wins(_cand(dbic=strong, z=HELDOUT_Z + 0.5), excess=False)
+    assert not _wins(_cand(dbic=strong, z=HELDOUT_Z - 0.5), excess=False)
+    assert not _wins(_cand(dbic=BIC_STRONG + 5, z=10.0), excess=False)
+
+
+def test_above_the_floor_an_effect_closes_the_excess_or_leads_a_chain_the_catalogue_closes():
+    assert _wins(_cand(explained=MOST + 0.1, closes=True, z=0.0), excess=True)
+    assert not _wins(_cand(explained=MOST - 0.1, closes=True), excess=True)
+    # Several effects at once: a clear share, a held-out gain, and the rest within the catalogue.
+    assert _wins(_cand(explained=CLEAR + 0.05, chain=True), excess=True)
+    assert not _wins(_cand(explained=CLEAR + 0.05, chain=False), excess=True)
+    assert not _wins(_cand(explained=CLEAR - 0.05, chain=True), excess=True)
+    assert not _wins(_cand(explained=0.9, chain=True, z=HELDOUT_Z - 0.5), excess=True)
+
+
+def test_effects_that_fit_alike_are_named_together_whatever_their_parameter_count():
+    best = _cand("thermal", dbic=-60, chi2=1000.0)
+    near = _cand("gain", dbic=-30, chi2=1000.0 - 0.5 * ALIKE_DCHI2)  # more parameters
+    far = _cand("drift", dbic=-55, chi2=1000.0 + 2 * ALIKE_DCHI2)
+    unrefitted = Candidate("leadscrew", 5.0, True, True)
+    assert _alike(best, [best, near, far, unrefitted], s2=1.0) == ["gain"]
+
+
+@pytest.mark.parametrize("seed", [31, 32])
+def test_three_hidden_effects_are_named_in_turn_and_auto_reaches_the_floor(seed):
+    c = vc.three_effects(seed)
+    chain = diagnose_chain(Inputs(c.meas, c.design, c.instruments, "stated", "three"), auto=True)
+    verdicts = [str(d.verdict) for d in chain]
+    assert verdicts[-1] == "none", verdicts
+    assert set(verdicts[:-1]) == set(vc.THREE), verdicts
+    last = chain[-1]
+    assert last.fit.cv_rms_mm <= 1.15 * last.noise_floor_mm
+
+
+def test_outliers_and_where_tell_one_story_when_the_noise_is_understated():
+    """Noise 2× the stated one and three 0.5 mm outliers: the outliers are set aside, judged
+    against the session's own level (the median pose), and ``where`` names them first and says
+    the rest is spread evenly — never "at the noise floor everywhere" at χ²/dof 4."""
+    c = vc.noise_understated(33)
+    meas, rows = bump_poses(c.meas, np.random.default_rng(33), 3, 0.5)
+    d = diagnose(meas, c.design, 42, instruments=c.instruments)
+    assert sorted(d.outlier_ids) == sorted(int(i) for i in meas.pose_id[rows])
+    assert d.verdict == "noise_understated"
+    summary = d.where["summary"]
+    assert summary.startswith("3 poses set aside as outliers")
+    assert "the rest: spread evenly" in summary
+    assert "at the noise floor everywhere" not in summary
+    text = diagnosis_text(d, "the test session")
+    assert "verdict: noise_understated" in text and "too low" in text
+
+
+def test_the_json_carries_the_new_verdicts_fields(backlash_diagnoses):
+    before, _, _, _ = backlash_diagnoses
+    out = before.to_dict()
+    assert out["verdict"] == "backlash"
+    assert {"alike", "changes", "explore", "noise_factor"} <= set(out)
+    assert out["explore"] is None and out["noise_factor"] is None
+    assert isinstance(out["alike"], list) and isinstance(out["changes"], list)
+    for cand in out["candidates"]:
+        assert "heldout_z" in cand
