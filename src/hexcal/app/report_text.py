@@ -16,8 +16,10 @@ def _fmt(value: float, ci: float, status: str) -> str:
     return f"{value:10.4f} ±{ci:7.4f}{mark}"
 
 
-def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
-    """Human-readable report: geometry with 95 % intervals, methods per leg, residual RMS."""
+def calibration_text(cal: Calibration, source: str, noise_line: str, verbose: bool = True) -> str:
+    """Human-readable report: geometry with 95 % intervals, methods per leg, residual RMS;
+    ``verbose``: also the parameters' strongest correlations (else one line says how to see
+    them)."""
     ref = cal.refinement
     lines = [
         f"hexcal calibrate: Model {cal.model} from {source}",
@@ -74,9 +76,14 @@ def calibration_text(cal: Calibration, source: str, noise_line: str) -> str:
                 "something (an effect, a wrong known offset, a slipping clamp); the intervals above are "
                 "widened by that factor"
             )
-        if ref.strong_correlations:
+        if ref.strong_correlations and verbose:
             lines.append("strongest correlations (|r| > 0.9):")
             lines += [f"  {a} ~ {b}: {r:+.3f}" for a, b, r in ref.strong_correlations[:6]]
+        elif ref.strong_correlations:
+            n = len(ref.strong_correlations)
+            lines.append(
+                f"({n} pairs of parameters correlate beyond |r| 0.9: --verbose lists them)"
+            )
         if ref.notes:
             lines.append("notes:")
             lines += [f"  - {n}" for n in ref.notes]

@@ -38,6 +38,8 @@ class Projection:
     jtr: np.ndarray  #: (p,)
     inv: np.ndarray  #: (p, p) the pseudo-inverse of JᵀJ on J's span
     blocks: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
+    #: The basis each block was made from (the problem's own array, cached there)
+    made_from: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
     def of(cls, problem: Problem, fit: ModelFit) -> Projection:
@@ -59,6 +61,9 @@ class Projection:
     def of_effect(self, problem: Problem, name: str):
         """(JᵀB (p, q), BᵀB (q, q), Bᵀr (q,)) of effect ``name``'s columns. The first request
         evaluates every candidate these data carry at once (one pass over the poses)."""
+        if name in self.blocks and self.made_from.get(name) is not problem.basis(name):
+            # The effect's columns changed since (zero steps located again): ask afresh.
+            del self.blocks[name]
         if name not in self.blocks:
             names = [
                 n
@@ -73,6 +78,7 @@ class Projection:
                 q = problem.basis(n).shape[-1]
                 cols = slice(start, start + q)
                 self.blocks[n] = (jtb[:, cols], btb[cols, cols], btr[cols])
+                self.made_from[n] = problem.basis(n)
                 start += q
         return self.blocks[name]
 

@@ -78,18 +78,23 @@ def found(d: Diagnosis) -> list[str]:
     return clauses
 
 
+def _length(mm: float) -> str:
+    """A length as it reads best: µm below 1 mm, else mm."""
+    return f"{1000 * mm:.0f} µm" if abs(mm) < 1 else f"{mm:.2f} mm"
+
+
 def _accuracy_sentence(diags: Sequence[Diagnosis]) -> str:
     last = diags[-1].accuracy
     drawing = diags[0].design_accuracy
     if last is None or not math.isfinite(last.position_p95_mm):
         return ""
     text = (
-        f"With the calibrated model, the platform is within {1000 * last.position_p95_mm:.0f} µm "
+        f"With the calibrated model, the platform is within {_length(last.position_p95_mm)} "
         "of where the controller believes it is (95 % of poses the fit did not see; "
-        f"{1000 * last.position_rms_mm:.0f} µm RMS)"
+        f"{_length(last.position_rms_mm)} RMS)"
     )
     if drawing is not None and math.isfinite(drawing.position_p95_mm):
-        text += f"; with the drawing it was {1000 * drawing.position_p95_mm:.0f} µm"
+        text += f"; with the drawing it was {_length(drawing.position_p95_mm)}"
     return text + "."
 
 

@@ -59,6 +59,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "it, plus every effect with its parameters; docs/formats.md)",
     )
     c.add_argument("--force", action="store_true", help="replace an existing --out file")
+    c.add_argument(
+        "--verbose", action="store_true", help="every statistic (the parameters' correlations)"
+    )
     add_pose_selection(c)
     c.set_defaults(func=run)
 
@@ -104,7 +107,11 @@ def run(args: argparse.Namespace) -> int:
             out["drawing_mismatch"] = mismatch
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
-        print(calibration_text(cal, inp.label, _noise_line(inp, cal)))
+        from hexcal.app.plain import calibration_summary, opening
+
+        plain = calibration_summary(result.name, result.accuracy, mismatch, str(args.measurements))
+        print(opening(plain))
+        print(calibration_text(cal, inp.label, _noise_line(inp, cal), verbose=args.verbose))
         if result.accuracy:
             print(
                 "\npose accuracy (the pose the model computes from the readings, against the "

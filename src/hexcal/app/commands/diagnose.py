@@ -48,6 +48,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="add the named effect and go on until the verdict is none",
     )
     d.add_argument("--json", action="store_true", help="print one JSON object")
+    d.add_argument(
+        "--verbose", action="store_true", help="every step of the chain in full (with --auto)"
+    )
     d.add_argument("--plots", help="directory for the residual plots (PNG)")
     d.add_argument("--report", help="write one self-contained HTML report here")
     d.add_argument(
@@ -133,6 +136,9 @@ def run(args: argparse.Namespace) -> int:
             out["effect_file"] = effect_written
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
+        from hexcal.app.plain import diagnosis_summary, opening
+
+        print(opening(diagnosis_summary(steps)))
         if limit_lines:
             left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""
             print(f"poses at the end of a leg's stroke or a joint's limit{left}:")
@@ -143,7 +149,13 @@ def run(args: argparse.Namespace) -> int:
                     "robot.json, or leave these poses out with --exclude-at-limits"
                 )
             print()
-        for d in steps:
+        shown = steps if args.verbose else steps[-1:]
+        if len(shown) < len(steps):
+            print(
+                f"(the chain's {len(steps) - 1} earlier step(s) in full: --verbose; the error "
+                "falling, step by step, is below)\n"
+            )
+        for d in shown:
             print(diagnosis_text(d, inp.label))
             print()
         print(before_after_text(steps))

@@ -83,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
         out["metrology"] = figures.to_dict()
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
+        from hexcal.app.plain import opening, validation_summary
+
+        print(opening(validation_summary(v)))
         print(v.text(inp.label))
         print()
         print("\n".join(figures.lines()))

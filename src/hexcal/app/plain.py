@@ -1,0 +1,141 @@
+"""Plain words first: the opening lines of ``calibrate``, ``diagnose`` and ``validate`` (and of
+the text UI's result and diagnosis screens), as the HTML report opens — the verdict in words,
+then how close the platform now is against what the instruments allow. The statistics follow
+under :data:`STATISTICS`; ``--verbose`` shows them all.
+
+One place for these words: the command line and the text UI both call these functions, and the
+diagnosis' sentences are :func:`hexcal.diagnosis.summary.plain_summary`, the report's own.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Sequence
+from typing import Any
+
+from hexcal.estimate.accuracy import PoseAccuracy
+from hexcal.vocabulary import Outcome
+
+#: The heading the statistics follow.
+STATISTICS = "Statistics"
+#: A model whose held-out pose error is within this factor of the floor is at the limit the
+#: instruments allow (the factor the diagnosis uses for "at the floor" on leg lengths).
+AT_FLOOR = 1.15
+
+
+def _um(mm: float) -> str:
+    """A length in the unit that reads best: µm below 1 mm, else mm."""
+    if not math.isfinite(mm):
+        return "—"
+    return f"{1000 * mm:.0f} µm" if abs(mm) < 1 else f"{mm:.2f} mm"
+
+
+def pose_error_line(rows: Sequence[PoseAccuracy], floor_mm: float | None = None) -> str:
+    """ "Pose error: drawing 2.73 mm → Model 42 51 µm → Model 42 + backlash 4 µm; the
+    instruments allow 5 µm" — the position RMS of each model, first to last, against the floor
+    (``floor_mm``, else the last row's own). Empty when there is no row."""
+    if not rows:
+        return ""
+    floor = floor_mm if floor_mm is not None else rows[-1].floor_position_rms_mm
+    steps = " → ".join(f"{_short(r.model)} {_um(r.position_rms_mm)}" for r in rows)
+    kind = "held-out poses" if any(r.heldout for r in rows) else "these poses"
+    line = f"Pose error (position RMS, {kind}): {steps}"
+    if floor is not None and math.isfinite(floor) and floor > 0:
+        ratio = rows[-1].position_rms_mm / floor
+        line += f"; the instruments allow {_um(floor)} ({ratio:.1f}× that now)."
+    return line + ("" if line.endswith(".") else ".")
+
+
+def _short(model: str) -> str:
+    return "the drawing" if model.startswith("design") else model
+
+
+def _at_floor(rows: Sequence[PoseAccuracy]) -> bool | None:
+    last = rows[-1] if rows else None
+    if last is None or not last.floor_position_rms_mm:
+        return None
+    return bool(last.position_rms_mm <= AT_FLOOR * last.floor_position_rms_mm)
+
+
+def calibration_summary(
+    name: str, accuracy: Sequence[PoseAccuracy], mismatch: Sequence[str], source: str
+) -> list[str]:
+    """The opening of ``hexcal calibrate``: whether the calibrated model (``name``) can be used,
+    and its pose error against the floor. ``source``: the table, for the next command."""
+    out = []
+    at_floor = _at_floor(accuracy)
+    if mismatch:
+        out.append(
+            f"Do not use this model yet: the calibrated {name} does not match the drawing "
+            "(see below). Fix the cause (cables, node ids, columns, units) and record again."
+        )
+    elif at_floor is None:
+        out.append(f"Calibrated {name}; no pose error could be measured on these poses.")
+    elif at_floor:
+        out.append(
+            f"The calibrated {name} is as good as the instruments can tell: what is left is "
+            "their own noise."
+        )
+    else:
+        out.append(
+            f"The calibrated {name} still misses something: the platform's pose error is above "
+            f"what the instruments allow. Find what with: hexcal diagnose {source} --auto"
+        )
+    line = pose_error_line(accuracy)
+    if line:
+        out.append(line)
+    return out
+
+
+def diagnosis_summary(steps: Sequence[Any]) -> list[str]:
+    """The opening of ``hexcal diagnose``: the report's plain-language summary, then the pose
+    error of each model of the chain against the floor."""
+    from hexcal.diagnosis.summary import plain_summary
+
+    d = steps[-1]
+    out = list(plain_summary(steps))
+    rows = [a for a in (steps[0].design_accuracy, *(s.accuracy for s in steps)) if a is not None]
+    line = pose_error_line(rows)
+    if line:
+        out.append(line)
+    if d.verdict not in (Outcome.NONE, Outcome.UNEXPLAINED, Outcome.OUTLIERS) and d.verdict:
+        if d.verdict != Outcome.NOISE_UNDERSTATED:
+            out.append(f"Next: add it (--add {d.verdict}), or let --auto add what is named.")
+    return out
+
+
+def validation_summary(v: Any) -> list[str]:
+    """The opening of ``hexcal validate``: does the model hold on this session, in words, and
+    the pose error against the floor."""
+    if v.own_session:
+        first = (
+            "This is not a validation: these are the poses the model was fitted on "
+            f"({v.own_session}). Validate on a second session."
+        )
+    elif v.verdict == Outcome.NONE:
+        first = (
+            f"The model holds on this session: {v.model} predicts it down to the instruments' "
+            "own noise."
+        )
+    elif v.verdict == Outcome.UNEXPLAINED:
+        first = (
+            f"The model does not hold on this session: {v.model} misses these poses by more "
+            "than the instruments' noise, and no catalogue effect explains it (see below)."
+        )
+    else:
+        first = (
+            f"The model does not hold on this session: it lacks {v.verdict}. Calibrate again "
+            f"with --add {v.verdict}, from a session that shows it."
+        )
+    out = [first]
+    line = pose_error_line([v.accuracy])
+    if line:
+        out.append(line)
+    return out
+
+
+def opening(lines: Sequence[str], width: int = 96) -> str:
+    """The summary lines wrapped at ``width``, followed by the statistics' heading."""
+    body = "\n".join(textwrap.fill(s, width, break_on_hyphens=False) for s in lines if s)
+    return f"{body}\n\n{STATISTICS}\n{'-' * len(STATISTICS)}"
