@@ -114,8 +114,24 @@ def test_no_number_is_cut_on_the_main_screens(tmp_path, size):
             await _until(pilot, lambda: len(app.screen.history) == 1, 60)
             await _idle(pilot)
             await _pages(pilot, seen["diagnosis"])
+            # After `a`, the new verdict is on screen wherever the view was scrolled to.
+            assert app.screen.history[-1].verdict == "gain"
+            app.screen.query_one("VerticalScroll").scroll_end(animate=False)
+            await pilot.pause()
+            await pilot.press("a")
+            await _until(pilot, lambda: len(app.screen.history) == 2, 60)
+            await _idle(pilot)
+            seen["after a"] = [screen_lines(app)]
 
     asyncio.run(run())
+    # Plain words first: the pose error against its floor is on the first page of the result
+    # and diagnosis screens, without scrolling; after `a`, the new verdict is in view.
+    for name in ("result", "diagnosis"):
+        first = " ".join(" ".join(seen[name][0]).split())
+        assert re.search(r"pose error \S+ µm|Pose error \(position RMS", first), (name, first)
+        assert "the instruments allow" in first, (name, first)
+    after = " ".join(" ".join(seen["after a"][0]).split())
+    assert "Nothing is missing" in after and "verdict: none" in after, after
     for name, pages in seen.items():
         assert pages, name
         for lines in pages:

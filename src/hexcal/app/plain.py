@@ -59,10 +59,11 @@ def _at_floor(rows: Sequence[PoseAccuracy]) -> bool | None:
 
 
 def calibration_summary(
-    name: str, accuracy: Sequence[PoseAccuracy], mismatch: Sequence[str], source: str
+    name: str, accuracy: Sequence[PoseAccuracy], mismatch: Sequence[str], next_step: str
 ) -> list[str]:
     """The opening of ``hexcal calibrate``: whether the calibrated model (``name``) can be used,
-    and its pose error against the floor. ``source``: the table, for the next command."""
+    and its pose error against the floor. ``next_step``: how to find what is missing (a
+    command, a key)."""
     out = []
     at_floor = _at_floor(accuracy)
     if mismatch:
@@ -80,7 +81,7 @@ def calibration_summary(
     else:
         out.append(
             f"The calibrated {name} still misses something: the platform's pose error is above "
-            f"what the instruments allow. Find what with: hexcal diagnose {source} --auto"
+            f"what the instruments allow. Find what: {next_step}"
         )
     line = pose_error_line(accuracy)
     if line:
@@ -103,6 +104,30 @@ def diagnosis_summary(steps: Sequence[Any]) -> list[str]:
         if d.verdict != Outcome.NOISE_UNDERSTATED:
             out.append(f"Next: add it (--add {d.verdict}), or let --auto add what is named.")
     return out
+
+
+def verdict_words(d: Any) -> str:
+    """A diagnosis' verdict as one short sentence (the text UI's first line)."""
+    if d.verdict == Outcome.NONE:
+        return "Nothing is missing: what is left is the instruments' own noise."
+    if d.verdict == Outcome.UNEXPLAINED:
+        return "Something no catalogue effect describes remains (see below)."
+    if d.verdict == Outcome.NOISE_UNDERSTATED:
+        return f"The instruments look about {d.noise_factor:.1f}× noisier than stated."
+    if d.verdict == Outcome.OUTLIERS:
+        return f"{len(d.outliers)} poses disagree grossly with every model: look at them."
+    return f"The model lacks {d.verdict}: press a to add it."
+
+
+def pose_against_floor(a: PoseAccuracy | None) -> str:
+    """ "pose error 51 µm, the instruments allow 5 µm (10.9×)" (empty without a floor)."""
+    if a is None or not a.floor_position_rms_mm or not math.isfinite(a.position_rms_mm):
+        return ""
+    ratio = a.position_rms_mm / a.floor_position_rms_mm
+    return (
+        f"pose error {_um(a.position_rms_mm)}, the instruments allow "
+        f"{_um(a.floor_position_rms_mm)} ({ratio:.1f}×)"
+    )
 
 
 def validation_summary(v: Any) -> list[str]:

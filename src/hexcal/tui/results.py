@@ -79,6 +79,7 @@ class ResultScreen(HexcalScreen):
 
     @work(thread=True, exclusive=True, group="compute")
     def _calibrate(self) -> None:
+        from hexcal.app.plain import STATISTICS, calibration_summary
         from hexcal.app.report_text import calibration_text
         from hexcal.app.workflow import calibrate_model, check_drawing, store
         from hexcal.estimate.accuracy import accuracy_table
@@ -93,8 +94,16 @@ class ResultScreen(HexcalScreen):
             self.hexcal.post(self._refused, str(exc))
             return
         cal = result.calibration
-        text = escape(calibration_text(cal, inp.label, inp.noise_source))
         mismatch = check_drawing(inp, cal)
+        # Plain words first, as the command line and the report open.
+        plain = calibration_summary(result.name, result.accuracy, mismatch, "press d to diagnose")
+        text = "[b]" + escape(plain[0]) + "[/b]\n" + escape("\n".join(plain[1:]))
+        text += (
+            "\n\n[b]"
+            + STATISTICS
+            + "[/b]\n"
+            + escape(calibration_text(cal, inp.label, inp.noise_source, verbose=False))
+        )
         if mismatch:
             # Not a success, however well it fits: say so first.
             text = (
@@ -269,6 +278,7 @@ class DiagnosisScreen(HexcalScreen):
         self.refresh_bindings()
 
     def _show(self, d: Any) -> None:
+        from hexcal.app.plain import pose_against_floor, verdict_words
         from hexcal.diagnosis.text import before_after_text, diagnosis_text
 
         self._working.stop()
@@ -279,9 +289,11 @@ class DiagnosisScreen(HexcalScreen):
             before_after_text(self.history) + "\n\n" + diagnosis_text(d, str(guided.sf.path))
         )
         self._fit()
+        # Plain words first: the verdict, then the pose error against what the instruments
+        # allow; the statistics follow in the details below the chart.
         lines = [
-            f"[b]verdict: {d.verdict}[/b]   χ²/dof {d.chi2_per_dof:.2f}, "
-            f"floor {1000 * d.noise_floor_mm:.2f} µm",
+            f"[b]{escape(verdict_words(d))}[/b]",
+            f"{escape(pose_against_floor(d.accuracy))}   (verdict: {d.verdict})",
             "",
             f"{'model':<22}{'legs µm':>9}{'pose µm':>9}{'angle °':>9}",
             *(_history_line(h) for h in self.history),
@@ -312,6 +324,8 @@ class DiagnosisScreen(HexcalScreen):
             if d.fit.refinement is not None:
                 lines.append(truth_line(d.fit.refinement, rig.truth))
         self.query_one("#diag-summary", Static).update("\n".join(lines))
+        # The new verdict is what the user came for: back to the top, where it is.
+        self.query_one("#diag-scroll", VerticalScroll).scroll_home(animate=False)
         self.status("")
         self._plot()
         self.refresh_bindings()

@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         from hexcal.app.plain import calibration_summary, opening
 
-        plain = calibration_summary(result.name, result.accuracy, mismatch, str(args.measurements))
+        next_step = f"hexcal diagnose {args.measurements} --auto"
+        plain = calibration_summary(result.name, result.accuracy, mismatch, next_step)
         print(opening(plain))
         print(calibration_text(cal, inp.label, _noise_line(inp, cal), verbose=args.verbose))
         if result.accuracy:
