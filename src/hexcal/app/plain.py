@@ -135,8 +135,8 @@ def validation_summary(v: Any) -> list[str]:
     the pose error against the floor."""
     if v.own_session:
         first = (
-            "This is not a validation: these are the poses the model was fitted on "
-            f"({v.own_session}). Validate on a second session."
+            "This is not a validation: these are the poses the model was fitted on: "
+            f"{v.own_session}. Validate on a second session."
         )
     elif v.verdict == Outcome.NONE:
         first = (
