@@ -70,7 +70,8 @@ def test_report_has_no_external_resources(report):
 def test_report_shows_verdict_provenance_and_images(report, session):
     _, _, text = report
     before, after, csv = session
-    assert '<div class="big">none</div>' in text  # the last step's verdict, in big type
+    # A sentence first, then the last step's verdict word beside its label.
+    assert text.index('<p class="lead">') < text.index('<span class="badge">none</span>')
     assert 'class="verdict v-none"' in text
     assert "backlash" in text
     assert hashlib.sha256(csv.read_bytes()).hexdigest() in text
@@ -105,15 +106,16 @@ def test_sections_have_stable_ids_in_a_fixed_order(report):
         plots = [x for x in got if x.startswith("plot-")]
         assert plots == ["plot-" + n.removesuffix(".png") for n, _, _ in REPORT_PLOTS]
     top = [x for x in ids if not x.startswith("step-") and not x.startswith("change-")]
-    assert top[:4] == ["verdict", "summary", "contents", "provenance"]
-    assert top[-1] == "glossary"
+    # The pose accuracy first; the provenance at the end, before the glossary.
+    assert top[:4] == ["verdict", "summary", "contents", "accuracy"]
+    assert top[-2:] == ["provenance", "glossary"]
     assert ids.index("step-1") < ids.index("change-1-2") < ids.index("step-2")
 
 
 def test_report_html_is_well_formed(report):
     _, _, text = report
 
-    void = {"meta", "img", "br", "col", "hr", "input", "link"}
+    void = {"meta", "img", "br", "col", "hr", "input", "link", "wbr"}
 
     class Check(HTMLParser):
         def __init__(self):
@@ -138,7 +140,7 @@ def test_single_step_report_has_no_before_after(session, tmp_path):
     path = write_report([before], tmp_path / "r.html", {"measurements": csv}, plots=False)
     text = path.read_text(encoding="utf-8")
     assert "change-1-2" not in text
-    assert 'class="verdict v-effect"' in text and '<div class="big">backlash</div>' in text
+    assert 'class="verdict v-effect"' in text and '<span class="badge">backlash</span>' in text
     assert "data:image/png" not in text
 
 

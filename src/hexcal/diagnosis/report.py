@@ -114,12 +114,11 @@ h1, h2, h3 { margin: 0 0 10px; line-height: 1.2; }
 h2 { font-size: 22px; } h3 { font-size: 17px; margin-top: 18px; }
 .verdict { border-left: 14px solid; }
 .verdict .label { text-transform: uppercase; letter-spacing: .08em; font-size: 13px; color: #555; }
-.verdict .big { font-size: 56px; font-weight: 700; line-height: 1.05; margin: 4px 0 10px; }
 .verdict .why { font-size: 18px; margin: 0 0 10px; }
 #statistics { margin: 10px 0 0; }
-.v-none { border-color: #2e7d32; } .v-none .big { color: #2e7d32; }
-.v-effect { border-color: #e69500; } .v-effect .big { color: #b86e00; }
-.v-unexplained { border-color: #c62828; } .v-unexplained .big { color: #c62828; }
+.v-none { border-color: #2e7d32; }
+.v-effect { border-color: #e69500; }
+.v-unexplained { border-color: #c62828; }
 .path { display: flex; flex-wrap: wrap; gap: 6px; align-items: center; padding: 0; margin: 0;
         list-style: none; font-size: 14px; }
 .chip { padding: 3px 10px; border-radius: 14px; color: #fff; white-space: nowrap; }
@@ -129,10 +128,29 @@ h2 { font-size: 22px; } h3 { font-size: 17px; margin-top: 18px; }
 nav ol { margin: 0; padding-left: 20px; columns: 2; }
 table { width: 100%; border-collapse: collapse; table-layout: auto; font-size: 14px; margin: 6px 0 4px; }
 th, td { padding: 4px 8px; border-bottom: 1px solid #e3e5e8; text-align: left; vertical-align: top;
-         overflow-wrap: anywhere; }
+         overflow-wrap: normal; word-break: normal; hyphens: none; }
 th { background: #f0f2f5; font-weight: 600; overflow-wrap: normal; word-break: normal; }
 dl.glossary dt { font-weight: 600; margin-top: 6px; } dl.glossary dd { margin: 0 0 0 16px; }
-td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }
+td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+/* A table wider than its box scrolls inside its own box; the page never does. */
+.tbl { max-width: 100%; overflow-x: auto; margin: 6px 0 4px; }
+.tbl table { margin: 0; }
+.hash .h-full { position: absolute; width: 1px; height: 1px; overflow: hidden;
+                clip: rect(0 0 0 0); white-space: nowrap; }
+.verdict .lead { font-size: 21px; font-weight: 600; margin: 0 0 8px; }
+.verdict .badge { display: inline-block; padding: 1px 10px; border-radius: 12px; color: #fff;
+                  font-weight: 700; text-transform: none; letter-spacing: 0; }
+.v-none .badge { background: #2e7d32; } .v-effect .badge { background: #b86e00; }
+.v-unexplained .badge { background: #c62828; }
+@media (max-width: 640px) {
+  body { padding: 6px; font-size: 15px; }
+  section, header { padding: 12px 10px; border-radius: 6px; }
+  .verdict { border-left-width: 8px; }
+  .verdict .lead { font-size: 18px; }
+  .kv { grid-template-columns: 1fr; } .kv dd { margin-bottom: 6px; }
+  nav ol { columns: 1; }
+  figure { margin-left: -10px; margin-right: -10px; }
+}
 tr.win td { background: #fff4dc; font-weight: 600; }
 tr.off td { color: #888; }
 tr.bad td { color: #b71c1c; }
@@ -212,6 +230,21 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def _hash(full: str) -> str:
+    """A digest shortened to its ends; the whole value on hover (title) and in the copied text
+    (a visually hidden copy)."""
+    short = f"{full[:12]}…{full[-6:]}"
+    return (
+        f'<code class="hash" title="{_e(full)}"><span class="h-short" aria-hidden="true">'
+        f'{_e(short)}</span><span class="h-full">{_e(full)}</span></code>'
+    )
+
+
+def _path(p: Path) -> str:
+    """A path that may wrap after its separators, never inside a name."""
+    return "/<wbr>".join(_e(part) for part in str(p).split("/"))
 
 
 def _data_uri(png: Path) -> str:
@@ -297,11 +330,12 @@ def _header(diags: Sequence[Diagnosis]) -> str:
             f"{_e(s.fit.model_name)}</a>: {_e(s.verdict)} · {_um(s.fit.cv_rms_mm)} µm</li>"
         )
     label = _VERDICT_LABEL.get(d.verdict, "verdict — effect missing from the model")
+    # A sentence first; the verdict's word beside its label, not alone in big type.
     return (
         f'<header id="verdict" class="verdict {_verdict_class(d.verdict)}">'
-        f'<div class="label">{_e(label)} · {_e(d.fit.model_name)}</div>'
-        f'<div class="big">{_e(d.verdict)}</div>'
         f"{_plain(diags)}"
+        f'<div class="label">{_e(label)} · {_e(d.fit.model_name)}: '
+        f'<span class="badge">{_e(d.verdict)}</span></div>'
         f'<ol class="path" id="path">{"".join(chips)}</ol>'
         f'<p class="muted" id="statistics">In statistics: {_e(explanation(diags))}</p></header>'
     )
@@ -356,7 +390,10 @@ def _accuracy(diags: Sequence[Diagnosis], tmp: Path | None) -> str:
 
 def _plain(diags: Sequence[Diagnosis]) -> str:
     """The findings in plain words (:mod:`hexcal.diagnosis.summary`), before any statistic."""
-    body = "".join(f'<p class="why">{_e(s)}</p>' for s in plain_summary(diags))
+    said = plain_summary(diags)
+    body = "".join(
+        f'<p class="{"lead" if i == 0 else "why"}">{_e(s)}</p>' for i, s in enumerate(said)
+    )
     return f'<div id="summary">{body}</div>'
 
 
@@ -367,7 +404,6 @@ def _glossary() -> str:
 
 def _nav(diags: Sequence[Diagnosis]) -> str:
     items = [
-        '<li><a href="#provenance">Provenance</a></li>',
         '<li><a href="#accuracy">Pose accuracy</a></li>',
         '<li><a href="#metrology">Metrology</a></li>',
     ]
@@ -377,6 +413,7 @@ def _nav(diags: Sequence[Diagnosis]) -> str:
         )
         if i < len(diags):
             items.append(f'<li><a href="#change-{i}-{i + 1}">Change {i} → {i + 1}</a></li>')
+    items.append('<li><a href="#provenance">Provenance</a></li>')
     items.append('<li><a href="#glossary">Glossary</a></li>')
     return f'<nav id="contents" class="muted"><ol>{"".join(items)}</ol></nav>'
 
@@ -389,10 +426,10 @@ def _provenance(diags: Sequence[Diagnosis], inputs: Mapping[str, Path]) -> str:
     for label, p in inputs.items():
         p = Path(p)
         try:
-            digest = f"sha256 <code>{_sha256(p)}</code>"
+            digest = f"sha256 {_hash(_sha256(p))}"
         except OSError as exc:
             digest = f'<span class="err">not readable: {_e(exc.strerror or exc)}</span>'
-        rows.append((f"input: {_e(label)}", f"<code>{_e(p)}</code><br>{digest}"))
+        rows.append((f"input: {_e(label)}", f"<code>{_path(p)}</code><br>{digest}"))
     rows.append(("models", " → ".join(_e(d.fit.model_name) for d in diags)))
     outside = {  # effects from outside the catalogue, fitted or scored: where their code came from
         e: get_effect(e).source.text()
@@ -724,7 +761,6 @@ def render_report(
         f"<style>{CSS}</style></head><body><main>",
         _header(diags),
         _nav(diags),
-        _provenance(diags, inputs),
     ]
     if limits:
         items = "".join(f"<li>{_e(line)}</li>" for line in limits)
@@ -744,13 +780,15 @@ def render_report(
             parts.append(_step(step, i, tmp))
             if on_step is not None:
                 on_step()
+    parts.append(_provenance(diags, inputs))
     parts.append(_glossary())
     parts.append(
         f'<footer id="footer" class="muted">hexcal {_e(hexcal.__version__)} · residual = reading − '
         "predicted reading; held-out = predicted by a fit that did not see the pose.</footer>"
         "</main></body></html>\n"
     )
-    return "\n".join(parts)
+    html = "\n".join(parts)
+    return html.replace("<table", '<div class="tbl"><table').replace("</table>", "</table></div>")
 
 
 def write_report(
