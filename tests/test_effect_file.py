@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexcal.app.cli import build_parser, main
+from hexcal.app.cli import main
 from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.covariates import COVARIATES, Lead, covariate_values, shapes_for
 from hexcal.diagnosis.effect_file import effect_file_text, effect_name, write_effect_file
-from hexcal.effects import CATALOGUE
+from hexcal.effects import CATALOGUE, plugins
 from hexcal.effects.backlash import deadband_mm
 from hexcal.estimate.effect_fit import fitted_robot
 from hexcal.io.measurements import write_measurements
@@ -140,23 +140,21 @@ def test_no_file_when_the_verdict_names_an_effect(backlash_diagnoses, tmp_path, 
     assert not (tmp_path / "x.py").exists()
 
 
-def _has_effects_option() -> bool:
-    sub = next(a for a in build_parser()._actions if a.dest == "command")
-    return "--effects" in sub.choices["diagnose"]._option_string_actions
-
-
-@pytest.mark.skipif(
-    not _has_effects_option(),
-    reason="--effects FILE.py is not wired through the command line yet (issue 23, part 1): "
-    "the lead wires it after merging; until then the file is loaded with importlib above",
-)
 def test_the_file_passed_back_with_effects_brings_the_error_to_the_floor(tmp_path, capsys):
     c = vc.foreign("stroke quadratic", 21)
     args = _session_files(c, tmp_path / "s")
     target = tmp_path / "bend.py"
     assert main(["diagnose", *args, "--effect-file", str(target)]) == 0
     capsys.readouterr()
-    assert main(["diagnose", *args, "--effects", str(target), "--add", "by_stroke", "--json"]) == 0
+    saved, files = dict(CATALOGUE), dict(plugins._files)
+    try:
+        argv = ["diagnose", *args, "--effects", str(target), "--add", "by_stroke", "--json"]
+        assert main(argv) == 0
+    finally:  # the file's effect is this test's, not the next one's
+        CATALOGUE.clear()
+        CATALOGUE.update(saved)
+        plugins._files.clear()
+        plugins._files.update(files)
     out = json.loads(capsys.readouterr().out)
     assert out["verdict"] == "none"
     assert out["cv_rms_mm"] <= 1.15 * out["noise_floor_mm"]

@@ -39,6 +39,11 @@ def fitted(tmp_path_factory):
     return first, second, cal
 
 
+def _stats_head(text: str) -> str:
+    """The first line under the statistics' heading (the plain words come before it)."""
+    return text.split("\nStatistics\n")[1].splitlines()[1]
+
+
 def _validate(cal, table, inst, capsys, *more):
     args = ["validate", str(cal), str(table), "--instruments", str(inst), *more]
     assert main(args) == 0
@@ -48,7 +53,8 @@ def _validate(cal, table, inst, capsys, *more):
 def test_the_session_it_was_fitted_on_is_named_and_no_holds_verdict(fitted, capsys):
     first, _, cal = fitted
     text = _validate(cal, first / "measurements.csv", first / "instruments.json", capsys)
-    head = text.splitlines()[0]
+    assert text.startswith("This is not a validation")  # in plain words first
+    head = _stats_head(text)
     assert "NOT A VALIDATION" in head and "SHA-256 is in the provenance" in head
     assert "poses it was not fitted on" not in text
     assert "holds" not in text and "verdict: not given" in text
@@ -64,7 +70,7 @@ def test_the_same_poses_in_another_file_are_recognised_by_ids_and_times(fitted, 
     whole, mixed = tmp_path / "copy.csv", tmp_path / "mixed.csv"
     write_measurements(meas.subset(slice(None, None, -1)), whole)  # other bytes, same poses
     text = _validate(cal, whole, first / "instruments.json", capsys)
-    assert f"all {len(meas)} poses were fitted (same pose ids and times" in text.splitlines()[0]
+    assert f"all {len(meas)} poses were fitted (same pose ids and times" in _stats_head(text)
     # half of the fitted poses among new ones (ids made unique)
     other = read_measurements(second / "measurements.csv")
     half = meas.subset(slice(0, len(meas) // 2))
@@ -72,7 +78,7 @@ def test_the_same_poses_in_another_file_are_recognised_by_ids_and_times(fitted, 
     write_measurements(_concat(rows), mixed)
     text = _validate(cal, mixed, first / "instruments.json", capsys)
     n = len(half) + len(other)
-    assert f"{len(half)} of these {n} poses were fitted" in text.splitlines()[0]
+    assert f"{len(half)} of these {n} poses were fitted" in _stats_head(text)
     assert "holds" not in text
 
 
@@ -87,7 +93,8 @@ def test_a_second_session_gets_its_uncertainty_and_coverage(fitted, capsys):
     assert u["k"] == 2 and "parameters" in u["source"]
     assert len(u["poses"]) == out["poses"] and all(p["U_position_mm"] > 0 for p in u["poses"])
     text = _validate(cal, second / "measurements.csv", second / "instruments.json", capsys)
-    assert "poses it was not fitted on" in text.splitlines()[0]
+    assert "poses it was not fitted on" in _stats_head(text)
+    assert text.startswith("The model holds on this session")
     assert "holds on these poses" in text and "uncertainty (GUM, k = 2" in text
 
 
