@@ -38,6 +38,9 @@ from hexcal.model.robot import Robot
 CLOSE_MM = 1e-10
 #: A pose is refused when its legs do not close to this after the iterations, mm.
 REFUSE_MM = 1e-7
+#: Rows the batched Newton leaves open that are each solved again from restarts; beyond
+#: this many (and half the rows) the model is taken not to fit the readings.
+MAX_RESCUED = 10
 MAX_NEWTON = 60
 #: Fixed-point iterations of pose → readings (each contracts by the effects' slope, e.g. a gain).
 MAX_FIXED_POINT = 400
@@ -192,6 +195,10 @@ class LegModel:
         P, R = _newton(self, readings, t, temperature, guess.position, guess.rotation, todo)
         err = self._closure(readings, t, temperature, P, R, todo)
         bad = todo[~(err < REFUSE_MM)]
+        if len(bad) > max(MAX_RESCUED, len(todo) // 2):
+            # Most rows do not close: the model does not fit these readings (a wrong file, a
+            # broken model), and restarting each row would only take long to say so.
+            return Poses(P[todo], R[todo]), err < REFUSE_MM
         # Newton from a poor guess may stall or reach another assembly mode: the library
         # solver with restarts gives a better start for those rows.
         for i in bad:

@@ -69,6 +69,10 @@ class ForwardKinematicsError(RefusedError, RuntimeError):
     """No pose reproduces the given leg lengths within tolerance."""
 
 
+#: Evaluations one start of :func:`forward_kinematics` may take.
+MAX_NFEV = 100
+
+
 def forward_kinematics(
     a: np.ndarray,
     b: np.ndarray,
@@ -107,7 +111,11 @@ def forward_kinematics(
         x0 = np.concatenate([guess_position, np.zeros(3)])
         if attempt:
             x0 = x0 + rng.normal(0, [5, 5, 5, 0.1, 0.1, 0.1])
-        sol = least_squares(residual, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15)
+        # A solve that converges takes a few tens of evaluations; lengths no pose closes would
+        # otherwise run MINPACK's default 600 per start (eight starts, for every such row).
+        sol = least_squares(
+            residual, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, max_nfev=MAX_NFEV
+        )
         if best is None or sol.cost < best.cost:
             best = sol
         if np.max(np.abs(sol.fun)) < tol_mm:
