@@ -45,6 +45,23 @@ READERS = {
 
 # file -> texts the message must hold (the field or the line, and what is wrong)
 CASES = {
+    # keys given twice, true for a number, a repeated pose id, files as spreadsheets save them
+    "robot-duplicate-key.json": ["line 69", "key 'leg_offsets' is given twice (first on line 68)"],
+    "instruments-duplicate-key.json": ["key 'position_sigma_mm' (in field tracker) is given twice"],
+    "session-duplicate-key.json": ["line 191", "key 'notes' is given twice"],
+    "devices-duplicate-table.toml": ["line 8", "table '[tracker]' is given twice"],
+    "procedure-duplicate-key.toml": ["line 12", "key 'min_poses' is given twice"],
+    "robot-bool-coordinate.json": ["field base_points.0.1", "not a boolean"],
+    "session-bool-coordinate.json": ["field poses.0.position.1", "not a boolean", "left untouched"],
+    "session-duplicate-column.json": ["field columns.19", "column 'rho1' appears twice"],
+    "session-repeated-pose-id.json": [
+        "pose 1 (field poses.1.pose_id)",
+        "the id repeats poses.0's",
+        "left untouched",
+    ],
+    "measurements-cp1252.csv": ["line 2, column 'step'", "not UTF-8", "Windows-1252", "CSV UTF-8"],
+    "measurements-decimal-commas.csv": ["line 2", "decimal commas", "';' as the separator"],
+    "table-decimal-commas.csv": ["line 2", "decimal commas", "';' as the separator"],
     "robot-nan.json": ["field base_points.0.1", "NaN is not a finite number"],
     "robot-infinity.json": ["field leg_offsets.2", "Infinity is not a finite number"],
     "robot-overflow.json": ["field home.position.2", "Infinity is not a finite number"],
