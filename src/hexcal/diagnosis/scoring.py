@@ -146,10 +146,16 @@ def score_candidate(
         cand.reason = (
             f"{', '.join(absorbed)} cannot be told apart from {', '.join(top)} with these poses "
             f"(principal angle {np.degrees(np.arcsin(min(sines.min(), 1.0))):.2f}°, standard error "
-            f"{np.nanmax(se[unresolved] / half[unresolved]):.2g} of the plausible range); "
+            f"{_worst(se[unresolved] / half[unresolved]):.2g} of the plausible range); "
             f"record {eff.separating_motion}"
         )
     return cand
+
+
+def _worst(ratios: np.ndarray) -> float:
+    """The largest of ``ratios`` (NaN left out), inf when none is a number (undetermined)."""
+    known = ratios[~np.isnan(ratios)]
+    return float(known.max()) if known.size else float("inf")
 
 
 def identifiable_candidates(
