@@ -161,8 +161,9 @@ def test_predict_and_validate_read_it_back(site, session, calibrated, tmp_path):
     pose = _column_block(poses, ["x", "y", "z"])
     assert np.sqrt(np.mean(np.sum((pose - _column_block(table, ["x", "y", "z"])) ** 2, 1))) < 0.03
 
+    # On the session it was fitted on, validate reads the model but says it is no validation.
     v = json.loads(hexcal("validate", calibrated, table, "--json", site=site).stdout)
-    assert v["verdict"] == "none"
+    assert v["own_session"] and v["verdict"] is None
     second = tmp_path / "second"
     hexcal(
         "simulate",

@@ -81,12 +81,12 @@ def _run_mock(folder: Path, size: tuple[int, int]) -> tuple[dict, list[str]]:
             await pilot.press("A")
             await _until(pilot, lambda: app.guided.finished and not app.screen.busy, 300)
             await pilot.press("k")
-            await _until(pilot, lambda: isinstance(app.screen, ResultScreen), 5)
+            await _until(pilot, lambda: isinstance(app.screen, ResultScreen), 30)
             await app.workers.wait_for_complete()
             await _until(pilot, lambda: app.screen._text != "calibrating…", 60)
             shown = [app.screen._text]
             await pilot.press("d")
-            await _until(pilot, lambda: isinstance(app.screen, DiagnosisScreen), 5)
+            await _until(pilot, lambda: isinstance(app.screen, DiagnosisScreen), 30)
             await _until(pilot, lambda: len(app.screen.history) == 1, 120)
             await pilot.pause()
             return [*shown, app.screen._details]

@@ -19,6 +19,7 @@ from __future__ import annotations
 import codecs
 import csv
 import io
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,6 +57,10 @@ from hexcal.io.safe_read import (
     open_binary,
 )
 from hexcal.vocabulary import Constraint
+
+#: Largest table read by the compiled column reader (a million poses is about 200 MB; 120,000
+#: about 25 MB): it holds the file's text a few times over, the streaming reader about once.
+FAST_MAX_BYTES = 64 * 1024 * 1024
 
 # --------------------------------------------------------------------------------------------
 # Reading
@@ -451,21 +456,31 @@ def read_measurements(path: str | Path, notices: list[str] | None = None) -> Mea
 
     with open_binary(path, "measurements", error) as fh:
         try:
-            raw = fh.read()
+            head = fh.read(HEAD_BYTES)
+            size = os.fstat(fh.fileno()).st_size
+            fh.seek(0)
         except OSError as exc:
             raise error(f"cannot be read ({exc.strerror or exc})") from None
         try:
-            dialect = sniff(raw[:HEAD_BYTES], REQUIRED_COLUMNS, NUMERIC_COLUMNS)
+            dialect = sniff(head, REQUIRED_COLUMNS, NUMERIC_COLUMNS)
         except DialectError as exc:
             raise MeasurementError.single(path, 2, None, str(exc)) from None
-        # A plain, valid table in hexcal's own dialect goes straight into column arrays; any
-        # other file is streamed row by row below, every problem named.
-        plain = read_plain(raw, path) if dialect.standard else None
-        if plain is not None:
-            return plain
+        # A plain, valid table in hexcal's own dialect goes straight into column arrays (in
+        # memory a few times its size, so only up to FAST_MAX_BYTES); any other file is
+        # streamed row by row below, every problem named, memory about its size.
+        if dialect.standard and size <= FAST_MAX_BYTES:
+            try:
+                raw = fh.read()
+                fh.seek(0)
+            except OSError as exc:
+                raise error(f"cannot be read ({exc.strerror or exc})") from None
+            plain = read_plain(raw, path)
+            del raw
+            if plain is not None:
+                return plain
         # newline="" keeps line ends as they are, as the csv module wants; utf-8-sig drops a
         # leading byte-order mark (spreadsheet exports).
-        stream = io.TextIOWrapper(io.BytesIO(raw), encoding=dialect.encoding, newline="")
+        stream = io.TextIOWrapper(fh, encoding=dialect.encoding, newline="")
         try:
             table = _read_table(stream, path, dialect)
         except UnicodeDecodeError:
