@@ -104,7 +104,12 @@ def test_contract_over_a_pty_at_the_rig_files_rates(responder, baud):
     with tracker(responder, baud) as trk:
         assert trk.setup_tools() == (0x0A,)
         trk.start()
-        frames = [assert_pose(trk, binary=k % 2 == 1) for k in range(20)]
+        frames = []
+        for k in range(20):
+            frames.append(assert_pose(trk, binary=k % 2 == 1))
+            # A tracker numbers its frames at its own rate (60 Hz here); at 921600 baud twenty
+            # polls fit inside one frame, so pace them a frame apart to see the count advance.
+            time.sleep(1.5 / 60.0)
         assert frames == sorted(frames) and frames[-1] > frames[0]
         sample = trk.sample()
         assert sample.fault is None and sample.position is not None
