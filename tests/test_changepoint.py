@@ -115,3 +115,58 @@ def test_zero_steps_in_robot_json_are_checked():
         Robot.model_validate({**base, "zero_steps": [{"leg": 7, "t_s": 5}]})
     with pytest.raises(ValidationError):
         Robot.model_validate({**base, "zero_steps": [{"leg": 1, "t_s": float("nan")}]})
+
+
+def _dense_search(problem, fit, level):
+    """The search as first written: every split's step column built whole, (6M, splits) per
+    leg, and projected with the fit's orthonormal basis — the reference for the suffix sums."""
+    from hexcal.diagnosis.changepoint import MIN_SIDE, STEP_ALPHA
+    from hexcal.diagnosis.scoring import jacobian_basis, whitened_columns
+    from hexcal.estimate.quantiles import chi2_isf
+
+    m = len(problem.meas)
+    splits = np.arange(MIN_SIDE, m - MIN_SIDE + 1)
+    threshold = float(chi2_isf(STEP_ALPHA / (6 * len(splits)), 1))
+    _, rw, _ = fit.refinement.whitened()
+    q = jacobian_basis(fit)
+    after = (np.arange(m)[:, None] >= splits[None, :]).astype(float)
+    cols = []
+    for k in range(6):
+        basis = np.zeros((m, 6, len(splits)))
+        basis[:, k, :] = -after
+        cols.append(whitened_columns(fit, basis))
+    found = []
+    while len(found) < 6:
+        best = None
+        for k in set(range(6)) - {leg for leg, *_ in found}:
+            perp = cols[k] - q @ (q.T @ cols[k])
+            norm2 = np.einsum("ij,ij->j", perp, perp)
+            dot = perp.T @ rw
+            scores = np.where(norm2 > 0, dot**2 / np.where(norm2 > 0, norm2, 1.0), 0.0) / level
+            j = int(np.argmax(scores))
+            if scores[j] > threshold and (best is None or scores[j] > best[0]):
+                best = (float(scores[j]), k, j, float(dot[j] / norm2[j]))
+        if best is None:
+            break
+        score, k, j, coef = best
+        found.append((k, int(splits[j]), -coef, score))
+        step = cols[k][:, j : j + 1]
+        step = step - q @ (q.T @ step)
+        q = np.hstack([q, step / np.linalg.norm(step)])
+    return [(k + 1, i, size, score) for k, i, size, score in found]
+
+
+@pytest.mark.parametrize("level", [1.0, 0.01])
+def test_the_suffix_sums_give_the_dense_search(level):
+    """The search sums each split's products over the poses after it (memory and time linear
+    in the poses); the same steps, sizes and scores as building every split's column whole.
+    At ``level`` 0.01 the scores are 100× and several legs pass, so the greedy conditioning
+    on steps already found is compared too."""
+    c = vc.zero_jump(1)
+    problem = Problem.build(c.meas, c.design, NoiseSigmas.from_instruments(c.instruments))
+    fit = fit_model(problem, ("offset",))
+    got = [(s.leg, s.index, s.size_mm, s.chi2) for s in search(problem, fit, level)]
+    want = _dense_search(problem, fit, level)
+    assert len(got) >= (3 if level < 1 else 1)
+    assert [g[:2] for g in got] == [w[:2] for w in want]
+    np.testing.assert_allclose([g[2:] for g in got], [w[2:] for w in want], rtol=1e-8)

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hexcal.diagnosis.outliers import Subset
-from hexcal.diagnosis.scoring import jacobian_basis, whitened_columns
+from hexcal.diagnosis.scoring import jacobian_basis
 from hexcal.effects.zero_step import steps_of
 from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.estimate.quantiles import chi2_isf
@@ -79,22 +79,26 @@ def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePo
         return []
     splits = np.arange(MIN_SIDE, m - MIN_SIDE + 1)
     threshold = float(chi2_isf(STEP_ALPHA / (6 * len(splits)), 1))
-    _, rw, _ = fit.refinement.whitened()
+    _, rw, w = fit.refinement.whitened()
     q = jacobian_basis(fit)
-    after = (np.arange(m)[:, None] >= splits[None, :]).astype(float)  # (M, S)
-    cols = []
-    for k in range(6):
-        basis = np.zeros((m, 6, len(splits)))
-        basis[:, k, :] = -after  # reads δ longer after: length = reading + offset − δ
-        cols.append(whitened_columns(fit, basis))
+    # The step column of leg k at split s is g_k at every pose from s on, g_k (M, 6) the
+    # whitened reading of leg k (column k of each pose's whitener; whitened_columns' sign).
+    # Every product the score needs is then a sum over poses m ≥ s of a per-pose term: one
+    # suffix sum over the poses per leg, where the columns themselves would be (6M, M).
+    rw3 = rw.reshape(m, 6)
+    gs = [np.ascontiguousarray(w[:, :, k]) for k in range(6)]
+    own = [_suffix(np.einsum("mi,mi->m", g, rw3))[splits] for g in gs]  # cᵀr (S,)
+    sq = [_suffix(np.einsum("mi,mi->m", g, g))[splits] for g in gs]  # cᵀc (S,)
+    qtr = q.T @ rw
     found: list[ChangePoint] = []
     while len(found) < 6:
+        q3 = q.reshape(m, 6, -1)
         best = None
         for k in set(range(6)) - {c.leg - 1 for c in found}:
-            perp = cols[k] - q @ (q.T @ cols[k])
-            norm2 = np.einsum("ij,ij->j", perp, perp)
-            dot = perp.T @ rw
-            ok = norm2 > 0
+            qtc = _suffix(np.einsum("mip,mi->mp", q3, gs[k]))[splits]  # (S, p) Qᵀc
+            norm2 = sq[k] - np.einsum("sp,sp->s", qtc, qtc)
+            dot = own[k] - qtc @ qtr
+            ok = norm2 > 1e-10 * np.maximum(sq[k], 1e-300)
             scores = np.where(ok, dot**2 / np.where(ok, norm2, 1.0), 0.0) / level
             j = int(np.argmax(scores))
             if scores[j] > threshold and (best is None or scores[j] > best[0]):
@@ -117,10 +121,18 @@ def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePo
             )
         )
         # Condition the other legs on this step: project it out with the model's parameters.
-        step = cols[k][:, j : j + 1]
+        step = np.zeros((m, 6))
+        step[i:] = gs[k][i:]
+        step = step.reshape(-1, 1)
         step = step - q @ (q.T @ step)
         q = np.hstack([q, step / np.linalg.norm(step)])
+        qtr = q.T @ rw
     return found
+
+
+def _suffix(a: np.ndarray) -> np.ndarray:
+    """Sums over the poses from each row on: row s of the result is ``a[s:].sum(0)``."""
+    return np.cumsum(a[::-1], axis=0)[::-1]
 
 
 def locate(problem: Problem, changes: list[ChangePoint]) -> None:
