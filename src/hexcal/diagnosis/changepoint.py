@@ -5,7 +5,8 @@ A leg that loses counts, or is re-homed, mid-session reads a constant amount lon
 from that pose on. The fit spreads the step over the leg's offset, so the residual shows it as
 a mean shift between two stretches of the session. For every leg and every split of the poses
 in recording order, the score statistic of a step there (the model's own parameters projected
-out, :func:`hexcal.diagnosis.scoring.projected_scores`) says how much χ² the step would remove;
+out, as :func:`hexcal.diagnosis.scoring.projected_scores` does, here through the normal
+equations and sums over the poses after the split) says how much χ² the step would remove;
 the best split of a leg is a change point when its score, over the session's noise level,
 exceeds the Bonferroni-corrected χ²(1) threshold over all the splits tried
 (:data:`STEP_ALPHA`). Located steps become the ``zero_step`` effect's times
@@ -19,7 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hexcal.diagnosis.outliers import Subset
-from hexcal.diagnosis.scoring import jacobian_basis
+from hexcal.diagnosis.score import SPAN_TOL
 from hexcal.effects.zero_step import steps_of
 from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.estimate.quantiles import chi2_isf
@@ -79,26 +80,33 @@ def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePo
         return []
     splits = np.arange(MIN_SIDE, m - MIN_SIDE + 1)
     threshold = float(chi2_isf(STEP_ALPHA / (6 * len(splits)), 1))
-    _, rw, w = fit.refinement.whitened()
-    q = jacobian_basis(fit)
+    jw, rw, w = fit.refinement.whitened()
     # The step column of leg k at split s is g_k at every pose from s on, g_k (M, 6) the
     # whitened reading of leg k (column k of each pose's whitener; whitened_columns' sign).
-    # Every product the score needs is then a sum over poses m ≥ s of a per-pose term: one
-    # suffix sum over the poses per leg, where the columns themselves would be (6M, M).
+    # Every product the score needs is then a sum over poses m ≥ s of a per-pose term — one
+    # suffix sum per leg, where the columns themselves would be (6M, M) — and the model's
+    # columns A (the whitened Jacobian, then the steps found) are projected out through their
+    # normal equations: ‖c⊥‖² = cᵀc − cᵀA (AᵀA)⁺ Aᵀc, c⊥ᵀr = cᵀr − cᵀA (AᵀA)⁺ Aᵀr. Nothing
+    # larger than the Jacobian itself is made (a QR of it held three copies).
     rw3 = rw.reshape(m, 6)
     gs = [np.ascontiguousarray(w[:, :, k]) for k in range(6)]
     own = [_suffix(np.einsum("mi,mi->m", g, rw3))[splits] for g in gs]  # cᵀr (S,)
     sq = [_suffix(np.einsum("mi,mi->m", g, g))[splits] for g in gs]  # cᵀc (S,)
-    qtr = q.T @ rw
+    jw3 = jw.reshape(m, 6, -1)
+    cross = [_suffix(np.einsum("mip,mi->mp", jw3, g))[splits] for g in gs]  # cᵀJ (S, p)
+    gram = jw.T @ jw
+    atr = jw.T @ rw
+    steps = np.zeros((len(rw), 0))  # the steps found, whole: (6M, f)
     found: list[ChangePoint] = []
     while len(found) < 6:
-        q3 = q.reshape(m, 6, -1)
+        inv = _pinv(gram)
+        coef_r = inv @ atr
         best = None
         for k in set(range(6)) - {c.leg - 1 for c in found}:
-            qtc = _suffix(np.einsum("mip,mi->mp", q3, gs[k]))[splits]  # (S, p) Qᵀc
-            norm2 = sq[k] - np.einsum("sp,sp->s", qtc, qtc)
-            dot = own[k] - qtc @ qtr
-            ok = norm2 > 1e-10 * np.maximum(sq[k], 1e-300)
+            x = cross[k]  # (S, p + f) cᵀA
+            norm2 = sq[k] - np.einsum("sp,sp->s", x @ inv, x)
+            dot = own[k] - x @ coef_r
+            ok = norm2 > 1e-8 * np.maximum(sq[k], 1e-300)
             scores = np.where(ok, dot**2 / np.where(ok, norm2, 1.0), 0.0) / level
             j = int(np.argmax(scores))
             if scores[j] > threshold and (best is None or scores[j] > best[0]):
@@ -120,14 +128,29 @@ def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePo
                 threshold,
             )
         )
-        # Condition the other legs on this step: project it out with the model's parameters.
-        step = np.zeros((m, 6))
-        step[i:] = gs[k][i:]
-        step = step.reshape(-1, 1)
-        step = step - q @ (q.T @ step)
-        q = np.hstack([q, step / np.linalg.norm(step)])
-        qtr = q.T @ rw
+        # Condition the other legs on this step: it joins the model's columns.
+        s3 = np.zeros((m, 6))
+        s3[i:] = gs[k][i:]
+        step = s3.reshape(-1)
+        a_s = np.concatenate([jw.T @ step, steps.T @ step])
+        gram = np.block([[gram, a_s[:, None]], [a_s[None, :], np.array([[step @ step]])]])
+        atr = np.append(atr, step @ rw)
+        steps = np.column_stack([steps, step])
+        cross = [
+            np.column_stack([x, _suffix(np.einsum("mi,mi->m", s3, g))[splits]])
+            for x, g in zip(cross, gs, strict=True)
+        ]
     return found
+
+
+def _pinv(gram: np.ndarray) -> np.ndarray:
+    """The pseudo-inverse of a Gram matrix on its columns' span, scaled to unit diagonal first
+    (the Jacobian's columns differ by orders of magnitude; directions below
+    :data:`hexcal.diagnosis.score.SPAN_TOL` of the largest are not in the span)."""
+    d = 1.0 / np.sqrt(np.where(np.diag(gram) > 0, np.diag(gram), 1.0))
+    lam, v = np.linalg.eigh(d[:, None] * gram * d[None, :])
+    keep = lam > SPAN_TOL * lam.max()
+    return d[:, None] * ((v[:, keep] / lam[keep]) @ v[:, keep].T) * d[None, :]
 
 
 def _suffix(a: np.ndarray) -> np.ndarray:

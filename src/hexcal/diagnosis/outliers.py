@@ -34,7 +34,7 @@ from hexcal.effects import CATALOGUE, get_effect
 from hexcal.effects.drift import T_MID
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
 from hexcal.estimate.quantiles import chi2_isf, chi2_ppf
-from hexcal.estimate.refine import _model
+from hexcal.estimate.refine import residual
 from hexcal.model.noise import DEFAULT_SIGMAS, leg_whiteners
 
 #: Family-wise false-alarm probability of the outlier test over a whole session (Bonferroni:
@@ -161,8 +161,7 @@ def pose_residuals(problem: Problem, fit: ModelFit) -> np.ndarray:
     geometric = any(get_effect(e).uses_geometry for e in fit.effects if e != "offset")
     basis, _ = problem.stack(fit.effects, fitted_robot(design, ref) if geometric else None)
     P, R, rho = problem.meas.position, problem.R, problem.meas.readings
-    res, _ = _model(ref.x, P, R, rho, design.offsets, "offset" in fit.effects, basis)
-    return -res
+    return -residual(ref.x, P, R, rho, design.offsets, "offset" in fit.effects, basis)
 
 
 def pose_chi2(problem: Problem, fit: ModelFit, residuals: np.ndarray | None = None) -> np.ndarray:

@@ -178,12 +178,17 @@ def _unpack(x: np.ndarray, fixed_offsets: np.ndarray, fit_offsets: bool):
     return lay.a(x), lay.b(x), lay.offsets(x, fixed_offsets), lay.effects(x)
 
 
-def _model(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
-    """Residual (M, 6) and raw Jacobian (M, 6, p): geometric length − predicted length, where the
-    prediction is ``reading + offset + basis @ θ`` (θ the effect parameters)."""
+def residual(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
+    """Residual (M, 6) mm at parameters ``x``: geometric length − predicted length, where the
+    prediction is ``reading + offset + basis @ θ`` (θ the effect parameters); what
+    :func:`_model` gives without its Jacobian (which is p times larger)."""
+    return _legs(x, P, R, rho, fixed_offsets, fit_offsets, basis)[0]
+
+
+def _legs(x, P, R, rho, fixed_offsets, fit_offsets, basis):
+    """(residual (M, 6) mm, unit leg vectors (M, 6, 3), fit_offsets) at ``x``."""
     if fit_offsets is None:
         fit_offsets = len(x) > ParameterLayout(False).size
-    lay = ParameterLayout.of_vector(x, fit_offsets)
     a, b, off, theta = _unpack(x, fixed_offsets, fit_offsets)
     v = P[:, None, :] + np.einsum("mij,kj->mki", R, b) - a[None]
     length = np.linalg.norm(v, axis=-1)
@@ -191,6 +196,14 @@ def _model(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
     res = length - rho - off
     if basis is not None and basis.shape[-1]:
         res = res - basis @ theta
+    return res, n, fit_offsets
+
+
+def _model(x, P, R, rho, fixed_offsets, fit_offsets=None, basis=None):
+    """Residual (M, 6) and raw Jacobian (M, 6, p): geometric length − predicted length, where the
+    prediction is ``reading + offset + basis @ θ`` (θ the effect parameters)."""
+    res, n, fit_offsets = _legs(x, P, R, rho, fixed_offsets, fit_offsets, basis)
+    lay = ParameterLayout.of_vector(x, fit_offsets)
     m = len(P)
     jac = np.zeros((m, 6, len(x)))
     legs = np.arange(6)
