@@ -69,6 +69,24 @@ def test_each_slip_is_found_and_named(tmp_path, case):
     assert text in c.findings[0].text
 
 
+@pytest.mark.parametrize("case", [*sorted(EDITS), "clean"])
+def test_a_long_session_is_judged_on_poses_spread_over_it(tmp_path, monkeypatch, case):
+    """Beyond CHECK_POSES poses the check reads that many, spread evenly over the session (a
+    120,000-pose recording): every slip is still named, a clean table still raises nothing.
+    Here CHECK_POSES is lowered to 80 so that the example's table is a long session."""
+    import hexcal.estimate.consistency as consistency
+
+    monkeypatch.setattr(consistency, "CHECK_POSES", 80)
+    table = _table(tmp_path, f"{case}.csv", EDITS.get(case, lambda r: r))
+    meas = read_measurements(table)
+    assert len(meas) > 2 * 80
+    c = check_consistency(meas, load_robot(EXAMPLE / "robot.json"))
+    if case == "clean":
+        assert c.findings == []
+    else:
+        assert [f.cause for f in c.findings] == [EXPECTED[case][0]]
+
+
 @pytest.mark.parametrize("case", ["xyzw", "sign", "cm"])
 def test_the_command_line_refuses_them_with_exit_4_before_any_fit(tmp_path, case, capsys):
     """The slips of the fault campaign that ended as "did not converge" (exit 3) after seconds,
