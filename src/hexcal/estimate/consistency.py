@@ -60,6 +60,8 @@ class _Rows:
         if n <= CHECK_POSES:
             rows = np.arange(n)
         return cls(meas.position[rows], meas.quaternion[rows], meas.readings[rows])
+
+
 #: A leg's reading scale outside this range cannot be a calibration error of a leg: it is a
 #: unit (or the reading of something else). Inside it, the gain effect fits what is left.
 SCALE_RANGE = (0.5, 2.0)
