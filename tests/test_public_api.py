@@ -42,3 +42,16 @@ def test_the_library_example_in_the_docs_runs():
     assert lines[0].startswith("Model 42: leg-length RMS")
     assert lines[1].startswith("verdict: none")
     assert lines[2].startswith("pose error (in-sample):")
+
+
+def test_the_command_lines_help_loads_no_numerical_stack():
+    """``hexcal --help`` and the parser every command builds import neither numpy nor scipy
+    (their import is most of a calibration's start-up; docs/performance.md)."""
+    code = (
+        "import sys\n"
+        "from hexcal.app.cli import build_parser\n"
+        "build_parser().format_help()\n"
+        "print('numpy' in sys.modules, 'scipy' in sys.modules, 'matplotlib' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False", "False"]

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.app.export_keys import UNITS
 from hexcal.effects import get_effect
 from hexcal.effects.backlash import DEADBAND_MM
 from hexcal.errors import RefusedError
@@ -58,10 +59,6 @@ from hexcal.model.robot import Robot
 
 #: Effects the INI carries (gain → the scale, backlash → BACKLASH); the rest cannot be.
 IN_THE_INI = ("gain", "backlash")
-#: The INI keys a joint's scale may live in (LinuxCNC's sample configs, PnCconf's, stepconf's).
-SCALE_KEYS = ("INPUT_SCALE", "ENCODER_SCALE", "SCALE", "STEP_SCALE")
-#: mm per machine unit.
-UNITS = {"mm": 1.0, "inch": 25.4}
 #: Tilt of the poses the pose errors of the left-out effects are computed at, degrees.
 TILT_DEG = 5.0
 #: The temperature the thermal effect's pose error is given at: 10 K from its 20 °C reference.

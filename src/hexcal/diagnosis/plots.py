@@ -143,13 +143,48 @@ def _floor_band(ax: Axes, x: np.ndarray, floor: np.ndarray) -> None:
     ax.fill_between(xs, -2 * fs, 2 * fs, color=FLOOR_COLOUR, lw=0, zorder=0)
 
 
+#: The margins of every plot, inches: room for the y label and its ticks on the left, the
+#: two-line title on top, the x label and its ticks below; between panels, room for a title and
+#: an x label across rows, and for the tick labels across columns unless the panels share y.
+#: Fixed, rather than ``tight_layout``, which measured every tick label of every panel twice
+#: (2.4 s of a 7 s report).
+MARGIN_IN = {"left": 0.85, "right": 0.25, "top": 0.8, "bottom": 0.6}
+GAP_IN = {"rows": 0.95, "cols": 0.95, "shared_cols": 0.3}
+
+
+def fixed_layout(fig: Figure, legend_in: float = 0.0) -> None:
+    """Place ``fig``'s grid of panels by :data:`MARGIN_IN` and :data:`GAP_IN`, leaving
+    ``legend_in`` inches along the bottom for a legend."""
+    w, h = fig.get_figwidth(), fig.get_figheight()
+    axes = [ax for ax in fig.axes if ax.get_subplotspec() is not None]
+    if not axes:
+        return
+    grid = axes[0].get_subplotspec().get_gridspec()  # type: ignore[union-attr]
+    rows, cols = grid.nrows, grid.ncols
+    shared = len(axes) > 1 and axes[0].get_shared_y_axes().joined(axes[0], axes[1])
+    gap_w = GAP_IN["shared_cols"] if shared else GAP_IN["cols"]
+    left, right = MARGIN_IN["left"], w - MARGIN_IN["right"]
+    bottom, top = MARGIN_IN["bottom"] + legend_in, h - MARGIN_IN["top"]
+    # wspace and hspace are fractions of the mean panel's width and height.
+    panel_w = (right - left - (cols - 1) * gap_w) / cols
+    panel_h = (top - bottom - (rows - 1) * GAP_IN["rows"]) / rows
+    fig.subplots_adjust(
+        left=left / w,
+        right=right / w,
+        bottom=bottom / h,
+        top=top / h,
+        wspace=gap_w / panel_w,
+        hspace=GAP_IN["rows"] / panel_h,
+    )
+
+
 def _finish(fig: Figure, outdir: Path, name: str, legend: list | None = None) -> Path:
-    """Legend along the bottom, tight layout, PNG at :data:`DPI`."""
-    bottom = 0.0
+    """Legend along the bottom, the fixed layout, PNG at :data:`DPI`."""
+    legend_in = 0.0
     if legend:
         fig.legend(handles=legend, loc="lower center", ncol=len(legend), fontsize=9, frameon=False)
-        bottom = 0.4 / fig.get_figheight()  # one row of 9 pt legend text, in figure fractions
-    fig.tight_layout(rect=(0, bottom, 1, 1))
+        legend_in = 0.35  # one row of 9 pt legend text
+    fixed_layout(fig, legend_in)
     path = outdir / name
     fig.savefig(path, dpi=DPI)
     fig.clear()  # drop the artists now rather than when the garbage collector gets round to it

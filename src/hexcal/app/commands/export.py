@@ -48,7 +48,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="counts per machine unit the joints' INI has now (one, or six in leg order); "
         "needed when the model has a gain",
     )
-    from hexcal.app.export_linuxcnc import SCALE_KEYS, UNITS
+    from hexcal.app.export_keys import SCALE_KEYS, UNITS
 
     lx.add_argument(
         "--scale-key", choices=SCALE_KEYS, default="INPUT_SCALE", help="the INI key of the scale"

@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 from hexcal.app.commands.common import add_effects_option, check_outputs, load_effects, number
 
@@ -40,6 +42,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def uncertainty_columns(loaded, model, table, to: str, values, temperature) -> np.ndarray | None:
+    import numpy as np
+
     """(N, 2): each row's expanded uncertainty (k = 2) of the pose, position mm and
     orientation degrees, from the model's parameter covariance and its readings' noise (None
     when the model file carries no covariance or no noise)."""
@@ -73,6 +77,8 @@ def uncertainty_columns(loaded, model, table, to: str, values, temperature) -> n
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, load_model
     from hexcal.estimate.predict_table import direction, predict_table, read_table, write_table
     from hexcal.io.fileio import write_text_atomic
