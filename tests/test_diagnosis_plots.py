@@ -4,6 +4,8 @@ ones degrade gracefully (no lead-screw pitch, no temperature); no figure is leak
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
+import os
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -112,3 +114,41 @@ def test_leg_direction_angles_are_small_and_non_negative(session):
     ang = leg_direction_angles(session[0])
     assert ang.shape == (len(session[0].problem.meas), 6)
     assert (ang >= 0).all() and (ang < 45).all()
+
+
+@pytest.mark.skipif(
+    (os.cpu_count() or 1) < 2 or "fork" not in multiprocessing.get_all_start_methods(),
+    reason="plots are forked only on two cores or more, where processes fork",
+)
+def test_the_plots_drawn_by_the_forked_process_are_those_drawn_here(session, tmp_path, monkeypatch):
+    """Every other plot is drawn by a forked copy of the process (the second core): the files
+    are byte for byte those drawn all in this process."""
+    import threading
+
+    import hexcal.diagnosis.plots as plots
+
+    # Threads other tests left behind would make write_plots draw everything here.
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    before, _ = session
+    forked = write_plots(before, tmp_path / "forked")
+    probe = plots._fork_plots(plots._view(before), tmp_path, "", [])
+    assert probe is not None  # the fork is taken here (one thread, two cores)
+    probe.join()
+    monkeypatch.setattr(plots, "_fork_plots", lambda *a: None)
+    serial = write_plots(before, tmp_path / "serial")
+    assert [p.name for p in forked] == [p.name for p in serial]
+    for a, b in zip(forked, serial, strict=True):
+        assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_a_fork_that_fails_leaves_its_plots_to_this_process(session, tmp_path, monkeypatch):
+    import hexcal.diagnosis.plots as plots
+
+    def failing(*args):
+        proc = multiprocessing.get_context("fork").Process(target=lambda: os._exit(3))
+        proc.start()
+        return proc
+
+    monkeypatch.setattr(plots, "_fork_plots", failing)
+    paths = write_plots(session[0], tmp_path)
+    assert paths and all(_is_png(p) for p in paths)

@@ -16,6 +16,7 @@ figures in pyplot's global list: a figure is freed as soon as it goes out of sco
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -683,18 +684,53 @@ def write_plots(
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     view = _view(diag)
-    paths = []
-    for name, plot in _PLOTS.items():
-        if name not in wanted:
-            continue
-        if name == "residuals_vs_temperature.png" and view.meas.temperature is None:
-            continue
-        if name == "residuals_vs_covariate.png" and _no_lead(diag):
-            continue
-        paths.append(plot(view, outdir, prefix + name))
+    names = [
+        name
+        for name in _PLOTS
+        if name in wanted
+        and not (name == "residuals_vs_temperature.png" and view.meas.temperature is None)
+        and not (name == "residuals_vs_covariate.png" and _no_lead(diag))
+    ]
+    # Every other plot drawn by a forked copy of this process on the second core, the rest
+    # here: drawing is most of a report's time, and a fork shares the data without pickling.
+    forked = _fork_plots(view, outdir, prefix, names[1::2]) if len(names) > 2 else None
+    own = names if forked is None else names[0::2]
+    for name in own:
+        _PLOTS[name](view, outdir, prefix + name)
         if on_plot is not None:
             on_plot(name)
-    return paths
+    if forked is not None:
+        forked.join()
+        if forked.exitcode != 0:  # drawn here after all, with the error where it is seen
+            for name in names[1::2]:
+                _PLOTS[name](view, outdir, prefix + name)
+        if on_plot is not None:
+            for name in names[1::2]:
+                on_plot(name)
+    return [outdir / (prefix + name) for name in names]
+
+
+def _fork_plots(view: _View, outdir: Path, prefix: str, names: list[str]):
+    """A started process drawing ``names`` (joined by the caller), or None where a fork is not
+    safe or does not pay: one core, no ``fork`` start method (Windows, macOS' default), or
+    other threads in this process (the text UI's workers: a fork copies one thread only)."""
+    import multiprocessing
+    import threading
+
+    if (
+        (os.cpu_count() or 1) < 2
+        or threading.active_count() > 1
+        or "fork" not in multiprocessing.get_all_start_methods()
+    ):
+        return None
+
+    def draw() -> None:
+        for name in names:
+            _PLOTS[name](view, outdir, prefix + name)
+
+    proc = multiprocessing.get_context("fork").Process(target=draw, daemon=True)
+    proc.start()
+    return proc
 
 
 def _no_lead(diag: Diagnosis) -> bool:
