@@ -142,8 +142,10 @@ def capture() -> dict[str, Any]:
                 "diagnose": _cli_json(["diagnose", *args, "--auto", "--json"]),
                 "refine": _refinements(args),
             }
-        # The temporary folder's name is no result.
-        return json.loads(json.dumps(result).replace(tmp, "TMP"))
+        # Neither the temporary folder's name nor the checkout's is a result (two trees
+        # compared live in two folders).
+        text = json.dumps(result).replace(tmp, "TMP").replace(json.dumps(str(ROOT))[1:-1], "ROOT")
+        return json.loads(text)
 
 
 def _number(v: Any) -> bool:

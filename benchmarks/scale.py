@@ -15,7 +15,8 @@ cached but the operating system's files; wall time and peak resident memory (the
   simulated gain session (``--effect gain``, two steps), against the same without the report;
 - ``study``: ``hexcal study`` with its plots and with ``--no-plots``.
 
-Numbers, no pass or fail (the targets and the figures measured are in docs/performance.md).
+Progress and the figures in words go to stderr, ``--json`` prints them all on stdout. Numbers,
+no pass or fail (the targets and the figures measured are in docs/performance.md).
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ def scale(sizes: list[int], runs: int, tmp: Path) -> list[dict]:
             f"{n:>8} free poses: calibrate {row['calibrate']['wall_s']:.2f} s "
             f"{row['calibrate']['rss_mb']:.0f} MB, diagnose {row['diagnose']['wall_s']:.2f} s "
             f"{row['diagnose']['rss_mb']:.0f} MB",
-            flush=True,
+            file=sys.stderr,
         )
     first = rows[0]
     for row in rows:
@@ -117,7 +118,7 @@ def report(runs: int, tmp: Path) -> dict:
             "without": median_of(["diagnose", *files, "--auto"], runs),
         }
         w, wo = out[name]["with_report"]["wall_s"], out[name]["without"]["wall_s"]
-        print(f"diagnose --auto --report, {name}: {w:.2f} s ({wo:.2f} s without)", flush=True)
+        print(f"diagnose --auto --report, {name}: {w:.2f} s ({wo:.2f} s without)", file=sys.stderr)
     return out
 
 
@@ -131,7 +132,7 @@ def study(runs: int, tmp: Path) -> dict:
     print(
         f"study: {out['plots']['wall_s']:.2f} s with plots, "
         f"{out['no_plots']['wall_s']:.2f} s --no-plots",
-        flush=True,
+        file=sys.stderr,
     )
     return out
 
