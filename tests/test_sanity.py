@@ -146,6 +146,8 @@ def test_errors_reach_the_user_as_words_and_an_exit_status():
     assert "do not determine the geometry" in msg
     code, msg = error_message(RecursionError("maximum recursion depth exceeded"))
     assert code == EXIT_INPUT and "nested" in msg
+    code, msg = error_message(MemoryError())
+    assert code == EXIT_INPUT and "out of memory" in msg and "too long for this machine" in msg
     code, msg = error_message(UnicodeDecodeError("utf-8", b"\x96", 0, 1, "invalid start byte"))
     assert code == EXIT_INPUT and "codec" not in msg and "UTF-8" in msg
     code, msg = error_message(KeyError("x"))

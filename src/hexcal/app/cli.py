@@ -96,10 +96,16 @@ def error_message(exc: BaseException) -> tuple[int, str]:
             "poses that move every leg over its stroke and change its direction, or check the "
             "table for repeated or constant columns"
         )
-    if isinstance(exc, (RecursionError, MemoryError)):
+    if isinstance(exc, RecursionError):
         return EXIT_INPUT, (
-            f"an input is too large or too deeply nested to read ({type(exc).__name__}); check "
-            "the files given"
+            "an input is nested too deeply to read (RecursionError); check the files given"
+        )
+    if isinstance(exc, MemoryError):
+        # Reading a file and fitting a long session both end here: say both.
+        return EXIT_INPUT, (
+            "out of memory (MemoryError): a file given is far larger than it should be, or the "
+            "session is too long for this machine (diagnose holds about 14 kB a pose, calibrate "
+            "about 3 kB: docs/performance.md); check the files, or diagnose a part of the poses"
         )
     if isinstance(exc, UnicodeDecodeError):
         return EXIT_INPUT, f"an input is not UTF-8 text (byte {exc.start}); save it as UTF-8"
