@@ -142,3 +142,43 @@ def test_validate_names_a_moved_zero_and_rehomes(tmp_path, capsys):
     r = v["rehomed"]
     assert np.allclose(r["offset_shift_mm"], [0, 0, 0.75, 0, 1.7, 0], atol=0.01)
     assert r["verdict"] == "none" and r["position_rms_mm"] < 1.15 * r["position_floor_mm"]
+
+
+def test_validate_leaves_out_the_poses_whose_backlash_side_is_unknown(tmp_path, capsys):
+    """A real robot comes to a session's first pose from a move made before the session: which
+    side of its play each leg rests on is unknown there (the simulator takes it as the middle,
+    the mock rig and a real robot do not). Here three of the first pose's legs read 0.1 mm long, as
+    after extending into it with 0.2 mm of play: validate leaves that pose out of its verdict, names it
+    and why, and the model holds on the rest. The same shift on a pose whose legs had moved is
+    judged: the model does not hold."""
+    import dataclasses
+
+    from hexcal.io.measurements import write_measurements
+    from hexcal.io.measurements_csv import read_measurements
+
+    fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
+    write_session_dir(fit_dir, left_hand(), SEED, PLAN, "backlash")
+    write_session_dir(val_dir, left_hand(), SEED, PLAN, "backlash", pose_seed=SEED + 2000)
+    cal = tmp_path / "cal.json"
+    args = ["calibrate", str(fit_dir / "measurements.csv"), "--robot", str(fit_dir / "robot.json")]
+    inst = ["--instruments", str(fit_dir / "instruments.json")]
+    assert main([*args, *inst, "--add", "backlash", "--out", str(cal)]) == 0
+    meas = read_measurements(val_dir / "measurements.csv")
+
+    def validate(row: int, legs) -> dict:
+        rho = meas.readings.copy()
+        rho[row, legs] += 0.1
+        table = tmp_path / f"shifted{row}.csv"
+        write_measurements(dataclasses.replace(meas, readings=rho), table)
+        capsys.readouterr()
+        assert main(["validate", str(cal), str(table), *inst, "--json"]) == 0
+        return json.loads(capsys.readouterr().out)
+
+    first = validate(0, [0, 2, 4])  # legs 1, 3 and 5 extended into it
+    assert first["poses_left_out"] == [int(meas.pose_id[0])]
+    assert first["verdict"] == "none" and first["chi2_per_dof"] < 1.3
+    (note,) = [n for n in first["notes"] if "left out of the verdict" in n]
+    assert "backlash: a leg had not moved yet" in note
+    later = validate(len(meas) // 2, [0, 2, 4])
+    assert later["poses_left_out"] == [int(meas.pose_id[0])]
+    assert later["verdict"] != "none"

@@ -64,6 +64,31 @@ def test_motion_state_keeps_state_of_a_leg_that_did_not_move():
     assert s.tolist() == [0, 1, 1, -1, -1, -1, 1]
 
 
+def test_backlash_cannot_know_a_leg_before_its_first_move(design):
+    """Before a leg first moves in the session, the side of its play it rests on was set by a
+    move nobody recorded: those readings are ``unknown``; every other effect knows them all."""
+    r = np.zeros((5, 6))
+    r[2:, 0] = 1.0  # leg 1 moves at the third pose
+    r[1:, 1] = np.arange(1, 5)  # leg 2 at the second; legs 3–6 never move
+    m = len(r)
+    data = EffectData(
+        r,
+        np.zeros((m, 3)),
+        np.repeat(np.eye(3)[None], m, 0),
+        np.arange(float(m)),
+        None,
+        design,
+        design.a,
+        design.b,
+    )
+    unknown = get_effect("backlash").unknown(data)
+    assert unknown is not None
+    assert unknown[:, 0].tolist() == [True, True, False, False, False]
+    assert unknown[:, 1].tolist() == [True, False, False, False, False]
+    assert unknown[:, 2:].all()
+    assert all(get_effect(n).unknown(data) is None for n in CATALOGUE if n != "backlash")
+
+
 def test_leg_forces_balance_the_weight(design, rng):
     from hexcal.sim.simulate import Simulator
 

@@ -114,6 +114,15 @@ class Backlash(Effect):
         # A leg extending reads ahead of its length by β/2 when the nut lags: length = reading − β/2.
         return diagonal(-0.5 * motion_state(data.readings, deadband_mm(data)))
 
+    unknown_why = (
+        "a leg had not moved yet in the session, so the side of its play it rests on is unknown"
+    )
+
+    def unknown(self, data: EffectData) -> np.ndarray | None:
+        # State 0: before the leg's first move the session cannot tell which way it last moved.
+        state = motion_state(data.readings, deadband_mm(data))
+        return state == 0 if (state == 0).any() else None
+
     def missing(self, data: EffectData) -> str | None:
         state = motion_state(data.readings, deadband_mm(data))
         if not ((state > 0).any(axis=0) & (state < 0).any(axis=0)).any():

@@ -221,6 +221,17 @@ class Effect(ABC):
         not a lack of information as in :meth:`missing`); None when it can."""
         return None
 
+    def unknown(self, data: EffectData) -> np.ndarray | None:
+        """(M, 6) bool: the readings whose contribution these data leave undetermined — the
+        state the effect depends on was set before the session began (a leg that has not moved
+        yet rests on an unknown side of its play) — or None when every one is known. A model
+        is not judged on them (``hexcal validate`` leaves their poses out of its verdict, and
+        says so with :attr:`unknown_why`)."""
+        return None
+
+    #: Why :meth:`unknown` readings cannot be known (a clause, for the note that names them).
+    unknown_why: str = ""
+
     def contribution(self, data: EffectData, values: np.ndarray) -> np.ndarray:
         """(M, 6) mm extra length for parameter values in their spec units."""
         return self.basis(data) @ np.asarray(values, float)

@@ -63,6 +63,8 @@ class Validation:
     own_session: str | None = None
     #: The noise the figures used (stated, or estimated from these poses)
     noise: NoiseSigmas | None = None
+    #: Pose ids left out of the verdict: an effect cannot know their readings' contribution
+    left_out: list[int] = field(default_factory=list)
 
     @property
     def verdict_given(self) -> Verdict | None:
@@ -77,6 +79,7 @@ class Validation:
         return {
             "model": self.model,
             "poses": self.poses,
+            "poses_left_out": self.left_out,
             "position_rms_mm": a.position_rms_mm,
             "position_p95_mm": a.position_p95_mm,
             "position_max_mm": a.position_max_mm,
@@ -214,21 +217,27 @@ def validate_model(
         notes.append(
             "the noise floor is estimated, not stated: pass --instruments for a firmer verdict"
         )
-    res = model.residuals(meas)
+    rot = meas.rotations.as_matrix()
+    # Every effect sees the whole table in recording order (backlash needs the history); the
+    # poses an effect cannot know are then left out of what is judged.
+    keep, note = _known_poses(model, meas, rot)
+    if note:
+        notes.append(note)
+    res = model.residuals(meas)[keep]
     w, r = _whitened(model, meas, sig)
+    w, r = w[keep], r.reshape(-1, 6)[keep].ravel()
     dof = r.size
     chi2 = float(r @ r)
     excess = chi2 / dof > 1.0 + EXCESS_Z * np.sqrt(2.0 / dof)
-    rot = meas.rotations.as_matrix()
-    cov = leg_covariance(model.robot.a, model.robot.b, meas.position, rot, sig)
+    cov = leg_covariance(model.robot.a, model.robot.b, meas.position[keep], rot[keep], sig)
     floor = float(np.sqrt(np.mean(np.einsum("mkk->mk", cov))))
-    errors = pose_errors(model, meas)
+    errors = pose_errors(model, meas, None if keep.all() else np.flatnonzero(keep))
     acc = PoseAccuracy.of(
         label,
         errors,
         False,
         float(np.sqrt(np.mean(res**2))),
-        pose_floor(model.robot.a, model.robot.b, meas, sig),
+        pose_floor(model.robot.a, model.robot.b, meas if keep.all() else meas.subset(keep), sig),
     )
     explained: dict[str, float] = {}
     verdict: Verdict = Outcome.NONE
@@ -242,7 +251,7 @@ def validate_model(
             eff = get_effect(name)
             if eff.cannot_predict(data) or eff.missing(data):
                 continue
-            basis = eff.basis(data)
+            basis = eff.basis(data)[keep]
             bw = np.einsum("mij,mjp->mip", w, basis).reshape(-1, basis.shape[-1])
             coef, *_ = np.linalg.lstsq(bw, r, rcond=None)
             after = float(np.sum((r - bw @ coef) ** 2))
@@ -283,6 +292,29 @@ def validate_model(
         notes,
         shifted_legs,
         noise=sig,
+        left_out=[int(i) for i in meas.pose_id[~keep]],
+    )
+
+
+def _known_poses(model: LegModel, meas, rot: np.ndarray) -> tuple[np.ndarray, str]:
+    """(keep (M,) bool, note): the poses whose every reading the model's effects can evaluate
+    (:meth:`hexcal.effects.Effect.unknown`), and a note naming those left out ("" if none).
+    When every pose is unknown (a table with no move at all), all are kept."""
+    keep = np.ones(len(meas), bool)
+    why = []
+    for name in model.effects:
+        eff = get_effect(name)
+        data = model.data(meas.readings, meas.position, rot, meas.t, meas.temperature)
+        unknown = eff.unknown(data)
+        if unknown is not None and unknown.any():
+            keep &= ~unknown.any(axis=1)
+            why.append(f"{name}: {eff.unknown_why}")
+    if keep.all() or not keep.any():
+        return np.ones(len(meas), bool), ""
+    ids = meas.pose_id[~keep]
+    shown = ", ".join(str(int(i)) for i in ids[:5]) + (", …" if len(ids) > 5 else "")
+    return keep, (
+        f"{len(ids)} of {len(meas)} poses left out of the verdict (pose {shown}): " + "; ".join(why)
     )
 
 
