@@ -269,7 +269,9 @@ def _weigh(
     for c in candidates:
         if c.refit is None:
             continue
-        if fit.chi2 > expected:
+        # A share of the excess only where there is one: at the floor the excess is noise and
+        # the ratio of two small numbers (it read "explains 851 %").
+        if excess and fit.chi2 > expected:
             c.explained = float((fit.chi2 - c.refit.chi2) / (fit.chi2 - expected))
         chol = pose_whiteners(problem, fit) if chol is None else chol
         c.heldout_dchi2, c.heldout_z = heldout_gain(fit, c.refit, chol, s2)
