@@ -322,8 +322,10 @@ def rehome(model: LegModel, meas, sig: NoiseSigmas) -> tuple[LegModel, np.ndarra
     """The model with its six offsets re-estimated on the table ``meas`` (weighted least
     squares with the poses' 6×6 covariance; everything else held): what a lab does after the
     encoders were homed again. Returns (model, offset shifts (6,) mm)."""
+    keep, _ = _known_poses(model, meas, meas.rotations.as_matrix())
     w, r = _whitened(model, meas, sig)
-    basis = np.broadcast_to(np.eye(6), (len(meas), 6, 6))
+    w, r = w[keep], r.reshape(-1, 6)[keep].ravel()
+    basis = np.broadcast_to(np.eye(6), (int(keep.sum()), 6, 6))
     bw = np.einsum("mij,mjp->mip", w, basis).reshape(-1, 6)
     coef, *_ = np.linalg.lstsq(bw, r, rcond=None)
     shift = -coef  # residual = lengths(offsets) − geometric: take its constant out
