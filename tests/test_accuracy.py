@@ -111,6 +111,21 @@ def test_a_calibration_validated_on_a_second_session_reaches_the_floor(
     assert design["verdict"] != "none"
 
 
+def _fitted_and_second_session(tmp_path, effect: str):
+    """(calibrated.json with ``effect`` added, the --instruments arguments, a second session's
+    table) of the simulated robot hiding ``effect``: another day's poses, the same robot."""
+    from hexcal.io.measurements_csv import read_measurements
+
+    fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
+    write_session_dir(fit_dir, left_hand(), SEED, PLAN, effect)
+    write_session_dir(val_dir, left_hand(), SEED, PLAN, effect, pose_seed=SEED + 2000)
+    cal = tmp_path / "cal.json"
+    args = ["calibrate", str(fit_dir / "measurements.csv"), "--robot", str(fit_dir / "robot.json")]
+    inst = ["--instruments", str(fit_dir / "instruments.json")]
+    assert main([*args, *inst, "--add", effect, "--out", str(cal)]) == 0
+    return cal, inst, read_measurements(val_dir / "measurements.csv")
+
+
 def test_validate_names_a_moved_zero_and_rehomes(tmp_path, capsys):
     """Another day's session after power-up: legs 3 and 5 read 0.75 and 1.7 mm short (their
     encoders homed elsewhere), every other leg at its noise. validate says it is a constant
@@ -119,16 +134,8 @@ def test_validate_names_a_moved_zero_and_rehomes(tmp_path, capsys):
     import dataclasses
 
     from hexcal.io.measurements import write_measurements
-    from hexcal.io.measurements_csv import read_measurements
 
-    fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
-    write_session_dir(fit_dir, left_hand(), SEED, PLAN, "gain")
-    write_session_dir(val_dir, left_hand(), SEED, PLAN, "gain", pose_seed=SEED + 2000)
-    cal = tmp_path / "cal.json"
-    args = ["calibrate", str(fit_dir / "measurements.csv"), "--robot", str(fit_dir / "robot.json")]
-    inst = ["--instruments", str(fit_dir / "instruments.json")]
-    assert main([*args, *inst, "--add", "gain", "--out", str(cal)]) == 0
-    meas = read_measurements(val_dir / "measurements.csv")
+    cal, inst, meas = _fitted_and_second_session(tmp_path, "gain")
     rho = meas.readings.copy()
     rho[:, 2] -= 0.75
     rho[:, 4] -= 1.7
@@ -154,16 +161,8 @@ def test_validate_leaves_out_the_poses_whose_backlash_side_is_unknown(tmp_path, 
     import dataclasses
 
     from hexcal.io.measurements import write_measurements
-    from hexcal.io.measurements_csv import read_measurements
 
-    fit_dir, val_dir = tmp_path / "fit", tmp_path / "val"
-    write_session_dir(fit_dir, left_hand(), SEED, PLAN, "backlash")
-    write_session_dir(val_dir, left_hand(), SEED, PLAN, "backlash", pose_seed=SEED + 2000)
-    cal = tmp_path / "cal.json"
-    args = ["calibrate", str(fit_dir / "measurements.csv"), "--robot", str(fit_dir / "robot.json")]
-    inst = ["--instruments", str(fit_dir / "instruments.json")]
-    assert main([*args, *inst, "--add", "backlash", "--out", str(cal)]) == 0
-    meas = read_measurements(val_dir / "measurements.csv")
+    cal, inst, meas = _fitted_and_second_session(tmp_path, "backlash")
 
     def validate(row: int, legs) -> dict:
         rho = meas.readings.copy()

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hexcal.diagnosis.outliers import Subset
-from hexcal.diagnosis.score import SPAN_TOL
+from hexcal.diagnosis.score import span_pinv
 from hexcal.effects.zero_step import steps_of
 from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.estimate.quantiles import chi2_isf
@@ -99,7 +99,7 @@ def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePo
     steps = np.zeros((len(rw), 0))  # the steps found, whole: (6M, f)
     found: list[ChangePoint] = []
     while len(found) < 6:
-        inv = _pinv(gram)
+        inv = span_pinv(gram)
         coef_r = inv @ atr
         best = None
         for k in set(range(6)) - {c.leg - 1 for c in found}:
@@ -141,16 +141,6 @@ def search(problem: Problem, fit: ModelFit, level: float = 1.0) -> list[ChangePo
             for x, g in zip(cross, gs, strict=True)
         ]
     return found
-
-
-def _pinv(gram: np.ndarray) -> np.ndarray:
-    """The pseudo-inverse of a Gram matrix on its columns' span, scaled to unit diagonal first
-    (the Jacobian's columns differ by orders of magnitude; directions below
-    :data:`hexcal.diagnosis.score.SPAN_TOL` of the largest are not in the span)."""
-    d = 1.0 / np.sqrt(np.where(np.diag(gram) > 0, np.diag(gram), 1.0))
-    lam, v = np.linalg.eigh(d[:, None] * gram * d[None, :])
-    keep = lam > SPAN_TOL * lam.max()
-    return d[:, None] * ((v[:, keep] / lam[keep]) @ v[:, keep].T) * d[None, :]
 
 
 def _suffix(a: np.ndarray) -> np.ndarray:

@@ -52,11 +52,7 @@ class Projection:
     @classmethod
     def _build(cls, problem: Problem, fit: ModelFit) -> Projection:
         jtj, jtr, _, _, _ = _normal(problem, fit, [])
-        d = 1.0 / np.sqrt(np.where(np.diag(jtj) > 0, np.diag(jtj), 1.0))
-        lam, V = np.linalg.eigh(d[:, None] * jtj * d[None, :])
-        keep = lam > SPAN_TOL * lam.max()
-        inv = (V[:, keep] / lam[keep]) @ V[:, keep].T
-        return cls(fit, jtj, jtr, d[:, None] * inv * d[None, :])
+        return cls(fit, jtj, jtr, span_pinv(jtj))
 
     def of_effect(self, problem: Problem, name: str):
         """(JᵀB (p, q), BᵀB (q, q), Bᵀr (q,)) of effect ``name``'s columns. The first request
@@ -81,6 +77,16 @@ class Projection:
                 self.made_from[n] = problem.basis(n)
                 start += q
         return self.blocks[name]
+
+
+def span_pinv(gram: np.ndarray) -> np.ndarray:
+    """(p, p) the pseudo-inverse of a Gram matrix JᵀJ on J's span, scaled to unit diagonal
+    first (the Jacobian's columns differ by orders of magnitude); directions below
+    :data:`SPAN_TOL` of the largest are not in the span."""
+    d = 1.0 / np.sqrt(np.where(np.diag(gram) > 0, np.diag(gram), 1.0))
+    lam, v = np.linalg.eigh(d[:, None] * gram * d[None, :])
+    keep = lam > SPAN_TOL * lam.max()
+    return d[:, None] * ((v[:, keep] / lam[keep]) @ v[:, keep].T) * d[None, :]
 
 
 def _normal(problem: Problem, fit: ModelFit, names: list[str]):

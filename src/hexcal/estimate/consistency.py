@@ -56,9 +56,9 @@ class _Rows:
     def spread(cls, meas) -> _Rows:
         """``meas``'s rows, at most :data:`CHECK_POSES` of them evenly spread over it."""
         n = len(meas.position)
-        rows = np.unique(np.linspace(0, n - 1, CHECK_POSES).round().astype(int))
         if n <= CHECK_POSES:
-            rows = np.arange(n)
+            return cls(meas.position, meas.quaternion, meas.readings)
+        rows = np.unique(np.linspace(0, n - 1, CHECK_POSES).round().astype(int))
         return cls(meas.position[rows], meas.quaternion[rows], meas.readings[rows])
 
 

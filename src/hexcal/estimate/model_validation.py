@@ -302,9 +302,9 @@ def _known_poses(model: LegModel, meas, rot: np.ndarray) -> tuple[np.ndarray, st
     When every pose is unknown (a table with no move at all), all are kept."""
     keep = np.ones(len(meas), bool)
     why = []
+    data = model.data(meas.readings, meas.position, rot, meas.t, meas.temperature)
     for name in model.effects:
         eff = get_effect(name)
-        data = model.data(meas.readings, meas.position, rot, meas.t, meas.temperature)
         unknown = eff.unknown(data)
         if unknown is not None and unknown.any():
             keep &= ~unknown.any(axis=1)
