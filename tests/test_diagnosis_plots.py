@@ -125,16 +125,16 @@ def test_the_plots_drawn_by_the_forked_process_are_those_drawn_here(session, tmp
     are byte for byte those drawn all in this process."""
     import threading
 
-    import hexcal.diagnosis.plots as plots
+    import hexcal.diagnosis.figure_pool as figure_pool
 
     # Threads other tests left behind would make write_plots draw everything here.
     monkeypatch.setattr(threading, "active_count", lambda: 1)
     before, _ = session
     forked = write_plots(before, tmp_path / "forked")
-    probe = plots._fork_plots(plots._view(before), tmp_path, "", [])
+    probe = figure_pool._fork([])
     assert probe is not None  # the fork is taken here (one thread, two cores)
     probe.join()
-    monkeypatch.setattr(plots, "_fork_plots", lambda *a: None)
+    monkeypatch.setattr(figure_pool, "_fork", lambda jobs: None)
     serial = write_plots(before, tmp_path / "serial")
     assert [p.name for p in forked] == [p.name for p in serial]
     for a, b in zip(forked, serial, strict=True):
@@ -142,13 +142,13 @@ def test_the_plots_drawn_by_the_forked_process_are_those_drawn_here(session, tmp
 
 
 def test_a_fork_that_fails_leaves_its_plots_to_this_process(session, tmp_path, monkeypatch):
-    import hexcal.diagnosis.plots as plots
+    import hexcal.diagnosis.figure_pool as figure_pool
 
-    def failing(*args):
+    def failing(jobs):
         proc = multiprocessing.get_context("fork").Process(target=lambda: os._exit(3))
         proc.start()
         return proc
 
-    monkeypatch.setattr(plots, "_fork_plots", failing)
+    monkeypatch.setattr(figure_pool, "_fork", failing)
     paths = write_plots(session[0], tmp_path)
     assert paths and all(_is_png(p) for p in paths)

@@ -41,8 +41,8 @@ def report(session, tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(
             report_mod,
-            "write_plots",
-            lambda d, outdir: plots_mod.write_plots(d, outdir, only=DRAWN),
+            "plot_jobs",
+            lambda d, outdir: plots_mod.plot_jobs(d, outdir, only=DRAWN),
         )
         path = write_report([before, after], out / "report.html", {"measurements": csv})
     return out, path, path.read_text(encoding="utf-8")
@@ -203,3 +203,12 @@ def test_gain_in_words_says_which_way_the_encoder_reads():
         "leg 1's encoder reads 0.087 % long"
     )
     assert _in_words(ParamRow("a3.x", 1.0, 0.1, 0.2, "mm", None, "")) is None
+
+
+def test_figure_count_is_the_number_of_figures_drawn(session, tmp_path):
+    before, after, _ = session
+    for diags in ([before], [before, after]):
+        jobs = report_mod.figure_jobs(diags, tmp_path)
+        assert report_mod.figure_count(diags) == len(jobs)
+        # the map, one before/after per change, each step's plots
+        assert len(jobs) == 1 + (len(diags) - 1) + sum(len(plots_mod.plot_names(d)) for d in diags)

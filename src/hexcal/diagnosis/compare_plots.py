@@ -13,7 +13,17 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from hexcal.diagnosis.plots import DPI, LEG_COLOURS, UM, _finish, _forces, _running, _view
+from hexcal.diagnosis.figure_pool import FigureJob
+from hexcal.diagnosis.plots import (
+    DPI,
+    LEG_COLOURS,
+    UM,
+    _finish,
+    _forces,
+    _running,
+    _view,
+    figure_style,
+)
 from hexcal.effects.backlash import deadband_mm, motion_state
 
 if TYPE_CHECKING:
@@ -90,8 +100,9 @@ def before_after(
     outdir.mkdir(parents=True, exist_ok=True)
     added = _added(before, after)
     effect = added[0] if added else "gain"  # no effect added: the reading is the generic axis
-    fig = Figure(figsize=(11, 8.4))
-    axes = fig.subplots(2, 2)
+    with figure_style():
+        fig = Figure(figsize=(11, 8.4))
+        axes = fig.subplots(2, 2)
     legs = np.arange(1, 7)
     top = 0.0
     for ax, d, tag in ((axes[0, 0], before, "before"), (axes[0, 1], after, "after")):
@@ -164,8 +175,9 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
     values = np.concatenate([e.position_mm[e.closed] for _, e, _ in panels]) * UM
     lo = max(float(np.min(values[values > 0])), 1e-3)
     norm_ = LogNorm(vmin=lo, vmax=max(float(values.max()), 10 * lo))
-    fig = Figure(figsize=(4.0 * len(panels) + 1.0, 4.8), layout="constrained")
-    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    with figure_style():
+        fig = Figure(figsize=(4.0 * len(panels) + 1.0, 4.8), layout="constrained")
+        axes = fig.subplots(1, len(panels), squeeze=False)[0]
     art = None
     for ax, (title, e, kind), meas in zip(axes, panels, where, strict=True):
         x, y = meas.position[:, 0], meas.position[:, 1]
@@ -189,3 +201,16 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
     fig.savefig(path, dpi=DPI)
     fig.clear()
     return path
+
+
+# --- as figures to draw ----------------------------------------------------------------------------
+
+
+def before_after_job(before: Diagnosis, after: Diagnosis, path: Path) -> FigureJob:
+    """:func:`before_after` as a figure to draw at ``path``."""
+    return FigureJob(path, lambda p: before_after(before, after, p.parent, p.name), 1.2)
+
+
+def pose_error_job(diags: list[Diagnosis], path: Path) -> FigureJob:
+    """:func:`pose_error_map` as a figure to draw at ``path``."""
+    return FigureJob(path, lambda p: pose_error_map(diags, p.parent, p.name), 1.3)

@@ -24,11 +24,12 @@ from typing import TypeGuard
 import numpy as np
 
 import hexcal
-from hexcal.diagnosis.compare_plots import before_after, pose_error_map
+from hexcal.diagnosis.compare_plots import before_after_job, pose_error_job
 from hexcal.diagnosis.diagnose import Diagnosis
+from hexcal.diagnosis.figure_pool import FigureJob, draw_all
 from hexcal.diagnosis.metrology import of_diagnosis
 from hexcal.diagnosis.metrology_html import metrology_section
-from hexcal.diagnosis.plots import write_plots
+from hexcal.diagnosis.plots import plot_jobs
 from hexcal.diagnosis.report_pointer import pointer_section
 from hexcal.diagnosis.report_style import CSS
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
@@ -295,8 +296,8 @@ def _accuracy(diags: Sequence[Diagnosis], tmp: Path | None) -> str:
             f'<td class="num">{_num(last.floor_orientation_rms_deg, ".4f")}</td><td></td></tr>'
         )
     fig = ""
-    if tmp is not None and accs:
-        png = pose_error_map(list(diags), tmp / "accuracy")
+    png = _drawn(tmp, _ACCURACY_MAP)
+    if png is not None and accs:
         fig = _figure(
             "accuracy-map",
             png,
@@ -617,7 +618,6 @@ def _figure(fid: str, png: Path | None, title: str, caption: str, skipped: str =
 
 
 def _plots(d: Diagnosis, sid: str, tmp: Path) -> str:
-    made = {p.name: p for p in write_plots(d, tmp / sid)}
     figs = []
     for name, title, caption in REPORT_PLOTS:
         stem = name.removesuffix(".png")
@@ -626,7 +626,8 @@ def _plots(d: Diagnosis, sid: str, tmp: Path) -> str:
         )
         if "covariate" in name:
             skipped = "drawn when an unexplained residual follows a covariate"
-        figs.append(_figure(f"{sid}-plot-{stem}", made.get(name), title, caption, skipped))
+        png = _drawn(tmp, f"{sid}/{name}")
+        figs.append(_figure(f"{sid}-plot-{stem}", png, title, caption, skipped))
     return f'<div id="{sid}-plots"><h3>Residual plots</h3>{"".join(figs)}</div>'
 
 
@@ -658,8 +659,8 @@ def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
     )
     betrays = BETRAYS.get(added[0], "reading") if added else "reading"
     fig = ""
-    if tmp is not None:
-        png = before_after(a, b, tmp / cid)
+    png = _drawn(tmp, f"{cid}/{_BEFORE_AFTER}")
+    if png is not None:
         fig = _figure(
             f"{cid}-figure",
             png,
@@ -674,12 +675,54 @@ def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
     )
 
 
+#: Where the figures are drawn, under the report's temporary folder.
+_ACCURACY_MAP = "accuracy/pose_error.png"
+_BEFORE_AFTER = "before_after.png"
+
+
+def _drawn(tmp: Path | None, name: str) -> Path | None:
+    """The figure ``name`` drawn under ``tmp`` by :func:`figure_jobs`, or None (not drawn)."""
+    if tmp is None:
+        return None
+    path = tmp / name
+    return path if path.is_file() else None
+
+
+def figure_jobs(diags: Sequence[Diagnosis], tmp: Path) -> list[FigureJob]:
+    """Every figure of the report on ``diags``, to draw under ``tmp`` before the page is put
+    together: the pose-error map, each change's before/after, each step's residual plots. All
+    are drawn at once so that they share the cores (:func:`~hexcal.diagnosis.figure_pool.draw_all`)."""
+    jobs = []
+    if diags[0].design_accuracy is not None or any(d.accuracy for d in diags):
+        jobs.append(pose_error_job(list(diags), tmp / _ACCURACY_MAP))
+    jobs += [
+        before_after_job(diags[i - 1], diags[i], tmp / f"change-{i}-{i + 1}" / _BEFORE_AFTER)
+        for i in range(1, len(diags))
+    ]
+    for i, d in enumerate(diags, 1):
+        jobs += plot_jobs(d, tmp / f"step-{i}")
+    return jobs
+
+
+def _ignore(tick: Callable[[], None]) -> Callable[[Path], None]:
+    """``tick`` called with a figure's path, which it does not need."""
+    return lambda _path: tick()
+
+
+def figure_count(diags: Sequence[Diagnosis]) -> int:
+    """How many figures :func:`write_report` draws for ``diags`` (a progress bar's length)."""
+    from hexcal.diagnosis.plots import plot_names
+
+    has_map = diags[0].design_accuracy is not None or any(d.accuracy for d in diags)
+    return int(has_map) + len(diags) - 1 + sum(len(plot_names(d)) for d in diags)
+
+
 def render_report(
     diags: Sequence[Diagnosis],
     inputs: Mapping[str, Path],
     plots: bool = True,
     limits: Sequence[str] = (),
-    on_step: Callable[[], None] | None = None,
+    on_figure: Callable[[], None] | None = None,
 ) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     if not diags:
@@ -703,14 +746,14 @@ def render_report(
         )
     with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
         tmp = Path(t) if plots else None
+        if tmp is not None:
+            draw_all(figure_jobs(diags, tmp), None if on_figure is None else _ignore(on_figure))
         parts.append(_accuracy(diags, tmp))
         parts.append(metrology_section(of_diagnosis(d)))
         for i, step in enumerate(diags, 1):
             if i > 1:
                 parts.append(_change(diags[i - 2], step, i - 1, tmp))
             parts.append(_step(step, i, tmp))
-            if on_step is not None:
-                on_step()
     parts.append(_provenance(diags, inputs))
     parts.append(_glossary())
     parts.append(
@@ -728,16 +771,17 @@ def write_report(
     inputs: Mapping[str, Path],
     plots: bool = True,
     limits: Sequence[str] = (),
-    on_step: Callable[[], None] | None = None,
+    on_figure: Callable[[], None] | None = None,
 ) -> Path:
     """Write ONE self-contained HTML report of a diagnosis sequence to ``path`` (atomically).
 
     ``diags``: the steps in order (e.g. Model 42, then + backlash, … until the verdict is
     ``none``); between consecutive steps a before/after figure is drawn. ``inputs``: label →
     input file, listed with its SHA-256. ``plots=False`` leaves the figures out (a quick,
-    tables-only page). ``on_step`` is called as each step's section is done (a progress bar).
+    tables-only page). ``on_figure`` is called as each figure is drawn (a progress bar of
+    :func:`figure_count` figures).
     Returns ``path``.
     """
     path = Path(path)
-    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_step))
+    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_figure))
     return path

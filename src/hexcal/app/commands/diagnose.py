@@ -232,27 +232,33 @@ def _diagnose_and_write(
     if result is not None and not mismatch:
         save_result(result, args.out, inp, args.force)
     if args.plots:
-        from hexcal.diagnosis.compare_plots import before_after, pose_error_map
-        from hexcal.diagnosis.plots import PLOT_NAMES, write_plots
+        from hexcal.diagnosis.compare_plots import before_after_job, pose_error_job
+        from hexcal.diagnosis.figure_pool import draw_all
+        from hexcal.diagnosis.plots import plot_jobs
 
         out = Path(args.plots)
         out.mkdir(parents=True, exist_ok=True)
-        bar.stage("drawing the plots", total=len(PLOT_NAMES) + len(steps))
-        write_plots(steps[-1], out, on_plot=lambda name: bar.advance())
-        pose_error_map(steps, out)
-        bar.advance()
-        for i in range(1, len(steps)):
-            before_after(steps[i - 1], steps[i], out, name=f"before_after_{i}.png")
+        jobs = plot_jobs(steps[-1], out)
+        jobs.append(pose_error_job(steps, out / "pose_error.png"))
+        jobs += [
+            before_after_job(steps[i - 1], steps[i], out / f"before_after_{i}.png")
+            for i in range(1, len(steps))
+        ]
+        bar.stage("drawing the plots", total=len(jobs))
+
+        def advance(_path: Path) -> None:
             bar.advance()
+
+        draw_all(jobs, advance)
     if args.residuals:
         from hexcal.io.fileio import write_text_atomic
 
         write_text_atomic(args.residuals, steps[-1].residual_table())
     if args.report:
-        from hexcal.diagnosis.report import write_report
+        from hexcal.diagnosis.report import figure_count, write_report
 
-        bar.stage("writing the report", total=len(steps))
+        bar.stage("writing the report", total=figure_count(steps))
         write_report(
-            steps, Path(args.report), dict(inp.files), limits=limit_lines, on_step=bar.advance
+            steps, Path(args.report), dict(inp.files), limits=limit_lines, on_figure=bar.advance
         )
     return steps, result, mismatch
