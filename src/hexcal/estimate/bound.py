@@ -28,13 +28,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexcal.estimate.solvers.weighted import _inv3_sym, _point_cov, _tangent_basis, type_iii_rows
+from hexcal.estimate.solvers.weighted import (
+    _inv3_sym,
+    _normal,
+    _point_cov,
+    _tangent_basis,
+    type_iii_rows,
+)
 from hexcal.model.noise import NoiseSigmas
 
 
 def _information(jac: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Σ_i J_iᵀ W_i J_i (..., p, p) from jac (..., N, q, p) and weights w (..., N, q, q)."""
-    return np.sum(np.swapaxes(jac, -1, -2) @ w @ jac, axis=-3)
+    return _normal(jac, w, np.zeros(jac.shape[:-1]))[0]
 
 
 def information_type_i(P, R, length, b, a, u, sig: NoiseSigmas) -> np.ndarray:

@@ -57,6 +57,13 @@ def _rotations(rng: np.random.Generator, tilt_deg: float, shape: tuple[int, ...]
     return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(*shape, 3, 3)
 
 
+def _rotated_points(rotation: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """R b_k (..., 6, 3) for rotations (..., 3, 3) and the six platform points b (6, 3): one
+    matrix product over all the rotations' rows (BLAS), four times faster than a stack."""
+    rows = rotation.reshape(-1, 3) @ b.T  # (... 3, 6)
+    return np.swapaxes(rows.reshape(*rotation.shape[:-2], 3, len(b)), -1, -2)
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
@@ -106,7 +113,7 @@ class Workspace:
     def feasible(self, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """Mask (...,) of poses within joint-angle limits and reading stroke for all six legs."""
         a, b = self.robot.a, self.robot.b
-        v = position[..., None, :] + np.swapaxes(rotation @ b.T, -1, -2) - a
+        v = position[..., None, :] + _rotated_points(rotation, b) - a
         length = np.linalg.norm(v, axis=-1)
         n = v / length[..., None]
         ok = n[..., 2] >= np.cos(np.deg2rad(self.limits.base_joint_deg))
@@ -211,5 +218,5 @@ class Workspace:
     # -- lengths ---------------------------------------------------------------------------------
     def true_lengths(self, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """Geometric lengths (..., 6) mm of this geometry at the poses."""
-        v = position[..., None, :] + np.swapaxes(rotation @ self.robot.b.T, -1, -2) - self.robot.a
+        v = position[..., None, :] + _rotated_points(rotation, self.robot.b) - self.robot.a
         return np.linalg.norm(v, axis=-1)

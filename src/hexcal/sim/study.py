@@ -259,9 +259,10 @@ def _sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) -
                 u,
                 sw.sig,
             )
+            cov = bound.bound(info)  # (b, a, u) once for both points
             bounds = {
-                "bound_a": float(bound.base_point_mse_bound(info, "type_i").mean()),
-                "bound_b": float(bound.platform_point_mse_bound(info).mean()),
+                "bound_a": float(np.trace(cov[:, 3:6, 3:6], axis1=1, axis2=2).mean()),
+                "bound_b": float(np.trace(cov[:, 0:3, 0:3], axis1=1, axis2=2).mean()),
             }
         sw.add("type_i", n, "paper", a_p, b_p, **bounds)
         sw.add("type_i", n, "direct", a_d, b_d, **bounds)
@@ -338,8 +339,8 @@ def _sweep_free(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> 
     pose's 6×6 covariance is the first-order maximum likelihood of explicit leg-length
     constraints. The bound is ``(J_wᵀ J_w)⁻¹`` of the whitened leg-length Jacobian at the true
     geometry and poses; ``all_efficiency`` is tr(bound) / E‖θ̂ − θ‖² over all 42 parameters."""
-    from hexcal.estimate.calibrate import refine_from_seeds
     from hexcal.estimate.refine import _model, _whiteners
+    from hexcal.estimate.refine_batch import refine_from_seeds_batch
     from hexcal.estimate.solvers.free import free_linear
 
     sw = _Sweep(config, robot)
@@ -354,28 +355,32 @@ def _sweep_free(config: StudyConfig, robot: Robot, rng: np.random.Generator) -> 
         robot.b + rng.normal(0, 1.0, (6, 3)),
         robot.offsets + rng.normal(0, 1.0, 6),
     )
+    design_x = lay.pack(design.a, design.b, design.offsets)
     for n in config.n_free:
         Pt, Rt = sim.free((T, n), rng)
         P, R, rho = sim.measure(rng, Pt, Rt)
-        seeds, fits, bounds = [], [], []
+        seeds, bounds = [], []
         for t in range(T):
             lin = [free_linear(P[t], R[t], rho[t, :, j]) for j in range(6)]
             a0 = np.array([s[1] for s in lin])
             b0 = np.array([s[0] for s in lin])
             off0 = np.array([s[2] for s in lin])
             seeds.append(lay.pack(a0, b0, off0))
-            if sw.noisy:
-                fit = refine_from_seeds(P[t], R[t], rho[t], a0, b0, off0, design, True, sw.sig)
-                fits.append(fit.x[lay.geometry_slice])
-            else:
-                fits.append(seeds[-1])
             if sw.bound_ok():
                 w = _whiteners(robot.a, robot.b, Pt[t], Rt[t], sw.sig)
                 true_rho = sim.true_lengths(Pt[t], Rt[t]) - robot.offsets
                 _, jac = _model(x_true, Pt[t], Rt[t], true_rho, robot.offsets, True)
                 jw = np.einsum("mij,mjp->mip", w, jac).reshape(-1, lay.size)
                 bounds.append(np.linalg.pinv(jw.T @ jw, hermitian=True))
-        seeds_a, fits_a = np.array(seeds), np.array(fits)
+        seeds_a = np.array(seeds)
+        # Every trial's fit in one batch; each fit's start and retry as hexcal calibrate's.
+        fits_a = (
+            refine_from_seeds_batch(P, R, rho, seeds_a, design_x, np.zeros(6), True, sw.sig)[
+                :, lay.geometry_slice
+            ]
+            if sw.noisy
+            else seeds_a
+        )
         extra: dict = {}
         if bounds:
             cov = np.mean(bounds, axis=0)
