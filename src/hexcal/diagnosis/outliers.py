@@ -105,7 +105,6 @@ class Subset(Problem):
             sub.meas,
             sub.design,
             sub.sigmas,
-            sub.linear36,
             sub.linear42,
             replace(parent.data.subset(rows), extras=extras),
             parent=parent,

@@ -100,7 +100,7 @@ class LegSignature:
     ``offset_mm``: the offset Δ at that scale; ``rms_mm``: the residual; ``a``, ``b`` (3,) mm:
     the joint points (tracker frame, tool frame); ``points_sigma_mm``: the largest standard
     error of their coordinates (NaN when the poses do not determine them: too little
-    rotation)."""
+    rotation); ``kept`` (N,) bool: the poses it was judged on (all but gross outliers)."""
 
     leg: int
     scale: float
@@ -110,6 +110,7 @@ class LegSignature:
     a: np.ndarray
     b: np.ndarray
     points_sigma_mm: float = float("nan")
+    kept: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -166,22 +167,28 @@ def _system(P: np.ndarray, R: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, 
 
 def _solve(a_mat: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Least squares with unit-norm columns: (solution, its covariance per unit variance,
-    whether every direction is determined)."""
-    norm = np.linalg.norm(a_mat, axis=0)
+    whether every direction is determined), for one system (N, n), (N,) or a stack of them
+    (…, N, n), (…, N): one batched SVD rather than a Python loop over the systems."""
+    norm = np.linalg.norm(a_mat, axis=-2)
     norm = np.where(norm == 0.0, 1.0, norm)
-    u, sv, vt = np.linalg.svd(a_mat / norm, full_matrices=False)
-    keep = sv > sv[0] * 1e-12
-    coef = (vt[keep].T @ ((u[:, keep].T @ y) / sv[keep])) / norm
-    cov = ((vt[keep].T / sv[keep] ** 2) @ vt[keep]) / np.outer(norm, norm)
-    return coef, cov, np.asarray(keep.all())
+    u, sv, vt = np.linalg.svd(a_mat / norm[..., None, :], full_matrices=False)
+    keep = sv > sv[..., :1] * 1e-12
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0), 0.0)
+    uty = np.einsum("...mk,...m->...k", u, y)
+    coef = np.einsum("...ki,...k->...i", vt, uty * inv) / norm
+    cov = np.einsum("...ki,...k,...kj->...ij", vt, inv**2, vt) / (
+        norm[..., :, None] * norm[..., None, :]
+    )
+    return coef, cov, np.asarray(keep.all(axis=-1))
 
 
 def _residual_mm(a_mat: np.ndarray, y: np.ndarray, coef: np.ndarray, rho: np.ndarray):
-    """The form's residual in mm (it is in mm²: divided by twice the length) and the length."""
-    s = np.sqrt(abs(coef[16]))
-    length = s * rho + (coef[17] / s if s > 0 else np.nan)
+    """The form's residual in mm (it is in mm²: divided by twice the length) and the length,
+    for a solution (n,) or several (…, n) (then each row of the result is one's)."""
+    s = np.sqrt(np.abs(coef[..., 16]))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return (a_mat @ coef - y) / (2.0 * np.abs(length)), length
+        length = s[..., None] * rho + np.where(s > 0, coef[..., 17] / s, np.nan)[..., None]
+        return (np.einsum("mn,...n->...m", a_mat, coef) - y) / (2.0 * np.abs(length)), length
 
 
 #: Poses whose residual lies beyond this many robust standard deviations (1.4826 MAD) are
@@ -204,14 +211,13 @@ def _trimmed(a_mat: np.ndarray, y: np.ndarray, rho: np.ndarray) -> np.ndarray:
     n = len(y)
     rng = np.random.default_rng(0)  # the same poses judged the same way every time
     size = min(n, max(3 * a_mat.shape[1], n // 5))
-    starts = [np.arange(n)] + [rng.choice(n, size, replace=False) for _ in range(SUBSETS)]
-    best, best_median = None, np.inf
-    for rows in starts:
-        coef, _, _ = _solve(a_mat[rows], y[rows])
-        res, _ = _residual_mm(a_mat, y, coef, rho)
-        median = float(np.median(np.abs(res))) if np.all(np.isfinite(res)) else np.inf
-        if median < best_median:
-            best, best_median = res, median
+    subsets = np.array([rng.choice(n, size, replace=False) for _ in range(SUBSETS)])
+    # Every start's residual at once: the fit on all poses, then one per subset (a stack).
+    coefs = np.concatenate([_solve(a_mat, y)[0][None], _solve(a_mat[subsets], y[subsets])[0]])
+    residuals, _ = _residual_mm(a_mat, y, coefs, rho)
+    finite = np.all(np.isfinite(residuals), axis=-1)
+    medians = np.where(finite, np.median(np.abs(residuals), axis=-1), np.inf)
+    best = residuals[int(np.argmin(medians))] if np.isfinite(medians.min()) else None
     use = np.ones(n, bool)
     res = best
     for _ in range(TRIM_ROUNDS):
@@ -254,7 +260,7 @@ def _leg_fit(P: np.ndarray, R: np.ndarray, rho: np.ndarray, leg: int) -> LegSign
         points = np.sqrt(sigma2 * np.diag(cov)[:6])
         points_sigma = float(points.max()) if determined else float("nan")
     return LegSignature(
-        leg, sign * s, scale_sigma, sign * delta, rms, coef[3:6], coef[:3], points_sigma
+        leg, sign * s, scale_sigma, sign * delta, rms, coef[3:6], coef[:3], points_sigma, use
     )
 
 
@@ -284,10 +290,14 @@ def check_consistency(
     if n < MIN_POSES:
         return Consistency(False, note=f"{n} poses: too few to check the data's consistency")
     meas = _Rows.spread(meas)
-    by_order = {o: signatures(meas, o) for o in ("wxyz", "xyzw")}
-    orders = {o: _total_rms(legs) for o, legs in by_order.items()}
+    by_order = {"wxyz": signatures(meas, "wxyz")}
+    orders = {"wxyz": _total_rms(by_order["wxyz"])}
+    # The other order is read only where it could be taken: the order as read misfits.
+    if orders["wxyz"] > ORDER_MIN_MM:
+        by_order["xyzw"] = signatures(meas, "xyzw")
+        orders["xyzw"] = _total_rms(by_order["xyzw"])
     out = Consistency(True, orders)
-    if orders["wxyz"] > ORDER_MIN_MM and orders["wxyz"] > ORDER_RATIO * orders["xyzw"]:
+    if "xyzw" in orders and orders["wxyz"] > ORDER_RATIO * orders["xyzw"]:
         ratio = orders["wxyz"] / orders["xyzw"]
         out.findings.append(
             Finding(
@@ -310,9 +320,9 @@ def check_consistency(
     if not out.findings and "leg_offsets" in design.model_fields_set:
         R = _rotations(meas.quaternion, out.order)
         offsets = []
-        for k in range(6):
+        for k, leg in enumerate(out.legs):
+            use = leg.kept  # the poses its signature was judged on: the same system
             rho = meas.readings[:, k]
-            use = _trimmed(*_system(meas.position, R, rho), rho)
             offsets.append(free_linear(meas.position[use], R[use], rho[use])[2])
         out.findings += offset_findings(np.array(offsets), design, tolerance, source)
     return out
@@ -491,12 +501,12 @@ def likely_causes(meas, design: Robot, tolerance: float = DRAWING_TOLERANCE) -> 
         return []
     ranked = sorted(c.findings, key=lambda f: -f.strength)
     causes = [f.text.split(": ", 1)[1] for f in ranked]
-    if (
-        not any(f.cause == "quaternion-order" for f in ranked)
-        and c.orders["xyzw"] < c.orders["wxyz"]
-    ):
+    xyzw = c.orders.get("xyzw")
+    if xyzw is None:  # not read by the check: the order as read fitted well
+        xyzw = _total_rms(signatures(_Rows.spread(meas), "xyzw"))
+    if not any(f.cause == "quaternion-order" for f in ranked) and xyzw < c.orders["wxyz"]:
         causes.append(
-            f"the quaternion order: scalar last fits a little better ({c.orders['xyzw']:.3g} mm "
+            f"the quaternion order: scalar last fits a little better ({xyzw:.3g} mm "
             f"against {c.orders['wxyz']:.3g} mm)"
         )
     off_gain = [g for g in c.legs if abs(abs(g.scale) - 1.0) > 0.1 and np.isfinite(g.scale)]

@@ -146,7 +146,6 @@ class Problem:
     meas: Measurements
     design: Robot
     sigmas: NoiseSigmas | None
-    linear36: LinearCalibration
     linear42: LinearCalibration
     data: EffectData
     _bases: dict[str, np.ndarray] = field(default_factory=dict)
@@ -154,22 +153,54 @@ class Problem:
     #: The drawing's pose accuracy, computed once per session (see :func:`design_accuracy`)
     design_pose_accuracy: PoseAccuracy | None = None
     design_errors: PoseErrors | None = None
+    _linear36: LinearCalibration | None = None
 
     @classmethod
-    def build(cls, meas: Measurements, design: Robot, sigmas: NoiseSigmas | None) -> Problem:
+    def build(
+        cls,
+        meas: Measurements,
+        design: Robot,
+        sigmas: NoiseSigmas | None,
+        linear42: LinearCalibration | None = None,
+    ) -> Problem:
         """The problem of a session. With the encoders' noise stated and no
         ``backlash_deadband_mm`` in the design, the design gets the dead band of that noise
         (:func:`~hexcal.effects.backlash.deadband_for_noise`): every model fitted here, and the
-        calibrated model built from ``problem.design``, then evaluates backlash alike."""
+        calibrated model built from ``problem.design``, then evaluates backlash alike.
+        ``linear42``: Model 42's linear seed (the paper's forms) when the caller has it."""
         design = with_deadband(design, sigmas)
         R = meas.rotations.as_matrix()
-        args = (meas.position, R, meas.readings, meas.leg, meas.constraint)
-        lin36 = calibrate_linear(*args, ModelKind.M36, design.offsets)
-        lin42 = calibrate_linear(*args, ModelKind.M42, design.offsets)
+        if linear42 is None:
+            args = (meas.position, R, meas.readings, meas.leg, meas.constraint)
+            linear42 = calibrate_linear(*args, ModelKind.M42, design.offsets)
         data = EffectData(
-            meas.readings, meas.position, R, meas.t, meas.temperature, design, lin42.a, lin42.b
+            meas.readings,
+            meas.position,
+            R,
+            meas.t,
+            meas.temperature,
+            design,
+            linear42.a,
+            linear42.b,
         )
-        return cls(meas, design, sigmas, lin36, lin42, data)
+        return cls(meas, design, sigmas, linear42, data)
+
+    @property
+    def linear36(self) -> LinearCalibration:
+        """Model 36's linear seed (the drawing's offsets), made when first asked for: a Model
+        42 diagnosis never needs it."""
+        if self._linear36 is None:
+            m = self.meas
+            self._linear36 = calibrate_linear(
+                m.position,
+                self.R,
+                m.readings,
+                m.leg,
+                m.constraint,
+                ModelKind.M36,
+                self.design.offsets,
+            )
+        return self._linear36
 
     @property
     def R(self) -> np.ndarray:

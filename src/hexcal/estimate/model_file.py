@@ -55,10 +55,16 @@ SOURCE_VERSION = 2
 MAX_COVARIANCE = MAX_PARAMETER**2
 
 
+#: The records' settings. Their validators are built when first used (reading or writing a
+#: calibrated.json), not when this module is imported: ``hexcal calibrate`` without ``--out``
+#: reads robot.json through this module and never needs them (7 ms of its start).
+_RECORD = ConfigDict(extra="forbid", defer_build=True)
+
+
 class ParameterValue(BaseModel):
     """One fitted parameter in its unit; ``sigma`` None when the data did not determine it."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     name: str
     value: Annotated[float, NotBool] = Field(
         ge=-MAX_PARAMETER, le=MAX_PARAMETER, allow_inf_nan=False
@@ -74,7 +80,7 @@ class SourceRecord(BaseModel):
     ``package`` (name, version, entry point), a ``file`` given with ``--effects`` (its name and
     the SHA-256 of its bytes), or a ``module`` of the program that wrote the file."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     kind: Literal["package", "file", "module"]
     package: str | None = Field(None, min_length=1, max_length=200)
     version: str | None = Field(None, max_length=100)
@@ -107,7 +113,7 @@ class EffectRecord(BaseModel):
     """One effect of the model and its fitted parameters; ``source`` when it is not one of
     hexcal's catalogue."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     name: str
     parameters: list[ParameterValue]
     physics: str = ""
@@ -117,7 +123,7 @@ class EffectRecord(BaseModel):
 class FitRecord(BaseModel):
     """How the model fits the poses it was calibrated on (leg lengths, mm)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     poses: Count
     chi2_per_dof: Statistic | None = None
     rms_mm: Statistic | None = Field(
@@ -136,7 +142,7 @@ class AccuracyRecord(BaseModel):
     """Pose accuracy: the pose computed from the six readings against the tracker's, at the
     platform origin; errors in mm and degrees."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     model: str = Field(description="e.g. 'design', 'Model 42', 'Model 42 + gain'")
     heldout: bool = Field(description="each pose predicted by a fit that did not see it")
     poses: Count
@@ -155,14 +161,14 @@ class AccuracyRecord(BaseModel):
 
 
 class InputRecord(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     role: str
     name: str
     sha256: str
 
 
 class Provenance(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     hexcal_version: str = __version__
     created: datetime = Field(default_factory=lambda: datetime.now(timezone.utc))
     poses: Count
@@ -174,7 +180,7 @@ class CovarianceRecord(BaseModel):
     in the fit's order (a1.x … b6.z, offset1 … offset6 for Model 42, then the effects'), and
     ``matrix`` (p × p) is in their units squared (mm², mm·ppm, ppm²…)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     parameters: list[str]
     matrix: list[
         list[Annotated[float, Field(ge=-MAX_COVARIANCE, le=MAX_COVARIANCE, allow_inf_nan=False)]]
@@ -185,7 +191,7 @@ class FittedPoses(BaseModel):
     """The poses the model was fitted on (format version 2): their ids and times (s), so that
     ``hexcal validate`` knows when it is given them again."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     pose_id: list[Annotated[int, Field(ge=1, le=2**53 - 1)]]
     t: list[Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)]]
 
@@ -193,7 +199,7 @@ class FittedPoses(BaseModel):
 class CalibrationBlock(BaseModel):
     """The ``calibration`` key of calibrated.json."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _RECORD
     format: Literal["hexcal-calibrated-model"] = FORMAT
     format_version: Annotated[int, NotBool] = Field(1, ge=1, le=FORMAT_VERSION)
     model: str = Field(description="e.g. 'Model 42 + gain + backlash'")
@@ -238,6 +244,8 @@ class CalibrationBlock(BaseModel):
 
 class CalibratedRobot(Robot):
     """calibrated.json: a robot.json whose geometry is calibrated, plus ``calibration``."""
+
+    model_config = ConfigDict(defer_build=True)  # see _RECORD
 
     calibration: CalibrationBlock
 

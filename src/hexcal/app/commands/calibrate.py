@@ -16,10 +16,13 @@ from hexcal.app.commands.common import (
     report_mismatch,
 )
 
+#: The command's name on the command line.
+NAME = "calibrate"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``calibrate`` command and its options."""
-    c = sub.add_parser("calibrate", help="calibrate Model 36 or 42 from a measurement table")
+    c = sub.add_parser(NAME, help="calibrate Model 36 or 42 from a measurement table")
     c.add_argument(
         "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"
     )

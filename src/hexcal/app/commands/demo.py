@@ -7,11 +7,14 @@ from pathlib import Path
 
 from hexcal.app.commands.common import COUNT, POSITIVE_COUNT, SECONDS, SEED, check_outputs
 
+#: The command's name on the command line.
+NAME = "demo"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``demo`` command and its options."""
     dm = sub.add_parser(
-        "demo",
+        NAME,
         help="a whole calibration on mock hardware, headless, with a scripted operator",
     )
     dm.add_argument("--seed", type=SEED, default=1, help="the simulated robot and its effect")

@@ -15,9 +15,13 @@ if TYPE_CHECKING:
     from hexcal.acquire.devices import DevicesConfig
 
 
+#: The command's name on the command line.
+NAME = "devices"
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``devices`` group: ``check``, ``list``, ``can-setup``."""
-    dv = sub.add_parser("devices", help="the rig's devices")
+    dv = sub.add_parser(NAME, help="the rig's devices")
     dv_sub = dv.add_subparsers(dest="devices_command", metavar="{check,list,can-setup}")
     print_help_of(dv)
     chk = dv_sub.add_parser(

@@ -22,10 +22,14 @@ if TYPE_CHECKING:
     from hexcal.diagnosis.diagnose import Diagnosis
 
 
+#: The command's name on the command line.
+NAME = "diagnose"
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``diagnose`` command and its options."""
     d = sub.add_parser(
-        "diagnose", help="compare the model with the measurements and find the missing effect"
+        NAME, help="compare the model with the measurements and find the missing effect"
     )
     d.add_argument(
         "measurements", type=Path, help="measurements.csv (docs/formats.md) or a session file"

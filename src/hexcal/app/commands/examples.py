@@ -5,7 +5,6 @@ repository's examples/ folder) to a directory, so a pip user can run the command
 from __future__ import annotations
 
 import argparse
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,10 +15,14 @@ if TYPE_CHECKING:  # importlib.resources.abc is Python 3.11+; this name serves 3
 _NOT_EXAMPLES = {"__init__.py", "__pycache__"}
 
 
+#: The command's name on the command line.
+NAME = "examples"
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``examples`` command and its options."""
     p = sub.add_parser(
-        "examples",
+        NAME,
         help="write the examples (simulated sessions, the Jugglebot's log, a rig file) to a directory",
     )
     p.add_argument(
@@ -46,6 +49,10 @@ def example_files() -> dict[str, str]:
             else:
                 # As shipped, line ends included (the Jugglebot's log is copied unchanged).
                 files[f"{prefix}{child.name}"] = child.read_bytes().decode("utf-8")
+
+    # Imported here: importlib.resources (tempfile, shutil, the compressors) is 10 ms of every
+    # hexcal command's start otherwise, since the parser imports every command's module.
+    from importlib import resources
 
     walk(resources.files("hexcal.examples"), "")
     return files

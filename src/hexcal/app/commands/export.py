@@ -26,9 +26,13 @@ def _floats(n_allowed: tuple[int, ...], lo: float, hi: float):
     return parse
 
 
+#: The command's name on the command line.
+NAME = "export"
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``export`` group: ``linuxcnc``, ``table``."""
-    ex = sub.add_parser("export", help="a calibrated model in a controller's terms")
+    ex = sub.add_parser(NAME, help="a calibrated model in a controller's terms")
     ex_sub = ex.add_subparsers(dest="export_command", metavar="{linuxcnc,table}")
     print_help_of(ex)
     lx = ex_sub.add_parser(

@@ -5,11 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+#: The command's name on the command line.
+NAME = "import"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``import`` command and its options."""
     ip = sub.add_parser(
-        "import", help="a lab's own log → measurements.csv, by a mapping file of its columns"
+        NAME, help="a lab's own log → measurements.csv, by a mapping file of its columns"
     )
     ip.add_argument("log", type=Path, help="the log, CSV with a header row")
     ip.add_argument(

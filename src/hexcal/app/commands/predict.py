@@ -12,11 +12,14 @@ if TYPE_CHECKING:
 
 from hexcal.app.commands.common import add_effects_option, check_outputs, load_effects, number
 
+#: The command's name on the command line.
+NAME = "predict"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``predict`` command and its options."""
     pr = sub.add_parser(
-        "predict",
+        NAME,
         help="readings → poses, or poses → readings (the compensation), with the model's effects",
     )
     pr.add_argument("model", type=Path, help="calibrated.json or robot.json")

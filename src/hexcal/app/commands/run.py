@@ -15,11 +15,14 @@ from hexcal.app.commands.common import (
     load_effects,
 )
 
+#: The command's name on the command line.
+NAME = "run"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``run`` command and its options."""
     rn = sub.add_parser(
-        "run",
+        NAME,
         help="the operator's text UI: guided clamping and recording, result, diagnosis, export",
     )
     rn.add_argument("--mock", action="store_true", help="simulated devices (no hardware)")

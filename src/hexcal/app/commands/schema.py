@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 
+#: The command's name on the command line.
+NAME = "schema"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``schema`` command."""
-    sc = sub.add_parser("schema", help="print the JSON Schema of the session file")
+    sc = sub.add_parser(NAME, help="print the JSON Schema of the session file")
     sc.set_defaults(func=run)
 
 

@@ -7,10 +7,13 @@ from pathlib import Path
 
 from hexcal.app.commands.common import print_help_of, refuse_existing
 
+#: The command's name on the command line.
+NAME = "session"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``session`` group: ``export``, ``import``, ``merge``."""
-    se = sub.add_parser("session", help="export a session file, or make one from a CSV")
+    se = sub.add_parser(NAME, help="export a session file, or make one from a CSV")
     se_sub = se.add_subparsers(dest="session_command", metavar="{export,import,merge}")
     print_help_of(se)
     ex = se_sub.add_parser("export", help="measurements.csv, robot.json, calibrated.json")

@@ -17,11 +17,14 @@ from hexcal.app.commands.common import (
     refuse_existing,
 )
 
+#: The command's name on the command line.
+NAME = "simulate"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``simulate`` command and its options."""
     m = sub.add_parser(
-        "simulate", help="write a simulated session (robot, measurements, instruments, truth)"
+        NAME, help="write a simulated session (robot, measurements, instruments, truth)"
     )
     m.add_argument(
         "--out",

@@ -15,11 +15,14 @@ from hexcal.app.commands.common import (
     refuse_existing,
 )
 
+#: The command's name on the command line.
+NAME = "study"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``study`` command and its options."""
     s = sub.add_parser(
-        "study", help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"
+        NAME, help="the seed paper's Monte-Carlo study (§4) with the direct forms and refinement"
     )
     s.add_argument(
         "--trials", type=POSITIVE_COUNT, default=1000, help="Monte-Carlo trials per point"

@@ -10,11 +10,14 @@ from pathlib import Path
 
 from hexcal.app.commands.common import add_effects_option, load_effects
 
+#: The command's name on the command line.
+NAME = "validate"
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``validate`` command and its options."""
     v = sub.add_parser(
-        "validate",
+        NAME,
         help="a model on poses it was not fitted on: leg-length residual, pose error, verdict",
     )
     v.add_argument(
