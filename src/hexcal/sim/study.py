@@ -457,21 +457,21 @@ def to_json(result: StudyResult, n: int = 7) -> str:
     )
 
 
-def plot(result: StudyResult, outdir: str | Path) -> list[Path]:
-    """PNG plots of the figures 5, 6, 9, 10 kind: mean error against N, methods side by side."""
-    import matplotlib
+def _figure(**kwargs):
+    """A matplotlib figure on the Agg canvas, outside pyplot (no backend switched, no global
+    list of figures), titles at the axes' top without measuring the tick labels to place them
+    (where matplotlib puts them anyway: nothing sits above the panels)."""
+    from matplotlib import rc_context
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    with rc_context({"axes.titley": 1.0}):
+        fig = Figure(figsize=kwargs.pop("figsize"))
+        return fig, fig.subplots(**kwargs)
 
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    cfg = result.config
-    noise_txt = (
-        f"{cfg.noise} noise: ±{cfg.err_p_mm} mm position, ±{cfg.err_a_deg}° orientation, "
-        f"±{cfg.err_l_mm} mm reading; {cfg.trials} trials per N; leg {cfg.leg}"
-    )
-    panels = [
+
+def _panels(cfg: StudyConfig) -> list[tuple[str, str, list[tuple[str, str]]]]:
+    """(pose set, title, [(row key, label)]) of each figure of :func:`plot`."""
+    return [
         (
             "type_i",
             "§3.2 — Type I (direction clamped)",
@@ -488,27 +488,66 @@ def plot(result: StudyResult, outdir: str | Path) -> list[Path]:
             [("base_err_mm", "base point a"), ("offset_err_mm", "leg offset")],
         ),
     ]
+
+
+def _plot_set(result: StudyResult, path: Path, pose_set: str) -> Path:
+    """One figure of :func:`plot`: the mean error of ``pose_set``'s estimates against N."""
+    cfg = result.config
+    title, keys = next((t, k) for s, t, k in _panels(cfg) if s == pose_set)
+    noise_txt = (
+        f"{cfg.noise} noise: ±{cfg.err_p_mm} mm position, ±{cfg.err_a_deg}° orientation, "
+        f"±{cfg.err_l_mm} mm reading; {cfg.trials} trials per N; leg {cfg.leg}"
+    )
     style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
-    paths = []
-    for pose_set, title, keys in panels:
-        fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.2), squeeze=False)
-        for ax, (key, label) in zip(axes[0], keys, strict=False):
-            for method in METHODS:
-                n, e = result.curve(pose_set, method, key)
-                c, m = style[method]
-                ax.semilogy(n, e, color=c, marker=m, ms=3, lw=1.2, label=method)
-            ax.set_xlabel("number of poses N")
-            ax.set_ylabel(f"mean error of {label} (mm)")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.axvline(7, color="0.6", lw=0.8, ls="--")
-            ax.legend()
-        fig.suptitle(f"{title}\n{noise_txt}", fontsize=9)
-        fig.tight_layout()
-        path = outdir / f"study_{pose_set}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
-    return paths
+    fig, axes = _figure(nrows=1, ncols=len(keys), figsize=(5.5 * len(keys), 4.2), squeeze=False)
+    for ax, (key, label) in zip(axes[0], keys, strict=False):
+        for method in METHODS:
+            n, e = result.curve(pose_set, method, key)
+            c, m = style[method]
+            ax.semilogy(n, e, color=c, marker=m, ms=3, lw=1.2, label=method)
+        ax.set_xlabel("number of poses N")
+        ax.set_ylabel(f"mean error of {label} (mm)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.axvline(7, color="0.6", lw=0.8, ls="--")
+        ax.legend()
+    fig.suptitle(f"{title}\n{noise_txt}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot(result: StudyResult, outdir: str | Path) -> list[Path]:
+    """PNG plots of the figures 5, 6, 9, 10 kind: mean error against N, methods side by side."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    return [
+        _plot_set(result, outdir / f"study_{pose_set}.png", pose_set)
+        for pose_set, _, _ in _panels(result.config)
+    ]
+
+
+def write_plots(result: StudyResult, outdir: str | Path) -> list[Path]:
+    """Every PNG of the study (:func:`plot`'s, then :func:`plot_efficiency`'s), drawn on two
+    cores where that pays (:mod:`hexcal.diagnosis.figure_pool`)."""
+    from functools import partial
+
+    from hexcal.diagnosis.figure_pool import FigureJob, draw_all
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    jobs = [
+        FigureJob(outdir / f"study_{s}.png", partial(_plot_set, result, pose_set=s), 0.8)
+        for s, _, _ in _panels(result.config)
+    ]
+    # The efficiency figure's ten panels cost about as much as the three others together.
+    jobs.append(
+        FigureJob(
+            outdir / "study_efficiency.png",
+            lambda path: plot_efficiency(result, path.parent),
+            2.4,
+        )
+    )
+    return draw_all(jobs)
 
 
 #: The estimates whose efficiency the study reports: (set, point, label).
@@ -570,14 +609,9 @@ def efficiency_table(result: StudyResult, ns: tuple[int, ...] = (7, 20)) -> str:
 
 def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
     """PNG: efficiency against N for every estimate and method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
     cols = (len(EFFICIENCY_ROWS) + 1) // 2
-    fig, axes = plt.subplots(2, cols, figsize=(3.4 * cols, 7.2), sharey=True, squeeze=False)
+    fig, axes = _figure(nrows=2, ncols=cols, figsize=(3.4 * cols, 7.2), sharey=True, squeeze=False)
     for ax in axes.flat[len(EFFICIENCY_ROWS) :]:
         ax.set_visible(False)
     for ax, (pose_set, q, label) in zip(axes.flat, EFFICIENCY_ROWS, strict=False):
@@ -606,7 +640,6 @@ def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
     fig.tight_layout()
     path = Path(outdir) / "study_efficiency.png"
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 

@@ -83,11 +83,10 @@ def run(args: argparse.Namespace) -> int:
         StudyConfig,
         efficiency_table,
         factor_table,
-        plot,
-        plot_efficiency,
         run_study,
         to_json,
         write_csv,
+        write_plots,
     )
 
     cfg = StudyConfig(
@@ -114,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomic(out / "study.json", text)
         if not args.no_plots:
             bar.stage("drawing the plots")
-        pngs = [] if args.no_plots else [*plot(result, out), plot_efficiency(result, out)]
+        pngs = [] if args.no_plots else write_plots(result, out)
     if args.json:
         print(text)
     else:
