@@ -208,9 +208,9 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
 
 def before_after_job(before: Diagnosis, after: Diagnosis, path: Path) -> FigureJob:
     """:func:`before_after` as a figure to draw at ``path``."""
-    return FigureJob(path, lambda p: before_after(before, after, p.parent, p.name), 1.2)
+    return FigureJob(path, lambda p: before_after(before, after, p.parent, p.name), 1.4)
 
 
 def pose_error_job(diags: list[Diagnosis], path: Path) -> FigureJob:
     """:func:`pose_error_map` as a figure to draw at ``path``."""
-    return FigureJob(path, lambda p: pose_error_map(diags, p.parent, p.name), 1.3)
+    return FigureJob(path, lambda p: pose_error_map(diags, p.parent, p.name), 1.8)
