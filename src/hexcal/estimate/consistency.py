@@ -184,11 +184,12 @@ def _solve(a_mat: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
 
 def _residual_mm(a_mat: np.ndarray, y: np.ndarray, coef: np.ndarray, rho: np.ndarray):
     """The form's residual in mm (it is in mm²: divided by twice the length) and the length,
-    for a solution (n,) or several (…, n) (then each row of the result is one's)."""
+    for a solution (n,) of a system (N, n), or stacks of them (…, n), (…, N, n) broadcast
+    (then each row of the result is one solution's)."""
     s = np.sqrt(np.abs(coef[..., 16]))
     with np.errstate(divide="ignore", invalid="ignore"):
         length = s[..., None] * rho + np.where(s > 0, coef[..., 17] / s, np.nan)[..., None]
-        return (np.einsum("mn,...n->...m", a_mat, coef) - y) / (2.0 * np.abs(length)), length
+        return (np.einsum("...mn,...n->...m", a_mat, coef) - y) / (2.0 * np.abs(length)), length
 
 
 #: Poses whose residual lies beyond this many robust standard deviations (1.4826 MAD) are
@@ -201,25 +202,37 @@ TRIM_SHARE = 0.2
 SUBSETS = 12
 
 
-def _trimmed(a_mat: np.ndarray, y: np.ndarray, rho: np.ndarray) -> np.ndarray:
-    """The poses a leg is judged on: all but its gross outliers.
+def _trimmed(a_mats: np.ndarray, y: np.ndarray, rho: np.ndarray):
+    """The poses each leg is judged on: all but its gross outliers. ``a_mats`` (L, N, n) the
+    legs' systems, ``y`` (N,) their common right side, ``rho`` (L, N) mm their readings.
+    Returns (kept (L, N) bool, and each leg's fit on every pose: :func:`_solve`'s three, each
+    with the legs first), the fit most legs keep.
 
     A least-squares start is thrown far off by one pose 300 mm wrong, so the start is the best
     (smallest median residual) of the fit on every pose and of fits on random subsets, one of
     which holds no outlier when few poses are bad (least median of squares); poses far from it
-    are then left out, round by round."""
-    n = len(y)
+    are then left out, round by round. Every leg's starts are solved at once (one batched SVD)."""
+    legs, n = rho.shape
     rng = np.random.default_rng(0)  # the same poses judged the same way every time
-    size = min(n, max(3 * a_mat.shape[1], n // 5))
+    size = min(n, max(3 * a_mats.shape[-1], n // 5))
     subsets = np.array([rng.choice(n, size, replace=False) for _ in range(SUBSETS)])
-    # Every start's residual at once: the fit on all poses, then one per subset (a stack).
-    coefs = np.concatenate([_solve(a_mat, y)[0][None], _solve(a_mat[subsets], y[subsets])[0]])
-    residuals, _ = _residual_mm(a_mat, y, coefs, rho)
+    full = _solve(a_mats, y)
+    coefs = np.concatenate([full[0][:, None], _solve(a_mats[:, subsets], y[subsets])[0]], axis=1)
+    residuals, _ = _residual_mm(a_mats[:, None], y, coefs, rho[:, None])  # (L, starts, N)
     finite = np.all(np.isfinite(residuals), axis=-1)
     medians = np.where(finite, np.median(np.abs(residuals), axis=-1), np.inf)
-    best = residuals[int(np.argmin(medians))] if np.isfinite(medians.min()) else None
+    kept = np.ones((legs, n), bool)
+    for leg in range(legs):
+        best = int(np.argmin(medians[leg]))
+        res = residuals[leg, best] if np.isfinite(medians[leg, best]) else None
+        kept[leg] = _trim(a_mats[leg], y, rho[leg], res)
+    return kept, full
+
+
+def _trim(a_mat: np.ndarray, y: np.ndarray, rho: np.ndarray, res: np.ndarray | None):
+    """One leg's poses (N,) bool less those far from its best start's residual ``res``."""
+    n = len(y)
     use = np.ones(n, bool)
-    res = best
     for _ in range(TRIM_ROUNDS):
         if res is None or not np.all(np.isfinite(res)):
             return use
@@ -239,13 +252,12 @@ def _unit_factor(factor: float) -> float:
     return min(UNITS, key=lambda k: abs(factor / k - 1.0))
 
 
-def _leg_fit(P: np.ndarray, R: np.ndarray, rho: np.ndarray, leg: int) -> LegSignature:
-    """The free-pose form with the reading's scale free (see the module docstring), solved on
-    the leg's poses less its gross outliers."""
-    a_all, y_all = _system(P, R, rho)
-    use = _trimmed(a_all, y_all, rho)
+def _leg_fit(a_all: np.ndarray, y_all: np.ndarray, rho: np.ndarray, leg: int, use, full):
+    """The free-pose form with the reading's scale free (see the module docstring): the leg's
+    system (N, 18), (N,), its readings (N,) mm, solved on its poses ``use`` (N,) (all but its
+    gross outliers); ``full``: its solution on every pose (:func:`_solve`'s three)."""
     a_mat, y = a_all[use], y_all[use]
-    coef, cov, determined = _solve(a_mat, y)
+    coef, cov, determined = full if use.all() else _solve(a_mat, y)
     res_mm, length = _residual_mm(a_mat, y, coef, rho[use])
     s2, s_delta = float(coef[16]), float(coef[17])
     s = float(np.sqrt(abs(s2)))
@@ -273,7 +285,12 @@ def signatures(meas, order: str = "wxyz") -> list[LegSignature]:
     """Each leg's signature with the quaternions read in ``order`` (``wxyz`` as the table
     says, or ``xyzw``: the columns qw, qx, qy, qz hold x, y, z, w)."""
     R = _rotations(meas.quaternion, order)
-    return [_leg_fit(meas.position, R, meas.readings[:, k], k + 1) for k in range(6)]
+    systems = [_system(meas.position, R, meas.readings[:, k]) for k in range(6)]
+    a_mats, y, rho = np.stack([a for a, _ in systems]), systems[0][1], meas.readings.T
+    kept, full = _trimmed(a_mats, y, rho)
+    return [
+        _leg_fit(a_mats[k], y, rho[k], k + 1, kept[k], tuple(f[k] for f in full)) for k in range(6)
+    ]
 
 
 def _total_rms(legs: list[LegSignature]) -> float:
