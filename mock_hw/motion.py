@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.mock_hw.robot import MockRobot
+from hexcal.model.workspace import NoFeasiblePose
 from hexcal.procedure.recording import MotionError
 from hexcal.sim.simulate import PoseRanges, Simulator
 from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
@@ -180,14 +181,24 @@ class MockMotionController:
         it (P (3,) mm, R (3, 3), true). A slipping clamp creeps before the move."""
         self._creep()
         c = self.clamp_state
-        if c is None:
-            P, R = self.sim.free((1,), self._rng)
-        elif c.constraint == Constraint.DIRECTION:
-            P, R = self.sim.type_i(c.leg - 1, (1,), self._rng, direction=c.direction)
-        elif c.constraint == Constraint.LENGTH:
-            P, R = self.sim.type_iii(c.leg - 1, (1,), self._rng, length=c.length, axis=c.direction)
-        else:
-            P, R = self.sim.type_ii(c.leg - 1, (1,), self._rng, point=c.point)
+        try:
+            if c is None:
+                P, R = self.sim.free((1,), self._rng)
+            elif c.constraint == Constraint.DIRECTION:
+                P, R = self.sim.type_i(c.leg - 1, (1,), self._rng, direction=c.direction)
+            elif c.constraint == Constraint.LENGTH:
+                P, R = self.sim.type_iii(
+                    c.leg - 1, (1,), self._rng, length=c.length, axis=c.direction
+                )
+            else:
+                P, R = self.sim.type_ii(c.leg - 1, (1,), self._rng, point=c.point)
+        except NoFeasiblePose:
+            assert c is not None  # free poses about home always exist
+            raise MotionError(
+                f"leg {c.leg} is clamped ({c.constraint}) where no pose it allows is within the "
+                "joint limits and the legs' stroke: release the clamp, move the platform nearer "
+                "home and clamp again"
+            ) from None
         # The drawn pose satisfies the (possibly crept) clamp exactly: bypass the tolerance
         # check only in so far as the clamp itself moved.
         self._move(P[0], R[0])

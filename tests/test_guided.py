@@ -289,3 +289,19 @@ def test_a_step_ended_below_its_recommended_count_says_so(tmp_path):
     check = g.finish_step(hr.design)
     assert check.ok and check.message.startswith("leg1-direction+length done: 5 poses")
     assert "5 of 8 recommended poses" in check.message
+
+
+def test_home_moves_the_unclamped_platform_home_and_refuses_while_clamped(tmp_path):
+    """The mock operator clamps each leg with the platform at home (the text UI's auto mode):
+    clamped far out, a Type II clamp may allow no pose within the limits."""
+    g, _, _, mover = _setup(tmp_path)
+    while not g.step.leg:
+        _run_step(g)
+    mover.next_pose()  # somewhere off home
+    assert g.home() == "moved home"
+    home = mover.robot.truth.home
+    P, _ = mover.robot.true_pose()
+    assert np.allclose(P, home.position, atol=1e-9)
+    g.clamp()
+    with pytest.raises(GuidedError, match="release it first"):
+        g.home()

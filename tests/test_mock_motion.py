@@ -105,3 +105,18 @@ def test_a_slipping_clamp_creeps_by_the_set_amount_per_move(controller, constrai
         assert l2 == pytest.approx(l1, abs=1e-9)
     if "direction" in constraint:
         assert np.allclose(u2, u1, atol=1e-9)
+
+
+def test_a_clamp_no_pose_can_satisfy_is_a_motion_error_not_a_crash(controller):
+    """Clamped (direction and length) where the leg's point sits at the edge of the workspace,
+    no rotation about it keeps the six legs within their limits: the controller says so as a
+    MotionError (the text UI shows it and the mock operator stops), it does not raise an
+    internal error. The point is the one the seed-7 rig reached in the text UI's auto mode."""
+    from dataclasses import replace
+
+    controller.clamp(2, "direction+length")
+    c = controller.clamp_state
+    far = c.point + np.array([0.0, -150.0, -80.0])  # far out: past the joints' limits
+    controller.clamp_state = replace(c, point=far)
+    with pytest.raises(MotionError, match="release the clamp, move the platform nearer home"):
+        controller.next_pose()

@@ -32,6 +32,11 @@ from hexcal.model.robot import Robot
 Draw = Callable[[np.random.Generator, tuple[int, ...]], tuple[np.ndarray, np.ndarray]]
 
 
+class NoFeasiblePose(RuntimeError):
+    """No pose of the kind asked for lies within the limits (for a clamp: none that the clamp
+    allows), after 200 rounds of drawing."""
+
+
 @dataclass(frozen=True)
 class PoseRanges:
     """How far the simulated operator moves the platform (see module docstring)."""
@@ -139,7 +144,7 @@ class Workspace:
             pn, rn = draw(rng, (int(bad.sum()),))
             p[bad], r[bad] = pn, rn
             bad[bad] = ~self.feasible(pn, rn)
-        raise RuntimeError("could not draw feasible poses: widen the limits or shrink the ranges")
+        raise NoFeasiblePose("could not draw feasible poses: widen the limits or shrink the ranges")
 
     # -- pose generators (true poses) ----------------------------------------------------------
     def type_i(

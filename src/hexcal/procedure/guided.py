@@ -322,6 +322,18 @@ class GuidedSession:
                 self._clamp_reading = float(legs.readings[st.leg - 1])
         return self._say(f"leg {st.leg} clamped ({st.constraint})")
 
+    def home(self) -> str:
+        """Move the platform home before a leg is clamped (motion controller only): where a leg
+        is clamped decides the poses its clamp allows, and about home they reach every way
+        within the joint limits; clamped far out (after a pose at the workspace's edge) they
+        may reach none."""
+        if self.mover is None:
+            raise GuidedError("no motion controller: move the platform with the robot's own")
+        if self.clamped:
+            raise GuidedError(f"leg {self.step.leg} is clamped: release it first")
+        self.mover.home()
+        return self._say("moved home")
+
     def release(self) -> None:
         if self.mover is not None and self.clamped:
             self.mover.release()

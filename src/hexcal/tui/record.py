@@ -472,6 +472,8 @@ class RecordScreen(HexcalScreen):
             while not g.finished and not self._stop_auto:
                 st = g.step
                 if st.leg and not g.clamped:
+                    # As a lab's operator does: the leg is clamped with the platform at home.
+                    call(self.log_line, g.home())
                     call(self.log_line, g.clamp())
                 if g.n_poses < st.n_poses and not g.target_met(self.hexcal.backend.design):
                     # A refused pose is recorded again where it stands, as record_procedure
