@@ -26,13 +26,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.errors import RefusedError
 from hexcal.model.robot import Robot
 
 #: A pose drawer: ``draw(rng, shape) -> (P (*shape, 3) mm, R (*shape, 3, 3))``.
 Draw = Callable[[np.random.Generator, tuple[int, ...]], tuple[np.ndarray, np.ndarray]]
 
 
-class NoFeasiblePose(RuntimeError):
+class NoFeasiblePose(RefusedError, RuntimeError):
     """No pose of the kind asked for lies within the limits (for a clamp: none that the clamp
     allows), after 200 rounds of drawing."""
 
