@@ -459,7 +459,18 @@ class RecordScreen(HexcalScreen):
                 return
             except MotionError:
                 pass
-        g.move()
+        try:
+            g.move()
+        except MotionError:
+            if not (g.clamped and g.n_poses == 0):
+                raise
+            # Clamped where the last suggested pose left the platform, at the workspace's edge,
+            # the clamp allows no pose within the limits: as an operator would, release it,
+            # go home and clamp there (no pose of the step was recorded at the first clamp).
+            g.release()
+            self.hexcal.post(self.log_line, g.home())
+            self.hexcal.post(self.log_line, g.clamp())
+            g.move()
 
     @work(thread=True, exclusive=True, group="record")
     def _auto_worker(self, all_steps: bool) -> None:
@@ -472,8 +483,6 @@ class RecordScreen(HexcalScreen):
             while not g.finished and not self._stop_auto:
                 st = g.step
                 if st.leg and not g.clamped:
-                    # As a lab's operator does: the leg is clamped with the platform at home.
-                    call(self.log_line, g.home())
                     call(self.log_line, g.clamp())
                 if g.n_poses < st.n_poses and not g.target_met(self.hexcal.backend.design):
                     # A refused pose is recorded again where it stands, as record_procedure
