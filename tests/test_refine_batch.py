@@ -36,21 +36,17 @@ def sessions():
     return P, R, rho, seeds, design, lay
 
 
+def _unpacked(lay, x):
+    """(a (6, 3), b (6, 3), offsets (6,)) of a packed Model 42 vector."""
+    return lay.a(x), lay.b(x), lay.offsets(x, np.zeros(6))
+
+
 def test_each_fit_of_the_batch_is_the_fit_alone(sessions):
     P, R, rho, seeds, _, lay = sessions
     x, chi2, ok = refine_batch(P, R, rho, seeds, np.zeros(6), True, SIG)
     assert ok.all()
     for t in range(len(P)):
-        one = refine(
-            P[t],
-            R[t],
-            rho[t],
-            lay.a(seeds[t]),
-            lay.b(seeds[t]),
-            lay.offsets(seeds[t], np.zeros(6)),
-            True,
-            SIG,
-        )
+        one = refine(P[t], R[t], rho[t], *_unpacked(lay, seeds[t]), True, SIG)
         np.testing.assert_allclose(x[t], one.x, rtol=0, atol=1e-12)
         assert chi2[t] == pytest.approx(one.chi2, rel=1e-12)
 
@@ -72,22 +68,10 @@ def test_the_retries_from_the_design_are_those_of_one_fit(sessions, monkeypatch,
     seeds = seeds.copy()
     seeds[3, lay.a_of_leg(0)] += 400.0
     x = refine_from_seeds_batch(P, R, rho, seeds, design, np.zeros(6), True, SIG)
-    robot = left_hand().with_geometry(
-        lay.a(design), lay.b(design), lay.offsets(design, np.zeros(6))
-    )
+    robot = left_hand().with_geometry(*_unpacked(lay, design))
     from_design = []
     for t in range(len(P)):
-        one = refine_from_seeds(
-            P[t],
-            R[t],
-            rho[t],
-            lay.a(seeds[t]),
-            lay.b(seeds[t]),
-            lay.offsets(seeds[t], np.zeros(6)),
-            robot,
-            True,
-            SIG,
-        )
+        one = refine_from_seeds(P[t], R[t], rho[t], *_unpacked(lay, seeds[t]), robot, True, SIG)
         from_design.append(one.from_design)
         np.testing.assert_allclose(x[t], one.x, rtol=0, atol=1e-12)
     assert from_design[3]  # the far seed stalled: its fit is the design's
