@@ -110,6 +110,21 @@ def test_periodogram_finds_a_sinusoid_at_its_period_and_amplitude():
     assert amp[0] < 0.5 and amp[2] < 0.5
 
 
+@pytest.mark.parametrize("n", [8, 57, 400])
+def test_periodogram_is_scipys_floating_mean_amplitude(n):
+    """The written-out periodogram against scipy.signal.lombscargle (what it replaces, to spare
+    the report scipy.signal's import): uneven readings, an offset, noise and a ripple; the
+    frequency blocks are exercised by a grid longer than one block at N = 400."""
+    from scipy.signal import lombscargle
+
+    rng = np.random.default_rng(n)
+    x = np.sort(rng.uniform(-40, 60, n))
+    y = 7.0 + 2.0 * np.cos(2 * np.pi * x / 3.3) + rng.normal(0, 1.0, n)
+    periods = 1.0 / np.linspace(1 / 20, 1 / 0.5, 6000)
+    ref = np.abs(lombscargle(x, y, 2 * np.pi / periods, normalize="amplitude", floating_mean=True))
+    np.testing.assert_allclose(periodogram(x, y, periods), ref, rtol=1e-9, atol=1e-12 * ref.max())
+
+
 def test_leg_direction_angles_are_small_and_non_negative(session):
     ang = leg_direction_angles(session[0])
     assert ang.shape == (len(session[0].problem.meas), 6)

@@ -69,13 +69,3 @@ def test_a_failed_copy_leaves_its_figures_here(tmp_path, monkeypatch):
     monkeypatch.setattr(figure_pool, "_fork", failing)
     jobs = [FigureJob(tmp_path / f"{i}.txt", _writer(str(i))) for i in range(4)]
     assert [p.read_text() for p in draw_all(jobs)] == ["0", "1", "2", "3"]
-
-
-def test_a_group_goes_to_one_side():
-    jobs = [FigureJob(Path(f"{i}.png"), _writer(""), 1.0) for i in range(6)]
-    jobs[1] = FigureJob(Path("p1.png"), _writer(""), 1.5, group="scipy.signal")
-    jobs[4] = FigureJob(Path("p2.png"), _writer(""), 1.5, group="scipy.signal")
-    own, forked = share(jobs)
-    side = own if jobs[1] in own else forked
-    assert jobs[4] in side  # the two share their import
-    assert sorted(own + forked, key=jobs.index) == jobs

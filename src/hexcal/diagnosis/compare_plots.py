@@ -198,8 +198,7 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
         fontsize=11,
     )
     path = outdir / name
-    fig.savefig(path, dpi=DPI)
-    fig.clear()
+    fig.savefig(path, dpi=DPI)  # not cleared: see plots._finish
     return path
 
 

@@ -23,29 +23,22 @@ from typing import Any
 @dataclass(frozen=True)
 class FigureJob:
     """One figure to draw: ``draw(path)`` writes the PNG at ``path``. ``weight``: its cost
-    relative to a six-panel scatter figure (1), to share the jobs evenly; jobs of one
-    ``group`` (not empty) are drawn by the same process (they share a costly import)."""
+    relative to a six-panel scatter figure (1), to share the jobs evenly."""
 
     path: Path
     draw: Callable[[Path], Any]
     weight: float = 1.0
-    group: str = ""
 
 
 def share(jobs: Sequence[FigureJob]) -> tuple[list[FigureJob], list[FigureJob]]:
-    """(this process's jobs, the fork's): the heaviest first (a group as one, its weights
-    summed), each to the lighter side (longest processing time first), each side in the given
-    order."""
-    units: dict[object, list[int]] = {}
-    for i, job in enumerate(jobs):
-        units.setdefault(job.group or i, []).append(i)
-    weight = {key: sum(jobs[i].weight for i in members) for key, members in units.items()}
+    """(this process's jobs, the fork's): the heaviest first, each to the lighter side
+    (longest processing time first), each side in the given order."""
     sides: tuple[list[int], list[int]] = ([], [])
     load = [0.0, 0.0]
-    for key in sorted(units, key=lambda k: -weight[k]):
+    for i in sorted(range(len(jobs)), key=lambda i: -jobs[i].weight):
         side = 0 if load[0] <= load[1] else 1
-        sides[side].extend(units[key])
-        load[side] += weight[key]
+        sides[side].append(i)
+        load[side] += jobs[i].weight
     return [jobs[i] for i in sorted(sides[0])], [jobs[i] for i in sorted(sides[1])]
 
 
