@@ -65,6 +65,42 @@ def clean_sim(truth):
 
 
 @pytest.fixture
+def far_type_ii_clamp():
+    """A search, ``(sim, robot) -> (leg 1-based, P (3,) mm, R (3, 3))``: a pose within
+    ``sim``'s limits where that leg's Type II clamp (direction + length), set there, allows no
+    pose (none in five searches of 200 rounds): where the mock operator, clamping at the
+    workspace's edge, found itself stuck. Such poses are rare (about one in a thousand within
+    ±90 mm and ±50° of home)."""
+    from scipy.spatial.transform import Rotation
+
+    from hexcal.model.workspace import NoFeasiblePose
+
+    def allows_none(sim, k, point) -> bool:
+        for seed in range(5):
+            try:
+                sim.type_ii(k, (1,), np.random.default_rng(seed), point=point)
+                return False
+            except NoFeasiblePose:
+                pass
+        return True
+
+    def search(sim, robot):
+        rng = np.random.default_rng(0)
+        home = np.asarray(robot.home.position, float)
+        for _ in range(50_000):
+            P = home + rng.uniform(-90, 90, 3)
+            R = Rotation.from_rotvec(rng.uniform(-0.9, 0.9, 3)).as_matrix()
+            if not sim.feasible(P, R):
+                continue
+            for k in range(6):
+                if allows_none(sim, k, P + R @ robot.b[k]):
+                    return k + 1, P, R
+        raise AssertionError("no pose within the limits where a Type II clamp allows none")
+
+    return search
+
+
+@pytest.fixture
 def rng():
     return np.random.default_rng(12345)
 

@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.spatial.transform import Rotation
 
 from hexcal.app.demo import against_truth, hidden_robot
 from hexcal.estimate.calibrate import calibrate
@@ -15,13 +16,27 @@ from hexcal.mock_hw.instant import InstantAcquisition
 from hexcal.mock_hw.motion import MockMotionController
 from hexcal.mock_hw.robot import MockRobot
 from hexcal.procedure.guided import GuidedError, GuidedSession
+from hexcal.procedure.recording import MotionError, reclamped_at_home
 from hexcal.procedure.session import Session, SessionFile, load_session
 from hexcal.procedure.steps import load_procedure
+from hexcal.vocabulary import Constraint
 
 
-def _setup(tmp_path, seed=3, n=6, free=12, procedure="model42-direction-length", effects=True):
+def _setup(
+    tmp_path,
+    seed=3,
+    n=6,
+    free=12,
+    procedure="model42-direction-length",
+    effects=True,
+    truth=None,
+):
+    """A guided session on the mock rig; ``truth``: the robot the mock is, instead of the
+    hidden robot of ``seed``."""
     hr = hidden_robot(seed, "gain")
-    robot = MockRobot(hr.truth, effects=[hr.hook] if effects else [], seed=seed)
+    robot = MockRobot(
+        hr.truth if truth is None else truth, effects=[hr.hook] if effects else [], seed=seed
+    )
     proc = load_procedure(procedure)
     steps = [
         s if s.at_home else replace(s, n_poses=free if s.leg == 0 else n) for s in proc.expand()
@@ -305,3 +320,41 @@ def test_home_moves_the_unclamped_platform_home_and_refuses_while_clamped(tmp_pa
     g.clamp()
     with pytest.raises(GuidedError, match="release it first"):
         g.home()
+
+
+def test_a_fresh_clamp_that_allows_no_pose_is_set_again_at_home(
+    tmp_path, truth, far_type_ii_clamp, monkeypatch
+):
+    """The mock operator clamped a leg with the platform far out, where its Type II clamp
+    allows no pose within the limits: the move releases it, goes home, clamps there and moves,
+    and the step records as any other. Once a pose is recorded, a move that finds none is
+    refused as it was: the recorded poses fix where the clamp is."""
+    g, _, robot, mover = _setup(tmp_path, truth=truth, effects=False)
+    leg, P, R = far_type_ii_clamp(mover.sim, robot.truth)
+    while not (g.step.leg == leg and g.step.constraint == Constraint.DIRECTION_LENGTH):
+        _run_step(g)
+    mover.move_to(P, R)
+    g.clamp()
+    far_point = mover.clamp_state.point.copy()
+    assert g.move() == reclamped_at_home(g.step)
+    home = robot.truth.home
+    home_point = np.asarray(home.position) + (
+        Rotation.from_quat(home.quaternion, scalar_first=True).as_matrix() @ robot.truth.b[leg - 1]
+    )
+    assert g.clamped and np.allclose(mover.clamp_state.point, home_point, atol=1e-9)
+    assert np.linalg.norm(far_point - home_point) > 10
+    ok, msg = g.record()
+    assert ok, msg
+
+    def stuck():
+        raise MotionError("no pose")
+
+    monkeypatch.setattr(mover, "next_pose", stuck)
+    with pytest.raises(MotionError):
+        g.move()
+    monkeypatch.undo()
+    while g.n_poses < g.step.n_poses:
+        g.move()
+        ok, msg = g.record()
+        assert ok, msg
+    assert g.finish_step().ok

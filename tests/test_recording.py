@@ -20,6 +20,7 @@ from hexcal.procedure.recording import (
     RunSettings,
     Step,
     StepRecorder,
+    reclamped_at_home,
     record_procedure,
     standard_procedure,
     still_window_noise,
@@ -197,3 +198,43 @@ def test_scripted_session_through_the_drivers_calibrates_to_the_truth(design):
     assert d2 < stats.chi2.ppf(0.999, 42), (d2, np.abs(err / ref.sigma).max())
     # and the error is far below the build tolerance the linear methods started from
     assert np.abs(err).max() < 0.1
+
+
+def test_a_fresh_clamp_that_allows_no_pose_is_set_again_at_home(truth, far_type_ii_clamp):
+    """A scripted run whose leg was clamped with the platform far out, where its Type II clamp
+    allows no pose within the limits: the clamp is released, the platform goes home, the leg
+    is clamped there and the step is recorded and accepted, as the text UI's operator does."""
+    from hexcal.mock_hw.instant import InstantAcquisition
+
+    robot = MockRobot(truth, seed=5)
+    mover = MockMotionController(robot, seed=5)
+    leg, P, R = far_type_ii_clamp(mover.sim, truth)
+    step = Step(leg, "direction+length", 5)
+
+    def clamp_far_out(step, attempt):
+        mover.release()
+        mover.move_to(P, R)
+        mover.clamp(step.leg, step.constraint)
+
+    events: list[str] = []
+    session = record_procedure(
+        InstantAcquisition(robot, window()),
+        mover,
+        [step],
+        float(np.linalg.norm(truth.b, axis=1).max()),
+        RunSettings(settle_s=0.0),
+        on_event=events.append,
+        on_clamp=clamp_far_out,
+    )
+    assert reclamped_at_home(step) in events
+    assert len(session.accepted) == 5 and not session.rejected
+    P_home = np.asarray(truth.home.position)
+    R_home = Rotation.from_quat(truth.home.quaternion, scalar_first=True).as_matrix()
+    point = (
+        session.accepted[0].pose.position
+        + Rotation.from_quat(session.accepted[0].pose.quaternion, scalar_first=True).as_matrix()
+        @ truth.b[leg - 1]
+    )
+    # the clamped point is where it was at home (within the tracker's noise), not far out
+    assert np.linalg.norm(point - (P_home + R_home @ truth.b[leg - 1])) < 0.5
+    assert np.linalg.norm(point - (P + R @ truth.b[leg - 1])) > 10

@@ -46,6 +46,7 @@ from hexcal.procedure import patterns
 from hexcal.procedure.recording import (
     BusStatus,
     ClampSlipped,
+    MotionError,
     Mover,
     NoiseLevels,
     Recorder,
@@ -53,6 +54,7 @@ from hexcal.procedure.recording import (
     StepCheck,
     StepRecorder,
     per_pose_noise,
+    reclamped_at_home,
 )
 from hexcal.procedure.session import PoseRecord, SessionFile, StepProgress
 from hexcal.vocabulary import Constraint
@@ -73,6 +75,10 @@ _HINT_DOFS = {
 NBP_MIN_POSES = 4
 #: How far an operator can typically vary each: deg for rotations, mm for translations.
 _HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
+
+
+#: What :meth:`GuidedSession.move` says of a plain move to the next pose.
+MOVED_ON = "moved to the next pose"
 
 
 class GuidedError(HexcalError):
@@ -314,13 +320,17 @@ class GuidedSession:
         if not st.leg:
             raise GuidedError(f"{st.name} clamps no leg")
         if not self.clamped:
-            if self.mover is not None:
-                self.mover.clamp(st.leg, st.constraint)
-            self.clamped = True
-            _, legs = self._latest()
-            if legs is not None and np.isfinite(legs.readings[st.leg - 1]):
-                self._clamp_reading = float(legs.readings[st.leg - 1])
+            self._set_clamp()
         return self._say(f"leg {st.leg} clamped ({st.constraint})")
+
+    def _set_clamp(self) -> None:
+        st = self.step
+        if self.mover is not None:
+            self.mover.clamp(st.leg, st.constraint)
+        self.clamped = True
+        _, legs = self._latest()
+        if legs is not None and np.isfinite(legs.readings[st.leg - 1]):
+            self._clamp_reading = float(legs.readings[st.leg - 1])
 
     def home(self) -> str:
         """Move the platform home before a leg is clamped (motion controller only): where a leg
@@ -341,7 +351,9 @@ class GuidedSession:
         self._clamp_reading = None
 
     def move(self) -> str:
-        """Move the platform to the step's next pose (motion controller only)."""
+        """Move the platform to the step's next pose (motion controller only). Where the step's
+        clamp, fresh, allows no pose, the leg is clamped again at home first
+        (:func:`~hexcal.procedure.recording.reclamped_at_home`)."""
         self._refuse("move")
         mover, st = self.mover, self.step
         if mover is None:  # refused above: for the type checker
@@ -351,8 +363,17 @@ class GuidedSession:
             return "moved home"
         if st.pattern:
             return patterns.move_to(mover, self.pattern_target())
-        mover.next_pose()
-        return "moved to the next pose"
+        try:
+            mover.next_pose()
+        except MotionError:
+            if not (self.clamped and self.n_poses == 0):
+                raise
+            self.release()
+            mover.home()
+            self._set_clamp()
+            mover.next_pose()
+            return self._say(reclamped_at_home(st))
+        return MOVED_ON
 
     def pattern_target(self) -> patterns.Target:
         """Where a pattern step's next pose is taken (:mod:`hexcal.procedure.patterns`)."""

@@ -298,6 +298,20 @@ class MotionError(DeviceError):
     why. Raised by any controller — the mock's (:mod:`hexcal.mock_hw.motion`) or a real one."""
 
 
+def reclamped_at_home(step: Step) -> str:
+    """What is said where a step's fresh clamp allowed no pose and the leg was clamped again
+    at home. Clamped where the last pose left the platform, at the workspace's edge, a clamp
+    may allow no pose within the joint limits and the legs' stroke (the mover's ``next_pose``
+    raises :class:`MotionError`); as an operator would, the clamp is released, the platform
+    goes home and the leg is clamped there. Only before the step's first pose: once one is
+    recorded, it fixes where the clamp is. :func:`record_procedure` and
+    :meth:`~hexcal.procedure.guided.GuidedSession.move` both do so."""
+    return (
+        f"{step.name}: leg {step.leg}'s clamp allowed no pose within the limits where it was "
+        "set: released, moved home and clamped again"
+    )
+
+
 class BusStatus(Protocol):
     """A leg-encoder driver that reports its bus: ``status()`` holds at least ``bus_state``,
     ``sets`` and ``incomplete_sets`` (see :meth:`hexcal.drivers.can_encoders.LegEncoders.status`)."""
@@ -396,7 +410,16 @@ def _record_step(
             t = patterns.target(rec.step.pattern, design, len(rec.poses), rec.step.cycles)
             patterns.move_to(mover, t)
         else:
-            mover.next_pose()
+            try:
+                mover.next_pose()
+            except MotionError:
+                if rec.poses or not rec.step.leg:
+                    raise
+                mover.release()
+                mover.home()
+                mover.clamp(rec.step.leg, rec.step.constraint)
+                on_event(reclamped_at_home(rec.step))
+                mover.next_pose()
         time.sleep(settings.settle_s)
         for _ in range(settings.retries + 1):
             try:

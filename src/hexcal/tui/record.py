@@ -21,7 +21,7 @@ from textual.content import Content
 from textual.widgets import Header, ProgressBar, RichLog, Static
 
 from hexcal.estimate.nbp import Suggestion, motion_text
-from hexcal.procedure.guided import GuidedError, GuidedSession, Live
+from hexcal.procedure.guided import MOVED_ON, GuidedError, GuidedSession, Live
 from hexcal.procedure.recording import MotionError
 from hexcal.tui.prompt import TextPrompt
 from hexcal.tui.screen import Foot, HexcalScreen
@@ -451,7 +451,8 @@ class RecordScreen(HexcalScreen):
         self._auto_worker(all_steps)
 
     def _auto_move(self, g: GuidedSession) -> None:
-        """The mock operator follows the next best pose once there is one, else moves at random."""
+        """The mock operator follows the next best pose once there is one, else moves at random
+        (re-clamping at home where a fresh clamp allows no pose: :meth:`GuidedSession.move`)."""
         s = g.suggestion(self.hexcal.backend.design) if g.clamped else None
         if s is not None:
             try:
@@ -459,18 +460,8 @@ class RecordScreen(HexcalScreen):
                 return
             except MotionError:
                 pass
-        try:
-            g.move()
-        except MotionError:
-            if not (g.clamped and g.n_poses == 0):
-                raise
-            # Clamped where the last suggested pose left the platform, at the workspace's edge,
-            # the clamp allows no pose within the limits: as an operator would, release it,
-            # go home and clamp there (no pose of the step was recorded at the first clamp).
-            g.release()
-            self.hexcal.post(self.log_line, g.home())
-            self.hexcal.post(self.log_line, g.clamp())
-            g.move()
+        if (said := g.move()) != MOVED_ON:  # a re-clamp at home, worth the operator's eye
+            self.hexcal.post(self.log_line, said, "yellow")
 
     @work(thread=True, exclusive=True, group="record")
     def _auto_worker(self, all_steps: bool) -> None:
