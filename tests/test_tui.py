@@ -27,7 +27,7 @@ from hexcal.tui.app import HexcalApp
 from hexcal.tui.backend import InstantBackend, mock_backend
 from hexcal.tui.keys import KeyBar
 from hexcal.tui.record import RecordScreen
-from hexcal.tui.results import DiagnosisScreen, ResultScreen
+from hexcal.tui.results import PLOT_MIN_ROWS, DiagnosisScreen, ResultScreen
 
 SIZE = (130, 42)
 
@@ -235,7 +235,8 @@ def _text(widget) -> str:
 
 
 def _assert_fits(pilot) -> None:
-    """Every key the state allows is in the key bar, and no row of live numbers is cut."""
+    """Every key the state allows is in the key bar, no row of live numbers is cut, and the
+    diagnosis chart is seen whole where the summary leaves it room."""
     screen = pilot.app.screen
     bar = _text(screen.query_one(KeyBar))
     allowed = [k for k in screen.query_one(KeyBar).keys() if k.allowed]
@@ -245,6 +246,14 @@ def _assert_fits(pilot) -> None:
         rows = [line for line in _text(live).split("\n") if line.startswith(("pos", "rot", "legs"))]
         numbers = [r for r in rows if not r.startswith("legs  ")]  # the bus status line is cut
         assert len(numbers) == 4 and all(len(r) <= live.content_size.width for r in numbers), rows
+    if isinstance(screen, DiagnosisScreen):
+        view = screen.query_one("#diag-scroll").scrollable_content_region
+        # The chart whole, leg labels included (not under a scrollbar), wherever the summary
+        # leaves it its least rows.
+        summary = screen.query_one("#diag-summary").outer_size.height
+        if summary + PLOT_MIN_ROWS <= view.height:
+            plot = screen.query_one("#diag-plot").region
+            assert view.contains_region(plot), (view, plot)
 
 
 def test_snapshot_start(snap_compare, in_tmp):

@@ -237,3 +237,39 @@ def test_a_table_that_fits_and_prose_are_left_as_they_are_or_wrapped_between_wor
     out = reflow(prose.strip(), 40).split("\n")
     assert max(len(x) for x in out) <= 40
     assert " ".join(x.strip() for x in out) == prose.strip()  # broken between words only
+
+
+CANDIDATES = "\n".join(
+    [
+        "  effect        score Δχ²      ΔBIC  explains  held-out after  identifiable",
+        "  balljoint          14.7      27.4         —        11.39 µm  yes",
+        "  drift               0.0         —         —               —  n/a: the poses span 15 s:"
+        " too short a time to show a drift",
+        "  zero_step           0.0         —         —               —  n/a: no change of a leg's"
+        " zero was located (hexcal diagnose searches each leg's residual in recording order;"
+        " robot.json zero_steps states one)",
+    ]
+)
+
+
+@pytest.mark.parametrize("width", [60, 76])
+def test_a_last_column_of_prose_is_wrapped_in_a_block_of_its_own(width):
+    """The diagnosis's candidates: the reason a score is n/a, longer than the box, goes to a
+    block led by the effect and is wrapped there; every word and number is kept, in order."""
+    out = fit_table(CANDIDATES.split("\n"), width)
+    assert max(len(x) for x in out) <= width
+    assert _cells("\n".join(out)) == _cells(CANDIDATES)
+    numbers, reasons = "\n".join(out).split("\n\n")
+    assert "identifiable" not in numbers and "11.39 µm" in numbers
+    lines = reasons.split("\n")
+    assert lines[0].split() == ["effect", "identifiable"]
+    assert lines[1].split() == ["balljoint", "yes"]
+    zero = lines[lines.index(next(x for x in lines if x.lstrip().startswith("zero_step"))) :]
+    assert len(zero) > 1 and all(x.startswith(" " * 13) for x in zero[1:])  # under its cell
+    said = " ".join(" ".join(x.split()) for x in zero)
+    assert said.endswith("robot.json zero_steps states one)") and said.startswith("zero_step n/a:")
+
+
+def test_a_last_column_of_numbers_is_never_wrapped():
+    rows = ["  leg   a      b", "    1   2.5   " + "3" * 90, "    2   3.5   4"]
+    assert fit_table(rows, 40) == rows  # one column wider than the box: left whole

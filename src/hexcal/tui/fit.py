@@ -90,10 +90,44 @@ def _families(rows: list[str], cells: list[tuple[int, int]]) -> list[int]:
     return out
 
 
+#: The narrowest a wrapped last column may be (characters): below it, the table is left whole.
+TAIL_MIN = 20
+
+
+def _prose_tail(padded: list[str], cell: tuple[int, int], room: int) -> bool:
+    """Whether the last column ``cell`` is prose too wide for the ``room`` beside the first
+    column (a reason, a note), which may be wrapped there: never a column of numbers."""
+    s, e = cell
+    values = [r[s:e].strip() for r in padded[1:] if r[s:e].strip()]
+    return (
+        e - s > room >= TAIL_MIN
+        and any(" " in v for v in values)
+        and not all(_number(v) for v in values)
+    )
+
+
+def _wrapped_tail(padded: list[str], lead: int, cell: tuple[int, int], width: int) -> list[str]:
+    """The last column's block: each row's text wrapped at ``width``, its first line after the
+    row's first column, the others under it."""
+    s, e = cell
+    out: list[str] = []
+    for k, r in enumerate(padded):
+        text = r[s:e].strip()
+        if k and not text:
+            continue
+        parts = textwrap.wrap(
+            text, width - lead, break_long_words=False, break_on_hyphens=False
+        ) or [""]
+        out.append((r[: lead - 2] + "  " + parts[0]).rstrip())
+        out += [" " * lead + part for part in parts[1:]]
+    return out
+
+
 def fit_table(rows: list[str], width: int) -> list[str]:
     """``rows`` (a table, its header first) as blocks of columns at most ``width`` wide, each
     led by the first column, a family of columns (a point's x, y, z) kept in one block where it
-    fits in one; the table as it is when it fits, or when a column alone does not."""
+    fits in one; a last column of prose too wide for one (a reason) wrapped in a block of its
+    own; the table as it is when it fits, or when another column alone does not."""
     if max(len(r) for r in rows) <= width:
         return rows
     spans = _columns(rows)
@@ -102,6 +136,7 @@ def fit_table(rows: list[str], width: int) -> list[str]:
     lead_end = spans[0][1] + 2  # the first column and a gap of two spaces
     padded = [r.ljust(spans[-1][1]) for r in rows]
     cells = spans[1:]
+    tail = cells.pop() if _prose_tail(padded, cells[-1], width - lead_end) else None
     families = _families(padded, cells)
     groups: list[list[tuple[int, int]]] = []
     group: list[tuple[int, int]] = []
@@ -140,6 +175,8 @@ def fit_table(rows: list[str], width: int) -> list[str]:
                 line += ("" if prev is None else r[prev:s]) + r[s:e]
                 prev = e
             out.append(line.rstrip())
+    if tail is not None:
+        out += ["", *_wrapped_tail(padded, lead_end, tail, width)]
     return out
 
 

@@ -191,6 +191,10 @@ def export_text(screen: HexcalScreen) -> tuple[str, str]:
     return f"exported to {out}/: {', '.join(written)}", "green"
 
 
+#: The fewest rows of the diagnosis chart: title, frame, three rows of bars, axis, leg labels.
+PLOT_MIN_ROWS = 7
+
+
 class DiagnosisScreen(HexcalScreen):
     """Model against measurements, where it fails, the missing effect; add it, watch the error
     fall (see module docstring)."""
@@ -206,6 +210,7 @@ class DiagnosisScreen(HexcalScreen):
         super().__init__()
         self.history: list[Any] = []
         self.busy = False
+        self._plot_rows: int | None = None  # the chart's height set by _size_plot
 
     def compose(self):
         yield Header()
@@ -238,6 +243,23 @@ class DiagnosisScreen(HexcalScreen):
         self.query_one("#diag-text", Static).update(escape(reflow(self._details, width)))
         if self.history:
             self._plot()
+        self.call_after_refresh(self._size_plot)
+
+    def _size_plot(self) -> None:
+        """On a short, narrow screen (80×24) the chart takes the rows the summary leaves, at
+        least :data:`PLOT_MIN_ROWS`, so that both are seen whole, leg labels included, however
+        many models the summary lists; elsewhere the stylesheet's height."""
+        plot = self.query_one("#diag-plot", PlotextPlot)
+        height = None
+        if self.has_class("-narrow") and self.has_class("-short"):
+            view = self.query_one("#diag-scroll", VerticalScroll).scrollable_content_region
+            summary = self.query_one("#diag-summary", Static).outer_size.height
+            height = max(PLOT_MIN_ROWS, view.height - summary)
+        if height != self._plot_rows:
+            self._plot_rows = height
+            plot.styles.height = height
+            if self.history:
+                self.call_after_refresh(self._plot)  # its y range depends on its rows
 
     def why_not(self, action: str) -> str | None:
         if action != "add":
