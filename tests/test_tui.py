@@ -323,6 +323,23 @@ async def _diagnose_and_add(pilot) -> None:
     _assert_fits(pilot)
 
 
+@pytest.mark.parametrize("size", [SMALL, MEDIUM])
+def test_the_diagnosis_chart_compares_the_models_where_it_has_the_rows(tmp_path, size):
+    """The chart of held-out RMS per leg shows every model of the chain, named in its legend,
+    where it has rows for bars below the legend; at 80×24 it shows the latest model alone, its
+    bars over the chart's whole height (the summary above lists every model)."""
+
+    async def run() -> None:
+        app = instant_app(tmp_path / "session.json")
+        async with app.run_test(size=size) as pilot:
+            await _diagnose_and_add(pilot)
+            chart = pilot.app.screen.query_one("#diag-plot").plt.build()
+            assert "Model 42 + gain" in chart
+            assert ("Model 42 " in chart.replace("Model 42 +", "")) == (size == MEDIUM), chart
+
+    asyncio.run(run())
+
+
 def test_snapshot_diagnosis(snap_compare, in_tmp):
     assert snap_compare(
         instant_app(Path("session.json")), terminal_size=SMALL, run_before=_diagnose_and_add

@@ -353,25 +353,32 @@ class DiagnosisScreen(HexcalScreen):
         self.refresh_bindings()
 
     def _plot(self) -> None:
+        """Held-out RMS per leg of each model of the chain, the noise floor as a red line. The
+        legend sits in the top rows, which the y range leaves free of bars; where the chart
+        has too few rows for that (80×24, several models) it shows the latest model alone and
+        names it in its title (the summary above lists them all)."""
         plot = self.query_one("#diag-plot", PlotextPlot)
         plt = plot.plt
         plt.clear_figure()
-        legs = [f"leg {k}" for k in range(1, 7)]
-        rms = [(1000 * d.fit.cv_rms_per_leg).tolist() for d in self.history]
+        bar_rows = max(1, plot.size.height - 4)  # less the title, frame, axis and leg labels
+        shown = self.history
+        if bar_rows - (len(shown) + 1) < 2:
+            shown = shown[-1:]
+        legend = bar_rows - (len(shown) + 1) >= 2
+        rms = [(1000 * d.fit.cv_rms_per_leg).tolist() for d in shown]
         plt.multiple_bar(
-            legs,
+            [f"leg {k}" for k in range(1, 7)],
             rms,
             # plotext takes ``labels`` (one per series); textual-plotext's stub says ``label``.
-            labels=[d.fit.model_name for d in self.history],  # type: ignore[call-arg]
+            labels=[d.fit.model_name for d in shown] if legend else None,  # type: ignore[call-arg]
         )
         floor = 1000 * self.history[-1].noise_floor_mm
         plt.hline(floor, "red")
-        # The legend sits in the top left rows: the y range leaves them free of bars.
-        rows = max(4, plot.size.height - 5)
         top = max(floor, *(max(r) for r in rms))
-        free = len(self.history) + 1
-        plt.ylim(0, top * rows / max(1, rows - free))
-        plt.title(f"held-out RMS per leg, µm — red: noise floor {floor:.1f} µm")
+        free = len(shown) + 1 if legend else 0
+        plt.ylim(0, top * bar_rows / max(1, bar_rows - free))
+        what = "" if legend else f" of {shown[0].fit.model_name}"
+        plt.title(f"held-out RMS per leg{what}, µm — red: noise floor {floor:.1f} µm")
         plot.refresh()
 
     def action_add(self) -> None:
