@@ -1,67 +1,82 @@
-"""Sharing figures between this process and a forked copy: the split by cost, the order of the
-paths, the progress callback, and a failed copy's figures drawn here."""
+"""Drawing figures in turns with a forked copy: the turns (costliest first, each figure once),
+the order of the paths, the progress callback, and the figures of a copy that failed or died
+drawn here."""
 
 from __future__ import annotations
 
 import multiprocessing
 import os
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
 import hexcal.diagnosis.figure_pool as figure_pool
-from hexcal.diagnosis.figure_pool import FigureJob, draw_all, share
+from hexcal.diagnosis.figure_pool import TAKEN_BY_COPY, TAKEN_HERE, FigureJob, _Turns, draw_all
 
 FORKS = (os.cpu_count() or 1) >= 2 and "fork" in multiprocessing.get_all_start_methods()
+needs_fork = pytest.mark.skipif(not FORKS, reason="figures are forked on two cores or more")
 
 
-def _writer(text: str):
+def _writer(text: str, log: Path | None = None, pause_s: float = 0.0):
+    """A figure that writes ``text``, after ``pause_s``, and appends its drawer's pid to
+    ``log`` (one short append: atomic between the two processes)."""
+
     def draw(path: Path) -> None:
+        time.sleep(pause_s)
         path.write_text(text)
+        if log is not None:
+            with open(log, "a") as fh:
+                fh.write(f"{path.name} {os.getpid()}\n")
 
     return draw
 
 
-def test_share_balances_the_weights_and_keeps_the_order():
-    jobs = [FigureJob(Path(f"{i}.png"), _writer(""), w) for i, w in enumerate([3, 1, 1, 1, 2, 2])]
-    own, forked = share(jobs)
-    assert sorted(own + forked, key=jobs.index) == jobs  # each job once
-    assert sum(j.weight for j in own) == sum(j.weight for j in forked) == 5
-    for side in (own, forked):
-        assert side == sorted(side, key=jobs.index)
-
-
-def test_share_of_one_heavy_job_against_many_light_ones():
-    jobs = [FigureJob(Path("heavy.png"), _writer(""), 4.0)]
-    jobs += [FigureJob(Path(f"{i}.png"), _writer(""), 1.0) for i in range(4)]
-    own, forked = share(jobs)
-    assert {len(own), len(forked)} == {1, 4}
+@needs_fork
+def test_the_turns_give_each_figure_once_in_the_order_given_and_mark_who_took_it():
+    turns = _Turns([2, 0, 1])
+    assert turns.take(TAKEN_HERE) == 2 and turns.state[2] == TAKEN_HERE
+    assert turns.take(TAKEN_BY_COPY) == 0 and turns.state[0] == TAKEN_BY_COPY
+    assert turns.take(TAKEN_HERE) == 1
+    assert turns.take(TAKEN_HERE) is None and turns.take(TAKEN_BY_COPY) is None
 
 
 @pytest.mark.parametrize("fork", [True, False])
-def test_every_figure_is_written_and_reported_in_order(tmp_path, monkeypatch, fork):
+def test_every_figure_is_written_once_and_reported_once(tmp_path, monkeypatch, fork):
+    """With the copy, the two processes share the figures (both draw some) and no figure is
+    drawn twice; without it, this process draws them all in the jobs' order."""
     if fork and not FORKS:
         pytest.skip("figures are forked only on two cores or more, where processes fork")
     monkeypatch.setattr(threading, "active_count", lambda: 1)  # other tests' threads
     if not fork:
-        monkeypatch.setattr(figure_pool, "_fork", lambda jobs: None)
-    jobs = [FigureJob(tmp_path / f"{i}.txt", _writer(f"figure {i}"), 1 + i % 3) for i in range(7)]
+        monkeypatch.setattr(figure_pool, "_fork", lambda draw: None)
+    log = tmp_path / "drawn.log"
+    jobs = [
+        FigureJob(tmp_path / f"{i}.txt", _writer(f"figure {i}", log, 0.05), 1 + i % 3)
+        for i in range(8)
+    ]
     done: list[Path] = []
     paths = draw_all(jobs, done.append)
     assert paths == [j.path for j in jobs]
-    assert sorted(done) == sorted(paths)  # each once, the fork's when it has ended
-    assert [p.read_text() for p in paths] == [f"figure {i}" for i in range(7)]
+    assert sorted(done) == sorted(paths)  # each once
+    assert [p.read_text() for p in paths] == [f"figure {i}" for i in range(8)]
+    drawn = [line.split() for line in log.read_text().splitlines()]
+    assert sorted(name for name, _ in drawn) == sorted(p.name for p in paths)  # none twice
+    drawers = {pid for _, pid in drawn}
+    assert len(drawers) == (2 if fork else 1)
+    if not fork:
+        assert [name for name, _ in drawn] == [p.name for p in paths]
 
 
 def test_no_fork_while_other_threads_run(monkeypatch):
     monkeypatch.setattr(threading, "active_count", lambda: 2)
-    assert figure_pool._fork([FigureJob(Path("x.png"), _writer(""))]) is None
+    assert figure_pool._fork(lambda: None) is None
 
 
-@pytest.mark.skipif(not FORKS, reason="needs a fork")
-def test_a_failed_copy_leaves_its_figures_here(tmp_path, monkeypatch):
-    def failing(jobs):
+@needs_fork
+def test_a_copy_that_fails_at_once_leaves_every_figure_here(tmp_path, monkeypatch):
+    def failing(draw):
         proc = multiprocessing.get_context("fork").Process(target=lambda: os._exit(3))
         proc.start()
         return proc
@@ -69,3 +84,31 @@ def test_a_failed_copy_leaves_its_figures_here(tmp_path, monkeypatch):
     monkeypatch.setattr(figure_pool, "_fork", failing)
     jobs = [FigureJob(tmp_path / f"{i}.txt", _writer(str(i))) for i in range(4)]
     assert [p.read_text() for p in draw_all(jobs)] == ["0", "1", "2", "3"]
+
+
+@needs_fork
+def test_a_figure_the_copy_took_but_did_not_finish_is_drawn_here(tmp_path, monkeypatch):
+    """The copy takes the first turn (the costliest figure) and dies before drawing it: this
+    process draws it once the copy has ended, and reports it once."""
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    taken = multiprocessing.get_context("fork").Event()
+
+    real_take = _Turns.take
+
+    def dying(jobs, turns, who):
+        real_take(turns, who)
+        taken.set()
+        os._exit(3)
+
+    monkeypatch.setattr(figure_pool, "_draw_turns", dying)
+
+    def take_after_the_copy(self, who):  # this process waits for the copy's first turn
+        assert taken.wait(10)
+        return real_take(self, who)
+
+    monkeypatch.setattr(_Turns, "take", take_after_the_copy)
+    jobs = [FigureJob(tmp_path / f"{i}.txt", _writer(str(i)), w) for i, w in enumerate([1, 5, 2])]
+    done: list[Path] = []
+    paths = draw_all(jobs, done.append)
+    assert [p.read_text() for p in paths] == ["0", "1", "2"]
+    assert sorted(done) == sorted(paths)

@@ -712,8 +712,9 @@ def plot_names(diag: Diagnosis, only: Iterable[str] | None = None) -> list[str]:
     ]
 
 
-#: Drawing cost of a plot against a six-panel scatter (1, 0.25 s), to share them between
-#: processes (measured on a two-step report).
+#: Drawing cost of a plot against a six-panel scatter (1, about 0.2 s), measured on a two-step
+#: report: the costliest are drawn first, so that the two processes drawing them in turns end
+#: on a cheap one (:mod:`~hexcal.diagnosis.figure_pool`). Only the order depends on them.
 _WEIGHTS = {
     "residuals_vs_motion.png": 1.25,
     "residuals_vs_time.png": 0.5,

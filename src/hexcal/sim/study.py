@@ -539,7 +539,8 @@ def write_plots(result: StudyResult, outdir: str | Path) -> list[Path]:
         FigureJob(outdir / f"study_{s}.png", partial(_plot_set, result, pose_set=s), 0.8)
         for s, _, _ in _panels(result.config)
     ]
-    # The efficiency figure's ten panels cost about as much as the three others together.
+    # The efficiency figure's ten panels cost about as much as the three others together: it
+    # is taken first.
     jobs.append(
         FigureJob(
             outdir / "study_efficiency.png",
