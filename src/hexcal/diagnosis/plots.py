@@ -716,18 +716,13 @@ def plot_names(diag: Diagnosis, only: Iterable[str] | None = None) -> list[str]:
 #: report: the costliest are drawn first, so that the two processes drawing them in turns end
 #: on a cheap one (:mod:`~hexcal.diagnosis.figure_pool`). Only the order depends on them.
 _WEIGHTS = {
+    "periodogram.png": 1.6,  # its spectra and log axes
     "residuals_vs_motion.png": 1.25,
     "residuals_vs_time.png": 0.5,
     "residuals_vs_pose.png": 0.85,
     "per_leg_rms.png": 0.35,
     "predicted_vs_measured.png": 0.65,
 }
-
-
-def _weight(name: str) -> float:
-    if name == "periodogram.png":
-        return 1.6  # its spectra and log axes
-    return _WEIGHTS.get(name, 1.0)
 
 
 def plot_jobs(
@@ -745,7 +740,7 @@ def plot_jobs(
             with figure_style():
                 return _PLOTS[name](view, path.parent, path.name)
 
-        return FigureJob(outdir / (prefix + name), draw, _weight(name))
+        return FigureJob(outdir / (prefix + name), draw, _WEIGHTS.get(name, 1.0))
 
     return [job(name) for name in names]
 

@@ -369,7 +369,7 @@ class GuidedSession:
             if not (self.clamped and self.n_poses == 0):
                 raise
             self.release()
-            mover.home()
+            self.home()
             self._set_clamp()
             mover.next_pose()
             return self._say(reclamped_at_home(st))
