@@ -146,6 +146,58 @@ def test_the_positioning_figures_follow_the_formulas():
     assert fig.accuracy_mm == pytest.approx(hi - lo)
 
 
+#: A real axis through ISO 230-2's linear test cycle, as the Paul Scherrer Institute's ecmc
+#: motion-test report gives it (github.com/paulscherrerinstitute/ecmccfg,
+#: examples/test/fat_sat/report.md, 2023-12-08): five targets (mm), five cycles, the
+#: reference encoder's positions approached from below (forward) and from above (backward).
+ECMC_TARGETS = [-10.0, -4.88, 0.24, 5.36, 10.48]
+ECMC_FORWARD = [
+    [-10.00008102, -10.00010202, -10.00008702, -10.00009202, -10.00010002],
+    [-4.88008702, -4.88009702, -4.88009702, -4.88009502, -4.88008202],
+    [0.23992798, 0.23990998, 0.23991198, 0.23991298, 0.23991298],
+    [5.35989798, 5.35991398, 5.35991398, 5.35990698, 5.35992198],
+    [10.47989998, 10.47988798, 10.47987098, 10.47989098, 10.47990298],
+]
+ECMC_BACKWARD = [
+    [-10.00009902, -10.00009402, -10.00008202, -10.00009102, -10.00009402],
+    [-4.88010302, -4.88010402, -4.88009502, -4.88011102, -4.88009302],
+    [0.23991398, 0.23989798, 0.23990898, 0.23992398, 0.23990098],
+    [5.35992798, 5.35990798, 5.35990498, 5.35989698, 5.35991898],
+    [10.47989598, 10.47987398, 10.47986998, 10.47985898, 10.47989298],
+]
+
+
+def test_the_positioning_figures_agree_with_a_peer_implementation_on_a_real_axis():
+    """ecmc's report on the axis above (its figures to the four digits it prints): the axis
+    as one leg, each target's reading its commanded position, the deviation the reference's
+    position less it. The cycle runs 1 → 5 then 5 → 1 with an overrun past each end, so that
+    every target is approached from its side. The figures both follow ISO 230-2 alike:
+    A↑, A↓, A, B = max |B_i|, the mean B̄, and R = max R_i (ecmc's per-target R(i) column:
+    its axis R prints max(R↑, R↓) instead, 6.29e-05 mm, which the standard does not define)."""
+    fwd, bwd = np.array(ECMC_FORWARD), np.array(ECMC_BACKWARD)
+    readings, dev = [-12.0], [0.0]  # the axis starts below the first target
+    for c in range(5):
+        for i in range(5):
+            readings.append(ECMC_TARGETS[i])
+            dev.append(fwd[i, c] - ECMC_TARGETS[i])
+        readings.append(12.0)  # the overrun: no target
+        dev.append(0.0)
+        for i in reversed(range(5)):
+            readings.append(ECMC_TARGETS[i])
+            dev.append(bwd[i, c] - ECMC_TARGETS[i])
+        readings.append(-12.0)
+        dev.append(0.0)
+    fig = leg_figures(1, np.array(readings), np.array(dev), 1e-6)
+    assert fig is not None and fig.targets == 5 and fig.approaches == 50
+    rel = 1e-3  # ecmc prints four significant digits
+    assert fig.accuracy_up_mm == pytest.approx(6.428e-05, rel=rel)
+    assert fig.accuracy_down_mm == pytest.approx(8.881e-05, rel=rel)
+    assert fig.accuracy_mm == pytest.approx(8.881e-05, rel=rel)
+    assert fig.reversal_mm == pytest.approx(1.22e-05, rel=rel)
+    assert fig.mean_reversal_mm == pytest.approx(5.4e-06, rel=rel)
+    assert fig.repeatability_mm == pytest.approx(6.882e-05, rel=rel)
+
+
 def test_the_reversal_value_matches_the_hidden_play_within_two_sigma():
     """Twelve robots hiding backlash, each leg through ISO 230-2's test cycle (simulated in
     joint space): −B̄ against the true play of each leg, in units of its stated σ. 95 % of the

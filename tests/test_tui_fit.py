@@ -273,3 +273,20 @@ def test_a_last_column_of_prose_is_wrapped_in_a_block_of_its_own(width):
 def test_a_last_column_of_numbers_is_never_wrapped():
     rows = ["  leg   a      b", "    1   2.5   " + "3" * 90, "    2   3.5   4"]
     assert fit_table(rows, 40) == rows  # one column wider than the box: left whole
+
+
+def test_a_path_longer_than_the_box_is_cut_after_a_separator():
+    """A session's path deeper than the screen is wide would make the details scroll
+    sideways: it is cut after a ``/`` (or ``\\``), nothing lost; prose is wrapped as before."""
+    path = "/home/lab/hexapod/calibrations/2026-11-27/left-hand/after-the-new-nut/session.json"
+    line = f"  the calibrated model: hexcal diagnose {path} --robot robot.json --auto"
+    out = reflow(line, 40).split("\n")
+    assert max(len(x) for x in out) <= 40
+    assert "".join(out).replace(" ", "") == line.replace(" ", "")  # nothing lost, in order
+    pieces = [x.strip() for x in out if "/" in x]
+    assert "".join(pieces) == path and len(pieces) >= 3
+    assert all(p.endswith("/") for p in pieces[:-1])  # cut after a separator only
+    win = "  at C:\\Users\\lab\\hexapod\\calibrations\\2026-11-27\\left-hand\\session.json"
+    assert max(len(x) for x in reflow(win, 30).split("\n")) <= 30
+    word = "x" * 50  # no separator to cut at: left whole rather than cut inside a word
+    assert "  " + word in reflow(f"a {word} b", 30).split("\n")

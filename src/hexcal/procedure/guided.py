@@ -46,13 +46,13 @@ from hexcal.procedure import patterns
 from hexcal.procedure.recording import (
     BusStatus,
     ClampSlipped,
-    MotionError,
     Mover,
     NoiseLevels,
     Recorder,
     Step,
     StepCheck,
     StepRecorder,
+    move_to_next_pose,
     per_pose_noise,
     reclamped_at_home,
 )
@@ -75,10 +75,6 @@ _HINT_DOFS = {
 NBP_MIN_POSES = 4
 #: How far an operator can typically vary each: deg for rotations, mm for translations.
 _HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
-
-
-#: What :meth:`GuidedSession.move` says of a plain move to the next pose.
-MOVED_ON = "moved to the next pose"
 
 
 class GuidedError(HexcalError):
@@ -351,29 +347,23 @@ class GuidedSession:
         self._clamp_reading = None
 
     def move(self) -> str:
-        """Move the platform to the step's next pose (motion controller only). Where the step's
+        """Move the platform to the step's next pose (motion controller only); where the step's
         clamp, fresh, allows no pose, the leg is clamped again at home first
-        (:func:`~hexcal.procedure.recording.reclamped_at_home`)."""
+        (:func:`~hexcal.procedure.recording.move_to_next_pose`)."""
         self._refuse("move")
         mover, st = self.mover, self.step
         if mover is None:  # refused above: for the type checker
             raise GuidedError("no motion controller")
-        if st.at_home:
-            mover.home()
-            return "moved home"
-        if st.pattern:
-            return patterns.move_to(mover, self.pattern_target())
-        try:
-            mover.next_pose()
-        except MotionError:
-            if not (self.clamped and self.n_poses == 0):
-                raise
+
+        def reclamp() -> None:
             self.release()
             self.home()
             self._set_clamp()
-            mover.next_pose()
-            return self._say(reclamped_at_home(st))
-        return MOVED_ON
+            self._say(reclamped_at_home(st))
+
+        return move_to_next_pose(
+            mover, st, self.n_poses, self.sf.session.robot, reclamp if self.clamped else None
+        )
 
     def pattern_target(self) -> patterns.Target:
         """Where a pattern step's next pose is taken (:mod:`hexcal.procedure.patterns`)."""

@@ -298,18 +298,57 @@ class MotionError(DeviceError):
     why. Raised by any controller — the mock's (:mod:`hexcal.mock_hw.motion`) or a real one."""
 
 
+#: What :func:`move_to_next_pose` says of a plain move to a step's next pose.
+MOVED_ON = "moved to the next pose"
+
+
 def reclamped_at_home(step: Step) -> str:
     """What is said where a step's fresh clamp allowed no pose and the leg was clamped again
-    at home. Clamped where the last pose left the platform, at the workspace's edge, a clamp
-    may allow no pose within the joint limits and the legs' stroke (the mover's ``next_pose``
-    raises :class:`MotionError`); as an operator would, the clamp is released, the platform
-    goes home and the leg is clamped there. Only before the step's first pose: once one is
-    recorded, it fixes where the clamp is. :func:`record_procedure` and
-    :meth:`~hexcal.procedure.guided.GuidedSession.move` both do so."""
+    at home (:func:`move_to_next_pose`)."""
     return (
         f"{step.name}: leg {step.leg}'s clamp allowed no pose within the limits where it was "
         "set: released, moved home and clamped again"
     )
+
+
+def move_to_next_pose(
+    mover: Mover,
+    step: Step,
+    n_recorded: int,
+    robot: Robot | None,
+    reclamp: Callable[[], None] | None,
+) -> str:
+    """Move the platform to ``step``'s next pose, ``n_recorded`` of its poses being recorded:
+    home for a step at home, the set target of a pattern step (computed from ``robot``), else
+    the mover's next pose under the clamp. Return the operator's sentence.
+
+    Clamped where the last pose left the platform, at the workspace's edge, a clamp may allow
+    no pose within the joint limits and the legs' stroke (the mover's ``next_pose`` raises
+    :class:`MotionError`). As an operator would, ``reclamp()`` then releases the clamp, moves
+    the platform home and clamps the leg there, and the move is tried once more
+    (:func:`reclamped_at_home` says so). Pass ``reclamp=None`` where that is not allowed:
+    once a pose is recorded, it fixes where the clamp is. :func:`record_procedure` and
+    :meth:`~hexcal.procedure.guided.GuidedSession.move` both move through this."""
+    if step.at_home:
+        mover.home()
+        return "moved home"
+    if step.pattern:
+        from hexcal.procedure import patterns
+
+        if robot is None:
+            raise ValueError(f"{step.name} visits targets computed from the robot: pass it")
+        return patterns.move_to(
+            mover, patterns.target(step.pattern, robot, n_recorded, step.cycles)
+        )
+    try:
+        mover.next_pose()
+    except MotionError:
+        if reclamp is None or n_recorded:
+            raise
+        reclamp()
+        mover.next_pose()
+        return reclamped_at_home(step)
+    return MOVED_ON
 
 
 class BusStatus(Protocol):
@@ -399,27 +438,16 @@ def _record_step(
     acq, mover, rec: StepRecorder, session, settings, on_event, tell, design=None
 ) -> str | None:
     """Record one step's poses; the reason the step must be repeated, or None."""
-    while not rec.done:
-        if rec.step.at_home:
-            mover.home()
-        elif rec.step.pattern:
-            from hexcal.procedure import patterns
+    step = rec.step
 
-            if design is None:
-                raise ValueError(f"{rec.step.name} visits targets computed from the robot: pass it")
-            t = patterns.target(rec.step.pattern, design, len(rec.poses), rec.step.cycles)
-            patterns.move_to(mover, t)
-        else:
-            try:
-                mover.next_pose()
-            except MotionError:
-                if rec.poses or not rec.step.leg:
-                    raise
-                mover.release()
-                mover.home()
-                mover.clamp(rec.step.leg, rec.step.constraint)
-                on_event(reclamped_at_home(rec.step))
-                mover.next_pose()
+    def reclamp() -> None:
+        mover.release()
+        mover.home()
+        mover.clamp(step.leg, step.constraint)
+        on_event(reclamped_at_home(step))
+
+    while not rec.done:
+        move_to_next_pose(mover, step, len(rec.poses), design, reclamp if step.leg else None)
         time.sleep(settings.settle_s)
         for _ in range(settings.retries + 1):
             try:

@@ -180,9 +180,24 @@ def fit_table(rows: list[str], width: int) -> list[str]:
     return out
 
 
+def _break_paths(line: str, width: int, indent: str) -> list[str]:
+    """A wrapped line still wider than ``width`` (a file path longer than the box) cut after a
+    path separator, each piece after the first indented as a continuation; a line with no
+    separator to cut at stays whole."""
+    pieces = []
+    while len(line) > width:
+        cut = max(line.rfind("/", 0, width), line.rfind("\\", 0, width))
+        if cut <= len(indent) + 2:  # no separator past the indent: nothing to cut at
+            break
+        pieces.append(line[: cut + 1])
+        line = indent + "  " + line[cut + 1 :]
+    return [*pieces, line]
+
+
 def reflow(text: str, width: int) -> str:
-    """``text`` at ``width`` columns: prose wrapped at spaces (never inside a number or a word),
-    tables stacked in blocks of columns (:func:`fit_table`)."""
+    """``text`` at ``width`` columns: prose wrapped at spaces (never inside a number or a word;
+    a file path longer than the box is cut after a ``/``), tables stacked in blocks of columns
+    (:func:`fit_table`)."""
     lines = text.split("\n")
     out: list[str] = []
     i = 0
@@ -200,13 +215,12 @@ def reflow(text: str, width: int) -> str:
             out.append(line)
             continue
         indent = line[: len(line) - len(line.lstrip())]
-        out.extend(
-            textwrap.wrap(
-                line,
-                max(20, width),
-                subsequent_indent=indent + "  ",
-                break_long_words=False,
-                break_on_hyphens=False,
-            )
-        )
+        for wrapped in textwrap.wrap(
+            line,
+            max(20, width),
+            subsequent_indent=indent + "  ",
+            break_long_words=False,
+            break_on_hyphens=False,
+        ):
+            out.extend(_break_paths(wrapped, max(20, width), indent))
     return "\n".join(out)

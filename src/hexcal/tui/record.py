@@ -21,8 +21,8 @@ from textual.content import Content
 from textual.widgets import Header, ProgressBar, RichLog, Static
 
 from hexcal.estimate.nbp import Suggestion, motion_text
-from hexcal.procedure.guided import MOVED_ON, GuidedError, GuidedSession, Live
-from hexcal.procedure.recording import MotionError
+from hexcal.procedure.guided import GuidedError, GuidedSession, Live
+from hexcal.procedure.recording import MOVED_ON, MotionError
 from hexcal.tui.prompt import TextPrompt
 from hexcal.tui.screen import Foot, HexcalScreen
 from hexcal.vocabulary import Constraint
