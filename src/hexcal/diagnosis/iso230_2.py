@@ -23,7 +23,10 @@ bidirectional repeatability R_i = max(2 s_i↑ + 2 s_i↓ + |B_i|, R_i↑, R_i�
 - **B** = max |B_i|, and the mean reversal value **B̄** = mean B_i (with its standard error
   σ_B̄ from the s_i: the play the drive has is −B̄ in hexcal's backlash convention);
 - **R** = max R_i;
-- **A** = max_i (x̄_i + 2 s_i) − min_i (x̄_i − 2 s_i), both directions; A↑ and A↓ for one.
+- **A** = max_i (x̄_i + 2 s_i) − min_i (x̄_i − 2 s_i), both directions; A↑ and A↓ for one;
+- **E**, the systematic positioning error, = max − min of the mean deviations x̄_i↑, x̄_i↓ of
+  both directions; E↑ and E↓ for one;
+- **M**, the mean bidirectional positioning error, = max − min of x̄_i = (x̄_i↑ + x̄_i↓)/2.
 """
 
 from __future__ import annotations
@@ -57,6 +60,10 @@ class LegPositioning:
     reversal_mm: float  #: B = max |B_i|
     mean_reversal_mm: float  #: B̄, signed
     mean_reversal_sigma_mm: float  #: σ of B̄
+    systematic_mm: float  #: E
+    systematic_up_mm: float  #: E↑
+    systematic_down_mm: float  #: E↓
+    mean_bidirectional_mm: float  #: M
 
     def to_dict(self) -> dict:
         return {
@@ -70,6 +77,10 @@ class LegPositioning:
             "B_mm": self.reversal_mm,
             "B_mean_mm": self.mean_reversal_mm,
             "B_mean_sigma_mm": self.mean_reversal_sigma_mm,
+            "E_mm": self.systematic_mm,
+            "E_up_mm": self.systematic_up_mm,
+            "E_down_mm": self.systematic_down_mm,
+            "M_mm": self.mean_bidirectional_mm,
         }
 
 
@@ -77,13 +88,14 @@ def table_lines(legs: list[LegPositioning]) -> list[str]:
     """The figures as a text table, one leg a row (µm)."""
     out = [
         "ISO 230-2 per leg (µm; deviation = tracker length − model length without backlash):",
-        "  leg  targets  approaches      A      R      B     B̄ ± σ",
+        "  leg  targets  approaches      A      R      B     B̄ ± σ" + " " * 12 + "E      M",
     ]
     for p in legs:
         out.append(
             f"  {p.leg:3d}  {p.targets:7d}  {p.approaches:10d}  {1000 * p.accuracy_mm:6.1f} "
             f"{1000 * p.repeatability_mm:6.1f} {1000 * p.reversal_mm:6.1f}  "
-            f"{1000 * p.mean_reversal_mm:+6.1f} ± {1000 * p.mean_reversal_sigma_mm:.1f}"
+            f"{1000 * p.mean_reversal_mm:+6.1f} ± {1000 * p.mean_reversal_sigma_mm:4.1f} "
+            f"{1000 * p.systematic_mm:6.1f} {1000 * p.mean_bidirectional_mm:6.1f}"
         )
     return out
 
@@ -165,6 +177,10 @@ def leg_figures(leg: int, readings: np.ndarray, dev: np.ndarray, deadband: float
         float(np.abs(b).max()),
         float(b.mean()),
         float(np.sqrt(np.sum(su**2 / nu + sd**2 / nd)) / len(b)),
+        float(max(mu.max(), md.max()) - min(mu.min(), md.min())),
+        float(np.ptp(mu)),
+        float(np.ptp(md)),
+        float(np.ptp((mu + md) / 2)),
     )
 
 

@@ -71,14 +71,16 @@ def metrology_section(m: Metrology) -> str:
             f'<td class="num">{p.approaches}</td><td class="num">{_um(p.accuracy_mm)}</td>'
             f'<td class="num">{_um(p.repeatability_mm)}</td><td class="num">{_um(p.reversal_mm)}</td>'
             f'<td class="num">{1000 * p.mean_reversal_mm:+.1f} ± '
-            f"{1000 * p.mean_reversal_sigma_mm:.1f}</td></tr>"
+            f'{1000 * p.mean_reversal_sigma_mm:.1f}</td><td class="num">{_um(p.systematic_mm)}</td>'
+            f'<td class="num">{_um(p.mean_bidirectional_mm)}</td></tr>'
             for p in m.iso230_2
         )
         parts.append(
             "<p class=\"muted\">Deviation: the leg's length from the tracker less the model's "
             "from its reading, backlash left out.</p>"
             "<table><tr><th>leg</th><th>targets</th><th>approaches</th><th>A µm</th>"
-            f"<th>R µm</th><th>B µm</th><th>B̄ ± σ µm</th></tr>{rows}</table>"
+            "<th>R µm</th><th>B µm</th><th>B̄ ± σ µm</th><th>E µm</th>"
+            f"<th>M µm</th></tr>{rows}</table>"
         )
     parts += [f'<p class="muted">{_e(n)}</p>' for n in m.notes]
     parts.append("</section>")
