@@ -44,6 +44,31 @@ def _sessions_in_tmp(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("HEXCAL_SESSIONS", str(tmp_path_factory.mktemp("sessions")))
 
 
+#: How long Textual's Pilot may wait, after each key, for this process to fall idle (s).
+PILOT_IDLE_S = 0.05
+
+
+@pytest.fixture
+def quick_pilot(monkeypatch):
+    """Textual's Pilot waits after each key until this process is idle (its CPU time no longer
+    advancing with the clock), for up to 1 s, twice a key. With the mock rig's drivers reading
+    the simulated devices on this process's threads it never falls idle, so every key cost 2 s.
+    These tests wait for what they need explicitly (the screen's messages, which ``press``
+    still awaits, the workers, the state they assert), so that heuristic wait is cut to
+    :data:`PILOT_IDLE_S`; a process that does fall idle ends it sooner, as before."""
+    import textual._wait
+    import textual.app
+    import textual.pilot
+
+    wait = textual._wait.wait_for_idle
+
+    async def quick(min_sleep: float = textual._wait.SLEEP_GRANULARITY, max_sleep: float = 1):
+        await wait(min(min_sleep, PILOT_IDLE_S), min(max_sleep, PILOT_IDLE_S))
+
+    monkeypatch.setattr(textual.app, "wait_for_idle", quick)
+    monkeypatch.setattr(textual.pilot, "wait_for_idle", quick)
+
+
 @pytest.fixture
 def design():
     return left_hand()

@@ -170,6 +170,44 @@ def test_conditioning_tightens_with_poses_and_hints_a_motion(tmp_path):
     assert c.hint.startswith("tilt the platform about ")
 
 
+def test_conditioning_counts_one_set_of_poses_while_a_pose_is_being_recorded(tmp_path):
+    """The text UI's screen asks for the conditioning while its recording worker appends a
+    pose from another thread: the positions, rotations and readings must come from one set of
+    poses. Here the list grows by a pose each time it is read, as a pose recorded mid-read makes
+    it: the figures are those of the poses there were when it was first read (a direction and
+    length step's rotations were read from one pose more than its positions; a length step's
+    sphere fit failed on the shapes)."""
+    g, *_ = _setup(tmp_path)
+    _run_step(g)  # home
+    for _ in range(2):  # leg 1, direction and length; then its length alone
+        g.clamp()
+        for _ in range(5):
+            g.move()
+            assert g.record()[0]
+        design_b = g.sf.session.robot.b
+        ref = g.conditioning(design_b)
+        recorded = g.recorder.poses
+        extra = recorded[-1]
+
+        class Growing(list):
+            def __iter__(self, _extra=extra):
+                out = iter(self[:])
+                self.append(_extra)
+                return out
+
+        g.recorder.poses = Growing(recorded)
+        c = g.conditioning(design_b)
+        assert np.isfinite(ref.sigma_a_mm) and ref.poses == 5
+        assert (c.poses, c.sigma_b_mm, c.sigma_a_mm, c.condition) == pytest.approx(
+            (ref.poses, ref.sigma_b_mm, ref.sigma_a_mm, ref.condition), rel=1e-12, nan_ok=True
+        )
+        g.recorder.poses = recorded
+        while g.n_poses < g.step.n_poses:
+            g.move()
+            assert g.record()[0]
+        assert g.finish_step().ok
+
+
 def test_resuming_on_a_restarted_motion_controller_restarts_a_clamped_step(tmp_path):
     g, hr, _, _ = _setup(tmp_path)
     _run_step(g)

@@ -70,7 +70,7 @@ def instant_app(path: Path, poses_per_step: int = 4, **kw) -> HexcalApp:
 
 # -- the whole guided session, through the drivers -------------------------------------------------
 @pytest.mark.slow
-def test_a_whole_guided_session_on_the_mock_rig(tmp_path):
+def test_a_whole_guided_session_on_the_mock_rig(tmp_path, quick_pilot):
     """Start a session, clamp and record every leg's steps and the free poses through the mock
     rig's drivers, calibrate, diagnose, add the named effect, export: the result matches the
     simulator's truth within its uncertainty, the diagnosis names the hidden effect, adding it

@@ -144,7 +144,7 @@ def test_no_number_is_cut_on_the_main_screens(tmp_path, size):
 
 
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
-def test_the_live_lines_keep_their_numbers_through_the_drivers(tmp_path, size):
+def test_the_live_lines_keep_their_numbers_through_the_drivers(tmp_path, size, quick_pilot):
     """On the mock rig through the real drivers: the title is the short one, whole; the bus
     line (state, sets, flagged) wraps under its label instead of being cut; the clamp monitor
     shows its numbers whole."""

@@ -18,6 +18,9 @@ from hexcal.tui.backend import mock_backend
 from hexcal.tui.record import RecordScreen
 from hexcal.tui.results import DiagnosisScreen, ResultScreen
 
+#: Keys pressed on the mock rig need not wait a second each for this process to idle.
+pytestmark = pytest.mark.usefixtures("quick_pilot")
+
 #: What differs between two recordings of the same poses: when things happened. ``t`` is a
 #: sample's or a pose's time (monotonic s, or s since the session started); ``at``,
 #: ``created``, ``recorded_at`` are dates.

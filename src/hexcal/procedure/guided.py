@@ -550,8 +550,14 @@ class GuidedSession:
             )
         )
 
-    def _noise(self) -> NoiseLevels:
-        poses = self.recorder.poses if self.recorder else []
+    def _poses(self) -> list[RecordedPose]:
+        """The current step's poses, one copy of the list: the text UI's recording worker
+        appends to it from its thread while the screen reads it, and whatever is computed from
+        them at once (positions, rotations, readings, noise) must count the same poses."""
+        return list(self.recorder.poses) if self.recorder else []
+
+    def _noise(self, poses: list[RecordedPose] | None = None) -> NoiseLevels:
+        poses = self._poses() if poses is None else poses
         if len(poses) >= 2:
             try:
                 n = per_pose_noise(poses)
@@ -561,12 +567,15 @@ class GuidedSession:
                 pass
         return DEFAULT_POSE_NOISE
 
-    def _arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The current step's poses: P (n, 3), R (n, 3, 3), the clamped leg's readings (n,)."""
+    def _arrays(
+        self, poses: list[RecordedPose] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current step's poses (``poses``, else :meth:`_poses`): P (n, 3), R (n, 3, 3),
+        the clamped leg's readings (n,)."""
         st = self.step
         if not st.leg:
             raise GuidedError(f"{st.name} clamps no leg: its poses make no leg's system")
-        poses = self._rec.poses
+        poses = self._poses() if poses is None else poses
         P = np.array([p.position for p in poses])
         R = Rotation.from_quat(np.array([p.quaternion for p in poses]), scalar_first=True)
         rho = np.array([p.readings[st.leg - 1] for p in poses])
@@ -593,12 +602,13 @@ class GuidedSession:
         previous direction+length step's result is not known here; the design is close enough
         for a prediction)."""
         st = self.step
-        n = self.n_poses
+        poses = self._poses()
+        n = len(poses)
         nan = float("nan")
         if not st.leg or n == 0:
-            return Conditioning(n, nan, nan, nan, self._hint())
-        P, R, rho = self._arrays()
-        noise = self._noise()
+            return Conditioning(n, nan, nan, nan, self._hint(poses))
+        P, R, rho = self._arrays(poses)
+        noise = self._noise(poses)
         sig_row = np.sqrt(
             noise.position_mm**2
             + (np.deg2rad(noise.orientation_deg) * self.platform_radius_mm) ** 2
@@ -620,23 +630,24 @@ class GuidedSession:
             sig_row = 2.0 * float(np.linalg.norm(w, axis=1).mean()) * sig_row
             groups = (None, slice(0, 3))
         if A.shape[0] < A.shape[1]:
-            return Conditioning(n, nan, nan, float("inf"), self._hint())
+            return Conditioning(n, nan, nan, float("inf"), self._hint(poses))
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
         s = np.linalg.svd(A / scale, compute_uv=False)
         cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
         if A.shape[0] == A.shape[1] or not np.isfinite(cond) or cond > 1e12:
-            return Conditioning(n, nan, nan, cond, self._hint())
+            return Conditioning(n, nan, nan, cond, self._hint(poses))
         cov = sig_row**2 * np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale)
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
         sb = nan if groups[0] is None else float(sd[groups[0]].max())
         sa = float(sd[groups[1]].max())
-        return Conditioning(n, sb, sa, cond, self._hint())
+        return Conditioning(n, sb, sa, cond, self._hint(poses))
 
-    def _hint(self) -> str:
-        """The motion the step's poses have varied least, relative to what an operator can."""
+    def _hint(self, poses: list[RecordedPose] | None = None) -> str:
+        """The motion the step's poses (``poses``, else :meth:`_poses`) have varied least,
+        relative to what an operator can."""
         st = self.step
-        poses = self.recorder.poses if self.recorder else []
+        poses = self._poses() if poses is None else poses
         if st.at_home:
             return "record the home pose"
         if st.pattern:
@@ -674,12 +685,13 @@ class GuidedSession:
 
     def _suggest(self, design: Robot, n_candidates: int) -> nbp.Suggestion | None:
         st = self.step
-        n = self.n_poses
+        poses = self._poses()
+        n = len(poses)
         if not st.leg or n < NBP_MIN_POSES:
             return None
         k = st.leg - 1
-        P, R, rho = self._arrays()
-        noise = self._noise()
+        P, R, rho = self._arrays(poses)
+        noise = self._noise(poses)
         sig = NoiseSigmas(noise.position_mm, np.deg2rad(noise.orientation_deg), noise.reading_mm)
         try:
             geo = nbp.estimate_geometry(st.constraint, k, P, R, rho, design)
