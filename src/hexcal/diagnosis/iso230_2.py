@@ -88,12 +88,13 @@ def table_lines(legs: list[LegPositioning]) -> list[str]:
     """The figures as a text table, one leg a row (µm)."""
     out = [
         "ISO 230-2 per leg (µm; deviation = tracker length − model length without backlash):",
-        "  leg  targets  approaches      A      R      B     B̄ ± σ" + " " * 12 + "E      M",
+        # 74 columns: with the report's indent, the text UI's 76 at 80×24.
+        "  leg targets approaches      A      R      B    B̄ ± σ" + " " * 12 + "E      M",
     ]
     for p in legs:
         out.append(
-            f"  {p.leg:3d}  {p.targets:7d}  {p.approaches:10d}  {1000 * p.accuracy_mm:6.1f} "
-            f"{1000 * p.repeatability_mm:6.1f} {1000 * p.reversal_mm:6.1f}  "
+            f"  {p.leg:3d} {p.targets:7d} {p.approaches:10d}  {1000 * p.accuracy_mm:6.1f} "
+            f"{1000 * p.repeatability_mm:6.1f} {1000 * p.reversal_mm:6.1f} "
             f"{1000 * p.mean_reversal_mm:+6.1f} ± {1000 * p.mean_reversal_sigma_mm:4.1f} "
             f"{1000 * p.systematic_mm:6.1f} {1000 * p.mean_bidirectional_mm:6.1f}"
         )
