@@ -290,3 +290,30 @@ def test_a_path_longer_than_the_box_is_cut_after_a_separator():
     assert max(len(x) for x in reflow(win, 30).split("\n")) <= 30
     word = "x" * 50  # no separator to cut at: left whole rather than cut inside a word
     assert "  " + word in reflow(f"a {word} b", 30).split("\n")
+
+
+def test_a_letter_with_a_combining_mark_is_one_column():
+    """``B̄`` is two characters and one column: a table that fits the screen is left whole, and
+    one cut into blocks keeps every header over its numbers' last digit."""
+    import unicodedata
+
+    from hexcal.diagnosis.iso230_2 import LegPositioning, table_lines
+
+    legs = [
+        LegPositioning(k, 5, 53, 0.1159, 0.1, 0.1, 0.1084, 0.0648, -0.0565, 0.0031, 0.0656, 0.06,
+                       0.06, 0.006)
+        for k in (1, 2)
+    ]  # fmt: skip
+    rows = ["  " + line for line in table_lines(legs)[1:]]
+
+    def columns(line: str) -> str:
+        return "".join(c for c in line if not unicodedata.combining(c))
+
+    width = max(len(columns(r)) for r in rows)
+    assert width < max(len(r) for r in rows)  # the macron is a character, not a column
+    assert fit_table(rows, width) == rows
+    for block in "\n".join(fit_table(rows, 50)).split("\n\n"):
+        head, row = (columns(x) for x in block.split("\n")[:2])
+        for name in {"A", "R", "σ", "E", "M"} & set(head.split()):
+            end = head.index(f" {name}") + 1  # σ ends the header of B̄ ± σ, after the macron
+            assert row[end] != " " and (end + 1 == len(row) or row[end + 1] == " "), block

@@ -88,8 +88,9 @@ def table_lines(legs: list[LegPositioning]) -> list[str]:
     """The figures as a text table, one leg a row (µm)."""
     out = [
         "ISO 230-2 per leg (µm; deviation = tracker length − model length without backlash):",
-        # 74 columns: with the report's indent, the text UI's 76 at 80×24.
-        "  leg targets approaches      A      R      B    B̄ ± σ" + " " * 12 + "E      M",
+        # 74 columns: with the report's indent, the text UI's 76 at 80×24. Each header ends
+        # over its numbers' last digit (B̄ is two characters, one column).
+        f"  leg targets approaches  {'A':>6} {'R':>6} {'B':>6} {'':>8}B̄ ± σ {'E':>6} {'M':>6}",
     ]
     for p in legs:
         out.append(

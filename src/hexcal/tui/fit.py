@@ -123,11 +123,43 @@ def _wrapped_tail(padded: list[str], lead: int, cell: tuple[int, int], width: in
     return out
 
 
+def _one_per_column(rows: list[str]) -> tuple[list[str], dict[str, str]]:
+    """``rows`` with each letter that carries combining marks (``B̄``: B and a macron, one
+    column on screen, two characters) replaced by one private-use character, so that a
+    character is a column; and the map back."""
+    back: dict[str, str] = {}
+    seen: dict[str, str] = {}
+
+    def one(m: re.Match) -> str:
+        glyph = m.group(0)
+        if glyph not in seen:
+            seen[glyph] = chr(0xE000 + len(seen))
+            back[seen[glyph]] = glyph
+        return seen[glyph]
+
+    return [_COMBINED.sub(one, r) for r in rows], back
+
+
+#: A letter followed by one or more combining marks (U+0300–U+036F).
+_COMBINED = re.compile("[^\u0300-\u036f][\u0300-\u036f]+")
+
+
 def fit_table(rows: list[str], width: int) -> list[str]:
     """``rows`` (a table, its header first) as blocks of columns at most ``width`` wide, each
     led by the first column, a family of columns (a point's x, y, z) kept in one block where it
     fits in one; a last column of prose too wide for one (a reason) wrapped in a block of its
-    own; the table as it is when it fits, or when another column alone does not."""
+    own; the table as it is when it fits, or when another column alone does not. Columns are
+    counted as the screen shows them (a letter with a combining mark is one)."""
+    rows, back = _one_per_column(rows)
+    out = _fit_columns(rows, width)
+    if not back:
+        return out
+    restore = re.compile("|".join(map(re.escape, back)))
+    return [restore.sub(lambda m: back[m.group(0)], r) for r in out]
+
+
+def _fit_columns(rows: list[str], width: int) -> list[str]:
+    """:func:`fit_table` on rows whose characters are columns."""
     if max(len(r) for r in rows) <= width:
         return rows
     spans = _columns(rows)
