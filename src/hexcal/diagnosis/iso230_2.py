@@ -90,13 +90,13 @@ def table_lines(legs: list[LegPositioning]) -> list[str]:
         "ISO 230-2 per leg (µm; deviation = tracker length − model length without backlash):",
         # 74 columns: with the report's indent, the text UI's 76 at 80×24. Each header ends
         # over its numbers' last digit (B̄ is two characters, one column).
-        f"  leg targets approaches  {'A':>6} {'R':>6} {'B':>6} {'':>8}B̄ ± σ {'E':>6} {'M':>6}",
+        f"  leg targets approaches {'A':>6} {'R':>6} {'B':>6} {'':>9}B̄ ± σ {'E':>6} {'M':>6}",
     ]
     for p in legs:
         out.append(
-            f"  {p.leg:3d} {p.targets:7d} {p.approaches:10d}  {1000 * p.accuracy_mm:6.1f} "
+            f"  {p.leg:3d} {p.targets:7d} {p.approaches:10d} {1000 * p.accuracy_mm:6.1f} "
             f"{1000 * p.repeatability_mm:6.1f} {1000 * p.reversal_mm:6.1f} "
-            f"{1000 * p.mean_reversal_mm:+6.1f} ± {1000 * p.mean_reversal_sigma_mm:4.1f} "
+            f"{1000 * p.mean_reversal_mm:+6.1f} ± {1000 * p.mean_reversal_sigma_mm:5.1f} "
             f"{1000 * p.systematic_mm:6.1f} {1000 * p.mean_bidirectional_mm:6.1f}"
         )
     return out

@@ -151,11 +151,8 @@ def fit_table(rows: list[str], width: int) -> list[str]:
     own; the table as it is when it fits, or when another column alone does not. Columns are
     counted as the screen shows them (a letter with a combining mark is one)."""
     rows, back = _one_per_column(rows)
-    out = _fit_columns(rows, width)
-    if not back:
-        return out
-    restore = re.compile("|".join(map(re.escape, back)))
-    return [restore.sub(lambda m: back[m.group(0)], r) for r in out]
+    restore = str.maketrans(back)
+    return [r.translate(restore) for r in _fit_columns(rows, width)]
 
 
 def _fit_columns(rows: list[str], width: int) -> list[str]:
