@@ -162,7 +162,7 @@ def test_devices_check_sets_up_six_foreign_nodes_and_reads_50_of_50(
 
 def config(channel: str, name: str, **kw) -> CanBusConfig:
     legs = [LegEncoderConfig(leg=k, node_id=0x20 + k, counts_per_mm=CPM[name]) for k in range(1, 7)]
-    base = {"sync_period_s": 0.01, "heartbeat_timeout_s": 0.2, "sdo_timeout_s": 0.3}
+    base = {"sync_period_s": 0.01, "heartbeat_timeout_s": 0.5, "sdo_timeout_s": 0.3}
     return CanBusConfig(interface="virtual", channel=channel, legs=legs, **{**base, **kw})
 
 

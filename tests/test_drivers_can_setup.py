@@ -31,7 +31,7 @@ SYNC_S = 0.01
 
 def config(channel: str, **kw) -> CanBusConfig:
     legs = [LegEncoderConfig(leg=k, node_id=0x20 + k, counts_per_mm=1000.0) for k in range(1, 7)]
-    base = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": 0.2}
+    base = {"sync_period_s": SYNC_S, "heartbeat_timeout_s": 0.5}
     return CanBusConfig(interface="virtual", channel=channel, legs=legs, **{**base, **kw})
 
 
@@ -108,7 +108,7 @@ def test_hexcal_configures_factory_encoders_and_reads_them_on_sync(robot, channe
             mark = len(sniff.frames)
             time.sleep(0.3)
             later = sniff.frames[mark:]
-            assert all(nodes.encoders[k].value(0x1017) == 50 for k in range(1, 7))
+            assert all(nodes.encoders[k].value(0x1017) == 125 for k in range(1, 7))
             assert all(nodes.encoders[k].value(0x1801, 2) == 1 for k in range(1, 7))
             assert all(nodes.encoders[k].value(0x1800, 1) & 0x80000000 for k in range(1, 7))
     finally:
@@ -128,7 +128,7 @@ def test_hexcal_configures_factory_encoders_and_reads_them_on_sync(robot, channe
         node = leg["node"]
         assert node["serial"] == 4_060_001 + k and node["product_code"] == 0x406
         assert node["encoder_type"] == "absolute linear encoder"
-        assert (node["tpdo"], node["tpdo_cob_id"], node["heartbeat_ms"]) == (2, 0x2A1 + k, 50)
+        assert (node["tpdo"], node["tpdo_cob_id"], node["heartbeat_ms"]) == (2, 0x2A1 + k, 125)
         assert node["position_type"] == "INTEGER32" and node["total_range"] is None
 
 
@@ -195,7 +195,7 @@ def test_an_sdo_abort_names_the_object_and_the_code(robot, channel):
     with MockEncoderNodes(robot, cfg, sdo_aborts={2: (0x1017, 0x06010002)}):
         with pytest.raises(
             EncoderError,
-            match=r"leg 2 encoder \(node 0x22\) .*: SDO write of 50 to 0x1017:00 \(producer "
+            match=r"leg 2 encoder \(node 0x22\) .*: SDO write of 125 to 0x1017:00 \(producer "
             r"heartbeat time\) aborted by the node: SDO abort 0x06010002 \(attempt to write a read "
             r"only object\) — it is read-only on this device",
         ):
@@ -220,7 +220,7 @@ def test_a_rebooted_node_is_set_up_again(robot, channel):
         [drv.read_set(1.0) for _ in range(5)]
         nodes.reboot(2)
         sets = [drv.read_set(1.0) for _ in range(60)]
-        assert nodes.encoders[2].value(0x1017) == 50
+        assert nodes.encoders[2].value(0x1017) == 125
     assert any("rebooted" in f for s in sets for f in s.faults)
     assert not not_timing(sets[-20:]) and sum(s.complete for s in sets[-20:]) >= 16
 
