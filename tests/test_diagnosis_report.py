@@ -14,7 +14,8 @@ import hexcal
 import hexcal.diagnosis.plots as plots_mod
 import hexcal.diagnosis.report as report_mod
 from hexcal.diagnosis.plots import PLOT_NAMES
-from hexcal.diagnosis.report import REPORT_PLOTS, _param_rows, write_report
+from hexcal.diagnosis.report import REPORT_PLOTS, write_report
+from hexcal.diagnosis.report_tables import param_rows
 from hexcal.estimate.effect_fit import ParamRow
 from hexcal.io.measurements import write_measurements
 
@@ -164,7 +165,7 @@ def test_flagged_parameters_are_red_with_their_note():
         "gain.g1 = 9000 ppm is outside its plausible range",
         "a1.x is not separable from a1.xy",
     ]
-    text = _param_rows(rows, notes)
+    text = param_rows(rows, notes)
     assert text.count('class="bad"') == 2 and text.count('class="note"') == 2
     assert "outside its plausible range" in text and "is not separable" in text
     assert "9000 ± 20" in text

@@ -4,24 +4,15 @@ HTML report: the poses' expanded uncertainty and its coverage, ISO 9283 per test
 
 from __future__ import annotations
 
-import html
-
 from hexcal.diagnosis.metrology import Metrology
-
-
-def _e(text: object) -> str:
-    return html.escape(str(text))
-
-
-def _um(mm: float | None) -> str:
-    return "—" if mm is None else f"{1000 * mm:.1f}"
+from hexcal.diagnosis.report_html import esc, um
 
 
 def metrology_section(m: Metrology) -> str:
     """``<section id="metrology">``: uncertainty, ISO 9283, ISO 230-2 (docs/metrology.md)."""
     parts = [
         '<section id="metrology"><h2>Metrology</h2>',
-        f'<p class="muted">{_e(m.model)}; how each figure is computed and which clauses of ISO '
+        f'<p class="muted">{esc(m.model)}; how each figure is computed and which clauses of ISO '
         "9283, ISO 230-2 and the GUM it follows: docs/metrology.md.</p>",
     ]
     u = m.uncertainty
@@ -30,12 +21,12 @@ def metrology_section(m: Metrology) -> str:
         cov = d["position_coverage_95"]
         parts.append(
             "<h3>Uncertainty of the computed pose (GUM, k = 2)</h3>"
-            f'<p class="muted">Propagated from {_e(u.source)}.</p>'
+            f'<p class="muted">Propagated from {esc(u.source)}.</p>'
             "<table><tr><th>position, mean µm</th><th>position, max µm</th>"
             "<th>orientation, mean °</th><th>orientation, max °</th>"
             "<th>errors inside their 95 % region</th></tr>"
-            f'<tr><td class="num">{_um(d["position_mean_mm"])}</td>'
-            f'<td class="num">{_um(d["position_max_mm"])}</td>'
+            f'<tr><td class="num">{um(d["position_mean_mm"])}</td>'
+            f'<td class="num">{um(d["position_max_mm"])}</td>'
             f'<td class="num">{d["orientation_mean_deg"]:.4f}</td>'
             f'<td class="num">{d["orientation_max_deg"]:.4f}</td>'
             f'<td class="num">{"—" if cov is None else f"{100 * cov:.1f} %"}</td></tr></table>'
@@ -46,15 +37,15 @@ def metrology_section(m: Metrology) -> str:
     else:
         rows = "".join(
             f'<tr><td>{p.label}</td><td class="num">{p.visits}</td>'
-            f'<td class="num">{_um(p.ap_p_mm)}</td>'
+            f'<td class="num">{um(p.ap_p_mm)}</td>'
             + "".join(f'<td class="num">{v:+.5f}</td>' for v in p.ap_deg)
-            + f'<td class="num">{_um(p.rp_l_mm)}</td>'
+            + f'<td class="num">{um(p.rp_l_mm)}</td>'
             + "".join(f'<td class="num">±{v:.5f}</td>' for v in p.rp_deg)
             + "</tr>"
             for p in m.iso9283.poses
         )
         parts.append(
-            f'<p class="muted">{_e(m.iso9283.cube.text())}.</p>'
+            f'<p class="muted">{esc(m.iso9283.cube.text())}.</p>'
             "<table><tr><th>pose</th><th>cycles</th><th>AP_P µm</th><th>AP_a °</th>"
             "<th>AP_b °</th><th>AP_c °</th><th>RP_l µm</th><th>RP_a °</th><th>RP_b °</th>"
             f"<th>RP_c °</th></tr>{rows}</table>"
@@ -68,11 +59,11 @@ def metrology_section(m: Metrology) -> str:
     else:
         rows = "".join(
             f'<tr><td>{p.leg}</td><td class="num">{p.targets}</td>'
-            f'<td class="num">{p.approaches}</td><td class="num">{_um(p.accuracy_mm)}</td>'
-            f'<td class="num">{_um(p.repeatability_mm)}</td><td class="num">{_um(p.reversal_mm)}</td>'
+            f'<td class="num">{p.approaches}</td><td class="num">{um(p.accuracy_mm)}</td>'
+            f'<td class="num">{um(p.repeatability_mm)}</td><td class="num">{um(p.reversal_mm)}</td>'
             f'<td class="num">{1000 * p.mean_reversal_mm:+.1f} ± '
-            f'{1000 * p.mean_reversal_sigma_mm:.1f}</td><td class="num">{_um(p.systematic_mm)}</td>'
-            f'<td class="num">{_um(p.mean_bidirectional_mm)}</td></tr>'
+            f'{1000 * p.mean_reversal_sigma_mm:.1f}</td><td class="num">{um(p.systematic_mm)}</td>'
+            f'<td class="num">{um(p.mean_bidirectional_mm)}</td></tr>'
             for p in m.iso230_2
         )
         parts.append(
@@ -82,6 +73,6 @@ def metrology_section(m: Metrology) -> str:
             "<th>R µm</th><th>B µm</th><th>B̄ ± σ µm</th><th>E µm</th>"
             f"<th>M µm</th></tr>{rows}</table>"
         )
-    parts += [f'<p class="muted">{_e(n)}</p>' for n in m.notes]
+    parts += [f'<p class="muted">{esc(n)}</p>' for n in m.notes]
     parts.append("</section>")
     return "".join(parts)

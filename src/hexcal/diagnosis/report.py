@@ -11,17 +11,11 @@ All text from the data passes through :func:`html.escape`.
 
 from __future__ import annotations
 
-import base64
 import hashlib
-import html
-import re
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TypeGuard
-
-import numpy as np
 
 import hexcal
 from hexcal.diagnosis.compare_plots import before_after_job, pose_error_job
@@ -30,15 +24,20 @@ from hexcal.diagnosis.figure_pool import FigureJob, draw_all
 from hexcal.diagnosis.metrology import of_diagnosis
 from hexcal.diagnosis.metrology_html import metrology_section
 from hexcal.diagnosis.plots import plot_jobs
+from hexcal.diagnosis.report_html import esc, figure, finite, num, stat, um
 from hexcal.diagnosis.report_pointer import pointer_section
 from hexcal.diagnosis.report_style import CSS
+from hexcal.diagnosis.report_tables import (
+    candidate_table,
+    fit_table,
+    leg_table,
+    param_table,
+    where_table,
+)
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.effects import get_effect
-from hexcal.estimate.effect_fit import ParamRow
 from hexcal.io.fileio import write_text_atomic
 from hexcal.vocabulary import Outcome, Verdict
-
-UM = 1e3
 
 #: Plot order in the report: the overview first, then one figure per suspect quantity.
 REPORT_PLOTS = (
@@ -106,39 +105,6 @@ BETRAYS = {
 }
 
 
-# --- small formatting helpers ------------------------------------------------------------------
-
-
-def _e(text: object) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def _finite(v: float | None) -> TypeGuard[float]:
-    return v is not None and bool(np.isfinite(v))
-
-
-def _um(mm: float | None, digits: int = 1) -> str:
-    """mm → µm text; an em dash for a missing value."""
-    return f"{mm * UM:.{digits}f}" if _finite(mm) else "—"
-
-
-def _num(v: float | None, fmt: str = ".3g") -> str:
-    return format(v, fmt).replace("-", "−") if _finite(v) else "—"
-
-
-def _stat(v: float | None) -> str:
-    """A Δχ² or ΔBIC: whole numbers once large (never ``1.389e+04``), 3 digits when small."""
-    return _num(v, ".0f" if _finite(v) and abs(v) >= 100 else ".3g")
-
-
-def _value_ci(p: ParamRow) -> str:
-    """``value ± 95 % half-width`` with as many decimals as the interval justifies."""
-    if not np.isfinite(p.ci95) or p.ci95 <= 0:
-        return _num(p.value, ".6g") + " ± —"
-    dec = int(np.clip(1 - np.floor(np.log10(p.ci95)), 0, 8))
-    return f"{p.value:.{dec}f} ± {p.ci95:.{dec}f}".replace("-", "−")
-
-
 #: The verdict's CSS class and header label; any other verdict names an effect (or outliers).
 _VERDICT_CLASS: dict[Verdict, str] = {
     Outcome.NONE: "v-none",
@@ -169,27 +135,18 @@ def _hash(full: str) -> str:
     (a visually hidden copy)."""
     short = f"{full[:12]}…{full[-6:]}"
     return (
-        f'<code class="hash" title="{_e(full)}"><span class="h-short" aria-hidden="true">'
-        f'{_e(short)}</span><span class="h-full">{_e(full)}</span></code>'
+        f'<code class="hash" title="{esc(full)}"><span class="h-short" aria-hidden="true">'
+        f'{esc(short)}</span><span class="h-full">{esc(full)}</span></code>'
     )
 
 
 def _path(p: Path) -> str:
     """A path that may wrap after its separators, never inside a name."""
-    return "/<wbr>".join(_e(part) for part in str(p).split("/"))
-
-
-def _data_uri(png: Path) -> str:
-    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
+    return "/<wbr>".join(esc(part) for part in str(p).split("/"))
 
 
 def _added(before: Diagnosis, after: Diagnosis) -> list[str]:
     return [e for e in after.effects if e not in before.effects]
-
-
-def _floor_per_leg_mm(d: Diagnosis) -> np.ndarray:
-    """(6,) mm: RMS of the noise floor of each leg's residuals."""
-    return np.sqrt(np.mean(d.floor_per_residual**2, axis=0))
 
 
 # --- the header --------------------------------------------------------------------------------
@@ -199,11 +156,11 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
     """One sentence on the last step's verdict (plain text)."""
     d = diags[-1]
     fit = d.fit
-    floor = f"{_um(d.noise_floor_mm)} µm"
+    floor = f"{um(d.noise_floor_mm)} µm"
     if d.verdict == Outcome.NONE:
         text = (
             f"{fit.model_name} describes these data to the noise floor: held-out RMS "
-            f"{_um(fit.cv_rms_mm)} µm against a floor of {floor} (χ²/dof {d.chi2_per_dof:.2f})"
+            f"{um(fit.cv_rms_mm)} µm against a floor of {floor} (χ²/dof {d.chi2_per_dof:.2f})"
         )
         if len(diags) > 1:
             first = diags[0]
@@ -211,7 +168,7 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
             if added:
                 text += (
                     f", once {' and '.join(added)} was added to {first.fit.model_name}, which left "
-                    f"{_um(first.fit.cv_rms_mm)} µm"
+                    f"{um(first.fit.cv_rms_mm)} µm"
                 )
         return text + "."
     if d.verdict == Outcome.UNEXPLAINED:
@@ -222,7 +179,7 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
             else ""
         )
         return (
-            f"{fit.model_name} leaves a residual above the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, "
+            f"{fit.model_name} leaves a residual above the noise floor (held-out RMS {um(fit.cv_rms_mm)} µm, "
             f"floor {floor}, χ²/dof {d.chi2_per_dof:.2f}) that no catalogue effect explains; "
             f"{d.where.get('summary', '')}{points}."
         )
@@ -230,24 +187,24 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
         return (
             f"{fit.model_name} leaves a residual {d.noise_factor:.2f}× the stated noise, spread "
             "evenly over legs, steps, time, the workspace and every covariate: the stated noise "
-            f"looks about {d.noise_factor:.1f}× too low (held-out RMS {_um(fit.cv_rms_mm)} µm, "
+            f"looks about {d.noise_factor:.1f}× too low (held-out RMS {um(fit.cv_rms_mm)} µm, "
             f"floor {floor})."
         )
     if d.verdict == Outcome.OUTLIERS:
         return (
             f"{len(d.outliers)} poses are gross outliers no model explains; without them "
-            f"{fit.model_name} is at the noise floor (held-out RMS {_um(fit.cv_rms_mm)} µm, floor "
+            f"{fit.model_name} is at the noise floor (held-out RMS {um(fit.cv_rms_mm)} µm, floor "
             f"{floor})."
         )
     c = d.candidate(d.verdict)
     if c is None or c.refit is None:
         return f"{fit.model_name} is missing {d.verdict}."
-    share = f" and explains {100 * c.explained:.0f} % of the excess" if _finite(c.explained) else ""
+    share = f" and explains {100 * c.explained:.0f} % of the excess" if finite(c.explained) else ""
     alike = f" ({' and '.join(d.alike)} fit{'s' * (len(d.alike) == 1)} alike)" if d.alike else ""
     return (
         f"{fit.model_name} is missing {d.verdict}{alike}: adding it lowers the held-out RMS from "
-        f"{_um(fit.cv_rms_mm)} to {_um(c.cv_rms_mm_after)} µm (floor {floor}) with ΔBIC "
-        f"{_stat(c.delta_bic)}{share}."
+        f"{um(fit.cv_rms_mm)} to {um(c.cv_rms_mm_after)} µm (floor {floor}) with ΔBIC "
+        f"{stat(c.delta_bic)}{share}."
     )
 
 
@@ -259,17 +216,17 @@ def _header(diags: Sequence[Diagnosis]) -> str:
             chips.append('<li class="arrow">→</li>')
         chips.append(
             f'<li class="chip {_verdict_class(s.verdict)}"><a href="#step-{i}" style="color:inherit">'
-            f"{_e(s.fit.model_name)}</a>: {_e(s.verdict)} · {_um(s.fit.cv_rms_mm)} µm</li>"
+            f"{esc(s.fit.model_name)}</a>: {esc(s.verdict)} · {um(s.fit.cv_rms_mm)} µm</li>"
         )
     label = _VERDICT_LABEL.get(d.verdict, "verdict — effect missing from the model")
     # A sentence first; the verdict's word beside its label, not alone in big type.
     return (
         f'<header id="verdict" class="verdict {_verdict_class(d.verdict)}">'
         f"{_plain(diags)}"
-        f'<div class="label">{_e(label)} · {_e(d.fit.model_name)}: '
-        f'<span class="badge">{_e(d.verdict)}</span></div>'
+        f'<div class="label">{esc(label)} · {esc(d.fit.model_name)}: '
+        f'<span class="badge">{esc(d.verdict)}</span></div>'
         f'<ol class="path" id="path">{"".join(chips)}</ol>'
-        f'<p class="muted" id="statistics">In statistics: {_e(explanation(diags))}</p></header>'
+        f'<p class="muted" id="statistics">In statistics: {esc(explanation(diags))}</p></header>'
     )
 
 
@@ -281,24 +238,24 @@ def _accuracy(diags: Sequence[Diagnosis], tmp: Path | None) -> str:
     accs = ([first] if first is not None else []) + [d.accuracy for d in diags if d.accuracy]
     for a in accs:
         rows.append(
-            f"<tr><td>{_e(a.model)}</td><td>{'held-out' if a.heldout else 'all poses'}</td>"
-            f'<td class="num">{_um(a.leg_rms_mm)}</td>'
-            f'<td class="num">{_um(a.position_rms_mm)}</td><td class="num">{_um(a.position_p95_mm)}</td>'
-            f'<td class="num">{_um(a.position_max_mm)}</td>'
-            f'<td class="num">{_num(a.orientation_rms_deg, ".4f")}</td>'
-            f'<td class="num">{_num(a.orientation_p95_deg, ".4f")}</td></tr>'
+            f"<tr><td>{esc(a.model)}</td><td>{'held-out' if a.heldout else 'all poses'}</td>"
+            f'<td class="num">{um(a.leg_rms_mm)}</td>'
+            f'<td class="num">{um(a.position_rms_mm)}</td><td class="num">{um(a.position_p95_mm)}</td>'
+            f'<td class="num">{um(a.position_max_mm)}</td>'
+            f'<td class="num">{num(a.orientation_rms_deg, ".4f")}</td>'
+            f'<td class="num">{num(a.orientation_p95_deg, ".4f")}</td></tr>'
         )
     last = diags[-1].accuracy
     if last is not None and last.floor_position_rms_mm is not None:
         rows.append(
             '<tr class="muted"><td>noise floor</td><td>the noise alone</td><td></td>'
-            f'<td class="num">{_um(last.floor_position_rms_mm)}</td><td></td><td></td>'
-            f'<td class="num">{_num(last.floor_orientation_rms_deg, ".4f")}</td><td></td></tr>'
+            f'<td class="num">{um(last.floor_position_rms_mm)}</td><td></td><td></td>'
+            f'<td class="num">{num(last.floor_orientation_rms_deg, ".4f")}</td><td></td></tr>'
         )
     fig = ""
     png = _drawn(tmp, _ACCURACY_MAP)
     if png is not None and accs:
-        fig = _figure(
+        fig = figure(
             "accuracy-map",
             png,
             "Pose error over the workspace, before and after",
@@ -324,13 +281,13 @@ def _plain(diags: Sequence[Diagnosis]) -> str:
     """The findings in plain words (:mod:`hexcal.diagnosis.summary`), before any statistic."""
     said = plain_summary(diags)
     body = "".join(
-        f'<p class="{"lead" if i == 0 else "why"}">{_e(s)}</p>' for i, s in enumerate(said)
+        f'<p class="{"lead" if i == 0 else "why"}">{esc(s)}</p>' for i, s in enumerate(said)
     )
     return f'<div id="summary">{body}</div>'
 
 
 def _glossary() -> str:
-    items = "".join(f"<dt>{_e(term)}</dt><dd>{_e(text)}</dd>" for term, text in GLOSSARY.items())
+    items = "".join(f"<dt>{esc(term)}</dt><dd>{esc(text)}</dd>" for term, text in GLOSSARY.items())
     return f'<section id="glossary"><h2>Glossary</h2><dl class="glossary">{items}</dl></section>'
 
 
@@ -341,7 +298,7 @@ def _nav(diags: Sequence[Diagnosis]) -> str:
     ]
     for i, d in enumerate(diags, 1):
         items.append(
-            f'<li><a href="#step-{i}">Step {i}: {_e(d.fit.model_name)} — {_e(d.verdict)}</a></li>'
+            f'<li><a href="#step-{i}">Step {i}: {esc(d.fit.model_name)} — {esc(d.verdict)}</a></li>'
         )
         if i < len(diags):
             items.append(f'<li><a href="#change-{i}-{i + 1}">Change {i} → {i + 1}</a></li>')
@@ -352,17 +309,17 @@ def _nav(diags: Sequence[Diagnosis]) -> str:
 
 def _provenance(diags: Sequence[Diagnosis], inputs: Mapping[str, Path]) -> str:
     rows = [
-        ("hexcal version", _e(hexcal.__version__)),
-        ("report written (UTC)", _e(datetime.now(timezone.utc).isoformat(timespec="seconds"))),
+        ("hexcal version", esc(hexcal.__version__)),
+        ("report written (UTC)", esc(datetime.now(timezone.utc).isoformat(timespec="seconds"))),
     ]
     for label, p in inputs.items():
         p = Path(p)
         try:
             digest = f"sha256 {_hash(_sha256(p))}"
         except OSError as exc:
-            digest = f'<span class="err">not readable: {_e(exc.strerror or exc)}</span>'
-        rows.append((f"input: {_e(label)}", f"<code>{_path(p)}</code><br>{digest}"))
-    rows.append(("models", " → ".join(_e(d.fit.model_name) for d in diags)))
+            digest = f'<span class="err">not readable: {esc(exc.strerror or exc)}</span>'
+        rows.append((f"input: {esc(label)}", f"<code>{_path(p)}</code><br>{digest}"))
+    rows.append(("models", " → ".join(esc(d.fit.model_name) for d in diags)))
     outside = {  # effects from outside the catalogue, fitted or scored: where their code came from
         e: get_effect(e).source.text()
         for d in diags
@@ -371,10 +328,10 @@ def _provenance(diags: Sequence[Diagnosis], inputs: Mapping[str, Path]) -> str:
     }
     if outside:
         rows.append(
-            ("effects loaded", "<br>".join(f"{_e(n)}: {_e(t)}" for n, t in outside.items()))
+            ("effects loaded", "<br>".join(f"{esc(n)}: {esc(t)}" for n, t in outside.items()))
         )
     sources = list(dict.fromkeys(d.floor_source for d in diags))
-    rows.append(("noise floor", "<br>".join(_e(s) for s in sources)))
+    rows.append(("noise floor", "<br>".join(esc(s) for s in sources)))
     m = len(diags[0].problem.meas)
     rows.append(("poses", f"{m} ({6 * m} leg residuals)"))
     body = "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in rows)
@@ -382,239 +339,6 @@ def _provenance(diags: Sequence[Diagnosis], inputs: Mapping[str, Path]) -> str:
 
 
 # --- one step ----------------------------------------------------------------------------------
-
-
-def _fit_table(d: Diagnosis, sid: str) -> str:
-    f = d.fit
-    ratio = f.cv_rms_mm / d.noise_floor_mm if d.noise_floor_mm > 0 else float("nan")
-    cls = "ok" if not d.excess_significant else "err"
-    cells = [
-        ("RMS (in-sample)", f"{_um(f.rms_mm)} µm"),
-        ("held-out RMS (random 5-fold)", f"{_um(f.cv_rms_mm)} µm"),
-        ("held-out RMS (blocked in time)", f"{_um(f.cv_blocked_rms_mm)} µm"),
-        ("noise floor", f"{_um(d.noise_floor_mm)} µm"),
-        ("held-out / floor", f'<span class="{cls}">{_num(ratio, ".2f")}</span>'),
-        (
-            "χ²/dof (1 at the floor)",
-            f'<span class="{cls}">{_num(d.chi2_per_dof, ".2f")}</span>'
-            + (" — excess significant" if d.excess_significant else " — within noise"),
-        ),
-    ]
-    head = "".join(f"<th>{_e(k)}</th>" for k, _ in cells)
-    row = "".join(f'<td class="num">{v}</td>' for _, v in cells)
-    return (
-        f'<div id="{sid}-fit"><h3>Fit against the noise floor</h3>'
-        f"<table><tr>{head}</tr><tr>{row}</tr></table>"
-        f'<p class="muted">Noise floor: {_e(d.floor_source)}.</p></div>'
-    )
-
-
-def _leg_table(d: Diagnosis, sid: str) -> str:
-    f = d.fit
-    floor = _floor_per_leg_mm(d)
-    held = f.cv_rms_per_leg if f.cv_residuals is not None else np.full(6, np.nan)
-    blocked = (
-        np.sqrt(np.mean(f.cv_blocked_residuals**2, axis=0))
-        if f.cv_blocked_residuals is not None
-        else np.full(6, np.nan)
-    )
-    excess = {g["group"]: g for g in d.where.get("legs", [])}
-    scale = (
-        max(float(np.nanmax(held)) if np.isfinite(held).any() else 0.0, float(floor.max())) * 1.1
-    )
-    rows = []
-    for k in range(6):
-        g = excess.get(f"leg {k + 1}")
-        ratio = f"{g['excess_ratio']:.1f}×" if g else "—"
-        mark = ' <span class="err">stands out</span>' if g and g["stands_out"] else ""
-        w = 100 * held[k] / scale if np.isfinite(held[k]) and scale > 0 else 0.0
-        fl = 100 * floor[k] / scale if scale > 0 else 0.0
-        colour = (
-            "#c62828"
-            if held[k] > 1.5 * floor[k]
-            else ("#e69500" if held[k] > 1.15 * floor[k] else "#2e7d32")
-        )
-        bar = (
-            f'<div class="bar" title="held-out RMS; black tick: noise floor"><span style="width:{w:.1f}%;'
-            f'background:{colour}"></span><i style="left:{fl:.1f}%"></i></div>'
-        )
-        rows.append(
-            f'<tr><td>leg {k + 1}</td><td class="num">{_um(f.rms_per_leg[k])}</td>'
-            f'<td class="num">{_um(held[k])}</td><td class="num">{_um(blocked[k])}</td>'
-            f'<td class="num">{_um(floor[k])}</td><td class="num">{ratio}{mark}</td><td>{bar}</td></tr>'
-        )
-    return (
-        f'<div id="{sid}-legs"><h3>Per leg</h3><table>'
-        '<colgroup><col style="width:9%"><col style="width:12%"><col style="width:12%">'
-        '<col style="width:14%"><col style="width:11%"><col style="width:16%"><col></colgroup>'
-        '<tr><th>leg</th><th class="num">RMS µm</th><th class="num">held-out µm</th>'
-        '<th class="num">blocked held-out µm</th><th class="num">floor µm</th>'
-        '<th class="num">mean (r/floor)²</th><th>held-out RMS (bar) vs floor (tick)</th></tr>'
-        + "".join(rows)
-        + "</table></div>"
-    )
-
-
-def _candidate_table(d: Diagnosis, sid: str) -> str:
-    rows = []
-    for c in d.candidates:
-        cls = (
-            "win"
-            if c.effect == d.verdict
-            else ("off" if not (c.available and c.identifiable) else "")
-        )
-        why = c.reason
-        if c.available and not c.identifiable and c.separating_motion and "record" not in why:
-            why += f"; record {c.separating_motion}"
-        if c.refit is not None and c.refit.nonphysical():
-            why = (
-                (why + "; " if why else "")
-                + "outside its plausible range: "
-                + ", ".join(p.name for p in c.refit.nonphysical())
-            )
-        ident = "yes" if c.identifiable else ("no (data lack it)" if not c.available else "no")
-        rows.append(
-            f'<tr class="{cls}"><td>{_e(c.effect)}</td><td class="num">{_stat(c.score)}</td>'
-            f'<td class="num">{_stat(c.delta_bic)}</td>'
-            f'<td class="num">{_num(100 * c.explained, ".0f") + " %" if _finite(c.explained) else "—"}</td>'
-            f'<td class="num">{_um(c.cv_rms_mm_after)}</td><td>{_e(ident)}</td><td>{_e(why)}</td></tr>'
-        )
-    if not rows:
-        rows.append(
-            '<tr><td colspan="7" class="muted">every catalogue effect is already in the model</td></tr>'
-        )
-    return (
-        f'<div id="{sid}-candidates"><h3>What could be missing: the catalogue, ranked</h3><table>'
-        '<colgroup><col style="width:11%"><col style="width:10%"><col style="width:10%">'
-        '<col style="width:9%"><col style="width:11%"><col style="width:10%"><col></colgroup>'
-        '<tr><th>effect</th><th class="num">score Δχ²</th><th class="num">ΔBIC</th>'
-        '<th class="num">explained</th><th class="num">held-out after µm</th><th>identifiable</th>'
-        "<th>reason / note</th></tr>" + "".join(rows) + "</table>"
-        '<p class="muted">Score: the χ² the effect would remove to first order. ΔBIC &lt; −10 is very '
-        "strong evidence; the verdict also needs the refit to explain at least half of the excess "
-        "over the floor. Effects outside the top three are scored, not refitted.</p></div>"
-    )
-
-
-def _where(d: Diagnosis, sid: str) -> str:
-    w = d.where
-    groups = [
-        g
-        for key in ("legs", "steps", "time", "region", "leg_region")
-        for g in w.get(key, [])
-        if g["stands_out"]
-    ]
-    groups.sort(key=lambda g: -g["excess_ratio"])
-    standout = (
-        "".join(
-            f'<tr><td>{_e(g["group"])}</td><td class="num">{g["n"]}</td><td class="num">{g["excess_ratio"]:.1f}×</td></tr>'
-            for g in groups[:8]
-        )
-        or '<tr><td colspan="3" class="muted">no group stands out</td></tr>'
-    )
-    worst = "".join(
-        f'<tr><td class="num">{p["pose_id"]}</td><td>{_e(p["step"])}</td>'
-        f'<td class="num">{p["excess_ratio"]:.1f}×</td><td class="num">{p["worst_leg"]}</td></tr>'
-        for p in w.get("worst_poses", [])
-    )
-    return (
-        f'<div id="{sid}-where"><h3>Where the residual concentrates</h3>'
-        f"<p>{_e(w.get('summary', ''))}</p>"
-        '<table><colgroup><col style="width:50%"><col style="width:50%"></colgroup><tr><td style="padding:0 8px 0 0">'
-        '<table><colgroup><col><col style="width:16%"><col style="width:24%"></colgroup>'
-        '<tr><th>group standing out</th><th class="num">n</th><th class="num">mean (r/floor)²</th></tr>'
-        f'{standout}</table></td><td style="padding:0 0 0 8px">'
-        '<table><tr><th class="num">worst pose</th><th>step</th><th class="num">mean (r/floor)²</th>'
-        f'<th class="num">worst leg</th></tr>{worst}</table></td></tr></table></div>'
-    )
-
-
-def _param_notes(p: ParamRow, notes: Sequence[str]) -> list[str]:
-    """The fit's notes that name parameter ``p`` (a whole name: ``a1.x`` is not ``a1.xy``)."""
-    pat = re.compile(rf"(?<![\w.]){re.escape(p.name)}(?![\w])")
-    return [n for n in notes if pat.search(n)]
-
-
-def _is_geometry(name: str) -> bool:
-    return bool(re.fullmatch(r"[ab][1-6]\.[xyz]", name))
-
-
-def _param_rows(params: Sequence[ParamRow], notes: Sequence[str]) -> str:
-    out = []
-    for p in params:
-        bad = (not p.physical) or p.status != "ok"
-        rng = f"[{_num(p.plausible[0], 'g')}, {_num(p.plausible[1], 'g')}]" if p.plausible else "—"
-        flag = []
-        if not p.physical:
-            flag.append("outside its plausible range")
-        if p.status != "ok":
-            flag.append(p.status)
-        out.append(
-            f'<tr class="{"bad" if bad else ""}"><td><code>{_e(p.name)}</code></td>'
-            f'<td class="num">{_e(_value_ci(p))}</td><td class="num">{_e(_num(p.sigma, ".2g"))}</td>'
-            f"<td>{_e(p.unit)}</td><td>{_e(rng)}</td><td>{_e(', '.join(flag) or 'ok')}</td></tr>"
-        )
-        if bad:
-            text = _param_notes(p, notes) or [
-                f"status {p.status}" if p.status != "ok" else "outside its plausible range"
-            ]
-            out.append(
-                f'<tr class="note"><td></td><td colspan="5">{"<br>".join(_e(t) for t in text)}</td></tr>'
-            )
-    return "".join(out)
-
-
-def _param_table(d: Diagnosis, sid: str) -> str:
-    f = d.fit
-    notes = list(dict.fromkeys(d.notes + f.notes))
-    head = (
-        '<table><colgroup><col style="width:18%"><col style="width:22%"><col style="width:12%">'
-        '<col style="width:10%"><col style="width:16%"><col></colgroup>'
-        '<tr><th>parameter</th><th class="num">value ± 95 %</th><th class="num">σ</th><th>unit</th>'
-        "<th>plausible range</th><th>status</th></tr>"
-    )
-    # Geometry (36 coordinates) is long and rarely the story: it folds away unless flagged.
-    main = [p for p in f.params if not _is_geometry(p.name) or not p.physical or p.status != "ok"]
-    geometry = [p for p in f.params if _is_geometry(p.name)]
-    corr = f.refinement.strong_correlations
-    corr_html = (
-        '<ul class="notes">'
-        + "".join(
-            f"<li><code>{_e(a)}</code> ↔ <code>{_e(b)}</code>: r = {_num(r, '+.3f')}</li>"
-            for a, b, r in corr
-        )
-        + "</ul>"
-        if corr
-        else '<p class="muted">none</p>'
-    )
-    note_html = (
-        '<ul class="notes">' + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>"
-        if notes
-        else ""
-    )
-    return (
-        f'<div id="{sid}-params"><h3>Parameters (offsets, effects, and any flagged geometry)</h3>'
-        + head
-        + _param_rows(main, notes)
-        + "</table>"
-        + f"<details><summary>all {len(geometry)} geometry coordinates (mm)</summary>"
-        + head
-        + _param_rows(geometry, notes)
-        + "</table></details>"
-        + f'<h3 id="{sid}-correlations">Strong correlations</h3>'
-        + corr_html
-        + (f'<h3 id="{sid}-notes">Notes</h3>' + note_html if note_html else "")
-        + "</div>"
-    )
-
-
-def _figure(fid: str, png: Path | None, title: str, caption: str, skipped: str = "") -> str:
-    if png is None:
-        return f'<figure id="{fid}" class="skipped"><b>{_e(title)}</b>: {_e(skipped)}</figure>'
-    return (
-        f'<figure id="{fid}"><img src="{_data_uri(png)}" alt="{_e(title)}">'
-        f"<figcaption><b>{_e(title)}.</b> {_e(caption)}</figcaption></figure>"
-    )
 
 
 def _plots(d: Diagnosis, sid: str, tmp: Path) -> str:
@@ -627,7 +351,7 @@ def _plots(d: Diagnosis, sid: str, tmp: Path) -> str:
         if "covariate" in name:
             skipped = "drawn when an unexplained residual follows a covariate"
         png = _drawn(tmp, f"{sid}/{name}")
-        figs.append(_figure(f"{sid}-plot-{stem}", png, title, caption, skipped))
+        figs.append(figure(f"{sid}-plot-{stem}", png, title, caption, skipped))
     return f'<div id="{sid}-plots"><h3>Residual plots</h3>{"".join(figs)}</div>'
 
 
@@ -636,14 +360,14 @@ def _step(d: Diagnosis, i: int, tmp: Path | None) -> str:
     plots = _plots(d, sid, tmp) if tmp is not None else f'<div id="{sid}-plots"></div>'
     colour = {"v-none": "ok", "v-effect": "warn", "v-unexplained": "err"}[_verdict_class(d.verdict)]
     return (
-        f'<section id="{sid}"><h2>Step {i} · {_e(d.fit.model_name)} — verdict '
-        f'<span class="{colour}">{_e(d.verdict)}</span></h2>'
-        + _fit_table(d, sid)
-        + _leg_table(d, sid)
-        + _candidate_table(d, sid)
-        + _where(d, sid)
+        f'<section id="{sid}"><h2>Step {i} · {esc(d.fit.model_name)} — verdict '
+        f'<span class="{colour}">{esc(d.verdict)}</span></h2>'
+        + fit_table(d, sid)
+        + leg_table(d, sid)
+        + candidate_table(d, sid)
+        + where_table(d, sid)
         + pointer_section(d, sid)
-        + _param_table(d, sid)
+        + param_table(d, sid)
         + plots
         + "</section>"
     )
@@ -654,14 +378,14 @@ def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
     added = _added(a, b)
     what = " + ".join(added) if added else "no effect"
     line = (
-        f"held-out RMS {_um(a.fit.cv_rms_mm)} → {_um(b.fit.cv_rms_mm)} µm "
-        f"(floor {_um(b.noise_floor_mm)} µm)"
+        f"held-out RMS {um(a.fit.cv_rms_mm)} → {um(b.fit.cv_rms_mm)} µm "
+        f"(floor {um(b.noise_floor_mm)} µm)"
     )
     betrays = BETRAYS.get(added[0], "reading") if added else "reading"
     fig = ""
     png = _drawn(tmp, f"{cid}/{_BEFORE_AFTER}")
     if png is not None:
-        fig = _figure(
+        fig = figure(
             f"{cid}-figure",
             png,
             f"Before and after adding {what}",
@@ -670,8 +394,8 @@ def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
             "should be flat.",
         )
     return (
-        f'<section id="{cid}" class="change"><h2>Change {i} → {i + 1}: {_e(a.fit.model_name)} → '
-        f'{_e(b.fit.model_name)}</h2><p class="line">{_e(line)}</p>{fig}</section>'
+        f'<section id="{cid}" class="change"><h2>Change {i} → {i + 1}: {esc(a.fit.model_name)} → '
+        f'{esc(b.fit.model_name)}</h2><p class="line">{esc(line)}</p>{fig}</section>'
     )
 
 
@@ -731,13 +455,13 @@ def render_report(
     parts = [
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>hexcal diagnosis — {_e(d.fit.model_name)}: {_e(d.verdict)}</title>",
+        f"<title>hexcal diagnosis — {esc(d.fit.model_name)}: {esc(d.verdict)}</title>",
         f"<style>{CSS}</style></head><body><main>",
         _header(diags),
         _nav(diags),
     ]
     if limits:
-        items = "".join(f"<li>{_e(line)}</li>" for line in limits)
+        items = "".join(f"<li>{esc(line)}</li>" for line in limits)
         parts.append(
             "<section id=\"limits\"><h2>Poses at a stroke's end or a joint's limit</h2>"
             f'<ul>{items}</ul><p class="muted">A leg against its end stop does not follow the '
@@ -757,7 +481,7 @@ def render_report(
     parts.append(_provenance(diags, inputs))
     parts.append(_glossary())
     parts.append(
-        f'<footer id="footer" class="muted">hexcal {_e(hexcal.__version__)} · residual = reading − '
+        f'<footer id="footer" class="muted">hexcal {esc(hexcal.__version__)} · residual = reading − '
         "predicted reading; held-out = predicted by a fit that did not see the pose.</footer>"
         "</main></body></html>\n"
     )

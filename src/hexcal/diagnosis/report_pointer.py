@@ -4,13 +4,8 @@ alone and the shape that does it, and what the leading one points at."""
 
 from __future__ import annotations
 
-import html
-
 from hexcal.diagnosis.diagnose import Diagnosis
-
-
-def _e(text: object) -> str:
-    return html.escape(str(text), quote=True)
+from hexcal.diagnosis.report_html import esc
 
 
 def pointer_section(d: Diagnosis, sid: str) -> str:
@@ -20,9 +15,9 @@ def pointer_section(d: Diagnosis, sid: str) -> str:
         return ""
     rows = (
         "".join(
-            f"<tr><td>{_e(t.covariate.label)} <span class='muted'>({_e(t.covariate.name)})</span>"
-            f"</td><td>{_e(t.shape.describe())}</td>"
-            f"<td>{_e(', '.join(map(str, t.shape.legs)))}</td>"
+            f"<tr><td>{esc(t.covariate.label)} <span class='muted'>({esc(t.covariate.name)})</span>"
+            f"</td><td>{esc(t.shape.describe())}</td>"
+            f"<td>{esc(', '.join(map(str, t.shape.legs)))}</td>"
             f'<td class="num">{100 * t.share:.0f} %</td>'
             f'<td class="num">{t.score:.0f} / {t.threshold:.0f}</td></tr>'
             for t in x.leads[:6]
@@ -31,10 +26,10 @@ def pointer_section(d: Diagnosis, sid: str) -> str:
     )
     lead = x.lead
     hint = (
-        f"<p>The {_e(lead.covariate.label)} points at {_e(lead.points_at)}. "
+        f"<p>The {esc(lead.covariate.label)} points at {esc(lead.points_at)}. "
         "<code>hexcal diagnose … --effect-file FILE.py</code> writes an effect with that shape: "
         "edit it to the physics you suspect, pass it back with <code>--effects FILE.py --add "
-        f"by_{_e(lead.covariate.name)}</code>, and watch the error fall.</p>"
+        f"by_{esc(lead.covariate.name)}</code>, and watch the error fall.</p>"
         if lead is not None
         else "<p>No covariate of the library explains a significant share: look at the "
         "residual plots below.</p>"
