@@ -36,18 +36,12 @@ from scipy.spatial.transform import Rotation
 from hexcal.acquire.acquisition import LegSample, PoseRefused, RecordedPose, TrackerSample
 from hexcal.errors import HexcalError
 from hexcal.estimate import nbp
-from hexcal.estimate.solvers.direct import type_i_system, type_ii_system
-from hexcal.estimate.solvers.linalg import lstsq
-from hexcal.estimate.solvers.paper import platform_point_positions
-from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
-from hexcal.model.workspace import Workspace
-from hexcal.procedure import patterns
+from hexcal.procedure import patterns, step_fit
 from hexcal.procedure.recording import (
     BusStatus,
     ClampSlipped,
     Mover,
-    NoiseLevels,
     Recorder,
     Step,
     StepCheck,
@@ -57,24 +51,8 @@ from hexcal.procedure.recording import (
     reclamped_at_home,
 )
 from hexcal.procedure.session import PoseRecord, SessionFile, StepProgress
+from hexcal.procedure.step_fit import NBP_MIN_POSES, Conditioning
 from hexcal.vocabulary import Constraint
-
-#: Noise assumed for the live predictions until the step's own still windows tell (1σ of a
-#: recorded pose): a good optical tracker and encoder, averaged over a still window.
-DEFAULT_POSE_NOISE = NoiseLevels(0.003, 0.0006, 0.0006)
-
-#: What a pose of each constraint can vary, for the motion hint: rotations (about x, y, z) and
-#: translations (along x, y, z). A clamped point leaves only rotations.
-_HINT_DOFS = {
-    Constraint.DIRECTION_LENGTH: (0, 1, 2),
-    Constraint.DIRECTION: (0, 1, 2, 3, 4, 5),
-    Constraint.LENGTH: (0, 1, 2, 3, 4, 5),
-    Constraint.FREE: (0, 1, 2, 3, 4, 5),
-}
-#: Poses a clamped step needs before its geometry is estimated and a next best pose suggested.
-NBP_MIN_POSES = 4
-#: How far an operator can typically vary each: deg for rotations, mm for translations.
-_HINT_SCALE = np.array([15.0, 15.0, 15.0, 30.0, 30.0, 30.0])
 
 
 class GuidedError(HexcalError):
@@ -106,20 +84,6 @@ class Live:
     bus_status: str
     clamp: str
     clamp_ok: bool
-
-
-@dataclass
-class Conditioning:
-    """How well the step's poses determine the leg: ``sigma_b_mm`` and ``sigma_a_mm`` (largest
-    predicted 1σ of a coordinate of the platform point and of the base point or clamped point;
-    NaN when not yet determined), the scaled system's condition number, the pose-noise the
-    prediction used, and ``hint``: the motion that the poses have varied least."""
-
-    poses: int
-    sigma_b_mm: float
-    sigma_a_mm: float
-    condition: float
-    hint: str
 
 
 def pose_from_record(rec: PoseRecord) -> RecordedPose:
@@ -519,20 +483,22 @@ class GuidedSession:
             return f"leg {st.leg} not clamped yet", True
         k = st.leg - 1
         parts, ok = [], True
-        rec = self._rec
-        tol = rec.clamp_tolerance_mm
+        poses = self._poses()
+        tol = self._rec.clamp_tolerance_mm
         if st.constraint.clamps_length:
-            ref = float(rec.poses[0].readings[k]) if rec.poses else self._clamp_reading
+            ref = float(poses[0].readings[k]) if poses else self._clamp_reading
             if ref is not None and np.isfinite(readings[k]):
                 d = float(readings[k] - ref)
                 ok = abs(d) <= tol
                 parts.append(
-                    f"length {d:+.4f} mm since {'the first pose' if rec.poses else 'clamped'}"
+                    f"length {d:+.4f} mm since {'the first pose' if poses else 'clamped'}"
                     f" (±{tol:g})" + ("" if ok else " — SLIPPING")
                 )
-        if st.constraint.clamps_direction and pos is not None and len(rec.poses) >= 4:
-            off = self._direction_offset(pos, Rotation.from_rotvec(rv, degrees=True), readings[k])
-            limit = max(4 * self._noise_mm(), 0.03)
+        if st.constraint.clamps_direction and pos is not None and len(poses) >= 4:
+            rot = Rotation.from_rotvec(rv, degrees=True)
+            off = step_fit.direction_offset(st, poses, pos, rot, readings[k])
+            noise = step_fit.pose_noise_mm(step_fit.pose_noise(poses), self.platform_radius_mm)
+            limit = max(4 * noise, 0.03)
             good = off <= limit
             ok = ok and good
             what = "line" if st.constraint == Constraint.DIRECTION else "point"
@@ -542,176 +508,42 @@ class GuidedSession:
             )
         return "; ".join(parts) or f"leg {st.leg} clamped ({st.constraint})", ok
 
-    def _noise_mm(self) -> float:
-        n = self._noise()
-        return float(
-            np.sqrt(
-                n.position_mm**2 + (np.deg2rad(n.orientation_deg) * self.platform_radius_mm) ** 2
-            )
-        )
-
     def _poses(self) -> list[RecordedPose]:
         """The current step's poses, one copy of the list: the text UI's recording worker
         appends to it from its thread while the screen reads it, and whatever is computed from
-        them at once (positions, rotations, readings, noise) must count the same poses."""
+        them at once (:mod:`~hexcal.procedure.step_fit`) must count the same poses."""
         return list(self.recorder.poses) if self.recorder else []
 
-    def _noise(self, poses: list[RecordedPose] | None = None) -> NoiseLevels:
-        poses = self._poses() if poses is None else poses
-        if len(poses) >= 2:
-            try:
-                n = per_pose_noise(poses)
-                if np.isfinite([n.position_mm, n.orientation_deg, n.reading_mm]).all():
-                    return n
-            except (ValueError, ZeroDivisionError):
-                pass
-        return DEFAULT_POSE_NOISE
-
-    def _arrays(
-        self, poses: list[RecordedPose] | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The current step's poses (``poses``, else :meth:`_poses`): P (n, 3), R (n, 3, 3),
-        the clamped leg's readings (n,)."""
-        st = self.step
-        if not st.leg:
-            raise GuidedError(f"{st.name} clamps no leg: its poses make no leg's system")
-        poses = self._poses() if poses is None else poses
-        P = np.array([p.position for p in poses])
-        R = Rotation.from_quat(np.array([p.quaternion for p in poses]), scalar_first=True)
-        rho = np.array([p.readings[st.leg - 1] for p in poses])
-        return P, R.as_matrix(), rho
-
-    def _direction_offset(self, pos: np.ndarray, rot: Rotation, reading: float) -> float:
-        """How far (mm) the live pose lies from the line (Type I) or point (Type II) that the
-        step's poses fit."""
-        P, R, rho = self._arrays()
-        Rl = rot.as_matrix()
-        if self.step.constraint == Constraint.DIRECTION:
-            x = lstsq(*type_i_system(P, R, rho))
-            b, a, u = x[:3], x[3:6], x[6:]
-            if not np.isfinite(reading):
-                return float("nan")
-            return float(np.linalg.norm(pos + Rl @ b - a - reading * u))
-        x = lstsq(*type_ii_system(P, R))
-        return float(np.linalg.norm(pos + Rl @ x[:3] - x[3:]))
-
     def conditioning(self, design_b: np.ndarray | None = None) -> Conditioning:
-        """The predicted uncertainty of the current step's linear system (see module docstring).
-
-        ``design_b`` (6, 3) mm: the platform points to use for a length step's sphere fit (the
-        previous direction+length step's result is not known here; the design is close enough
-        for a prediction)."""
-        st = self.step
+        """The predicted uncertainty of the current step's linear system
+        (:func:`~hexcal.procedure.step_fit.conditioning`; ``design_b`` (6, 3) mm: the platform
+        points for a length step's sphere fit)."""
         poses = self._poses()
-        n = len(poses)
-        nan = float("nan")
-        if not st.leg or n == 0:
-            return Conditioning(n, nan, nan, nan, self._hint(poses))
-        P, R, rho = self._arrays(poses)
-        noise = self._noise(poses)
-        sig_row = np.sqrt(
-            noise.position_mm**2
-            + (np.deg2rad(noise.orientation_deg) * self.platform_radius_mm) ** 2
-            + (noise.reading_mm**2 if st.constraint == Constraint.DIRECTION else 0.0)
+        return step_fit.conditioning(
+            self.step, poses, self.platform_radius_mm, self._hint(poses), design_b
         )
-        groups: tuple[slice | None, slice]
-        if st.constraint == Constraint.DIRECTION:
-            A, _ = type_i_system(P, R, rho)
-            groups = (slice(0, 3), slice(3, 6))
-        elif st.constraint == Constraint.DIRECTION_LENGTH:
-            A, _ = type_ii_system(P, R)
-            groups = (slice(0, 3), slice(3, 6))
-        else:
-            b = np.zeros(3) if design_b is None else np.asarray(design_b)[st.leg - 1]
-            V = platform_point_positions(P, R, b)
-            w = V - V.mean(axis=0)
-            # Sphere fit rows 2 (V − V̄)·a + c = |V − V̄|²: a row's noise is 2 |V − V̄| σ.
-            A = np.concatenate([2.0 * w, np.ones((n, 1))], axis=1)
-            sig_row = 2.0 * float(np.linalg.norm(w, axis=1).mean()) * sig_row
-            groups = (None, slice(0, 3))
-        if A.shape[0] < A.shape[1]:
-            return Conditioning(n, nan, nan, float("inf"), self._hint(poses))
-        scale = np.linalg.norm(A, axis=0)
-        scale[scale == 0] = 1.0
-        s = np.linalg.svd(A / scale, compute_uv=False)
-        cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-        if A.shape[0] == A.shape[1] or not np.isfinite(cond) or cond > 1e12:
-            return Conditioning(n, nan, nan, cond, self._hint(poses))
-        cov = sig_row**2 * np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale)
-        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-        sb = nan if groups[0] is None else float(sd[groups[0]].max())
-        sa = float(sd[groups[1]].max())
-        return Conditioning(n, sb, sa, cond, self._hint(poses))
 
-    def _hint(self, poses: list[RecordedPose] | None = None) -> str:
-        """The motion the step's poses (``poses``, else :meth:`_poses`) have varied least,
-        relative to what an operator can."""
+    def _hint(self, poses: list[RecordedPose]) -> str:
+        """What to do next on the current step: its home pose, its pattern's next target, or
+        the motion ``poses`` have varied least."""
         st = self.step
-        poses = self._poses() if poses is None else poses
         if st.at_home:
             return "record the home pose"
         if st.pattern:
             return f"next: {self.pattern_target().label}"
-        if len(poses) < 2:
-            return {
-                Constraint.DIRECTION_LENGTH: "tilt the platform about the clamped point",
-                Constraint.DIRECTION: "move the platform along and about the clamped leg",
-                Constraint.LENGTH: "swing the clamped leg to the sides, forwards and back",
-                Constraint.FREE: "spread the poses over the workspace",
-            }[st.constraint]
-        rv = Rotation.from_quat(
-            np.array([p.quaternion for p in poses]), scalar_first=True
-        ).as_rotvec(degrees=True)
-        P = np.array([p.position for p in poses])
-        span = np.concatenate([np.ptp(rv, axis=0), np.ptp(P, axis=0)]) / _HINT_SCALE
-        dofs = _HINT_DOFS[st.constraint]
-        d = min(dofs, key=lambda i: span[i])
-        axis = "xyz"[d % 3]
-        half = span[d] * _HINT_SCALE[d] / 2
-        if d < 3:
-            return f"tilt the platform about {axis} (its poses span only ±{half:.1f}° so far)"
-        return f"move the platform along {axis} (its poses span only ±{half:.1f} mm so far)"
+        return step_fit.motion_hint(st, poses)
 
     def suggestion(self, design: Robot, n_candidates: int = 300) -> nbp.Suggestion | None:
         """The next best pose of the current clamped step (None before its poses determine the
         clamp, or on a free step). Every 5th is a space-filling one. Seeded by the pose count,
         so the same poses give the same suggestion — computed once for them (the screen, the
         target check and the mock operator all ask)."""
-        poses = self.recorder.poses if self.recorder else []
+        poses = self._poses()
         key = (self.index, self.step, len(poses), poses[-1].t if poses else None, id(design))
         if self._suggested is None or self._suggested[0] != (key, n_candidates):
-            self._suggested = ((key, n_candidates), self._suggest(design, n_candidates))
+            found = step_fit.suggest(self.step, poses, design, n_candidates)
+            self._suggested = ((key, n_candidates), found)
         return self._suggested[1]
-
-    def _suggest(self, design: Robot, n_candidates: int) -> nbp.Suggestion | None:
-        st = self.step
-        poses = self._poses()
-        n = len(poses)
-        if not st.leg or n < NBP_MIN_POSES:
-            return None
-        k = st.leg - 1
-        P, R, rho = self._arrays(poses)
-        noise = self._noise(poses)
-        sig = NoiseSigmas(noise.position_mm, np.deg2rad(noise.orientation_deg), noise.reading_mm)
-        try:
-            geo = nbp.estimate_geometry(st.constraint, k, P, R, rho, design)
-            a_all, b_all = design.a.copy(), design.b.copy()
-            a_all[k], b_all[k] = geo.a, geo.b
-            sim = Workspace(design.with_geometry(a_all, b_all, design.offsets))
-            return nbp.suggest(
-                st.constraint,
-                geo,
-                P,
-                R,
-                sig,
-                sim,
-                np.random.default_rng(n),
-                n_candidates=n_candidates,
-                space_filling=n % 5 == 4,
-                target_mm=st.target_sigma_mm or 0.0,
-            )
-        except (ValueError, np.linalg.LinAlgError, RuntimeError):
-            return None  # a degenerate fit or no feasible candidate: no suggestion this time
 
     def target_met(self, design: Robot) -> bool:
         """The step has its minimum count and its poses already predict the step's target 1σ
