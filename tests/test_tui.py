@@ -54,8 +54,17 @@ async def _record_by_hand(pilot, g, tries: int = 5) -> None:
     simulated devices share this process's threads, so a loaded machine can flag a reading)."""
     n = g.n_poses
     for _ in range(tries):
+        aside = len(g.sf.session.set_aside)
         await pilot.press("r")
-        await _until(pilot, lambda: not pilot.app.screen.busy, 10)
+        # Wait for the outcome, not for the screen to look idle: with the pilot's idle wait cut
+        # (quick_pilot) the key may not be handled yet when press returns.
+        await _until(
+            pilot,
+            lambda aside=aside: (
+                (g.n_poses > n or len(g.sf.session.set_aside) > aside) and not pilot.app.screen.busy
+            ),
+            10,
+        )
         if g.n_poses > n:
             return
     raise AssertionError(
@@ -93,7 +102,7 @@ def test_a_whole_guided_session_on_the_mock_rig(tmp_path, quick_pilot):
             assert g.n_poses == 1
             await pilot.press("n")
             await pilot.press("c")
-            assert g.clamped
+            await _until(pilot, lambda: g.clamped, 10)
             for i in range(5):
                 await pilot.press("m")
                 await _until(pilot, lambda: not app.screen.busy, 10)

@@ -156,12 +156,16 @@ def test_the_live_lines_keep_their_numbers_through_the_drivers(tmp_path, size, q
         async with app.run_test(size=size) as pilot:
             await pilot.press("enter")
             await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 30)
+            g = app.guided
+            # The pilot's idle wait is cut on the mock rig (quick_pilot): a key may not be
+            # handled yet when press returns, so each wait is for the state the next key needs.
             await pilot.press("r")
-            await _idle(pilot)
+            await _until(pilot, lambda: g.n_poses == 1 and not app.screen.busy, 30)
             await pilot.press("n", "c")
-            for _ in range(4):
+            await _until(pilot, lambda: g.index == 1 and g.clamped, 30)
+            for i in range(4):
                 await pilot.press("m", "r")
-                await _idle(pilot)
+                await _until(pilot, lambda i=i: g.n_poses == i + 1 and not app.screen.busy, 30)
             await pilot.pause(0.3)  # the live panel's next refresh
             return screen_lines(app)
 
