@@ -8,16 +8,10 @@ import multiprocessing
 import os
 
 import matplotlib.pyplot as plt
-import numpy as np
 import pytest
 
 from hexcal.diagnosis.compare_plots import before_after
-from hexcal.diagnosis.plots import (
-    PLOT_NAMES,
-    leg_direction_angles,
-    periodogram,
-    write_plots,
-)
+from hexcal.diagnosis.plots import PLOT_NAMES, leg_direction_angles, write_plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -98,31 +92,6 @@ def test_temperature_plot_is_skipped_without_temperature(session, tmp_path):
 def test_unknown_plot_name_is_refused(session, tmp_path):
     with pytest.raises(ValueError, match="unknown plot"):
         write_plots(session[0], tmp_path, only=["nonsense.png"])
-
-
-def test_periodogram_finds_a_sinusoid_at_its_period_and_amplitude():
-    rng = np.random.default_rng(0)
-    x = np.sort(rng.uniform(0, 100, 300))
-    y = 3.0 * np.sin(2 * np.pi * x / 5.0 + 0.4) + 1.0 + rng.normal(0, 0.1, x.size)
-    periods = np.array([4.0, 5.0, 6.5])
-    amp = periodogram(x, y, periods)
-    assert amp[1] == pytest.approx(3.0, rel=0.03)
-    assert amp[0] < 0.5 and amp[2] < 0.5
-
-
-@pytest.mark.parametrize("n", [8, 57, 400])
-def test_periodogram_is_scipys_floating_mean_amplitude(n):
-    """The written-out periodogram against scipy.signal.lombscargle (what it replaces, to spare
-    the report scipy.signal's import): uneven readings, an offset, noise and a ripple; the
-    frequency blocks are exercised by a grid longer than one block at N = 400."""
-    from scipy.signal import lombscargle
-
-    rng = np.random.default_rng(n)
-    x = np.sort(rng.uniform(-40, 60, n))
-    y = 7.0 + 2.0 * np.cos(2 * np.pi * x / 3.3) + rng.normal(0, 1.0, n)
-    periods = 1.0 / np.linspace(1 / 20, 1 / 0.5, 6000)
-    ref = np.abs(lombscargle(x, y, 2 * np.pi / periods, normalize="amplitude", floating_mean=True))
-    np.testing.assert_allclose(periodogram(x, y, periods), ref, rtol=1e-9, atol=1e-12 * ref.max())
 
 
 def test_leg_direction_angles_are_small_and_non_negative(session):

@@ -14,15 +14,15 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from hexcal.diagnosis.figure_pool import FigureJob
-from hexcal.diagnosis.plots import (
+from hexcal.diagnosis.plot_parts import (
     DPI,
     LEG_COLOURS,
     UM,
-    _finish,
-    _forces,
-    _running,
-    _view,
+    axial_forces,
     figure_style,
+    finish,
+    plot_view,
+    running,
 )
 from hexcal.effects.backlash import deadband_mm, motion_state
 
@@ -39,7 +39,7 @@ def _added(before: Diagnosis, after: Diagnosis) -> list[str]:
 
 def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
     """Residual of ``diag`` against the quantity ``effect`` depends on, all legs on one axis."""
-    view = _view(diag)
+    view = plot_view(diag)
     meas = view.meas
     r = view.resid_um
     rng = np.random.default_rng(0)
@@ -73,7 +73,7 @@ def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
         x = np.repeat(meas.temperature[:, None], 6, axis=1)
         xlabel = "structure temperature (°C)"
     elif effect == "compliance":
-        x, label = _forces(diag)
+        x, label = axial_forces(diag)
         xlabel = f"axial leg force (N; {label})"
     elif effect == "leadscrew" and diag.problem.design.leadscrew_pitch_mm:
         # Folding the reading by the pitch lines up every turn, so the ripple is one curve.
@@ -85,7 +85,7 @@ def _betraying_panel(ax: Axes, diag: Diagnosis, effect: str) -> None:
         xlabel = "encoder reading (mm)"
     for k in range(6):
         ax.plot(x[:, k], r[:, k], "o", ms=2.5, color=LEG_COLOURS[k], alpha=0.45, mec="none")
-        xs, ms = _running(x[:, k], r[:, k])
+        xs, ms = running(x[:, k], r[:, k])
         ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.5)
     ax.set_xlabel(xlabel)
 
@@ -146,7 +146,7 @@ def before_after(
             label="median" if effect in ("backlash", "offset") else "running median (per leg)",
         ),
     ]
-    return _finish(fig, outdir, name, legend)
+    return finish(fig, outdir, name, legend)
 
 
 # --- pose error over the workspace ---------------------------------------------------------------
@@ -198,7 +198,7 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
         fontsize=11,
     )
     path = outdir / name
-    fig.savefig(path, dpi=DPI)  # not cleared: see plots._finish
+    fig.savefig(path, dpi=DPI)  # not cleared: see plot_parts.finish
     return path
 
 

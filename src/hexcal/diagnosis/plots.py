@@ -17,39 +17,47 @@ figures in pyplot's global list: a figure is freed as soon as it goes out of sco
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from contextlib import AbstractContextManager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib import rc_context
 from matplotlib.artist import Artist
-from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import NullFormatter
 
 from hexcal.diagnosis.figure_pool import FigureJob, draw_all
+from hexcal.diagnosis.periodogram import (
+    FALSE_ALARM,
+    PERIOD_RANGE_MM,
+    noise_level,
+    period_grid,
+    periodogram,
+)
+from hexcal.diagnosis.plot_parts import (
+    FLOOR_COLOUR,
+    LEG_COLOURS,
+    UM,
+    PlotView,
+    axial_forces,
+    figure_style,
+    figure_title,
+    finish,
+    floor_band,
+    leg_grid,
+    leg_scatter,
+    legend_handles,
+    plot_view,
+    running,
+)
 from hexcal.effects.backlash import deadband_mm, motion_state
-from hexcal.effects.compliance import leg_forces
 from hexcal.estimate.quantiles import norm_pdf, norm_ppf
 
 if TYPE_CHECKING:
     from hexcal.diagnosis.diagnose import Diagnosis
 
-#: Resolution of every PNG; sizes are chosen so 9–10 pt text stays legible at it.
-DPI = 100
-#: mm → µm: residuals are tens of µm, so µm keeps tick labels short.
-UM = 1e3
-LEG_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5")
-#: Periods searched by the periodogram, mm (a lead screw's pitch is typically 1–10 mm).
-PERIOD_RANGE_MM = (0.5, 20.0)
-#: False-alarm probability of the periodogram's noise line, over the whole band of one leg.
-FALSE_ALARM = 0.01
 MOTION_LABELS = {-1: "retracting\n(−1)", 0: "not yet\nmoved (0)", 1: "extending\n(+1)"}
-FLOOR_COLOUR = "0.82"
 
 #: File names written by :func:`write_plots`, in the order returned.
 PLOT_NAMES = (
@@ -67,195 +75,11 @@ PLOT_NAMES = (
 )
 
 
-@dataclass(frozen=True)
-class _View:
-    """What every plot of one diagnosis needs, in plot units.
-
-    resid_um (M, 6) µm: held-out residuals (in-sample when the fit was not cross-validated);
-    insample_um (M, 6) µm; floor_um (M, 6) µm: noise-floor standard deviation per residual.
-    """
-
-    diag: Diagnosis
-    model: str
-    resid_um: np.ndarray
-    resid_label: str
-    insample_um: np.ndarray
-    floor_um: np.ndarray
-    subtitle: str
-
-    @property
-    def meas(self):
-        return self.diag.problem.meas
-
-
-def _view(diag: Diagnosis) -> _View:
-    fit = diag.fit
-    held = fit.cv_residuals is not None
-    resid = fit.cv_residuals if held else fit.residuals
-    cv = fit.cv_rms_mm if held else float("nan")
-    subtitle = (
-        f"RMS {fit.rms_mm * UM:.1f} µm, held-out {cv * UM:.1f} µm, noise floor "
-        f"{diag.noise_floor_mm * UM:.1f} µm, χ²/dof {diag.chi2_per_dof:.2f} — verdict: {diag.verdict}"
-    )
-    return _View(
-        diag=diag,
-        model=fit.model_name,
-        resid_um=np.asarray(resid) * UM,
-        resid_label="held-out residual (µm)" if held else "residual (µm)",
-        insample_um=np.asarray(fit.residuals) * UM,
-        floor_um=np.asarray(diag.floor_per_residual) * UM,
-        subtitle=subtitle,
-    )
-
-
-def figure_style() -> AbstractContextManager:
-    """The settings every figure is drawn with, for the figures made in this context. Titles
-    sit at their axes' top, where matplotlib's automatic placement puts them anyway (no figure
-    has ticks or labels above its panels): that spares it from measuring every tick label to
-    decide so, a fifth of a figure's drawing time. The PNGs are byte for byte the same."""
-    return rc_context({"axes.titley": 1.0})
-
-
-# --- helpers -----------------------------------------------------------------------------------
-
-
-def _window(n: int) -> int:
-    """Points in a running window: a fifth of the data (a median of fewer points wanders with the
-    noise and hides a trend), at least 7, never more than the data."""
-    return min(n, max(7, n // 5))
-
-
-def _running(
-    x: np.ndarray, y: np.ndarray, stat: Callable = np.nanmedian
-) -> tuple[np.ndarray, np.ndarray]:
-    """Running ``stat`` (a NaN-ignoring reducer taking ``axis``) of ``y`` over ``x``: (sorted x,
-    value at each), each (n,). The window is centred and shrinks at the ends, so the line spans
-    the whole range of ``x``; empty when there are fewer than 5 finite points."""
-    ok = np.isfinite(x) & np.isfinite(y)
-    x, y = x[ok], y[ok]
-    n = len(x)
-    if n < 5:
-        return np.empty(0), np.empty(0)
-    order = np.argsort(x, kind="stable")
-    h = _window(n) // 2
-    # NaN padding shrinks the window at the ends without a Python loop over the points.
-    padded = np.concatenate([np.full(h, np.nan), y[order], np.full(h, np.nan)])
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * h + 1)
-    return x[order], stat(windows, axis=1)
-
-
-def _floor_band(ax: Axes, x: np.ndarray, floor: np.ndarray) -> None:
-    """±2σ noise-floor band along ``x``; the per-pose floor is smoothed (running median) so the
-    band's edge shows the trend, not pose-to-pose jitter."""
-    xs, fs = _running(x, floor)
-    if len(xs) == 0:
-        return
-    ax.fill_between(xs, -2 * fs, 2 * fs, color=FLOOR_COLOUR, lw=0, zorder=0)
-
-
-#: The margins of every plot, inches: room for the y label and its ticks on the left, the
-#: two-line title on top, the x label and its ticks below; between panels, room for a title and
-#: an x label across rows, and for the tick labels across columns unless the panels share y.
-#: Fixed, rather than ``tight_layout``, which measured every tick label of every panel twice
-#: (2.4 s of a 7 s report).
-MARGIN_IN = {"left": 0.85, "right": 0.25, "top": 0.8, "bottom": 0.6}
-GAP_IN = {"rows": 0.95, "cols": 0.95, "shared_cols": 0.3}
-
-
-def fixed_layout(fig: Figure, legend_in: float = 0.0) -> None:
-    """Place ``fig``'s grid of panels by :data:`MARGIN_IN` and :data:`GAP_IN`, leaving
-    ``legend_in`` inches along the bottom for a legend."""
-    w, h = fig.get_figwidth(), fig.get_figheight()
-    axes = [ax for ax in fig.axes if ax.get_subplotspec() is not None]
-    if not axes:
-        return
-    grid = axes[0].get_subplotspec().get_gridspec()  # type: ignore[union-attr]
-    rows, cols = grid.nrows, grid.ncols
-    shared = len(axes) > 1 and axes[0].get_shared_y_axes().joined(axes[0], axes[1])
-    gap_w = GAP_IN["shared_cols"] if shared else GAP_IN["cols"]
-    left, right = MARGIN_IN["left"], w - MARGIN_IN["right"]
-    bottom, top = MARGIN_IN["bottom"] + legend_in, h - MARGIN_IN["top"]
-    # wspace and hspace are fractions of the mean panel's width and height.
-    panel_w = (right - left - (cols - 1) * gap_w) / cols
-    panel_h = (top - bottom - (rows - 1) * GAP_IN["rows"]) / rows
-    fig.subplots_adjust(
-        left=left / w,
-        right=right / w,
-        bottom=bottom / h,
-        top=top / h,
-        wspace=gap_w / panel_w,
-        hspace=GAP_IN["rows"] / panel_h,
-    )
-
-
-def _finish(fig: Figure, outdir: Path, name: str, legend: list | None = None) -> Path:
-    """Legend along the bottom, the fixed layout, PNG at :data:`DPI`."""
-    legend_in = 0.0
-    if legend:
-        fig.legend(handles=legend, loc="lower center", ncol=len(legend), fontsize=9, frameon=False)
-        legend_in = 0.35  # one row of 9 pt legend text
-    fixed_layout(fig, legend_in)
-    path = outdir / name
-    # Not fig.clear(): that resets every axes' ticks before dropping them, a fifth of the
-    # figure's time; the garbage collector frees the figure (a few MB) soon enough.
-    fig.savefig(path, dpi=DPI)
-    return path
-
-
-def _title(fig: Figure, view: _View, what: str) -> None:
-    fig.suptitle(f"{view.model} — {what}\n{view.subtitle}", fontsize=11)
-
-
-def _legend_handles(view: _View, line: str = "running median") -> list:
-    return [
-        Line2D(
-            [],
-            [],
-            ls="",
-            marker="o",
-            ms=4,
-            color="0.3",
-            alpha=0.6,
-            label=view.resid_label.split(" (")[0],
-        ),
-        Patch(color=FLOOR_COLOUR, label="±2σ noise floor"),
-        Line2D([], [], color="k", lw=1.6, label=line),
-    ]
-
-
-def _leg_grid(figsize: tuple[float, float] = (11, 6.6)) -> tuple[Figure, np.ndarray]:
-    fig = Figure(figsize=figsize)
-    axes = fig.subplots(2, 3, sharey=True, squeeze=False)
-    return fig, axes.ravel()
-
-
-def _leg_scatter(
-    view: _View, x: np.ndarray, xlabel: str, what: str, outdir: Path, name: str, note: str = ""
-) -> Path:
-    """Six panels, one per leg: held-out residual against ``x`` (M, 6), floor band, running
-    median."""
-    fig, axes = _leg_grid()
-    for k, ax in enumerate(axes):
-        xk, rk = x[:, k], view.resid_um[:, k]
-        _floor_band(ax, xk, view.floor_um[:, k])
-        ax.axhline(0, color="0.5", lw=0.6)
-        ax.plot(xk, rk, "o", ms=3, color=LEG_COLOURS[k], alpha=0.55, mec="none")
-        xs, ms = _running(xk, rk)
-        ax.plot(xs, ms, "-", color="k", lw=1.6)
-        ax.set_title(f"leg {k + 1}", fontsize=10)
-        ax.set_xlabel(xlabel)
-        ax.grid(True, alpha=0.25)
-        if k % 3 == 0:
-            ax.set_ylabel(view.resid_label)
-    _title(fig, view, what + (f" ({note})" if note else ""))
-    return _finish(fig, outdir, name, _legend_handles(view))
-
-
 # --- the plots ---------------------------------------------------------------------------------
 
 
-def _plot_reading(view: _View, outdir: Path, name: str) -> Path:
-    return _leg_scatter(
+def _plot_reading(view: PlotView, outdir: Path, name: str) -> Path:
+    return leg_scatter(
         view,
         view.meas.readings,
         "encoder reading (mm)",
@@ -265,10 +89,10 @@ def _plot_reading(view: _View, outdir: Path, name: str) -> Path:
     )
 
 
-def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
+def _plot_motion(view: PlotView, outdir: Path, name: str) -> Path:
     """Residual by the direction each leg last moved: backlash is a step between −1 and +1."""
     state = motion_state(view.meas.readings, deadband_mm(view.diag.problem.data))
-    fig, axes = _leg_grid()
+    fig, axes = leg_grid()
     rng = np.random.default_rng(0)  # fixed jitter: the same data give the same picture
     for k, ax in enumerate(axes):
         ax.axhline(0, color="0.5", lw=0.6)
@@ -315,38 +139,18 @@ def _plot_motion(view: _View, outdir: Path, name: str) -> Path:
             ax.set_ylabel(view.resid_label)
         if k >= 3:
             ax.set_xlabel("direction of the leg's last motion")
-    _title(fig, view, "residual by direction of last motion (backlash shows as a step)")
-    return _finish(
+    figure_title(fig, view, "residual by direction of last motion (backlash shows as a step)")
+    return finish(
         fig,
         outdir,
         name,
-        _legend_handles(view, "box: quartiles and median"),
+        legend_handles(view, "box: quartiles and median"),
     )
 
 
-def _mass(design) -> tuple[float, str]:
-    """Platform mass (kg) for the leg forces and the label saying where it came from."""
-    if design.platform_mass_kg:
-        return float(
-            design.platform_mass_kg
-        ), f"platform mass {design.platform_mass_kg:g} kg from robot.json"
-    return 1.0, "platform mass unknown: 1 kg ASSUMED, forces are relative"
-
-
-def _forces(diag: Diagnosis) -> tuple[np.ndarray, str]:
-    """(M, 6) N axial leg forces (compression positive) with the label of the mass used — the
-    same forces the compliance effect uses, centre of mass included when robot.json has one."""
-    design = diag.problem.design
-    mass, label = _mass(design)
-    com = getattr(design, "platform_com_mm", None)
-    return leg_forces(
-        diag.problem.data, mass, None if com is None else np.asarray(com, float)
-    ), label
-
-
-def _plot_force(view: _View, outdir: Path, name: str) -> Path:
-    f, label = _forces(view.diag)
-    return _leg_scatter(
+def _plot_force(view: PlotView, outdir: Path, name: str) -> Path:
+    f, label = axial_forces(view.diag)
+    return leg_scatter(
         view,
         f,
         "axial leg force, compression + (N)",
@@ -357,9 +161,9 @@ def _plot_force(view: _View, outdir: Path, name: str) -> Path:
     )
 
 
-def _plot_temperature(view: _View, outdir: Path, name: str) -> Path:
+def _plot_temperature(view: PlotView, outdir: Path, name: str) -> Path:
     temp = np.repeat(view.meas.temperature[:, None], 6, axis=1)
-    return _leg_scatter(
+    return leg_scatter(
         view, temp, "structure temperature (°C)", "residual against temperature", outdir, name
     )
 
@@ -370,7 +174,7 @@ def _time_axis(t: np.ndarray) -> tuple[np.ndarray, str]:
     return t, "time since session start (s)"
 
 
-def _plot_time(view: _View, outdir: Path, name: str) -> Path:
+def _plot_time(view: PlotView, outdir: Path, name: str) -> Path:
     """All legs against time, running mean per leg; the five time blocks of the ``where``
     analysis are marked so a drift can be matched with its summary line."""
     meas = view.meas
@@ -378,11 +182,11 @@ def _plot_time(view: _View, outdir: Path, name: str) -> Path:
     fig = Figure(figsize=(11, 5.2))
     ax = fig.subplots()
     floor = np.sqrt(np.mean(view.floor_um**2, axis=1))
-    _floor_band(ax, t, floor)
+    floor_band(ax, t, floor)
     ax.axhline(0, color="0.5", lw=0.6)
     for k in range(6):
         ax.plot(t, view.resid_um[:, k], "o", ms=2.5, color=LEG_COLOURS[k], alpha=0.45, mec="none")
-        xs, ms = _running(t, view.resid_um[:, k], np.nanmean)
+        xs, ms = running(t, view.resid_um[:, k], np.nanmean)
         ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.8)
     blocks = np.array_split(np.arange(len(t)), 5)
     for i, b in enumerate(blocks):
@@ -402,7 +206,7 @@ def _plot_time(view: _View, outdir: Path, name: str) -> Path:
     ax.set_xlabel(xlabel)
     ax.set_ylabel(view.resid_label)
     ax.grid(True, alpha=0.25)
-    _title(fig, view, "residual against time (recording order)")
+    figure_title(fig, view, "residual against time (recording order)")
     legend: list[Artist] = [
         Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.8, label=f"leg {k + 1}")
         for k in range(6)
@@ -411,10 +215,10 @@ def _plot_time(view: _View, outdir: Path, name: str) -> Path:
         Patch(color=FLOOR_COLOUR, label="±2σ floor"),
         Line2D([], [], color="0.4", lw=1.8, label="running mean"),
     ]
-    return _finish(fig, outdir, name, legend)
+    return finish(fig, outdir, name, legend)
 
 
-def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
+def _plot_pose(view: PlotView, outdir: Path, name: str) -> Path:
     meas = view.meas
     tilt = np.degrees(meas.rotations.magnitude())
     cols = [
@@ -427,19 +231,19 @@ def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
     axes = fig.subplots(1, 4, sharey=True)
     floor = np.sqrt(np.mean(view.floor_um**2, axis=1))
     for i, (ax, (x, xlabel)) in enumerate(zip(axes, cols, strict=True)):
-        _floor_band(ax, x, floor)
+        floor_band(ax, x, floor)
         ax.axhline(0, color="0.5", lw=0.6)
         for k in range(6):
             ax.plot(
                 x, view.resid_um[:, k], "o", ms=2.2, color=LEG_COLOURS[k], alpha=0.4, mec="none"
             )
-            xs, ms = _running(x, view.resid_um[:, k])
+            xs, ms = running(x, view.resid_um[:, k])
             ax.plot(xs, ms, "-", color=LEG_COLOURS[k], lw=1.3)
         ax.set_xlabel(xlabel)
         ax.grid(True, alpha=0.25)
         if i == 0:
             ax.set_ylabel(view.resid_label)
-    _title(fig, view, "residual against platform pose")
+    figure_title(fig, view, "residual against platform pose")
     legend: list[Artist] = [
         Line2D([], [], color=LEG_COLOURS[k], marker="o", ms=4, lw=1.3, label=f"leg {k + 1}")
         for k in range(6)
@@ -448,7 +252,7 @@ def _plot_pose(view: _View, outdir: Path, name: str) -> Path:
         Patch(color=FLOOR_COLOUR, label="±2σ floor"),
         Line2D([], [], color="0.4", lw=1.3, label="running median"),
     ]
-    return _finish(fig, outdir, name, legend)
+    return finish(fig, outdir, name, legend)
 
 
 def leg_direction_angles(diag: Diagnosis) -> np.ndarray:
@@ -463,9 +267,9 @@ def leg_direction_angles(diag: Diagnosis) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(np.einsum("mki,ki->mk", u, mean), -1.0, 1.0)))
 
 
-def _plot_direction(view: _View, outdir: Path, name: str) -> Path:
+def _plot_direction(view: PlotView, outdir: Path, name: str) -> Path:
     ang = leg_direction_angles(view.diag)
-    return _leg_scatter(
+    return leg_scatter(
         view,
         ang,
         "angle from the leg's mean direction (deg)",
@@ -475,52 +279,12 @@ def _plot_direction(view: _View, outdir: Path, name: str) -> Path:
     )
 
 
-def periodogram(reading: np.ndarray, resid: np.ndarray, periods: np.ndarray) -> np.ndarray:
-    """Lomb–Scargle amplitude (same unit as ``resid``) of a sinusoid in ``resid`` (N,) against
-    ``reading`` (N,) mm, at each of ``periods`` (F,) mm: the amplitude of the least-squares fit
-    of ``c + α cos ωx + β sin ωx`` at ω = 2π / period, the mean ``c`` fitted with it (the
-    generalised periodogram of Zechmeister & Kürster 2009, A&A 496, 577, eqs. 5–20, with equal
-    weights: what ``scipy.signal.lombscargle(..., normalize="amplitude", floating_mean=True)``
-    returns, which the tests check). Written out rather than imported because importing
-    scipy.signal costs 0.4 s, a fifth of a report, for this one function; computed over blocks
-    of frequencies so that memory stays at a few MB however many poses there are."""
-    x = np.asarray(reading, float)
-    y = np.asarray(resid, float)
-    omega = 2 * np.pi / np.asarray(periods, float)
-    y = y - y.mean()  # the floating mean: every sum below is of centred quantities
-    step = max(1, 2_000_000 // max(len(x), 1))
-    out = np.empty(len(omega))
-    for lo in range(0, len(omega), step):
-        wx = np.multiply.outer(x, omega[lo : lo + step])  # (N, f)
-        cos, sin = np.cos(wx), np.sin(wx)
-        c, s = cos.mean(axis=0), sin.mean(axis=0)
-        cc = np.einsum("nf,nf->f", cos, cos) / len(x) - c * c
-        ss = np.einsum("nf,nf->f", sin, sin) / len(x) - s * s
-        cs = np.einsum("nf,nf->f", cos, sin) / len(x) - c * s
-        yc, ys = y @ cos / len(x), y @ sin / len(x)
-        # The 2×2 normal equations [cc cs; cs ss] (α, β) = (yc, ys), solved in closed form.
-        det = cc * ss - cs * cs
-        tiny = np.finfo(float).eps * np.maximum(cc * ss, np.finfo(float).tiny)
-        det = np.where(det > tiny, det, np.nan)  # a frequency the poses cannot resolve
-        alpha = (ss * yc - cs * ys) / det
-        beta = (cc * ys - cs * yc) / det
-        out[lo : lo + step] = np.hypot(alpha, beta)
-    return out
-
-
-def _period_grid(span: float) -> np.ndarray:
-    """Periods (mm), uniform in frequency with 5 points per resolution element 1/span."""
-    lo, hi = PERIOD_RANGE_MM
-    n = int(np.clip(5 * span * (1 / lo - 1 / hi), 200, 20000))
-    return 1.0 / np.linspace(1 / hi, 1 / lo, n)
-
-
-def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
+def _plot_periodogram(view: PlotView, outdir: Path, name: str) -> Path:
     """Per leg, the amplitude of a periodic residual against the reading, with the level white
     noise at the floor reaches with probability :data:`FALSE_ALARM` anywhere in the band."""
     meas = view.meas
     pitch = view.diag.problem.design.leadscrew_pitch_mm
-    fig, axes = _leg_grid()
+    fig, axes = leg_grid()
     top = 0.0
     for k, ax in enumerate(axes):
         x, r = meas.readings[:, k], view.resid_um[:, k]
@@ -549,16 +313,17 @@ def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
                 color="0.4",
             )
             continue
-        periods = _period_grid(span)
+        periods = period_grid(span)
         amp = periodogram(x, r, periods)
         ax.plot(periods, amp, color=LEG_COLOURS[k], lw=1.0)
-        # White noise of σ gives a per-frequency amplitude² ~ (2σ²/N)·χ²₂; over ~span·(1/lo − 1/hi)
-        # independent frequencies the 99 % level is where exp(−x/2)·n_indep = FALSE_ALARM.
-        sigma = float(np.sqrt(np.mean(view.floor_um[:, k] ** 2)))
-        n_indep = max(1.0, span * (1 / PERIOD_RANGE_MM[0] - 1 / PERIOD_RANGE_MM[1]))
-        level = np.sqrt(2 * sigma**2 / len(x) * 2 * np.log(n_indep / FALSE_ALARM))
-        ax.axhline(level, color="0.35", lw=1.0, ls=":")
-        top = max(top, level, float(amp.max()))
+        level = noise_level(float(np.sqrt(np.mean(view.floor_um[:, k] ** 2))), x, periods)
+        # Its highest over each resolution element (5 grid points): the level's jitter from one
+        # frequency to the next is the readings' spacing, not information.
+        pad = np.concatenate([np.full(2, np.nan), level, np.full(2, np.nan)])
+        level = np.fmax.reduce(np.lib.stride_tricks.sliding_window_view(pad, 5), axis=1)
+        ax.plot(periods, level, color="0.35", lw=1.0, ls=":")
+        # The level's typical height, not its peaks where the readings resolve no period.
+        top = max(top, float(np.nanmedian(level)), float(np.nanmax(amp)))
     # The panels share y: one scale for all legs, so the largest ripple sets it.
     axes[0].set_ylim(0, top * 1.1 if top > 0 else 1.0)
     pitch_note = (
@@ -566,7 +331,7 @@ def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
         if pitch
         else "lead-screw pitch unknown (not in robot.json)"
     )
-    _title(fig, view, f"periodogram of the residual against the reading ({pitch_note})")
+    figure_title(fig, view, f"periodogram of the residual against the reading ({pitch_note})")
     legend = [
         Line2D([], [], color="0.3", lw=1.0, label="Lomb–Scargle amplitude"),
         Line2D(
@@ -580,10 +345,10 @@ def _plot_periodogram(view: _View, outdir: Path, name: str) -> Path:
     ]
     if pitch:
         legend.append(Line2D([], [], color="C3", lw=1.2, ls="--", label=f"pitch {pitch:g} mm"))
-    return _finish(fig, outdir, name, legend)
+    return finish(fig, outdir, name, legend)
 
 
-def _plot_normalised(view: _View, outdir: Path, name: str) -> Path:
+def _plot_normalised(view: PlotView, outdir: Path, name: str) -> Path:
     """Histogram of r / floor against N(0, 1) and a normal Q–Q plot: at the floor the
     histogram follows the curve and the Q–Q points the diagonal."""
     z_in = (view.insample_um / view.floor_um).ravel()
@@ -626,11 +391,11 @@ def _plot_normalised(view: _View, outdir: Path, name: str) -> Path:
     qq.set_ylabel("in-sample r / σ_floor, sorted (1)")
     qq.set_title("normal Q–Q plot: on the line at the floor", fontsize=10)
     qq.grid(True, alpha=0.25)
-    _title(fig, view, "residual relative to the noise floor")
-    return _finish(fig, outdir, name)
+    figure_title(fig, view, "residual relative to the noise floor")
+    return finish(fig, outdir, name)
 
 
-def _plot_per_leg_rms(view: _View, outdir: Path, name: str) -> Path:
+def _plot_per_leg_rms(view: PlotView, outdir: Path, name: str) -> Path:
     fit = view.diag.fit
     legs = np.arange(1, 7)
     floor = np.sqrt(np.mean(view.floor_um**2, axis=0))
@@ -652,11 +417,11 @@ def _plot_per_leg_rms(view: _View, outdir: Path, name: str) -> Path:
     ax.set_ylim(0, ax.get_ylim()[1] * 1.08)  # head room: the bars should not touch the frame
     ax.set_ylabel("RMS (µm)")
     ax.grid(True, axis="y", alpha=0.25)
-    _title(fig, view, "RMS residual per leg")
-    return _finish(fig, outdir, name, [handles[i] for i in order])
+    figure_title(fig, view, "RMS residual per leg")
+    return finish(fig, outdir, name, [handles[i] for i in order])
 
 
-def _plot_covariate(view: _View, outdir: Path, name: str) -> Path:
+def _plot_covariate(view: PlotView, outdir: Path, name: str) -> Path:
     """The residual against the covariate an unexplained residual follows (the covariate
     explorer's lead), on the legs that carry its shape."""
     x = view.diag.exploration
@@ -667,7 +432,7 @@ def _plot_covariate(view: _View, outdir: Path, name: str) -> Path:
     unit = f" ({cov.unit})" if cov.unit else ""
     legs = lead.shape.legs
     on = "" if len(legs) == 6 else f" on leg{'s' * (len(legs) > 1)} {', '.join(map(str, legs))}"
-    return _leg_scatter(
+    return leg_scatter(
         view,
         lead.values,
         f"{cov.label}{unit}",
@@ -678,7 +443,7 @@ def _plot_covariate(view: _View, outdir: Path, name: str) -> Path:
     )
 
 
-_PLOTS: dict[str, Callable[[_View, Path, str], Path]] = {
+_PLOTS: dict[str, Callable[[PlotView, Path, str], Path]] = {
     "residuals_vs_reading.png": _plot_reading,
     "residuals_vs_motion.png": _plot_motion,
     "residuals_vs_force.png": _plot_force,
@@ -733,7 +498,7 @@ def plot_jobs(
     names = plot_names(diag, only)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    view = _view(diag)
+    view = plot_view(diag)
 
     def job(name: str) -> FigureJob:
         def draw(path: Path) -> Path:
