@@ -69,7 +69,6 @@ API, the SYNC producer and the supervision.
 from __future__ import annotations
 
 import contextlib
-import copy
 import functools
 import logging
 import math
@@ -80,7 +79,6 @@ from pathlib import Path
 from typing import Any
 
 import can
-import canopen
 from canopen.nmt import NMT_STATES
 
 from hexcal.acquire.acquisition import LegSample
@@ -119,87 +117,12 @@ from hexcal.drivers.can_frames import NMT_BOOTUP as NMT_BOOTUP
 from hexcal.drivers.can_frames import NMT_PRE_OPERATIONAL as NMT_PRE_OPERATIONAL
 from hexcal.drivers.can_frames import decode_tpdo as decode_tpdo
 from hexcal.drivers.can_frames import describe_error_frame as describe_error_frame
+from hexcal.drivers.can_network import Listener, Network, Recorder
 from hexcal.drivers.can_nodes import EncoderConfigError, NodeInfo, configure_node, eds_for
 from hexcal.drivers.can_receive import _Pending, _ReceivePath
 from hexcal.drivers.limits import check_duration
 
 log = logging.getLogger(__name__)
-
-
-# -- python-can glue -------------------------------------------------------------------------------
-class _Listener(can.Listener):
-    def __init__(self, owner: LegEncoders):
-        self.owner = owner
-
-    def on_message_received(self, msg: can.Message) -> None:
-        self.owner._on_message(msg)
-
-    def on_error(self, exc: Exception) -> None:
-        self.owner._on_receive_error(exc)
-
-    def stop(self) -> None:
-        pass
-
-
-class _Recorder:
-    """A python-can log writer shared by the receive thread and the senders.
-
-    ``lock`` (reentrant) is held by the receive thread across writing *and* handling a frame,
-    and by the SYNC producer across opening a set, sending and writing the SYNC: so the log's
-    order is the order the driver saw, and a replay assigns every position to the same SYNC."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.writer = can.Logger(str(path))
-        self.lock = threading.RLock()
-        self.closed = False
-
-    def write(self, msg: can.Message) -> None:
-        """Write one frame; the caller holds ``lock``."""
-        if self.closed:
-            return
-        if not isinstance(msg.channel, (int, type(None))):
-            # Virtual channel names are not channel numbers; BLF stores a 16-bit number.
-            msg = copy.copy(msg)
-            msg.channel = None
-        self.writer.on_message_received(msg)
-
-    def stop(self) -> None:
-        with self.lock:
-            if not self.closed:
-                self.closed = True
-                self.writer.stop()
-
-
-class _Network(canopen.Network):
-    """canopen's Network with a shorter notifier cycle (stop() returns in ~50 ms, not 1 s) and
-    every frame it sends written to the recorder, under the recorder's lock so the log keeps
-    the true order (our SYNC before the answers to it)."""
-
-    NOTIFIER_CYCLE = 0.05
-    NOTIFIER_SHUTDOWN_TIMEOUT = 1.0
-
-    def __init__(self, bus: can.BusABC | None, recorder: _Recorder | None):
-        super().__init__(bus)
-        self.recorder = recorder
-
-    def send_message(self, can_id: int, data: Any, remote: bool = False) -> None:
-        if not self.bus:
-            raise RuntimeError("Not connected to CAN bus")
-        msg = can.Message(
-            arbitration_id=can_id,
-            data=bytes(data or b""),
-            is_extended_id=can_id > 0x7FF,
-            is_remote_frame=remote,
-            is_rx=False,
-            timestamp=time.time(),
-        )
-        rec = self.recorder
-        with rec.lock if rec else contextlib.nullcontext(), self.send_lock:
-            self.bus.send(msg)
-            if rec:
-                rec.write(msg)
-        self.check()
 
 
 # -- the driver ------------------------------------------------------------------------------------
@@ -271,9 +194,9 @@ class LegEncoders(_ReceivePath, Device):
         self._cond = threading.Condition(self._lock)
         self._stop_evt = threading.Event()
         self._worker: threading.Thread | None = None
-        self._network: _Network | None = None
-        self._recorder: _Recorder | None = None
-        self._listener = _Listener(self)
+        self._network: Network | None = None
+        self._recorder: Recorder | None = None
+        self._listener = Listener(self)
         # Whether the bus marks the echoes of our own frames (is_rx False): set at start.
         self._echo_marked = True
         # EDS files read from the devices (0x1021), by (vendor, product, revision).
@@ -352,8 +275,8 @@ class LegEncoders(_ReceivePath, Device):
         self._stopped = False
         self._stop_evt.clear()
         cfg = self.config
-        self._recorder = _Recorder(self.log_path) if self.log_path else None
-        net = _Network(self._bus_in, self._recorder)
+        self._recorder = Recorder(self.log_path) if self.log_path else None
+        net = Network(self._bus_in, self._recorder)
         for k, leg in enumerate(cfg.legs):
             # canopen RemoteNode with the node's object dictionary: NMT master side, heartbeat
             # consumer, SDO client for the configuration step.
@@ -407,7 +330,7 @@ class LegEncoders(_ReceivePath, Device):
         self._worker.start()
         return self
 
-    def _configure(self, net: _Network) -> None:
+    def _configure(self, net: Network) -> None:
         """PRE-OPERATIONAL, then each node set up over SDO (:func:`configure_node`); the SYNC
         counter as the nodes expect. Raises :class:`EncoderConfigError`."""
         cfg = self.config

@@ -49,8 +49,8 @@ if TYPE_CHECKING:
 
     from hexcal.drivers.can_clock import BusClock
     from hexcal.drivers.can_config import CanBusConfig
-    from hexcal.drivers.can_encoders import _Network, _Recorder
     from hexcal.drivers.can_frames import TpdoDecoder
+    from hexcal.drivers.can_network import Network, Recorder
     from hexcal.drivers.can_nodes import NodeInfo
 
 # The driver's logger: these messages were always logged as hexcal.drivers.can_encoders's, and
@@ -125,8 +125,8 @@ class _ReceivePath:
     _cond: threading.Condition
     _stop_evt: threading.Event
     _clock: BusClock
-    _network: _Network | None
-    _recorder: _Recorder | None
+    _network: Network | None
+    _recorder: Recorder | None
     _open: deque[_Pending]
     _queue: deque[ReadingSet]
     _latest: ReadingSet | None
