@@ -10,19 +10,24 @@ import copy
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import can
 import canopen
 
-if TYPE_CHECKING:
-    from hexcal.drivers.can_encoders import LegEncoders
+
+class FrameSink(Protocol):
+    """What the listener hands frames to: the driver's receive path."""
+
+    def _on_message(self, msg: can.Message) -> None: ...
+
+    def _on_receive_error(self, exc: Exception) -> None: ...
 
 
 class Listener(can.Listener):
     """Hands every frame python-can's notifier receives, and its receive errors, to the driver."""
 
-    def __init__(self, owner: LegEncoders):
+    def __init__(self, owner: FrameSink):
         self.owner = owner
 
     def on_message_received(self, msg: can.Message) -> None:

@@ -105,7 +105,6 @@ def against_the_flow() -> dict[tuple[str, str], str]:
 #: shrinks). Two modules that import each other cannot be read, tested or split apart alone.
 KNOWN_CYCLES: set[tuple[str, ...]] = {
     ("hexcal", "hexcal.estimate.model_file"),  # the lazy public API (LAZY_API) names it
-    ("hexcal.drivers.can_encoders", "hexcal.drivers.can_receive"),
 }
 
 
