@@ -497,8 +497,7 @@ class GuidedSession:
         if st.constraint.clamps_direction and pos is not None and len(poses) >= 4:
             rot = Rotation.from_rotvec(rv, degrees=True)
             off = step_fit.direction_offset(st, poses, pos, rot, readings[k])
-            noise = step_fit.pose_noise_mm(step_fit.pose_noise(poses), self.platform_radius_mm)
-            limit = max(4 * noise, 0.03)
+            limit = step_fit.live_offset_limit_mm(st, poses, self.platform_radius_mm)
             good = off <= limit
             ok = ok and good
             what = "line" if st.constraint == Constraint.DIRECTION else "point"

@@ -24,7 +24,7 @@ from hexcal.estimate.solvers.paper import platform_point_positions
 from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.model.workspace import Workspace
-from hexcal.procedure.recording import NoiseLevels, Step, per_pose_noise
+from hexcal.procedure.recording import NoiseLevels, Step, per_pose_noise, still_window_noise
 from hexcal.vocabulary import Constraint
 
 #: Noise assumed for the live predictions until the step's own still windows tell (1σ of a
@@ -39,6 +39,9 @@ _HINT_DOFS = {
     Constraint.LENGTH: (0, 1, 2, 3, 4, 5),
     Constraint.FREE: (0, 1, 2, 3, 4, 5),
 }
+#: The least offset from the step's fit the live monitor calls a moved clamp, mm: below it a
+#: clamp's give is within what a lab's fixtures hold anyway.
+MIN_CLAMP_MOVE_MM = 0.03
 #: Poses a clamped step needs before its geometry is estimated and a next best pose suggested.
 NBP_MIN_POSES = 4
 #: How far an operator can typically vary each: deg for rotations, mm for translations.
@@ -72,14 +75,33 @@ def pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
     return DEFAULT_POSE_NOISE
 
 
-def pose_noise_mm(noise: NoiseLevels, platform_radius_mm: float) -> float:
-    """One pose's noise at the platform point, mm: position and orientation (at
-    ``platform_radius_mm``) together."""
-    return float(
-        np.sqrt(
-            noise.position_mm**2 + (np.deg2rad(noise.orientation_deg) * platform_radius_mm) ** 2
-        )
+def sample_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
+    """1σ of ONE sample of each stream (what the live display shows), from the scatter inside
+    the poses' still windows; :data:`DEFAULT_POSE_NOISE` until two poses with their raw
+    samples tell (the monitor's floor, :data:`MIN_CLAMP_MOVE_MM`, then rules)."""
+    if len(poses) >= 2 and all(p.tracker_samples and p.leg_samples for p in poses):
+        n = still_window_noise(list(poses))
+        if np.isfinite([n.position_mm, n.orientation_deg, n.reading_mm]).all():
+            return n
+    return DEFAULT_POSE_NOISE
+
+
+def live_offset_limit_mm(
+    step: Step, poses: Sequence[RecordedPose], platform_radius_mm: float
+) -> float:
+    """How far (mm) a live pose may lie from the line or point the step's poses fit before the
+    monitor asks whether the clamp moved: 4σ of one live sample — the live pose is a single
+    sample, not a window's mean, so its noise is the samples' (:func:`sample_noise`), √(samples
+    per window) times a recorded pose's — and at least :data:`MIN_CLAMP_MOVE_MM`. A 3-D offset
+    of per-coordinate σ passes 4σ in 0.1 % of samples; against a recorded pose's σ a held
+    clamp was called moved in 3.5 % of them."""
+    n = sample_noise(poses)
+    var = (
+        n.position_mm**2
+        + (np.deg2rad(n.orientation_deg) * platform_radius_mm) ** 2
+        + (n.reading_mm**2 if step.constraint == Constraint.DIRECTION else 0.0)
     )
+    return max(4.0 * float(np.sqrt(var)), MIN_CLAMP_MOVE_MM)
 
 
 def step_arrays(
