@@ -13,6 +13,7 @@ from hexcal.diagnosis.periodogram import (
     noise_level,
     period_grid,
     periodogram,
+    periodogram_and_level,
 )
 
 
@@ -70,3 +71,13 @@ def test_the_noise_level_is_flat_where_the_readings_sample_every_period():
     assert np.ptp(level) / level.mean() < 0.01
     z = level.mean() ** 2 * len(x) / (4 * 3.0**2)
     assert float(false_alarm(z, x)) == pytest.approx(FALSE_ALARM, rel=0.02)
+
+
+def test_one_pass_gives_the_periodogram_and_its_level():
+    rng = np.random.default_rng(4)
+    x = np.sort(rng.uniform(0.0, 80.0, 150))
+    y = rng.normal(0.0, 2.0, 150)
+    periods = period_grid(float(np.ptp(x)))
+    amp, level = periodogram_and_level(x, y, periods, 2.0)
+    np.testing.assert_array_equal(amp, periodogram(x, y, periods))
+    np.testing.assert_array_equal(level, noise_level(2.0, x, periods))

@@ -31,9 +31,8 @@ from hexcal.diagnosis.figure_pool import FigureJob, draw_all
 from hexcal.diagnosis.periodogram import (
     FALSE_ALARM,
     PERIOD_RANGE_MM,
-    noise_level,
     period_grid,
-    periodogram,
+    periodogram_and_level,
 )
 from hexcal.diagnosis.plot_parts import (
     FLOOR_COLOUR,
@@ -314,11 +313,11 @@ def _plot_periodogram(view: PlotView, outdir: Path, name: str) -> Path:
             )
             continue
         periods = period_grid(span)
-        amp = periodogram(x, r, periods)
+        sigma = float(np.sqrt(np.mean(view.floor_um[:, k] ** 2)))
+        amp, level = periodogram_and_level(x, r, periods, sigma)
         ax.plot(periods, amp, color=LEG_COLOURS[k], lw=1.0)
-        level = noise_level(float(np.sqrt(np.mean(view.floor_um[:, k] ** 2))), x, periods)
-        # Its highest over each resolution element (5 grid points): the level's jitter from one
-        # frequency to the next is the readings' spacing, not information.
+        # The noise level at its highest over each resolution element (5 grid points): its
+        # jitter from one frequency to the next is the readings' spacing, not information.
         pad = np.concatenate([np.full(2, np.nan), level, np.full(2, np.nan)])
         level = np.fmax.reduce(np.lib.stride_tricks.sliding_window_view(pad, 5), axis=1)
         ax.plot(periods, level, color="0.35", lw=1.0, ls=":")
