@@ -45,7 +45,8 @@ from hexcal.drivers.can_config import default_can_config
 from hexcal.drivers.can_encoders import EncoderError, LegEncoders
 from hexcal.drivers.ndi import NDITracker, TrackerError, TrackerFrame
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
-from hexcal.mock_hw.ndi_tracker import FaultSettings, register_robot, unregister
+from hexcal.mock_hw.ndi_registry import register_robot, unregister
+from hexcal.mock_hw.ndi_tracker import FaultSettings
 from hexcal.mock_hw.robot import MockRobot
 from hexcal.sim.robots import left_hand
 

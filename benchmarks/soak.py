@@ -86,7 +86,8 @@ from hexcal.drivers.ndi import (
     TrackerTimeout,
 )
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
-from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregister
+from hexcal.mock_hw.ndi_registry import register_robot, unregister
+from hexcal.mock_hw.ndi_tracker import MockNDITracker
 from hexcal.mock_hw.robot import MockRobot
 from hexcal.sim.robots import left_hand
 

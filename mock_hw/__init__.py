@@ -8,7 +8,7 @@ real tracker traffic (pyserial's ``spy://...?file=CAPTURE``) replays to the driv
 registers both schemes with pyserial.
 """
 
-from hexcal.mock_hw.ndi_tracker import install_url_handler
+from hexcal.mock_hw.ndi_registry import install_url_handler
 from hexcal.mock_hw.protocol_ndireplay import install_replay_handler
 
 install_url_handler()

@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 
 from serial.serialutil import PortNotOpenError, SerialException
 
-from hexcal.mock_hw.ndi_tracker import MockNDITracker, device_for_url
+from hexcal.mock_hw.ndi_registry import device_for_url
+from hexcal.mock_hw.ndi_tracker import MockNDITracker
 from hexcal.mock_hw.serial_port import MockSerialBase
 
 if TYPE_CHECKING:

@@ -22,7 +22,8 @@ from hexcal.acquire.devices import DevicesConfig, TrackerConfig
 from hexcal.drivers.can_config import default_can_config
 from hexcal.mock_hw.can_encoders import MockEncoderNodes
 from hexcal.mock_hw.motion import MockMotionController
-from hexcal.mock_hw.ndi_tracker import MockNDITracker, register_robot, unregister
+from hexcal.mock_hw.ndi_registry import register_robot, unregister
+from hexcal.mock_hw.ndi_tracker import MockNDITracker
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
 from hexcal.model.robot import Robot
 from hexcal.sim.simulate import LengthEffect, NoiseModel, PoseRanges

@@ -87,7 +87,7 @@ def test_devices_check_fails_when_many_sets_are_flagged():
     from hexcal.acquire.devices_check import check_devices
     from hexcal.drivers.can_config import default_can_config
     from hexcal.mock_hw.can_encoders import MockEncoderNodes
-    from hexcal.mock_hw.ndi_tracker import register_robot, unregister
+    from hexcal.mock_hw.ndi_registry import register_robot, unregister
     from hexcal.mock_hw.robot import MockRobot
     from hexcal.sim.robots import left_hand
 

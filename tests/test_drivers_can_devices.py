@@ -21,7 +21,7 @@ from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
 from hexcal.drivers.can_encoders import EncoderError, LegEncoders
 from hexcal.drivers.can_nodes import EncoderConfigError, configure_node, generic_eds
 from hexcal.mock_hw.eds_files import mock_eds
-from hexcal.mock_hw.ndi_tracker import register_robot, unregister
+from hexcal.mock_hw.ndi_registry import register_robot, unregister
 from hexcal.mock_hw.robot import DEFAULT_NOISE, MockRobot
 from hexcal.sim.robots import left_hand
 

@@ -343,7 +343,7 @@ def foreign(tmp_path, channel):
 def test_devices_check_configures_a_foreign_slave_and_reads_positions(
     foreign, channel, tmp_path, capsys
 ):
-    from hexcal.mock_hw.ndi_tracker import register_robot, unregister
+    from hexcal.mock_hw.ndi_registry import register_robot, unregister
 
     eds, nodes = foreign
     name = f"foreign{uuid.uuid4().hex[:6]}"

@@ -43,14 +43,8 @@ from hexcal.drivers.ndi import (
     parse_phsr_reply,
     parse_tx_reply,
 )
-from hexcal.mock_hw.ndi_tracker import (
-    FaultSettings,
-    MockNDITracker,
-    ToolState,
-    format_bx_reply,
-    register_device,
-    unregister,
-)
+from hexcal.mock_hw.ndi_registry import register_device, unregister
+from hexcal.mock_hw.ndi_tracker import FaultSettings, MockNDITracker, ToolState, format_bx_reply
 from hexcal.mock_hw.pty_tracker import PtyTracker
 from hexcal.mock_hw.robot import MockRobot
 from hexcal.sim.robots import left_hand

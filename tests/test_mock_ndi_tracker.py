@@ -18,16 +18,13 @@ import pytest
 import serial
 
 from hexcal.drivers.crc import crc16, crc16_hex
+from hexcal.mock_hw.ndi_registry import device_for_url, get_device, register_robot, unregister
 from hexcal.mock_hw.ndi_tracker import (
     FaultSettings,
     MockNDITracker,
     ToolState,
-    device_for_url,
     format_bx_reply,
     format_tx_reply,
-    get_device,
-    register_robot,
-    unregister,
 )
 from hexcal.mock_hw.pty_tracker import PtyTracker
 from hexcal.mock_hw.robot import MockRobot
@@ -509,7 +506,7 @@ def test_registered_robot_unplug_and_replug(robot):
 
 def test_url_read_honours_timeout(dev):
     name = f"quiet{next(_names)}"
-    from hexcal.mock_hw.ndi_tracker import register_device
+    from hexcal.mock_hw.ndi_registry import register_device
 
     register_device(name, dev)
     try:
