@@ -296,6 +296,17 @@ def test_a_path_longer_than_the_box_is_cut_after_a_separator():
     assert "  " + word in reflow(f"a {word} b", 30).split("\n")
 
 
+def test_prose_counts_a_letter_with_a_combining_mark_as_one_column():
+    """A sentence as wide as the box, two of its letters with a macron (two characters, one
+    column each): left on one line, not wrapped a word early; one column wider, wrapped."""
+    line = "B\u0304 and A\u0304 are the mean reversal values of legs 1 and 2, in µm."
+    width = len(line) - 2  # the columns it takes on screen
+    assert reflow(line, width) == line
+    assert reflow(line, width - 1) != line and "".join(reflow(line, width - 1).split()) == "".join(
+        line.split()
+    )
+
+
 def test_a_letter_with_a_combining_mark_is_one_column():
     """``B̄`` is two characters and one column: a table that fits the screen is left whole, and
     one cut into blocks keeps every header over its numbers' last digit."""

@@ -123,18 +123,18 @@ def _wrapped_tail(padded: list[str], lead: int, cell: tuple[int, int], width: in
     return out
 
 
-def _one_per_column(rows: list[str]) -> tuple[list[str], dict[str, str]]:
+def _one_per_column(rows: list[str]) -> tuple[list[str], dict[int, str]]:
     """``rows`` with each letter that carries combining marks (``B̄``: B and a macron, one
     column on screen, two characters) replaced by one private-use character, so that a
-    character is a column; and the map back."""
-    back: dict[str, str] = {}
+    character is a column; and the map back (a :meth:`str.translate` table)."""
+    back: dict[int, str] = {}
     seen: dict[str, str] = {}
 
     def one(m: re.Match) -> str:
         glyph = m.group(0)
         if glyph not in seen:
             seen[glyph] = chr(0xE000 + len(seen))
-            back[seen[glyph]] = glyph
+            back[ord(seen[glyph])] = glyph
         return seen[glyph]
 
     return [_COMBINED.sub(one, r) for r in rows], back
@@ -151,8 +151,7 @@ def fit_table(rows: list[str], width: int) -> list[str]:
     own; the table as it is when it fits, or when another column alone does not. Columns are
     counted as the screen shows them (a letter with a combining mark is one)."""
     rows, back = _one_per_column(rows)
-    restore = str.maketrans(back)
-    return [r.translate(restore) for r in _fit_columns(rows, width)]
+    return [r.translate(back) for r in _fit_columns(rows, width)]
 
 
 def _fit_columns(rows: list[str], width: int) -> list[str]:
@@ -226,8 +225,9 @@ def _break_paths(line: str, width: int, indent: str) -> list[str]:
 def reflow(text: str, width: int) -> str:
     """``text`` at ``width`` columns: prose wrapped at spaces (never inside a number or a word;
     a file path longer than the box is cut after a ``/``), tables stacked in blocks of columns
-    (:func:`fit_table`)."""
-    lines = text.split("\n")
+    (:func:`fit_table`). Columns are counted as the screen shows them (a letter with a
+    combining mark is one)."""
+    lines, back = _one_per_column(text.split("\n"))
     out: list[str] = []
     i = 0
     while i < len(lines):
@@ -252,4 +252,4 @@ def reflow(text: str, width: int) -> str:
             break_on_hyphens=False,
         ):
             out.extend(_break_paths(wrapped, max(20, width), indent))
-    return "\n".join(out)
+    return "\n".join(out).translate(back)
