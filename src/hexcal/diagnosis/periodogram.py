@@ -46,30 +46,36 @@ def periodogram(reading: np.ndarray, resid: np.ndarray, periods: np.ndarray) -> 
 def periodogram_and_level(
     reading: np.ndarray, resid: np.ndarray, periods: np.ndarray, sigma: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`periodogram` and :func:`noise_level` (each (F,)) in one pass over the
-    frequencies: the cosines and sines of every reading at every frequency are most of either's
-    time, and both need the same."""
+    """:func:`periodogram` of ``resid`` (N,) against ``reading`` (N,) mm at ``periods`` (F,) mm,
+    and its noise level (F,): the amplitude that white noise of 1σ ``sigma`` crosses anywhere
+    in the band with probability :data:`FALSE_ALARM` — in one pass over the frequencies (the
+    cosines and sines of every reading at every frequency are most of either's time).
+
+    Noise of σ gives the fit's (α, β) the covariance σ² M⁻¹/N (M the normal sums of
+    :func:`_sums`), so its amplitude² averages σ² tr(M⁻¹)/N and the power z compares it with
+    that: the level is √(z* σ² tr M⁻¹ / N), z* from :func:`false_alarm`. Where the readings
+    sample a period well, M = I/2 and the level is flat, √(4 z* σ²/N); where they cannot
+    resolve it, noise alone makes large amplitudes and the level rises with them (a flat line
+    was crossed by noise in 14 % of 30-reading legs, not 1 %)."""
     x = np.asarray(reading, float)
     amp, level = _scan(x, np.asarray(resid, float), periods, _z_at_false_alarm(x))
     return amp, sigma * level
 
 
 def _scan(
-    x: np.ndarray, y: np.ndarray | None, periods: np.ndarray, z: float | None
+    x: np.ndarray, y: np.ndarray, periods: np.ndarray, z: float | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The amplitude of ``y`` (NaN when None) and the noise level per unit σ at power ``z``
-    (NaN when None), each (F,), at ``periods`` (F,) mm."""
-    amp = np.full(len(periods), np.nan)
+    """The amplitude of ``y`` and the noise level per unit σ at power ``z`` (NaN when None),
+    each (F,), at ``periods`` (F,) mm."""
+    amp = np.empty(len(periods))
     level = np.full(len(periods), np.nan)
-    if y is not None:
-        y = y - y.mean()  # the floating mean: every sum below is of centred quantities
+    y = y - y.mean()  # the floating mean: every sum below is of centred quantities
     for sl, cos, sin, cc, ss, cs, det in _sums(x, 2 * np.pi / np.asarray(periods, float)):
-        if y is not None:
-            yc, ys = y @ cos / len(x), y @ sin / len(x)
-            # The 2×2 normal equations [cc cs; cs ss] (α, β) = (yc, ys), solved in closed form.
-            alpha = (ss * yc - cs * ys) / det
-            beta = (cc * ys - cs * yc) / det
-            amp[sl] = np.hypot(alpha, beta)
+        yc, ys = y @ cos / len(x), y @ sin / len(x)
+        # The 2×2 normal equations [cc cs; cs ss] (α, β) = (yc, ys), solved in closed form.
+        alpha = (ss * yc - cs * ys) / det
+        beta = (cc * ys - cs * yc) / det
+        amp[sl] = np.hypot(alpha, beta)
         if z is not None:
             level[sl] = np.sqrt(z * (cc + ss) / (len(x) * det))
     return amp, level
@@ -97,24 +103,7 @@ def false_alarm(z: np.ndarray | float, reading: np.ndarray) -> np.ndarray:
 
 def _z_at_false_alarm(reading: np.ndarray) -> float:
     """The power z that noise reaches anywhere in the band with probability
-    :data:`FALSE_ALARM` (bisection: :func:`false_alarm` falls as z grows)."""
-    lo, hi = 0.0, 200.0
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if false_alarm(mid, reading) > FALSE_ALARM else (lo, mid)
-    return hi
+    :data:`FALSE_ALARM` (:func:`false_alarm` falls from 1 at z = 0 as z grows)."""
+    from scipy.optimize import brentq  # loaded already by the fit that came before
 
-
-def noise_level(sigma: float, reading: np.ndarray, periods: np.ndarray) -> np.ndarray:
-    """(F,) The amplitude, per period of ``periods`` (F,) mm, that white noise of 1σ ``sigma``
-    at ``reading`` (N,) mm crosses anywhere in the band with probability :data:`FALSE_ALARM`.
-
-    Noise of σ gives the fit's (α, β) the covariance σ² M⁻¹/N (M the normal sums of
-    :func:`_sums`), so its amplitude² averages σ² tr(M⁻¹)/N and the power z compares it with
-    that: the level is √(z* σ² tr M⁻¹ / N), z* from :func:`false_alarm`. Where the readings
-    sample a period well, M = I/2 and the level is flat, √(4 z* σ²/N); where they cannot
-    resolve it, noise alone makes large amplitudes and the level rises with them (a flat line
-    was crossed by noise in 14 % of 30-reading legs, not 1 %)."""
-    x = np.asarray(reading, float)
-    _, level = _scan(x, None, periods, _z_at_false_alarm(x))
-    return sigma * level
+    return float(brentq(lambda z: float(false_alarm(z, reading)) - FALSE_ALARM, 0.0, 200.0))

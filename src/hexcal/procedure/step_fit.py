@@ -10,7 +10,7 @@ at once (positions, rotations, readings, noise) must count the same poses.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,12 +62,14 @@ class Conditioning:
     hint: str
 
 
-def pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
-    """1σ of a recorded pose from the poses' still windows; :data:`DEFAULT_POSE_NOISE` until two
-    poses with their raw samples tell."""
+def _window_noise(
+    poses: Sequence[RecordedPose], levels: Callable[[list[RecordedPose]], NoiseLevels]
+) -> NoiseLevels:
+    """``levels`` of the poses' still windows; :data:`DEFAULT_POSE_NOISE` until two poses with
+    their raw samples tell."""
     if len(poses) >= 2 and all(p.tracker_samples and p.leg_samples for p in poses):
         try:
-            n = per_pose_noise(list(poses))
+            n = levels(list(poses))
             if np.isfinite([n.position_mm, n.orientation_deg, n.reading_mm]).all():
                 return n
         except (ValueError, ZeroDivisionError):
@@ -75,15 +77,16 @@ def pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
     return DEFAULT_POSE_NOISE
 
 
+def pose_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
+    """1σ of a recorded pose (a still window's mean) from the poses' windows."""
+    return _window_noise(poses, per_pose_noise)
+
+
 def sample_noise(poses: Sequence[RecordedPose]) -> NoiseLevels:
     """1σ of ONE sample of each stream (what the live display shows), from the scatter inside
-    the poses' still windows; :data:`DEFAULT_POSE_NOISE` until two poses with their raw
-    samples tell (the monitor's floor, :data:`MIN_CLAMP_MOVE_MM`, then rules)."""
-    if len(poses) >= 2 and all(p.tracker_samples and p.leg_samples for p in poses):
-        n = still_window_noise(list(poses))
-        if np.isfinite([n.position_mm, n.orientation_deg, n.reading_mm]).all():
-            return n
-    return DEFAULT_POSE_NOISE
+    the poses' still windows (until they tell, the monitor's floor, :data:`MIN_CLAMP_MOVE_MM`,
+    rules)."""
+    return _window_noise(poses, still_window_noise)
 
 
 def live_offset_limit_mm(
