@@ -14,7 +14,6 @@ from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_name, write_effect_file
 from hexcal.effects import CATALOGUE
-from hexcal.effects.backlash import deadband_mm
 from hexcal.sim import verdict_cases as vc
 
 #: The table's label of each case.
@@ -114,13 +113,7 @@ def _explorer(c: vc.HiddenCase, d) -> dict:
         return out
     name = effect_name(lead)
     with tempfile.TemporaryDirectory() as tmp:
-        path = write_effect_file(
-            lead,
-            Path(tmp) / f"{name}.py",
-            c.case,
-            t0_s=float(c.meas.t.min()),
-            deadband_mm=deadband_mm(d.problem.data),
-        )
+        path = write_effect_file(lead, Path(tmp) / f"{name}.py", c.case)
         spec = importlib.util.spec_from_file_location(f"hexcal_effect_file_{name}", path)
         if spec is None or spec.loader is None:
             raise ImportError(f"{path}: not a Python file")

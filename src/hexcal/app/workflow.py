@@ -515,11 +515,16 @@ def diagnose_chain(
     auto: bool = False,
     on_step: Callable[[Any], None] | None = None,
     previous: Any = None,
+    explore_dir: Path | None = None,
 ) -> list:
     """Diagnose Model ``model`` + ``add`` (and the model file's effects); with ``auto``, add
     the named effect and diagnose again until the verdict is ``none`` or ``unexplained`` (at
-    most :data:`MAX_AUTO_STEPS`). ``previous``: an earlier diagnosis of the same inputs, whose
-    precomputed problem is reused. ``on_step`` is called with each diagnosis as it is done."""
+    most :data:`MAX_AUTO_STEPS`). With ``explore_dir`` too, an ``unexplained`` verdict whose
+    residual the explorer can point at goes on as well: the lead is written there as an effect
+    file (:func:`write_explored`), loaded, added, and the chain diagnoses again — until the
+    residual is at the floor or nothing significant is left. ``previous``: an earlier diagnosis
+    of the same inputs, whose precomputed problem is reused. ``on_step`` is called with each
+    diagnosis as it is done."""
     from hexcal.diagnosis import diagnose
 
     added = list(dict.fromkeys((*inp.model_effects, *add)))
@@ -544,9 +549,34 @@ def diagnose_chain(
         steps.append(d)
         if on_step is not None:
             on_step(d)
-        if not auto or not names_an_addition(d.verdict) or len(steps) >= MAX_AUTO_STEPS:
+        if not auto or len(steps) >= MAX_AUTO_STEPS:
             return steps
-        added.append(d.verdict)
+        if names_an_addition(d.verdict):
+            added.append(d.verdict)
+        elif explore_dir is not None and (name := write_explored(d, explore_dir, inp)):
+            added.append(name)
+        else:
+            return steps
+
+
+def write_explored(d: Any, directory: Path, inp: Inputs) -> str | None:
+    """The explorer's lead of diagnosis ``d``, written as an effect file in ``directory``
+    (``<effect>.py``, a name no effect holds yet) and loaded; its effect's name, or None when
+    the residual points at nothing the explorer proposes."""
+    from hexcal.diagnosis.effect_file import write_effect_file
+    from hexcal.effects import CATALOGUE, load_file
+
+    lead = None if d.exploration is None else d.exploration.lead
+    if lead is None:
+        return None
+    name, n = lead.effect_name, 1
+    while name in CATALOGUE:
+        n += 1
+        name = f"{lead.effect_name[:36]}_{n}"
+    path = Path(directory) / f"{name}.py"
+    write_effect_file(lead, path, inp.label, name=name)
+    (loaded,) = load_file(path)
+    return str(loaded)
 
 
 def _name_the_floor(d: Any, inp: Inputs) -> None:
@@ -567,9 +597,10 @@ def model_of(
     outliers = getattr(last, "outlier_ids", [])
     if outliers:  # the diagnosis set them aside: the model is calibrated without them too
         inp = inp.without(outliers)
-    located = getattr(last.problem.design, "zero_steps", None)
-    if "zero_step" in effects and located:  # the steps the diagnosis located, with their times
-        inp = replace(inp, design=inp.design.model_copy(update={"zero_steps": located}))
+    for effect, key in (("zero_step", "zero_steps"), ("frame_step", "frame_steps")):
+        located = getattr(last.problem.design, key, None)
+        if effect in effects and located:  # the events the diagnosis located, with their times
+            inp = replace(inp, design=inp.design.model_copy(update={key: located}))
     try:
         cal = calibrate(
             inp.meas,

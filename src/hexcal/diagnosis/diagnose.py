@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.diagnosis.changepoint import ChangePoint, locate, located, search
-from hexcal.diagnosis.covariates import Exploration, explore
+from hexcal.diagnosis.explorer import Exploration, explore
+from hexcal.diagnosis.frame_search import FrameChange
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
@@ -133,6 +134,8 @@ class Diagnosis:
     exploration: Exploration | None = None
     #: How many times too low the stated noise looks (``noise_understated``): √(χ²/dof)
     noise_factor: float = float("nan")
+    #: A rigid move of the tracker located by the search (``frame_step``'s time)
+    frame: FrameChange | None = None
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -214,6 +217,7 @@ class Diagnosis:
             "alike": list(self.alike),
             "noise_factor": _nan_none(self.noise_factor),
             "changes": [c.to_dict() for c in self.changes],
+            "frame_change": None if self.frame is None else self.frame.to_dict(),
             "explore": None if self.exploration is None else self.exploration.to_dict(),
             "rms_per_leg_mm": f.rms_per_leg.tolist(),
             "cv_rms_per_leg_mm": f.cv_rms_per_leg.tolist(),
@@ -358,6 +362,7 @@ def diagnose(
         changes=j.changes,
         exploration=exploration,
         noise_factor=noise_factor,
+        frame=j.frame,
     )
 
 
@@ -450,6 +455,14 @@ def _session_notes(effects: tuple[str, ...], verdict: Verdict, notes: list[str])
     if verdict in CATALOGUE and of_the_session(verdict):
         session_effects.append(verdict)
     for e in dict.fromkeys(session_effects):
+        if e == "frame_step":
+            notes.append(
+                "frame_step is a property of this session, not of the robot: the tracker (or the "
+                "robot's base) moved during it, and the move is fitted to calibrate from these "
+                "poses, but the calibrated model does not carry it; fix the tracker's stand, and "
+                "record the session again to check"
+            )
+            continue
         if e == ZERO_STEP:
             notes.append(
                 "zero_step is a property of this session, not of the robot: the step is fitted "

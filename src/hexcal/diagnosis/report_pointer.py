@@ -29,7 +29,7 @@ def pointer_section(d: Diagnosis, sid: str) -> str:
         f"<p>The {esc(lead.covariate.label)} points at {esc(lead.points_at)}. "
         "<code>hexcal diagnose … --effect-file FILE.py</code> writes an effect with that shape: "
         "edit it to the physics you suspect, pass it back with <code>--effects FILE.py --add "
-        f"by_{esc(lead.covariate.name)}</code>, and watch the error fall.</p>"
+        f"{esc(lead.effect_name)}</code>, and watch the error fall.</p>"
         if lead is not None
         else "<p>No covariate of the library explains a significant share: look at the "
         "residual plots below.</p>"

@@ -119,6 +119,8 @@ def verdict_lines(d: Diagnosis) -> list[str]:
         out.append(f"  (an effect from outside the catalogue: {get_effect(v).source.text()})")
     if v == "zero_step":
         out += [f"  {c.text()}" for c in d.changes]
+    if v == "frame_step" and d.frame is not None:
+        out.append(f"  {d.frame.text()}")
     return out
 
 

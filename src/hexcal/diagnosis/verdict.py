@@ -33,7 +33,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.diagnosis.changepoint import ChangePoint, locate, search
+from hexcal.diagnosis.frame_search import (
+    FrameChange,
+    leg_step_beyond_smooth,
+    locate_frame,
+    search_frame,
+)
 from hexcal.diagnosis.outliers import OutlierSearch, robust_level
+from hexcal.diagnosis.pose_products import PoseProducts
 from hexcal.diagnosis.score import Projection
 from hexcal.diagnosis.scoring import (
     Candidate,
@@ -49,6 +56,8 @@ from hexcal.estimate.effect_fit import ModelFit, Problem, cross_validated, fit_m
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.vocabulary import Outcome, Verdict
 
+#: A leg's zero step within this many poses of a located move of the tracker is the move's.
+FRAME_POSES = 3
 #: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
 BIC_STRONG = -10.0
 #: An effect that brings the residual to the floor (alone or with one more) must explain at
@@ -93,6 +102,8 @@ class Judgement:
     changes: list[ChangePoint] = field(default_factory=list)
     #: s² of the residual from its median pose (:func:`~hexcal.diagnosis.outliers.robust_level`)
     level: float = 1.0
+    #: A rigid move of the tracker located at the fit (the ``frame_step`` effect's time)
+    frame: FrameChange | None = None
 
 
 def of_the_session(name: str) -> bool:
@@ -135,10 +146,7 @@ def judge(
         else:
             fit = fit_model(problem, effects)
     level = robust_level(problem, fit)
-    changes: list[ChangePoint] = []
-    if "zero_step" not in effects:
-        changes = search(problem, fit, level)
-        locate(problem, changes)
+    changes, frame = _events(problem, fit, effects, level)
     candidates = identifiable_candidates(problem, fit, effects, CATALOGUE)
     _refit_leaders(problem, fit, candidates, effects)
     floor, floor_source, s2 = _floor(problem, fit, effects, candidates, sig, notes, rich)
@@ -187,7 +195,33 @@ def judge(
         alike,
         changes,
         level,
+        frame,
     )
+
+
+def _events(
+    problem: Problem, fit: ModelFit, effects: tuple[str, ...], level: float
+) -> tuple[list[ChangePoint], FrameChange | None]:
+    """Events in time, located before the candidates are scored: a rigid move of the tracker
+    (every leg at one pose), and each leg's own zero steps — a step only where it is
+    significant beyond a smooth curve of that leg's residual in time (uneven heating is a
+    curve). Both are then scored as effects, and the verdict tells them apart."""
+    products = PoseProducts(fit, level)
+    frame = None
+    if "frame_step" not in effects:
+        frame = search_frame(problem, fit, level, products)
+        locate_frame(problem, frame)
+    changes: list[ChangePoint] = []
+    if "zero_step" not in effects:
+        changes = [
+            c
+            for c in search(problem, fit, level)
+            if leg_step_beyond_smooth(products, problem, c.leg, c.index) > c.threshold
+            # the legs that changed at the tracker's move changed with it, not alone
+            and (frame is None or abs(c.index - frame.index) > FRAME_POSES)
+        ]
+        locate(problem, changes)
+    return changes, frame
 
 
 def _refit_leaders(
@@ -209,7 +243,7 @@ def _refit_leaders(
 def _search_penalty(problem: Problem, fit: ModelFit, name: str) -> float:
     """ΔBIC's share of parameters an effect found by a search (``searched_params`` per
     column: the zero steps' times), beyond the columns of its linear fit."""
-    per = getattr(get_effect(name), "searched_params", 0)
+    per = float(getattr(get_effect(name), "searched_params", 0))
     if not per:
         return 0.0
     n = fit.refinement.dof + len(fit.refinement.x)  # the residual rows

@@ -17,6 +17,7 @@ from hexcal.effects import (  # noqa: F401
     balljoint,
     compliance,
     drift,
+    frame_step,
     gain,
     leadscrew,
     offset,

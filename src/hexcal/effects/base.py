@@ -70,6 +70,9 @@ class EffectData:
     a: np.ndarray
     b: np.ndarray
     extras: dict = field(default_factory=dict)
+    #: The measurement table's extra numeric columns by name, (M,) each: a lab's own sensors
+    #: (:func:`hexcal.effects.covariates.numeric_columns`)
+    columns: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.readings)
@@ -100,6 +103,7 @@ class EffectData:
             robot.a,
             robot.b,
             self.extras,
+            self.columns,
         )
 
     def subset(self, idx: np.ndarray) -> EffectData:
@@ -114,6 +118,7 @@ class EffectData:
             self.a,
             self.b,
             self.extras,
+            {k: v[idx] for k, v in self.columns.items()},
         )
 
 

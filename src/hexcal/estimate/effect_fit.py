@@ -9,6 +9,7 @@ import numpy as np
 
 from hexcal.effects import CATALOGUE, EffectData, ParamSpec, get_effect
 from hexcal.effects.backlash import deadband_for_noise
+from hexcal.effects.covariates import numeric_columns
 from hexcal.estimate.accuracy import PoseAccuracy, PoseErrors, pose_errors, pose_floor
 from hexcal.estimate.folds import fold_fits
 from hexcal.estimate.layout import ParameterLayout
@@ -182,6 +183,7 @@ class Problem:
             design,
             linear42.a,
             linear42.b,
+            columns=numeric_columns(meas.extra),
         )
         return cls(meas, design, sigmas, linear42, data)
 

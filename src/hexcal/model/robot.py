@@ -85,6 +85,16 @@ class ZeroStep(BaseModel):
     t_s: float = Field(allow_inf_nan=False)
 
 
+class FrameStep(BaseModel):
+    """A rigid move of the tracker (or of the robot's base under it) during a session: from
+    ``t_s`` (s, the session's clock) on, every pose is measured in a frame moved by a small
+    rotation and translation. Located by ``hexcal diagnose`` (its search for a rigid move of
+    every leg at one pose), or stated in robot.json."""
+
+    model_config = ConfigDict(extra="forbid")
+    t_s: float = Field(allow_inf_nan=False)
+
+
 class Robot(BaseModel):
     """A Gough platform's geometry as in robot.json (docs/formats.md). Unknown keys are kept."""
 
@@ -106,6 +116,9 @@ class Robot(BaseModel):
     #: Changes of a leg's encoder zero during the session (at most one per leg), for the
     #: ``zero_step`` effect.
     zero_steps: Annotated[list[ZeroStep], Field(max_length=6)] | None = None
+    #: Rigid moves of the tracker (or the base) during the session, for the ``frame_step``
+    #: effect.
+    frame_steps: Annotated[list[FrameStep], Field(max_length=3)] | None = None
     #: Half-angle of each joint's cone about the leg's direction at home, deg (both ends).
     joint_limit_deg: Number | None = Field(None, gt=0, le=180, allow_inf_nan=False)
     #: Plausible ranges replacing the catalogue's: by effect (``gain``) or by parameter's full

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,6 +17,7 @@ from hexcal.app.commands.common import (
     report_mismatch,
 )
 from hexcal.app.progress import Progress, progress, wanted
+from hexcal.errors import InputError
 
 if TYPE_CHECKING:
     from hexcal.app.workflow import Inputs, ModelResult
@@ -74,6 +76,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "covariate it follows (pass it back with --effects)",
     )
     d.add_argument(
+        "--explore",
+        type=Path,
+        metavar="DIR",
+        help="with --auto: when the residual is unexplained, write the explorer's lead as an "
+        "effect file in DIR, add it and go on (two unknown effects: two files)",
+    )
+    d.add_argument(
         "--exclude-at-limits",
         action="store_true",
         help="leave out the poses with a leg at the end of its stroke or a joint at its limit",
@@ -93,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
         (args.report, "report.html"),
         (args.plots, "/"),
     )
+    if args.explore is not None and not args.auto:
+        raise InputError("--explore goes with --auto (it carries the chain through the leads)")
     load_effects(args)
     inp = read_inputs(args)
     for out_path in (args.out, args.residuals, args.report, args.effect_file):
@@ -138,6 +149,8 @@ def run(args: argparse.Namespace) -> int:
             out["written"] = {"path": str(args.out), "model": result.name}
         if args.effect_file:
             out["effect_file"] = effect_written
+        if args.explore is not None:
+            out["explored_files"] = _explored_files(steps, args.explore)
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         from hexcal.app.plain import diagnosis_summary, opening
@@ -173,14 +186,31 @@ def run(args: argparse.Namespace) -> int:
             print(f"calibrated model ({result.name}) written to {args.out}")
         if args.effect_file:
             print(_effect_file_line(effect_written))
+        for f in _explored_files(steps, args.explore) if args.explore is not None else []:
+            print(
+                f"effect {f['effect']} (the explorer's lead along the {f['covariate']}) written to "
+                f"{f['path']} and added; edit it, then --effects {f['path']} --add {f['effect']}"
+            )
     return report_mismatch(mismatch, args)
+
+
+def _explored_files(steps: list[Diagnosis], directory: Path) -> list[dict]:
+    """The effect files the chain wrote in ``directory`` and added, in the chain's order."""
+    out = []
+    for before, d in itertools.pairwise(steps):
+        new = [e for e in d.effects if e not in before.effects]
+        lead = before.exploration.lead if before.exploration is not None else None
+        for e in new:
+            path = directory / f"{e}.py"
+            if lead is not None and path.exists():
+                out.append({"path": str(path), "effect": e, "covariate": lead.covariate.name})
+    return out
 
 
 def _write_effect_file(d: Diagnosis, path: Path, inp: Inputs) -> dict:
     """The effect file of the chain's last step, when its residual points somewhere:
     ``{"path", "effect", "covariate"}``, or ``{"path": None, "reason"}``."""
     from hexcal.diagnosis.effect_file import effect_name, write_effect_file
-    from hexcal.effects.backlash import deadband_mm
 
     lead = None if d.exploration is None else d.exploration.lead
     if lead is None:
@@ -190,13 +220,7 @@ def _write_effect_file(d: Diagnosis, path: Path, inp: Inputs) -> dict:
             else "the residual follows none of the covariates"
         )
         return {"path": None, "reason": f"no effect file written: {why}"}
-    write_effect_file(
-        lead,
-        path,
-        inp.label,
-        t0_s=float(inp.meas.t.min()),
-        deadband_mm=deadband_mm(d.problem.data),
-    )
+    write_effect_file(lead, path, inp.label)
     return {"path": str(path), "effect": effect_name(lead), "covariate": lead.covariate.name}
 
 
@@ -224,7 +248,17 @@ def _diagnose_and_write(
     model = ModelKind(args.model)
     added = "".join(f" + {e}" for e in args.add or ())
     bar.stage(f"diagnosing Model {int(model)}{added}")
-    steps = diagnose_chain(inp, model, add=tuple(args.add or ()), auto=args.auto, on_step=next_step)
+    explore = getattr(args, "explore", None)
+    if explore is not None:
+        explore.mkdir(parents=True, exist_ok=True)
+    steps = diagnose_chain(
+        inp,
+        model,
+        add=tuple(args.add or ()),
+        auto=args.auto,
+        on_step=next_step,
+        explore_dir=explore,
+    )
     result = model_of(inp, steps, model) if args.out else None
     mismatch = []
     if not args.no_drawing_check:

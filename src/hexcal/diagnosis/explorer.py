@@ -1,0 +1,387 @@
+"""Where an unexplained residual points: the residual explained by shapes along covariates.
+
+When no catalogue effect explains the excess over the noise floor, the physical quantity the
+residual follows is what points an engineer at the physics. Every covariate of the library
+(:mod:`hexcal.effects.covariates`: the platform's pose, every leg's stroke, the leg's
+direction, the load and its products, the direction of motion, time, temperature, the place in
+the procedure and the table's own numeric columns) is tried with every shape of
+:mod:`hexcal.effects.explored` — a line, a smooth spline (its knot count chosen by
+cross-validation), a periodic error at the period a periodogram over the covariate finds, a
+step at a split of it, its sign — on the legs whose own share is significant, on all six, each
+leg with its own coefficients or all sharing one set.
+
+A shape counts when its score at the current fit (the model's own parameters projected out,
+:func:`hexcal.diagnosis.scoring.block_score`) exceeds the Bonferroni-corrected χ² threshold over
+every shape tried (:data:`EXPLORE_ALPHA`, scores over the session's noise level). Leads are
+ranked by what they explain on poses they were not fitted to: the projected residual is
+regressed on the projected shape in :data:`~hexcal.diagnosis.pose_products.K_FOLDS` folds of whole poses, and the χ² removed
+from each held-out fold is summed (no parameter-count penalty: a shape that fits noise loses
+on held-out poses by itself). The best lead of each covariate is then refitted for real as an
+effect (:class:`~hexcal.effects.explored.ExploredEffect`, exactly what the effect file it
+writes declares): its held-out RMS is the figure stated, and a lead whose refit predicts
+held-out poses worse than the model without it is not proposed.
+
+Folds: plain numpy (a permutation of the poses, a fixed seed), not scikit-learn's GroupKFold:
+the groups are whole poses (their six readings share the pose's noise), which a reshape gives,
+and it would be hexcal's only use of that library.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hexcal.diagnosis.periodogram import periodogram
+from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
+from hexcal.effects import CATALOGUE
+from hexcal.effects.covariates import Covariate, library
+from hexcal.effects.explored import ExploredEffect, Shape, line, periodic, sign, spline, step
+from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
+from hexcal.estimate.quantiles import chi2_isf
+
+#: Family-wise false-alarm probability over every covariate and shape tried.
+EXPLORE_ALPHA = 1e-3
+#: Interior knots of the smooth shapes tried (0: a cubic); cross-validation picks one.
+SPLINE_KNOTS = (0, 4, 11)
+#: Splits of a step shape: these quantiles of the covariate.
+STEP_QUANTILES = np.linspace(0.1, 0.9, 9)
+#: A signed covariate's sign (a load reversing) must hold this share of the poses both ways.
+MIN_SIGN_SHARE = 0.03
+#: Leads refitted for real (their figure stated, "never worse" checked).
+N_REFIT = 3
+#: How many of a covariate's significant shapes are cross-validated (best in-sample first).
+N_CV = 6
+#: A lead leaving more than this share of the excess is said to leave most of it.
+MOST = 0.5
+#: Periods searched along a periodic covariate: from this share of its span …
+MAX_PERIOD_SHARE = 0.6
+#: … down to this many poses per period at least (a period needs several poses to be seen).
+POSES_PER_PERIOD = 4.0
+
+
+@dataclass
+class Lead:
+    """One covariate's best shape at the fit."""
+
+    covariate: Covariate
+    values: np.ndarray  #: (M, 6) the covariate at each pose and leg
+    shape: Shape
+    score: float  #: χ² the shape removes in-sample (first order), over the noise level
+    threshold: float  #: the score it must exceed to count
+    heldout: float  #: χ² it removes from held-out poses (folds), over the noise level
+    share: float  #: of the excess χ² over the floor it explains on held-out poses
+    significant: bool = False
+    #: mm, the held-out RMS of the model with the lead added as an effect (refitted for real),
+    #: and without it
+    cv_rms_after_mm: float = float("nan")
+    cv_rms_before_mm: float = float("nan")
+    worse: bool = False  #: the refit predicts held-out poses worse: not proposed
+    #: (M, 6) mm the refitted lead's contribution at each pose and leg (the picture's curve)
+    fitted: np.ndarray | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def columns(self) -> int:
+        return self.shape.n_params
+
+    @property
+    def effect_name(self) -> str:
+        return "by_" + re.sub(r"[^a-z0-9_]", "_", self.covariate.name.lower())[:36]
+
+    @property
+    def points_at(self) -> str:
+        if self.shape.kind == "sign" and self.covariate.signed:
+            return "play in a leg's joints, taken up one way or the other as its load reverses"
+        if self.shape.kind == "periodic":
+            return f"a cyclic error along the {self.covariate.label} (a scale, a screw, a gear)"
+        return self.covariate.points_at
+
+    @property
+    def proposed(self) -> bool:
+        return self.significant and not self.worse
+
+    def where(self) -> str:
+        legs = self.shape.legs
+        if len(legs) == 6:
+            return "every leg" + (" alike" if self.shape.shared else "")
+        return "leg" + "s" * (len(legs) > 1) + " " + ", ".join(map(str, legs))
+
+    def text(self) -> str:
+        c = self.covariate
+        after = (
+            f"; held-out RMS {1000 * self.cv_rms_before_mm:.1f} → "
+            f"{1000 * self.cv_rms_after_mm:.1f} µm with it"
+            if np.isfinite(self.cv_rms_after_mm)
+            else ""
+        )
+        return (
+            f"{c.label} ({c.name}; {self.shape.describe()} on {self.where()}): explains "
+            f"{100 * self.share:.0f} % of the excess on held-out poses (χ² {self.score:.0f} "
+            f"in-sample with {self.columns} shape parameters, threshold "
+            f"{self.threshold:.0f}{after})"
+        )
+
+    def to_dict(self) -> dict:
+        c = self.covariate
+        return {
+            "covariate": c.name,
+            "label": c.label,
+            "unit": c.unit,
+            "points_at": self.points_at,
+            "share_of_excess": self.share,
+            "chi2": self.score,
+            "heldout_chi2": self.heldout,
+            "columns": self.columns,
+            "threshold": self.threshold,
+            "shape": self.shape.to_dict(),
+            "significant": self.significant,
+            "proposed": self.proposed,
+            "effect": self.effect_name,
+            "cv_rms_after_mm": _none(self.cv_rms_after_mm),
+            "cv_rms_before_mm": _none(self.cv_rms_before_mm),
+            "notes": list(self.notes),
+        }
+
+
+def _none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
+@dataclass
+class Exploration:
+    """What the residual follows: every covariate's best shape, the proposed ones first, best
+    (most held-out χ² explained) first."""
+
+    tested: list[Lead] = field(default_factory=list)
+    level: float = 1.0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def leads(self) -> list[Lead]:
+        return [t for t in self.tested if t.proposed]
+
+    @property
+    def lead(self) -> Lead | None:
+        return self.leads[0] if self.leads else None
+
+    def summary(self) -> str:
+        if not self.leads:
+            return (
+                "the residual follows none of the covariates ("
+                + ", ".join(t.covariate.name for t in self.tested)
+                + ")"
+            )
+        text = "the residual follows " + "; ".join(t.text() for t in self.leads[:3])
+        best = self.leads[0]
+        if best.share < MOST:
+            text += (
+                f". Even the best lead explains only {100 * best.share:.0f} % of the excess: "
+                "what is missing is not one shape along one of these covariates (several "
+                "effects, or a quantity hexcal does not record)"
+            )
+        return text
+
+    def to_dict(self) -> dict:
+        return {
+            "summary": self.summary(),
+            "leads": [t.to_dict() for t in self.leads],
+            "tested": [t.to_dict() for t in self.tested],
+            "noise_level": self.level,
+            "notes": list(self.notes),
+        }
+
+
+def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndarray | None:
+    """(M, 6) ``cov`` at ``problem``'s poses (at the fitted geometry when it uses it), or None
+    when the data cannot carry it (no temperature, or one that hardly changed)."""
+    data = problem.data
+    if cov.uses_geometry:
+        data = data.at_geometry(fitted_robot(problem.design, fit.refinement))
+    if cov.name == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
+        return None
+    values = np.asarray(cov.values(data), float)
+    if not np.all(np.isfinite(values)) or np.all(np.ptp(values, axis=0) == 0):
+        return None
+    return values
+
+
+def _period(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> tuple[float, int]:
+    """(the period a periodogram of the residual (M, 6) over ``values`` finds, summed over the
+    legs; how many independent periods the search looked at)."""
+    span = float(np.max(np.ptp(values, axis=0)))
+    m = len(values)
+    hi = MAX_PERIOD_SHARE * span
+    lo = max(span * POSES_PER_PERIOD / m, hi / 200.0)
+    if not (span > 0 and lo < hi):
+        return 0.0, 0
+    n = int(np.clip(5 * span * (1 / lo - 1 / hi), 50, 4000))
+    periods = 1.0 / np.linspace(1 / hi, 1 / lo, n)
+    power = np.zeros(n)
+    legs = range(1) if cov.per_pose else range(6)
+    for k in legs:
+        if np.ptp(values[:, k]) > 0:
+            r = resid[:, k] if not cov.per_pose else resid.mean(axis=1)
+            power += periodogram(values[:, k], r, periods) ** 2
+    return float(periods[int(np.argmax(power))]), max(int(span * (1 / lo - 1 / hi)), 1)
+
+
+def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tuple[Shape, int]]:
+    """The shapes tried along ``cov`` (own coefficients per leg and shared), each with the
+    number of tests it stands for (a period or a split searched counts its tries)."""
+    out: list[tuple[Shape, int]] = []
+    scopes = (False, True)
+    if cov.discrete:
+        return [(sign(shared), 1) for shared in scopes]
+    for shared in scopes:
+        out.append((line(values, shared), 1))
+        out += [(spline(values, n, shared), 1) for n in SPLINE_KNOTS]
+        qs = np.quantile(values.reshape(-1) if shared else values, STEP_QUANTILES, axis=0)
+        out += [(step(np.atleast_1d(q), shared), len(STEP_QUANTILES)) for q in qs]
+        if cov.signed and min((values > 0).mean(), (values < 0).mean()) >= MIN_SIGN_SHARE:
+            out.append((sign(shared), 1))
+    if cov.periodic:
+        period, tries = _period(cov, values, resid)
+        if period > 0:
+            out += [(periodic(period, shared), tries) for shared in scopes]
+    return out
+
+
+@contextlib.contextmanager
+def lead_effect(problem: Problem, lead: Lead) -> Iterator[str]:
+    """The lead registered as an effect (its name) for as long as the block runs."""
+    name = lead.effect_name
+    while name in CATALOGUE:
+        name = name[:37] + "_" + str(int(name.rsplit("_", 1)[-1]) + 1 if name[-1].isdigit() else 2)
+    eff = ExploredEffect(name, lead.covariate.name, lead.shape)
+    eff.physics = f"a shape along the {lead.covariate.label}"
+    eff.separating_motion = f"poses spreading the {lead.covariate.label} over its range"
+    CATALOGUE[name] = eff
+    try:
+        yield name
+    finally:
+        CATALOGUE.pop(name, None)
+        problem._bases.pop(name, None)
+        problem._missing.pop(name, None)
+
+
+def _held_shapes(fit: ModelFit) -> set[tuple[str, str]]:
+    """(covariate, shape) of the explored effects the model holds already."""
+    out = set()
+    for name in fit.effects:
+        eff = CATALOGUE.get(name)
+        if isinstance(eff, ExploredEffect):
+            out.add((eff.covariate, repr(eff.shape.to_dict())))
+    return out
+
+
+def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Exploration:
+    """Every covariate's best shape at ``fit`` (see the module docstring): ``s2`` the noise
+    level of the floor (for the share of the excess), ``level`` the session's own noise level
+    the scores are judged against (at least ``s2``)."""
+    scorer = PoseProducts(fit, level)
+    excess = fit.chi2 - fit.dof * s2
+    held = _held_shapes(fit)
+    tried: list[tuple[Covariate, np.ndarray, Shape, int]] = []
+    for cov in library(problem.data):
+        values = covariate_values(problem, fit, cov)
+        if values is None:
+            continue
+        for shape, tries in _families(cov, values, fit.residuals):
+            if (cov.name, repr(shape.to_dict())) not in held:
+                tried.append((cov, values, shape, tries))
+    tests = max(sum(t for *_, t in tried), 1)
+    best: dict[str, Lead] = {}
+    pending: dict[str, list[tuple[float, Lead, ColumnStats]]] = {}
+    for cov, values, shape, _ in tried:
+        for lead, st in _scoped(scorer, cov, values, shape, tests):
+            if lead.significant:
+                merit = lead.score - lead.columns * np.log(scorer.n)
+                pending.setdefault(cov.name, []).append((merit, lead, st))
+            elif cov.name not in best or lead.score > best[cov.name].score:
+                best[cov.name] = lead
+    for name, rows in pending.items():
+        rows.sort(key=lambda row: -row[0])
+        for _, lead, st in rows[:N_CV]:
+            lead.heldout = st.heldout()
+            lead.share = float(lead.heldout * level / excess) if excess > 0 else float("nan")
+            held_best = best.get(name)
+            if held_best is None or not held_best.significant or lead.heldout > held_best.heldout:
+                best[name] = lead
+    tested = sorted(best.values(), key=lambda t: (not t.significant, -t.heldout, -t.score))
+    out = Exploration(tested, level)
+    _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
+    for t in tested:
+        if t.significant and not t.heldout > 0:
+            t.worse = True
+            t.notes.append("it fits the poses it saw, not the others (held-out χ² not reduced)")
+    out.tested.sort(key=lambda t: (not t.proposed, -t.heldout, -t.score))
+    return out
+
+
+def _own_columns(shape: Shape, values: np.ndarray) -> np.ndarray:
+    """(M, 6, per) leg k's columns of ``shape`` at its values, in row k."""
+    return np.stack([shape.columns(values[:, k], k) for k in range(6)], axis=1)
+
+
+def _scoped(
+    scorer: PoseProducts, cov: Covariate, values: np.ndarray, shape: Shape, tests: int
+) -> list[tuple[Lead, ColumnStats]]:
+    """``shape`` on every leg, and on the legs whose own score exceeds the per-leg threshold
+    (a dent or a binding joint is one leg's: a shape on six legs would spend five legs'
+    parameters on noise), with their own coefficients and sharing one set; each judged
+    against the family-wise threshold. A shared shape is scored on every leg only."""
+    per = shape.per_leg
+    full = scorer.stats(_own_columns(shape, values))
+    eye = np.eye(6 * per)
+    blocks = [eye[:, k * per : (k + 1) * per] for k in range(6)]
+    total = np.sum(blocks, axis=0)  # (6 per, per): one coefficient set shared by the six legs
+    if shape.shared:
+        variants = [(shape, full.map(total))]
+    else:
+        variants = [(shape, full)]
+        leg_threshold = float(chi2_isf(EXPLORE_ALPHA / (6 * tests), per))
+        legs = [k + 1 for k in range(6) if full.map(blocks[k]).score() > leg_threshold]
+        if 0 < len(legs) < 6:
+            sel = np.concatenate([blocks[leg - 1] for leg in legs], axis=1)
+            variants.append((shape.with_legs(tuple(legs)), full.map(sel)))
+            if len(legs) > 1:
+                summed = np.sum([blocks[leg - 1] for leg in legs], axis=0)
+                variants.append((shape.with_legs(tuple(legs), shared=True), full.map(summed)))
+    out = []
+    for s, st in variants:
+        score = st.score()
+        threshold = float(chi2_isf(EXPLORE_ALPHA / tests, s.n_params))
+        lead = Lead(cov, values, s, score, threshold, float("nan"), float("nan"))
+        lead.significant = bool(score > threshold)
+        out.append((lead, st))
+    return out
+
+
+def _refit(problem: Problem, fit: ModelFit, leads: list[Lead], out: Exploration) -> None:
+    """Refit the model with each lead as an effect: its held-out RMS, its fitted curve, and
+    whether it predicts held-out poses worse than the model without it (then not proposed)."""
+    effects = fit.effects
+    for lead in leads:
+        lead.cv_rms_before_mm = fit.cv_rms_mm
+        with lead_effect(problem, lead) as name:
+            try:
+                after = fit_model(problem, (*effects, name), seed_fit=fit)
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                lead.worse = True
+                lead.notes.append(f"its refit failed: {exc}")
+                continue
+            coef = np.array([p.value for p in after.params if p.name.startswith(name + ".")])
+            basis = problem.basis(name)
+        lead.cv_rms_after_mm = after.cv_rms_mm
+        lead.fitted = basis @ coef if basis.shape[-1] == coef.size else None
+        if not after.cv_rms_mm < fit.cv_rms_mm:
+            lead.worse = True
+            lead.notes.append(
+                f"not proposed: with it the held-out RMS rises ({1000 * fit.cv_rms_mm:.2f} → "
+                f"{1000 * after.cv_rms_mm:.2f} µm): it fits the poses it saw, not the others"
+            )
+            out.notes.append(f"{lead.covariate.name}: " + lead.notes[-1])

@@ -1,0 +1,251 @@
+"""Everything a leg's length error can physically follow, computed at every pose: the
+covariates of the diagnosis' explorer (:mod:`hexcal.diagnosis.explorer`) and of the effects it
+writes (:class:`hexcal.effects.explored.ExploredEffect`), in one place so that an effect file
+loaded unedited evaluates exactly the quantity the explorer scored.
+
+Each covariate is an (M, 6) array — a value per pose and leg; a quantity of the pose (the
+platform's yaw, the time) is the same for the six legs. The library (:func:`library`):
+
+- the platform's position ``x``, ``y``, ``z`` (mm, from the drawing's home) and orientation
+  ``roll``, ``pitch``, ``yaw`` (deg, XYZ angles of the rotation from home) and ``tilt`` (deg,
+  the angle of the platform's normal from its normal at home);
+- the leg's own ``stroke`` (its reading, mm) and every other leg's (``stroke_leg1`` …
+  ``stroke_leg6``: cross-talk, a cable or a supply shared with another leg);
+- the leg's direction: ``inclination`` from the vertical and ``azimuth`` about it (deg, from
+  its azimuth at home);
+- the static axial ``force`` holding the platform's weight (N), and its products with the
+  stroke (``force_x_stroke``, N·mm) and with the length squared (``force_x_length2``, N·m²:
+  a leg bending under its load);
+- the direction of the leg's last move (``last_move``, ±1);
+- ``time`` (s from the session's start), ``temperature`` (°C) and the place in the procedure
+  (``pose_index``, the pose's rank in recording order);
+- every extra numeric column of the measurement table, by its own name (a second
+  thermometer, humidity, a motor current): a lab's own sensor is a covariate without code.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hexcal.effects.backlash import deadband_mm, motion_state
+from hexcal.effects.base import EffectData
+from hexcal.effects.compliance import leg_forces
+
+#: A user column is a covariate when it changes by more than this share of its mean magnitude
+#: (a constant column, or one that only rounds, carries nothing).
+MIN_COLUMN_SPREAD = 1e-9
+
+
+@dataclass(frozen=True)
+class Covariate:
+    """One quantity the residual may follow: its name (the CLI's, the JSON's and the effect
+    file's), what it is, its unit, the physics it points at, and how it is computed."""
+
+    name: str
+    label: str
+    unit: str
+    points_at: str
+    values: Callable[[EffectData], np.ndarray]  #: (M, 6)
+    uses_geometry: bool = False  #: evaluated at the fitted geometry
+    discrete: bool = False  #: a sign itself: one shape only
+    signed: bool = False  #: its sign means something (a load that reverses)
+    periodic: bool = False  #: a periodic error along it is physical (a scale, a screw, a cycle)
+    per_pose: bool = False  #: the same value for the six legs (a quantity of the pose)
+    default_keys: tuple[str, ...] = ()  #: robot.json keys whose defaults its values rest on
+
+
+def _unit(data: EffectData) -> np.ndarray:
+    v = data.leg_vectors
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _per_pose(values: np.ndarray) -> np.ndarray:
+    return np.repeat(np.asarray(values, float)[:, None], 6, axis=1)
+
+
+def _home_rotation(data: EffectData) -> Rotation:
+    q = np.asarray(data.robot.home.quaternion, float)  # scalar first
+    return Rotation.from_quat(np.r_[q[1:], q[0]])
+
+
+def _relative_rotation(data: EffectData) -> Rotation:
+    """The platform's rotation from its home orientation, in the home frame."""
+    return _home_rotation(data).inv() * Rotation.from_matrix(data.rotation)
+
+
+def _angles(data: EffectData) -> np.ndarray:
+    """(M, 3) deg: roll, pitch, yaw, XYZ angles of the rotation from home."""
+    return _relative_rotation(data).as_euler("xyz", degrees=True)
+
+
+def _tilt(data: EffectData) -> np.ndarray:
+    home_z = _home_rotation(data).as_matrix()[:, 2]
+    z = data.rotation[:, :, 2]
+    return np.degrees(np.arccos(np.clip(z @ home_z, -1.0, 1.0)))
+
+
+def _position(axis: int) -> Callable[[EffectData], np.ndarray]:
+    def values(data: EffectData) -> np.ndarray:
+        home = np.asarray(data.robot.home.position, float)
+        return _per_pose(data.position[:, axis] - home[axis])
+
+    return values
+
+
+def _angle(axis: int) -> Callable[[EffectData], np.ndarray]:
+    return lambda data: _per_pose(_angles(data)[:, axis])
+
+
+def _stroke_of(leg: int) -> Callable[[EffectData], np.ndarray]:
+    return lambda data: _per_pose(np.asarray(data.readings, float)[:, leg - 1])
+
+
+def _inclination(data: EffectData) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(_unit(data)[..., 2], -1.0, 1.0)))
+
+
+def _azimuth(data: EffectData) -> np.ndarray:
+    """(M, 6) deg, each leg's azimuth about the vertical from its azimuth at the home pose
+    (wrapped to ±180°: a leg's azimuth swings through tens of degrees, never a turn)."""
+    n = _unit(data)
+    az = np.arctan2(n[..., 1], n[..., 0])
+    home = np.asarray(data.robot.home.position, float)
+    hv = home + _home_rotation(data).apply(data.b) - data.a
+    ref = np.arctan2(hv[:, 1], hv[:, 0])
+    return np.degrees(np.angle(np.exp(1j * (az - ref))))
+
+
+def _force(data: EffectData) -> np.ndarray:
+    mass = data.robot.platform_mass_kg or 1.0
+    com = getattr(data.robot, "platform_com_mm", None)
+    return leg_forces(data, mass, None if com is None else np.asarray(com, float))
+
+
+def _force_x_stroke(data: EffectData) -> np.ndarray:
+    return _force(data) * np.asarray(data.readings, float)
+
+
+def _force_x_length2(data: EffectData) -> np.ndarray:
+    return _force(data) * (data.lengths / 1000.0) ** 2
+
+
+_STROKE_PHYSICS = (
+    "an encoder scale that bends or repeats along the stroke, a dent or a worn stretch of a "
+    "screw or a rail"
+)
+
+#: The library's fixed covariates, in the order the report lists them.
+FIXED: tuple[Covariate, ...] = (
+    Covariate("stroke", "position along the stroke (the reading)", "mm", _STROKE_PHYSICS,
+              lambda d: np.asarray(d.readings, float), periodic=True),
+    *(
+        Covariate(f"stroke_leg{j}", f"leg {j}'s stroke (its reading)", "mm",
+                  f"cross-talk: something shared with leg {j} (a cable, a supply, a frame that "
+                  "flexes as it moves)", _stroke_of(j), periodic=True, per_pose=True)
+        for j in range(1, 7)
+    ),
+    *(
+        Covariate(axis, f"platform position {axis} (from home)", "mm",
+                  f"something the platform drags or pulls as it moves along {axis} (a cable, "
+                  "a hose, a tracker's field distortion)", _position(i), per_pose=True)
+        for i, axis in enumerate("xyz")
+    ),
+    *(
+        Covariate(name, f"platform {name} (from home)", "deg",
+                  f"something that follows the platform's {name} (an encoder cable dragged "
+                  "as it turns, a joint that binds at an angle)", _angle(i), per_pose=True)
+        for i, name in enumerate(("roll", "pitch", "yaw"))
+    ),
+    Covariate("tilt", "platform tilt (from its normal at home)", "deg",
+              "something that grows as the platform tilts (a joint near its limit, a bearing "
+              "loaded sideways)", lambda d: _per_pose(_tilt(d)), per_pose=True),
+    Covariate("inclination", "leg inclination from the vertical", "deg",
+              "a leg sagging or bending under its own weight, a joint seating with the leg's "
+              "angle", _inclination, uses_geometry=True),
+    Covariate("azimuth", "leg azimuth about the vertical (from home)", "deg",
+              "a joint or an encoder head that reads with the leg's azimuth (joint play, a "
+              "cable pull)", _azimuth, uses_geometry=True),
+    Covariate("force", "axial leg force holding the platform's weight", "N",
+              "a leg or a joint that yields non-linearly under load", _force,
+              uses_geometry=True, signed=True, default_keys=("platform_mass_kg",)),
+    Covariate("force_x_stroke", "axial force × stroke", "N·mm",
+              "a leg whose stiffness falls as it extends (a screw loaded over its free length)",
+              _force_x_stroke, uses_geometry=True, default_keys=("platform_mass_kg",)),
+    Covariate("force_x_length2", "axial force × length²", "N·m²",
+              "a leg bending under its load (buckling-like shortening ∝ F·L²)",
+              _force_x_length2, uses_geometry=True, default_keys=("platform_mass_kg",)),
+    Covariate("last_move", "direction of the leg's last move", "±1",
+              "play or friction that depends on the direction of approach",
+              lambda d: motion_state(d.readings, deadband_mm(d)), discrete=True),
+    Covariate("temperature", "structure temperature", "°C",
+              "an expansion that is not proportional to the leg length (an encoder, a mount)",
+              lambda d: _per_pose(np.asarray(d.temperature, float)), per_pose=True),
+    Covariate("time", "time since the session started", "s",
+              "something changing during the session (warm-up, a slipping mount, an encoder "
+              "drifting)", lambda d: _per_pose(np.asarray(d.t, float) - float(np.min(d.t))),
+              periodic=True, per_pose=True),
+    Covariate("pose_index", "place in the procedure (the pose's rank)", "",
+              "something that changes with the procedure's course (a step's clamp, wear, the "
+              "order the poses were taken in)",
+              lambda d: _per_pose(np.arange(len(d), dtype=float)), per_pose=True),
+)  # fmt: skip
+
+
+def _column(name: str) -> Callable[[EffectData], np.ndarray]:
+    return lambda data: _per_pose(data.columns[name])
+
+
+def column_covariate(name: str) -> Covariate:
+    """The covariate of the measurement table's extra numeric column ``name``."""
+    return Covariate(
+        name,
+        f"the table's column {name}",
+        "",
+        f"whatever the lab's own sensor {name!r} measures",
+        _column(name),
+        per_pose=True,
+    )
+
+
+def library(data: EffectData | None = None) -> tuple[Covariate, ...]:
+    """The fixed covariates, then one per extra numeric column of ``data`` (in table order)."""
+    cols = tuple(column_covariate(n) for n in (data.columns if data is not None else {}))
+    return FIXED + cols
+
+
+def covariate(name: str, data: EffectData | None = None) -> Covariate:
+    """The covariate called ``name`` (a fixed one, or an extra column of ``data``)."""
+    for c in library(data):
+        if c.name == name:
+            return c
+    if data is not None and name not in data.columns:
+        raise ValueError(
+            f"no covariate {name!r}: neither in the library "
+            f"({', '.join(c.name for c in FIXED)}) nor a numeric column of the measurements"
+        )
+    return column_covariate(name)
+
+
+def covariate_values(name: str, data: EffectData) -> np.ndarray:
+    """(M, 6) the covariate ``name`` at ``data``'s poses (its unit: :func:`covariate`)."""
+    return np.asarray(covariate(name, data).values(data), float)
+
+
+def numeric_columns(extra: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The extra columns of a measurement table (text, (M,) each) that are numbers at every
+    pose and change, as (M,) floats: a lab's own sensors."""
+    out = {}
+    for name, texts in extra.items():
+        try:
+            values = np.array([float(v) for v in texts], float)
+        except (TypeError, ValueError):
+            continue
+        if values.size and np.all(np.isfinite(values)):
+            scale = max(float(np.max(np.abs(values))), 1e-300)
+            if np.ptp(values) > MIN_COLUMN_SPREAD * scale:
+                out[name] = values
+    return out

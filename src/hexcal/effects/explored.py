@@ -1,0 +1,245 @@
+"""An effect found by exploring the residual: a shape along a covariate.
+
+The diagnosis' explorer (:mod:`hexcal.diagnosis.explorer`) tries shapes (:class:`Shape`) along
+every covariate (:mod:`hexcal.effects.covariates`) and writes the best as an effect file whose
+effect is an :class:`ExploredEffect`: the same covariate, the same shape with the same knots,
+period or split, so that the file loaded unedited fits exactly what the explorer scored.
+
+Shapes, each the constant left out (the leg's offset holds it):
+
+- ``line``: the covariate about the middle of its range, over half its range;
+- ``spline``: a cubic B-spline with interior knots at the covariate's quantiles (a smooth
+  curve; the explorer chooses how many by cross-validation);
+- ``periodic``: a sine and a cosine of the covariate at one period (the period a
+  periodogram over the covariate finds);
+- ``step``: 0 below a split value of the covariate, 1 from it on (a change point);
+- ``sign``: the covariate's sign (play taken up one way or the other as a load reverses, the
+  direction of the last move).
+
+Each in a scope: on the legs ``legs``, each with its own coefficients, or (``shared``) one set
+of coefficients for all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import BSpline
+
+from hexcal.effects.base import Effect, EffectData, ParamSpec
+from hexcal.effects.covariates import covariate, covariate_values
+
+#: Each coefficient's plausible range and the resolution identifiability asks of it, µm.
+PLAUSIBLE_UM = (-1000.0, 1000.0)
+RESOLUTION_UM = 20.0
+KINDS = ("line", "spline", "periodic", "step", "sign")
+
+
+def _row(values) -> np.ndarray:
+    return np.asarray(values, float).reshape(6, -1)
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A shape along a covariate, per leg (arrays are per leg, legs 1-6 in rows).
+
+    ``centre``, ``half`` (6,): the line's middle and half-range; ``lo``, ``hi`` (6,) and
+    ``knots`` (6, n): the spline's boundary and interior knots; ``period``: the periodic
+    shape's, in the covariate's unit; ``split`` (6,): the step's value."""
+
+    kind: str
+    legs: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
+    shared: bool = False
+    centre: tuple[float, ...] = ()
+    half: tuple[float, ...] = ()
+    lo: tuple[float, ...] = ()
+    hi: tuple[float, ...] = ()
+    knots: tuple[tuple[float, ...], ...] = ()
+    period: float = 0.0
+    split: tuple[float, ...] = ()
+    extra: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"shape kind {self.kind!r}: one of {', '.join(KINDS)}")
+        if not self.legs or not set(self.legs) <= set(range(1, 7)):
+            raise ValueError(f"shape legs {self.legs}: 1 to 6, at least one")
+        if self.kind == "periodic" and not self.period > 0:
+            raise ValueError(f"a periodic shape needs a period > 0 (got {self.period})")
+
+    @property
+    def per_leg(self) -> int:
+        """Columns per leg (the shared scope has this many in all)."""
+        if self.kind == "spline":
+            return len(self.knots[0]) + 3
+        return 2 if self.kind == "periodic" else 1
+
+    @property
+    def n_params(self) -> int:
+        return self.per_leg * (1 if self.shared else len(self.legs))
+
+    def columns(self, u: np.ndarray, k: int) -> np.ndarray:
+        """(M, per_leg) leg ``k``'s (0-based) columns at its covariate values ``u`` (M,)."""
+        u = np.asarray(u, float)
+        if self.kind == "line":
+            return ((u - self.centre[k]) / self.half[k])[:, None]
+        if self.kind == "spline":
+            lo, hi = self.lo[k], self.hi[k]
+            t = np.r_[[lo] * 4, self.knots[k], [hi] * 4]
+            x = np.clip(u, lo, hi)
+            return BSpline.design_matrix(x, t, 3).toarray()[:, 1:]
+        if self.kind == "periodic":
+            w = 2.0 * np.pi * u / self.period
+            return np.column_stack([np.sin(w), np.cos(w)])
+        if self.kind == "step":
+            return (u >= self.split[k]).astype(float)[:, None]
+        return np.sign(u)[:, None]
+
+    def basis(self, values: np.ndarray) -> np.ndarray:
+        """(M, 6, n_params) mm per mm: the shape at the covariate ``values`` (M, 6)."""
+        per = self.per_leg
+        out = np.zeros((len(values), 6, self.n_params))
+        for i, leg in enumerate(self.legs):
+            cols = slice(0, per) if self.shared else slice(i * per, (i + 1) * per)
+            out[:, leg - 1, cols] = self.columns(values[:, leg - 1], leg - 1)
+        return out
+
+    def with_legs(self, legs: tuple[int, ...], shared: bool | None = None) -> Shape:
+        from dataclasses import replace
+
+        return replace(self, legs=tuple(legs), shared=self.shared if shared is None else shared)
+
+    def describe(self) -> str:
+        what = {
+            "line": "a straight line",
+            "spline": f"a smooth curve ({len(self.knots[0]) if self.knots else 0} interior knots)",
+            "periodic": f"a periodic error of period {self.period:.4g}",
+            "step": "a step (a change point)",
+            "sign": "a step at its sign change",
+        }[self.kind]
+        return what + (", one coefficient shared by the legs" if self.shared else "")
+
+    def to_dict(self) -> dict:
+        d: dict = {"kind": self.kind, "legs": list(self.legs), "shared": self.shared}
+        for name in ("centre", "half", "lo", "hi", "split"):
+            if getattr(self, name):
+                d[name] = [float(v) for v in getattr(self, name)]
+        if self.knots:
+            d["knots"] = [[float(v) for v in row] for row in self.knots]
+        if self.period:
+            d["period"] = float(self.period)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Shape:
+        tup = lambda key: tuple(float(v) for v in d.get(key, ()))  # noqa: E731
+        return cls(
+            kind=str(d["kind"]),
+            legs=tuple(int(v) for v in d.get("legs", (1, 2, 3, 4, 5, 6))),
+            shared=bool(d.get("shared", False)),
+            centre=tup("centre"),
+            half=tup("half"),
+            lo=tup("lo"),
+            hi=tup("hi"),
+            knots=tuple(tuple(float(v) for v in row) for row in d.get("knots", ())),
+            period=float(d.get("period", 0.0)),
+            split=tup("split"),
+        )
+
+
+def line(values: np.ndarray, shared: bool = False) -> Shape:
+    """The straight line over each leg's range of ``values`` (M, 6) (the pooled range when
+    ``shared``)."""
+    lo, hi = _ranges(values, shared)
+    half = np.maximum(0.5 * (hi - lo), 1e-12)
+    return Shape("line", shared=shared, centre=_t(0.5 * (lo + hi)), half=_t(half))
+
+
+def spline(values: np.ndarray, n_knots: int, shared: bool = False) -> Shape:
+    """A cubic B-spline with ``n_knots`` interior knots per leg, halfway between the quantiles
+    of the leg's values (M, 6) and even spacing over their range: dense where the poses are,
+    never on top of each other (a clamped leg repeats one reading over a whole step)."""
+    lo, hi = _ranges(values, shared)
+    grid = np.linspace(0.0, 1.0, n_knots + 2)[1:-1]
+    pooled = values.reshape(-1, 1) if shared else values
+    quant = np.quantile(pooled, grid, axis=0).T if n_knots else np.zeros((pooled.shape[1], 0))
+    if shared:
+        quant = np.repeat(quant, 6, axis=0)
+    even = lo[:, None] + grid[None, :] * (hi - lo)[:, None]
+    knots = 0.5 * (quant + even)
+    return Shape("spline", shared=shared, lo=_t(lo), hi=_t(hi), knots=tuple(_t(r) for r in knots))
+
+
+def periodic(period: float, shared: bool = False) -> Shape:
+    return Shape("periodic", shared=shared, period=float(period))
+
+
+def step(split: np.ndarray, shared: bool = False) -> Shape:
+    return Shape("step", shared=shared, split=_t(np.broadcast_to(split, (6,))))
+
+
+def sign(shared: bool = False) -> Shape:
+    return Shape("sign", shared=shared)
+
+
+def _ranges(values: np.ndarray, shared: bool) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = values.min(axis=0), values.max(axis=0)
+    if shared:
+        lo, hi = np.full(6, lo.min()), np.full(6, hi.max())
+    return lo, np.maximum(hi, lo + 1e-12)
+
+
+def _t(a) -> tuple[float, ...]:
+    return tuple(float(v) for v in np.asarray(a, float).ravel())
+
+
+class ExploredEffect(Effect):
+    """An effect that is a shape (:attr:`shape`) along a covariate (:attr:`covariate`): what
+    the explorer found, as an effect file declares it. Its parameters are the shape's
+    coefficients, µm. Subclass it in a file (``covariate = "yaw"``, ``shape = Shape(...)``),
+    or override :meth:`basis` with the physics you suspect."""
+
+    covariate: str = ""
+    shape: Shape = Shape("line")
+    points_at: str = ""
+
+    def __init__(self, name: str = "", cov: str = "", shape: Shape | None = None) -> None:
+        # An instance made by the explorer carries its own name, covariate and shape; a
+        # subclass in an effect file declares them as class attributes.
+        if name:
+            self.name = name
+        if cov:
+            self.covariate = cov
+        if shape is not None:
+            self.shape = shape
+
+    @property
+    def uses_geometry(self) -> bool:  # type: ignore[override]
+        return covariate(self.covariate).uses_geometry if self.covariate in _fixed() else False
+
+    def params(self, robot) -> list[ParamSpec]:
+        s = self.shape
+        legs = ("shared",) if s.shared else tuple(f"leg{leg}" for leg in s.legs)
+        return [
+            ParamSpec(f"{self.name}.c{j}_{on}", "µm", PLAUSIBLE_UM, 1e-3, RESOLUTION_UM)
+            for on in legs
+            for j in range(1, s.per_leg + 1)
+        ]
+
+    def basis(self, data: EffectData) -> np.ndarray:
+        """(M, 6, n_params) mm per µm: the shape at the covariate's values."""
+        return 1e-3 * self.shape.basis(covariate_values(self.covariate, data))
+
+    def missing(self, data: EffectData) -> str | None:
+        if self.covariate == "temperature" and data.temperature is None:
+            return "the measurements have no temperature column"
+        if self.covariate not in _fixed() and self.covariate not in data.columns:
+            return f"the measurements have no numeric column {self.covariate!r}"
+        return None
+
+
+def _fixed() -> set[str]:
+    from hexcal.effects.covariates import FIXED
+
+    return {c.name for c in FIXED}

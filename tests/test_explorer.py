@@ -1,0 +1,228 @@
+"""Where an unexplained residual points: the covariate explorer names the quantity an effect
+outside the catalogue follows, with the share of the excess it explains on held-out poses; a
+noise understated alike everywhere points nowhere; what the geometry absorbs is not named at
+all; a lead the model holds is never proposed again; a lead that predicts held-out poses worse
+is not proposed. The rates over 50 sessions per case are measured by
+benchmarks/diagnosis_rates.py; here seeded sessions."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hexcal.app.workflow import Inputs, diagnose_chain
+from hexcal.diagnosis import diagnose
+from hexcal.diagnosis.explorer import (
+    Exploration,
+    Lead,
+    _families,
+    _refit,
+    covariate_values,
+    lead_effect,
+)
+from hexcal.diagnosis.pose_products import PoseProducts
+from hexcal.effects import CATALOGUE, explored
+from hexcal.effects.covariates import library, numeric_columns
+from hexcal.sim import verdict_cases as vc
+
+
+def _chain(c):
+    return diagnose_chain(Inputs(c.meas, c.design, c.instruments, "stated", c.case), 42, auto=True)
+
+
+@pytest.fixture(scope="module", params=list(vc.FOREIGN))
+def foreign(request):
+    """Each effect outside the catalogue, on one seeded session, through ``--auto``."""
+    c = vc.foreign(request.param, 11)
+    return c, _chain(c)
+
+
+def test_the_explorer_names_the_covariate_an_effect_outside_the_catalogue_follows(foreign):
+    c, chain = foreign
+    last = chain[-1]
+    assert last.verdict == "unexplained", [d.verdict for d in chain]
+    lead = last.exploration.lead
+    assert lead is not None and lead.covariate.name == c.covariate, last.exploration.summary()
+    assert lead.share > 0.5
+    assert lead.score > lead.threshold
+    # Refitted for real, it brings the held-out error down, to within 15 % of the floor.
+    assert lead.cv_rms_after_mm < lead.cv_rms_before_mm
+    assert lead.cv_rms_after_mm <= 1.15 * last.noise_floor_mm
+    d = last.to_dict()
+    assert d["explore"]["leads"][0]["covariate"] == c.covariate
+    assert d["explore"]["leads"][0]["share_of_excess"] == pytest.approx(lead.share)
+    assert d["explore"]["leads"][0]["cv_rms_after_mm"] == pytest.approx(lead.cv_rms_after_mm)
+
+
+def test_the_shape_fits_the_physics(foreign):
+    """A quadratic error is named as a smooth curve, play at the load's reversal as a step at
+    the force's sign change, a dent as a smooth curve with knots on few legs."""
+    c, chain = foreign
+    shape = chain[-1].exploration.lead.shape
+    expected = {"stroke quadratic": "spline", "joint play": "sign", "stroke dent": "spline"}
+    assert shape.kind == expected[c.case], shape.describe()
+    if c.case == "stroke dent":
+        assert len(shape.legs) <= 2 and len(shape.knots[0]) >= 4
+
+
+def test_a_lead_the_model_holds_is_not_proposed_again(foreign):
+    """With the lead added as an effect, the explorer does not propose the same covariate and
+    shape again (its columns are the model's: nothing left to explain)."""
+    c, chain = foreign
+    last = chain[-1]
+    lead = last.exploration.lead
+    with lead_effect(last.problem, lead) as name:
+        after = diagnose(
+            c.meas,
+            c.design,
+            42,
+            add=[*(e for e in last.effects if e != "offset"), name],
+            instruments=c.instruments,
+            problem=last.problem,
+        )
+        if after.exploration is not None:
+            for t in after.exploration.leads:
+                assert (t.covariate.name, t.shape.to_dict()) != (
+                    lead.covariate.name,
+                    lead.shape.to_dict(),
+                )
+    # The figure stated is the refit on the poses the explorer saw; with the lead in the
+    # model the outlier search judges the poses again (a bend it explains sets fewer aside),
+    # so the diagnosis' own figure is held to the issue's 5 %.
+    assert after.fit.cv_rms_mm == pytest.approx(lead.cv_rms_after_mm, rel=0.05)
+
+
+def test_a_noise_understated_points_nowhere_and_says_so():
+    c = vc.noise_understated(12)
+    d = diagnose(c.meas, c.design, 42, instruments=c.instruments)
+    assert d.verdict == "noise_understated"
+    assert abs(d.noise_factor / vc.NOISE_FACTOR - 1) < 0.2
+    assert d.exploration is not None and not d.exploration.leads
+    assert d.where["even"] and "spread evenly" in d.where["summary"]
+    assert not d.outliers
+    assert d.to_dict()["noise_factor"] == pytest.approx(d.noise_factor)
+    assert any("stated noise looks about 2.0× too low" in n for n in d.notes), d.notes
+
+
+@pytest.mark.parametrize("case", vc.ABSORBED)
+def test_what_the_geometry_absorbs_is_not_named(case):
+    """A tracker scale error of 30–100 ppm and a sag ∝ sin²θ are taken up by the joint
+    positions: the session is at the floor and no effect is named."""
+    c = vc.absorbed(case, 13)
+    d = diagnose(c.meas, c.design, 42, instruments=c.instruments)
+    assert d.verdict == "none", [(x.effect, x.delta_bic, x.heldout_z) for x in d.candidates]
+    assert d.where["summary"] == "residual at the noise floor everywhere"
+
+
+def test_spline_knots_are_dense_where_the_poses_are_yet_never_on_top_of_each_other():
+    rng = np.random.default_rng(0)
+    u = np.concatenate([np.full(60, 50.0), rng.uniform(0, 100, 60)])  # a clamped leg repeats
+    values = np.repeat(u[:, None], 6, axis=1)
+    s = explored.spline(values, 7)
+    knots = np.array(s.knots)
+    assert knots.shape == (6, 7)
+    gaps = np.diff(np.column_stack([s.lo, knots, s.hi]), axis=1)
+    assert (gaps >= 0.5 * np.ptp(u) / 8 - 1e-9).all()
+
+
+def test_a_spline_and_the_offset_span_every_cubic_on_its_knots():
+    """The B-spline columns less the first, with a constant, reproduce any cubic spline on the
+    same knots (here a cubic polynomial): the constant is left to the leg's offset."""
+    u = np.linspace(0.0, 10.0, 80)
+    values = np.repeat(u[:, None], 6, axis=1)
+    cols = explored.spline(values, 3).columns(u, 0)
+    target = 0.3 * u**3 - 2 * u + 1
+    a = np.column_stack([np.ones_like(u), cols])
+    coef, *_ = np.linalg.lstsq(a, target, rcond=None)
+    np.testing.assert_allclose(a @ coef, target, atol=1e-9)
+
+
+def test_every_covariate_has_its_shapes():
+    rng = np.random.default_rng(1)
+    values = rng.normal(10.0, 20.0, (40, 6))  # crosses zero: the force's sign is tried
+    resid = rng.normal(0.0, 0.01, (40, 6))
+    for cov in library():
+        kinds = {s.kind for s, _ in _families(cov, values, resid)}
+        if cov.discrete:
+            assert kinds == {"sign"}
+            continue
+        assert {"line", "spline", "step"} <= kinds
+        assert ("sign" in kinds) == cov.signed
+        assert ("periodic" in kinds) == cov.periodic
+    one = explored.sign().with_legs((3,))
+    b = one.basis(values)
+    assert b.shape == (40, 6, 1) and np.count_nonzero(b[:, [0, 1, 3, 4, 5]]) == 0
+    shared = explored.line(values, shared=True)
+    assert shared.basis(values).shape == (40, 6, 1)
+
+
+def test_a_lab_column_is_a_covariate_without_code():
+    """An extra numeric column of the table is a covariate by its own name; a text column or
+    a constant one is not."""
+    extra = {
+        "humidity_pct": np.array(["40.1", "41.5", "39.0"], object),
+        "operator": np.array(["ann", "bo", "ann"], object),
+        "constant": np.array(["1", "1", "1"], object),
+    }
+    cols = numeric_columns(extra)
+    assert list(cols) == ["humidity_pct"]
+    np.testing.assert_allclose(cols["humidity_pct"], [40.1, 41.5, 39.0])
+
+
+def test_the_explorer_follows_a_lab_column():
+    """An error that follows a lab's own sensor (a column of the table, uncorrelated with time
+    or temperature) is named by the column's name."""
+    clean = vc.absorbed("tracker scale", 31)  # a session at the floor
+    rng = np.random.default_rng(5)
+    humidity = np.cumsum(rng.normal(0, 1, len(clean.meas)))
+    humidity = 40 + 10 * (humidity - humidity.mean()) / np.ptp(humidity)
+    size = rng.choice([-1.0, 1.0], 6) * rng.uniform(0.02, 0.04, 6)  # mm per 10 % humidity
+    readings = clean.meas.readings - size * ((humidity - 40) / 10)[:, None]
+    meas = dataclasses.replace(
+        clean.meas,
+        readings=readings,
+        extra={"humidity_pct": np.array([f"{h:.3f}" for h in humidity], object)},
+        columns=(*clean.meas.columns, "humidity_pct"),
+    )
+    d = diagnose(meas, clean.design, 42, instruments=clean.instruments)
+    assert d.verdict == "unexplained", d.verdict
+    assert d.exploration.lead.covariate.name == "humidity_pct", d.exploration.summary()
+
+
+def test_a_lead_that_predicts_held_out_poses_worse_is_not_proposed():
+    """A shape with many parameters along a column of pure noise fits the poses it saw, not
+    the others: refitted, its held-out RMS rises, and it is marked and not proposed."""
+    c = vc.absorbed("tracker scale", 14)
+    rng = np.random.default_rng(2)
+    meas = dataclasses.replace(
+        c.meas,
+        extra={"noise": np.array([f"{v:.6f}" for v in rng.normal(size=len(c.meas))], object)},
+        columns=(*c.meas.columns, "noise"),
+    )
+    d = diagnose(meas, c.design, 42, instruments=c.instruments)
+    cov = next(x for x in library(d.problem.data) if x.name == "noise")
+    values = covariate_values(d.problem, d.fit, cov)
+    lead = Lead(cov, values, explored.spline(values, 11), 100.0, 1.0, 1.0, 0.5, True)
+    out = Exploration([lead])
+    _refit(d.problem, d.fit, [lead], out)
+    assert lead.cv_rms_after_mm > lead.cv_rms_before_mm
+    assert lead.worse and not lead.proposed and out.lead is None
+    assert "fits the poses it saw, not the others" in lead.notes[-1]
+    assert "by_noise" not in CATALOGUE
+
+
+def test_pose_products_score_as_the_rows_do():
+    """The scores in the poses' own terms equal the row-by-row projection they replace."""
+    from hexcal.diagnosis.scoring import block_score, whitened_columns
+
+    c = vc.foreign("joint play", 11)
+    d = diagnose(c.meas, c.design, 42, instruments=c.instruments)
+    pp = PoseProducts(d.fit, 1.0)
+    values = np.asarray(c.meas.readings, float)
+    shape = explored.spline(values, 4)
+    f = np.stack([shape.columns(values[:, k], k) for k in range(6)], axis=1)
+    got = pp.stats(f).score()
+    want = block_score(d.fit, whitened_columns(d.fit, shape.basis(values)))
+    assert got == pytest.approx(want, rel=1e-6)
