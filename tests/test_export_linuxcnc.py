@@ -311,7 +311,9 @@ def test_a_model_that_cannot_be_mapped_is_refused(tmp_path, capsys, change, args
     model = tmp_path / "model.json"
     model.write_text(json.dumps(data))
     base = ["--encoders", "absolute", "--home", "0,0,200,0,0,0"]
-    assert main(["export", "linuxcnc", str(model), "--out", str(tmp_path / "lx"), *base, *args]) in (
+    assert main(
+        ["export", "linuxcnc", str(model), "--out", str(tmp_path / "lx"), *base, *args]
+    ) in (
         EXIT_REFUSED,
         2,
     )

@@ -334,6 +334,6 @@ def _suggest(model: LegModel, frame: Frame, g: np.ndarray, recorded: Recorded | 
     if recorded.outside(pose, readings):
         return ""
     return (
-        f", e.g. --home {','.join(f'{v:.1f}' for v in pose)} (the recorded positions' centre: "
+        f", e.g. --home={','.join(f'{v:.1f}' for v in pose)} (the recorded positions' centre: "
         f"legs read {' '.join(f'{v:.1f}' for v in readings)} mm there)"
     )

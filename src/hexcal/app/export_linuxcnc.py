@@ -163,7 +163,9 @@ def check_poses(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 
 def left_out(model: LegModel) -> list[LeftOut]:
     """The model's effects the controller cannot hold (see the module docstring)."""
-    out = []
+    out: list[LeftOut] = []
+    if all(e in IN_THE_INI for e in model.effects):
+        return out
     P, R = check_poses(model.robot)
     temp = np.full(len(P), THERMAL_AT_C)
     full = model
@@ -253,7 +255,7 @@ def export_linuxcnc(
     )
     where = place(model, frame, gain, drawing, session, home)
     _check_pitch(where.home)
-    files = LinuxCNCFiles("", "", left_out(model), cal.calibration.model)
+    files = LinuxCNCFiles("", "", left_out(_at_home(model, where)), cal.calibration.model)
     files.shipping, files.warnings = shipping(cal, model, files.left_out, session)
     head = _header(cal, source, sha256, joints, units, files, where, home_readings is None)
     files.hal = "\n".join([*head, "", *_hal(model, joints, where, units)]) + "\n"
@@ -262,6 +264,16 @@ def export_linuxcnc(
     files.ini = "\n".join([*head, "", *ini]) + "\n"
     files.outside = where.outside
     return files
+
+
+def _at_home(model: LegModel, where: Placement) -> LegModel:
+    """The model with its home the export's, in the geometry's frame (the check poses of
+    :func:`left_out` are about it; robot.json's home is the drawing's frame)."""
+    from hexcal.model.robot import Home
+
+    quat = Rotation.from_matrix(where.home_R).as_quat(scalar_first=True)
+    home = Home(position=where.home_P.tolist(), quaternion=quat.tolist())
+    return LegModel(model.robot.model_copy(update={"home": home}), model.effects, model.values)
 
 
 def _hal(model: LegModel, joints: Sequence[int], where: Placement, units: str) -> list[str]:
@@ -349,7 +361,7 @@ def session_and_drawing(
     meas, robot = None, None
     for role, path in (("measurements", session), ("robot", drawing)):
         rec = recorded.get(role)
-        if path is None or rec is None or looks_like_session(path) != (role == "measurements"):
+        if path is None or rec is None:
             continue
         if sha256_of(path) != rec.sha256:
             raise ExportRefused(
