@@ -37,9 +37,10 @@ from hexcal.model.robot import Robot
 
 #: The words ``--base-frame`` takes besides a transform.
 FRAME_WORDS = ("tracker", "drawing")
-#: A base fit this far from the identity (mm of translation, degrees of rotation) is a tracker
+#: A base fit this far from the identity (mm of translation, degrees of rotation: beyond what
+#: a drawing's few tenths of a millimetre of error tilt a 100 mm base by) is a tracker
 #: frame that is not the base's: the export says so when it writes the tracker's frame.
-UNREGISTERED_MM, UNREGISTERED_DEG = 1.0, 0.1
+UNREGISTERED_MM, UNREGISTERED_DEG = 1.0, 0.5
 
 
 def rpy_deg(rotation: np.ndarray) -> np.ndarray:
