@@ -360,3 +360,49 @@ def test_inch_machines_get_every_length_in_inches(tmp_path):
         [genhex_inverse((*(p / 25.4), *e), base, platform) for p, e in zip(P, abc, strict=True)]
     )
     assert np.abs(joints * 25.4 - cal.leg_model().geometric(P, R)).max() < 1e-6
+
+
+def test_the_model_shipped_and_what_linuxcnc_leaves_out_are_said_like_with_like(tmp_path, capsys):
+    """A session hiding a lead screw's periodic error, fitted as Model 42 + leadscrew: the files
+    name the model with its held-out position RMS (calibrated.json's), and cost the leadscrew
+    LinuxCNC cannot hold in the same measure — the position RMS of the pose from the readings
+    against the tracker's, on the session's poses, with and without it — which this test
+    recomputes. A chain in which another model held better says so."""
+    from hexcal.app.workflow import calibrate_model, read_inputs
+    from hexcal.estimate.accuracy import pose_errors
+    from hexcal.estimate.predict import LegModel
+    from hexcal.sim.robots import left_hand
+    from hexcal.sim.session_sim import SessionPlan, write_session_dir
+
+    plan = SessionPlan(n_type_i=4, n_type_ii=4, n_type_iii=4, n_free=60)
+    d = write_session_dir(tmp_path / "s", left_hand(), 3, plan, "leadscrew")
+    inp = read_inputs(d / "measurements.csv", d / "robot.json", d / "instruments.json")
+    cal = tmp_path / "cal.json"
+    cal.write_text(calibrate_model(inp, 42, effects=("leadscrew",)).file.to_json())
+    args = ["--encoders", "absolute", "--session", str(d / "measurements.csv")]
+    args += ["--drawing", str(d / "robot.json")]
+    assert main(["export", "linuxcnc", str(cal), "--out", str(tmp_path / "lx"), *args]) == 0
+    printed = capsys.readouterr().out
+    model = load_model(cal)
+    held = {a.model: a.position_rms_mm for a in model.calibration.accuracy if a.heldout}
+    text = (tmp_path / "lx" / "hexcal_joints.ini").read_text()
+    assert (
+        f"model: Model 42 + leadscrew, position RMS {held['Model 42 + leadscrew']:.4g} mm" in text
+    )
+    assert "the best of its chain on held-out poses" in text
+    full = model.leg_model()
+    plain = LegModel(full.robot)
+    rms = [
+        float(np.sqrt(np.mean(pose_errors(m, inp.meas).position_mm ** 2))) for m in (full, plain)
+    ]
+    assert f"{1000 * rms[0]:.1f} → {1000 * rms[1]:.1f} µm if ignored" in printed
+    assert f"position RMS {rms[1]:.4g} mm on the" in text and f"against {rms[0]:.4g} mm" in text
+    # a chain whose Model 42 held better
+    data = json.loads(cal.read_text())
+    for a in data["calibration"]["accuracy"]:
+        if a["model"] == "Model 42":
+            a["position_rms_mm"] = 0.001
+    worse = tmp_path / "worse.json"
+    worse.write_text(json.dumps(data))
+    assert main(["export", "linuxcnc", str(worse), "--out", str(tmp_path / "lx2"), *args]) == 0
+    assert "Model 42 holds better on held-out poses" in capsys.readouterr().out
