@@ -291,10 +291,8 @@ def place(
             "the home pose: pass --drawing robot.json (its home pose is carried into the frame "
             "written) or --home X,Y,Z,A,B,C (in the frame written)"
         )
-    P, R = from_frame(frame, xyzabc[None, :3], rpy_matrix(xyzabc[3:])[None])
-    length = model.geometric(P, R)[0]
     g = np.zeros(6) if gain_ppm is None else gain_ppm * 1e-6
-    readings = (length - model.robot.offsets) / (1 + g)
+    P, R, readings = _readings_at(model, frame, g, xyzabc)
     recorded = None if session is None else Recorded.of(session[0], frame, session[1])
     outside = [] if recorded is None else recorded.outside(xyzabc, readings)
     if outside and home is None and recorded is not None:
@@ -307,6 +305,14 @@ def place(
             + _suggest(model, frame, g, recorded)
         )
     return Placement(frame, xyzabc, P[0], R[0], readings, source, recorded, outside)
+
+
+def _readings_at(model: LegModel, frame: Frame, g: np.ndarray, xyzabc: np.ndarray):
+    """(P (1, 3) mm, R (1, 3, 3): the pose ``xyzabc`` (6,) of the written frame in the tracker's;
+    (6,) mm: the legs' readings there as LinuxCNC runs the model, length = offset + (1 + g)·reading
+    (the effects it cannot hold left out))."""
+    P, R = from_frame(frame, xyzabc[None, :3], rpy_matrix(xyzabc[3:])[None])
+    return P, R, (model.geometric(P, R)[0] - model.robot.offsets) / (1 + g)
 
 
 def _pose(xyzabc: np.ndarray) -> str:
@@ -330,8 +336,7 @@ def _suggest(model: LegModel, frame: Frame, g: np.ndarray, recorded: Recorded | 
             np.clip(0.0, recorded.abc_min, recorded.abc_max),
         ]
     )
-    P, R = from_frame(frame, pose[None, :3], rpy_matrix(pose[3:])[None])
-    readings = (model.geometric(P, R)[0] - model.robot.offsets) / (1 + g)
+    readings = _readings_at(model, frame, g, pose)[2]
     if recorded.outside(pose, readings):
         return ""
     return (

@@ -10,9 +10,8 @@ world pose X, Y, Z is the platform frame's origin. hexcal's leg k (1..6) joins `
 (measurement frame) to ``b_k`` (platform frame), length ``|P + R b_k − a_k|``: the same law. So:
 
 - ``genhexkins.base.N`` = ``a_k``, ``genhexkins.platform.N`` = ``b_k`` for N the joint of leg
-  k (N = k − 1 unless ``--joints`` maps them otherwise);
-- LinuxCNC's world frame is hexcal's measurement frame (the tracker's, as registered to the
-  base when the session was recorded); its platform frame is hexcal's (the tracked body's);
+  k (N = k − 1 unless ``--joints`` maps them otherwise), in the frame written
+  (:mod:`hexcal.app.export_frame`: the tracker's as fitted, the drawing's, or a given one);
 - ``genhexkins.screw-lead`` 0: hexcal's model has no strut correction for turning joints, and a
   lead left from another configuration would add one; ``genhexkins.spindle-offset`` 0: it moves
   the z of every base and platform point, which the calibrated points already place.
@@ -20,17 +19,25 @@ world pose X, Y, Z is the platform frame's origin. hexcal's leg k (1..6) joins `
 genhexkins has no per-leg offset, gain or play. Those go to the joints' INI sections, in keys
 LinuxCNC documents (docs/src/config/ini-config.adoc, ``[JOINT_<num>]``):
 
-- ``HOME_OFFSET`` — "the joint position of the home switch or index pulse": the strut length
-  when the leg reads its home reading, ``offset_k + (1 + g_k)·ρ_home`` (ρ_home 0 unless given:
-  hexcal's readings then count from the home switch);
+- ``HOME_ABSOLUTE_ENCODER`` and ``HOME_OFFSET`` — "the joint position of the home switch or
+  index pulse". LinuxCNC's ``src/emc/motion/homing.c`` (HOME_SET_SWITCH_POSITION) sets an
+  absolute encoder's joint to its position + HOME_OFFSET, so there HOME_OFFSET = ``offset_k``
+  (``length = offset + (1 + g)·reading``) with HOME_ABSOLUTE_ENCODER = 1; an incremental
+  encoder's joint is HOME_OFFSET where its switch trips: the strut length at the switch's
+  reading, ``offset_k + (1 + g_k)·ρ_switch``, with HOME_ABSOLUTE_ENCODER = 0;
 - the scale (``INPUT_SCALE`` by default; ``ENCODER_SCALE``, ``SCALE`` or ``STEP_SCALE`` as the
   configuration uses): counts per machine unit, the configuration's present value divided by
   ``1 + g_k`` — a gain g means the leg moves (1 + g) mm per mm the encoder says;
 - ``BACKLASH`` — the play β_k: LinuxCNC adds β/2 to the motor position when the joint moves up
   and subtracts it when it moves down (``src/emc/motion/control.c``), hexcal's backlash term
   (``length = reading + offset − β/2·s``, s the direction of the last move) read backwards;
-- ``HOME`` — the strut length at the robot's home pose, and ``[TRAJ] HOME`` that pose in X Y Z A
-  B C.
+- ``HOME`` — the strut length at the home pose, and ``[TRAJ] HOME`` that pose in X Y Z A B C,
+  in the frame written, checked against what the session recorded
+  (:func:`hexcal.app.export_frame.place`).
+
+The files say which model they ship and why (:func:`shipping`): its held-out position RMS
+beside its calibration chain's, and what leaving out what LinuxCNC cannot hold costs in the same
+measure, on the session's poses.
 
 Thermal expansion, compliance and a lead screw's periodic error depend on the temperature, the
 load or the reading's phase: neither genhexkins nor the INI can hold them. The files name each
@@ -263,6 +270,10 @@ def export_linuxcnc(
     ini = _ini(model, joints, where, units, switch, scale, scale_key)
     files.ini = "\n".join([*head, "", *ini]) + "\n"
     files.outside = where.outside
+    if where.recorded is None:
+        files.warnings.append(
+            "the home was not checked against what a session recorded: pass --session"
+        )
     return files
 
 
