@@ -60,6 +60,28 @@ def _drawing(tmp_path: Path) -> Path:
     return path
 
 
+def test_best_fit_and_the_pose_transform_against_known_transforms():
+    """best_fit recovers a known rotation and translation from exact points; to_frame keeps
+    every strut length and from_frame undoes it (a rigid change of both frames)."""
+    from hexcal.app.export_frame import Frame, Rigid, best_fit, from_frame, to_frame
+
+    truth = load_model(WALKTHROUGH)
+    rot = Rotation.from_euler("xyz", [10.0, -25.0, 130.0], degrees=True)
+    t = np.array([-250.0, 40.0, 900.0])
+    fit, rms = best_fit(truth.a, rot.apply(truth.a) + t)
+    assert np.abs(fit.rotation - rot.as_matrix()).max() < 1e-12 and rms < 1e-9
+    assert np.abs(fit.translation - t).max() < 1e-9
+    frame = Frame("test", fit, Rigid(Rotation.from_rotvec([0.1, 0.2, -0.3]).as_matrix(), t / 9), [])
+    P, R = _workspace_poses(WALKTHROUGH, 20, seed=6)
+    Pn, Rn = to_frame(frame, P, R)
+    model = truth.leg_model()
+    a, b = frame.base.apply(truth.a), frame.platform.apply(truth.b)
+    moved = np.linalg.norm(Pn[:, None] + np.einsum("nij,kj->nki", Rn, b) - a, axis=2)
+    assert np.abs(moved - model.geometric(P, R)).max() < 1e-9
+    Pb, Rb = from_frame(frame, Pn, Rn)
+    assert np.abs(Pb - P).max() < 1e-9 and np.abs(Rb - R).max() < 1e-12
+
+
 def test_the_base_frame_is_recovered_from_a_known_transform(tmp_path):
     """The geometry moved by a known rigid transform (a tracker 300 mm off and turned 20°, a
     body frame shifted and turned too): --base-frame drawing writes the points and the home

@@ -248,7 +248,9 @@ class Placement:
     outside: list[str]
 
 
-def choose_frame(choice: str | list[float], geometry: Robot, drawing: Robot | None, name: str):
+def choose_frame(
+    choice: str | list[float], geometry: Robot, drawing: Robot | None, name: str
+) -> Frame:
     """The :class:`Frame` of ``--base-frame`` (``tracker``, ``drawing`` or six numbers)."""
     if not isinstance(choice, str):
         return given_frame(choice)
