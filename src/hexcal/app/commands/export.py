@@ -58,11 +58,49 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--scale-key", choices=SCALE_KEYS, default="INPUT_SCALE", help="the INI key of the scale"
     )
     lx.add_argument(
+        "--encoders",
+        choices=("absolute", "incremental"),
+        help="how the joints home: absolute encoders (HOME_ABSOLUTE_ENCODER) or incremental "
+        "ones with home switches (then --home-readings)",
+    )
+    lx.add_argument(
         "--home-readings",
         type=_floats((6,), -1e6, 1e6),
-        help="the six legs' readings (mm) at their home switches in hexcal's data (default 0)",
+        help="incremental encoders: the six legs' readings (mm) at their home switches in "
+        "hexcal's data",
     )
-    lx.add_argument("--units", choices=tuple(UNITS), default="mm", help="the machine's units")
+    lx.add_argument(
+        "--session",
+        type=Path,
+        help="the session it was calibrated on (measurements.csv or a session file): the home "
+        "is checked against what it recorded",
+    )
+    lx.add_argument(
+        "--drawing",
+        type=Path,
+        help="the robot's drawing (robot.json): its home pose, and its frames for "
+        "--base-frame drawing (a session file carries its own)",
+    )
+    lx.add_argument(
+        "--base-frame",
+        type=_frame,
+        default="tracker",
+        help="the frame to write the geometry in: tracker (as fitted, the default), drawing "
+        "(robot.json's, fitted to the calibrated points) or X,Y,Z,A,B,C (the tracker frame's "
+        "origin, mm, and axes, degrees, in the base frame)",
+    )
+    lx.add_argument(
+        "--home",
+        type=_floats((6,), -1e6, 1e6),
+        help="the home pose X,Y,Z (mm),A,B,C (degrees) in the frame written (default: the "
+        "drawing's)",
+    )
+    lx.add_argument(
+        "--units",
+        choices=tuple(UNITS),
+        default="mm",
+        help="the machine's units ([TRAJ] LINEAR_UNITS; LinuxCNC's hexapod sim is in inch)",
+    )
     lx.add_argument("--force", action="store_true", help="replace the files of an earlier export")
     lx.set_defaults(func=run)
     tb = ex_sub.add_parser(
@@ -92,6 +130,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     tb.set_defaults(func=run)
 
 
+def _frame(text: str) -> str | list[float]:
+    """``--base-frame``: a word, or six numbers X,Y,Z,A,B,C."""
+    from hexcal.app.export_frame import FRAME_WORDS
+
+    if text in FRAME_WORDS:
+        return text
+    try:
+        return _floats((6,), -1e6, 1e6)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give {' or '.join(FRAME_WORDS)}, or six numbers X,Y,Z,A,B,C (mm, degrees)"
+        ) from None
+
+
 def _joint_order(text: str) -> list[int]:
     values = text.split(",")
     try:
@@ -113,29 +165,7 @@ def run(args: argparse.Namespace) -> int:
     sha = sha256_of(args.model)
     out = Path(args.out)
     if args.export_command == "linuxcnc":
-        from hexcal.app.export_linuxcnc import export_linuxcnc
-
-        files = export_linuxcnc(
-            loaded,
-            str(args.model),
-            sha,
-            joints=args.joints,
-            scale=args.scale,
-            scale_key=args.scale_key,
-            home_readings=args.home_readings,
-            units=args.units,
-        )
-        refuse_existing(out, [HAL, INI], args.force)
-        out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(out / HAL, files.hal)
-        write_text_atomic(out / INI, files.ini)
-        print(f"{out / HAL} and {out / INI} written ({files.model})")
-        for e in files.left_out:
-            print(
-                f"  not in LinuxCNC's terms: {e.name}, {1000 * e.position_mm:.1f} µm of pose "
-                "error if ignored (see the files' header)"
-            )
-        return 0
+        return _linuxcnc(args, loaded, sha, out)
     from hexcal.app.export_table import build_table, table_csv, table_json
     from hexcal.estimate.model_file import leg_model_of, load_robot, model_label
     from hexcal.estimate.predict import LegModel
@@ -169,4 +199,38 @@ def run(args: argparse.Namespace) -> int:
             f"  interpolating the corrections to {args.nominal}: up to "
             f"{1000 * c['reading_max_mm']:.3f} µm ({1000 * c['position_max_mm']:.3f} µm on the pose)"
         )
+    return 0
+
+
+def _linuxcnc(args: argparse.Namespace, loaded, sha: str, out: Path) -> int:
+    from hexcal.app.export_linuxcnc import export_linuxcnc, session_and_drawing
+    from hexcal.io.fileio import write_text_atomic
+
+    session, drawing = session_and_drawing(loaded, args.session, args.drawing)
+    files = export_linuxcnc(
+        loaded,
+        str(args.model),
+        sha,
+        joints=args.joints,
+        scale=args.scale,
+        scale_key=args.scale_key,
+        home_readings=args.home_readings,
+        units=args.units,
+        encoders=args.encoders,
+        base_frame=args.base_frame,
+        drawing=drawing,
+        session=session,
+        home=args.home,
+    )
+    refuse_existing(out, [HAL, INI], args.force)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / HAL, files.hal)
+    write_text_atomic(out / INI, files.ini)
+    print(f"{out / HAL} and {out / INI} written ({files.model})")
+    for line in dict.fromkeys(x.strip() for x in [*files.shipping[:2], *files.warnings]):
+        print(f"  {line}")
+    for line in files.outside:
+        print(f"  warning: --home lies outside the recorded range: {line}")
+    if args.units == "mm":
+        print("  LINEAR_UNITS = mm: for an INI in inches (LinuxCNC's hexapod sim), --units inch")
     return 0
