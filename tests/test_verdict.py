@@ -27,9 +27,18 @@ from hexcal.sim import verdict_cases as vc
 from hexcal.sim.session_sim import bump_poses
 
 
-def _cand(name="gain", dbic=-50.0, explained=0.6, z=5.0, closes=False, chain=False, chi2=1000.0):
+def _cand(
+    name="gain",
+    dbic=-50.0,
+    explained=0.6,
+    z=5.0,
+    closes=False,
+    chain=False,
+    chi2=1000.0,
+    residuals=None,
+):
     c = Candidate(name, 100.0, True, True)
-    c.refit = SimpleNamespace(chi2=chi2, cv_rms_mm=0.011)  # type: ignore[assignment]
+    c.refit = SimpleNamespace(chi2=chi2, cv_rms_mm=0.011, residuals=residuals)  # type: ignore[assignment]
     c.delta_bic, c.explained, c.heldout_z, c.closes, c.chain = dbic, explained, z, closes, chain
     return c
 
@@ -52,11 +61,35 @@ def test_above_the_floor_an_effect_closes_the_excess_or_leads_a_chain_the_catalo
 
 
 def test_effects_that_fit_alike_are_named_together_whatever_their_parameter_count():
-    best = _cand("thermal", dbic=-60, chi2=1000.0)
+    """Alike: χ² within ALIKE_DCHI2; both closing the excess; or poses' χ² whose difference is
+    inside its own noise (Vuong's |z| < HELDOUT_Z) — here built from residuals whose per-pose
+    χ² differ by a known mean and spread, so that z is known (z = mean/sd·√M)."""
+    rng = np.random.default_rng(0)
+    m = 400
+    base = 3.0 * rng.normal(size=(m, 6))  # χ² per pose ≈ 54: a shift of ±3 keeps it positive
+
+    def with_pose_chi2_shift(z_target: float) -> np.ndarray:
+        # Scale each pose's residual so its χ² moves by d_m with mean/sd·√M = z_target.
+        d = rng.normal(size=m)
+        d = (d - d.mean()) / d.std(ddof=1) + z_target / np.sqrt(m)
+        chi = np.sum(base**2, axis=1)
+        return base * np.sqrt((chi + d) / chi)[:, None]
+
+    eye = lambda: np.broadcast_to(np.eye(6), (m, 6, 6))  # noqa: E731
+    best = _cand("thermal", dbic=-60, chi2=1000.0, residuals=base)
     near = _cand("gain", dbic=-30, chi2=1000.0 - 0.5 * ALIKE_DCHI2)  # more parameters
-    far = _cand("drift", dbic=-55, chi2=1000.0 + 2 * ALIKE_DCHI2)
-    unrefitted = Candidate("leadscrew", 5.0, True, True)
-    assert _alike(best, [best, near, far, unrefitted], s2=1.0) == ["gain"]
+    far = _cand("drift", dbic=-55, chi2=1000.0 + 3 * ALIKE_DCHI2, residuals=with_pose_chi2_shift(6))
+    inside = _cand(
+        "backlash", dbic=-45, chi2=1000.0 + 3 * ALIKE_DCHI2, residuals=with_pose_chi2_shift(1)
+    )
+    weak = _cand("leadscrew", dbic=BIC_STRONG + 1, chi2=1000.0)
+    unrefitted = Candidate("ujoint", 5.0, True, True)
+    found = _alike(eye, best, [best, near, far, inside, weak, unrefitted], 1.0, excess=False)
+    assert found == ["gain", "backlash"]
+    # Above the floor, two effects that each bring the residual to it are named together.
+    best.closes = True
+    closes = _cand("compliance", dbic=-20, chi2=1100.0, explained=MOST + 0.1, closes=True)
+    assert _alike(eye, best, [best, closes], 1.0, excess=True) == ["compliance"]
 
 
 @pytest.mark.parametrize("seed", [31, 32])

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.diagnosis.changepoint import ChangePoint, locate, located, search
+from hexcal.diagnosis.defaults import DefaultNote, default_notes
 from hexcal.diagnosis.explorer import Exploration, explore
 from hexcal.diagnosis.frame_search import FrameChange
 from hexcal.diagnosis.outliers import (
@@ -136,6 +137,11 @@ class Diagnosis:
     noise_factor: float = float("nan")
     #: A rigid move of the tracker located by the search (``frame_step``'s time)
     frame: FrameChange | None = None
+    #: Candidates whose score rests on a robot.json key left at its default
+    defaults: list[DefaultNote] = field(default_factory=list)
+
+    def default_note(self, effect: str) -> DefaultNote | None:
+        return next((n for n in self.defaults if n.effect == effect), None)
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -241,6 +247,9 @@ class Diagnosis:
                     "nonphysical": [p.name for p in c.refit.nonphysical()] if c.refit else [],
                     "of_the_session": of_the_session(c.effect),
                     "source": get_effect(c.effect).source.text(),
+                    "default_key": (
+                        None if (n := self.default_note(c.effect)) is None else n.to_dict()
+                    ),
                 }
                 for c in self.candidates
             ],
@@ -363,6 +372,7 @@ def diagnose(
         exploration=exploration,
         noise_factor=noise_factor,
         frame=j.frame,
+        defaults=default_notes(work, fit, j.candidates),
     )
 
 

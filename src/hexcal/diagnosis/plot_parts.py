@@ -53,6 +53,10 @@ class PlotView:
         return self.diag.problem.meas
 
 
+#: The colour of a fitted shape drawn over the residual.
+LEAD_COLOUR = "#d62728"
+
+
 def plot_view(diag: Diagnosis) -> PlotView:
     fit = diag.fit
     held = fit.cv_residuals is not None
@@ -192,10 +196,17 @@ def leg_grid(figsize: tuple[float, float] = (11, 6.6)) -> tuple[Figure, np.ndarr
 
 
 def leg_scatter(
-    view: PlotView, x: np.ndarray, xlabel: str, what: str, outdir: Path, name: str, note: str = ""
+    view: PlotView,
+    x: np.ndarray,
+    xlabel: str,
+    what: str,
+    outdir: Path,
+    name: str,
+    note: str = "",
+    curve: np.ndarray | None = None,
 ) -> Path:
     """Six panels, one per leg: held-out residual against ``x`` (M, 6), floor band, running
-    median."""
+    median; and ``curve`` (M, 6) µm, a fitted shape, drawn over it where given."""
     fig, axes = leg_grid()
     for k, ax in enumerate(axes):
         xk, rk = x[:, k], view.resid_um[:, k]
@@ -204,13 +215,19 @@ def leg_scatter(
         ax.plot(xk, rk, "o", ms=3, color=LEG_COLOURS[k], alpha=0.55, mec="none")
         xs, ms = running(xk, rk)
         ax.plot(xs, ms, "-", color="k", lw=1.6)
+        if curve is not None and np.ptp(curve[:, k]) > 0:
+            order = np.argsort(xk, kind="stable")
+            ax.plot(xk[order], curve[order, k], "-", color=LEAD_COLOUR, lw=1.8)
         ax.set_title(f"leg {k + 1}", fontsize=10)
         ax.set_xlabel(xlabel)
         ax.grid(True, alpha=0.25)
         if k % 3 == 0:
             ax.set_ylabel(view.resid_label)
     figure_title(fig, view, what + (f" ({note})" if note else ""))
-    return finish(fig, outdir, name, legend_handles(view))
+    legend = legend_handles(view)
+    if curve is not None:
+        legend.append(Line2D([], [], color=LEAD_COLOUR, lw=1.8, label="the lead's fitted shape"))
+    return finish(fig, outdir, name, legend)
 
 
 def _mass(design) -> tuple[float, str]:

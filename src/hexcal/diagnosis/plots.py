@@ -431,6 +431,12 @@ def _plot_covariate(view: PlotView, outdir: Path, name: str) -> Path:
     unit = f" ({cov.unit})" if cov.unit else ""
     legs = lead.shape.legs
     on = "" if len(legs) == 6 else f" on leg{'s' * (len(legs) > 1)} {', '.join(map(str, legs))}"
+    curve = None
+    if lead.fitted is not None:
+        # The residual is the reading less the prediction: the lead, once added, takes away
+        # −(its contribution); its constant is the offsets', so each leg's mean is left out.
+        c = -np.asarray(lead.fitted) * 1000.0
+        curve = c - c.mean(axis=0)
     return leg_scatter(
         view,
         lead.values,
@@ -439,6 +445,7 @@ def _plot_covariate(view: PlotView, outdir: Path, name: str) -> Path:
         outdir,
         name,
         note=f"{100 * lead.share:.0f} % of the excess: {lead.shape.describe()}{on}",
+        curve=curve,
     )
 
 

@@ -54,6 +54,8 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         lines.append(f"  {c.effect:<12}{c.score:11.1f}{bic}{expl}{after:>16}  {ident}")
         if c.available and not c.identifiable:
             lines.append(f"      {c.reason}")
+        if (note := d.default_note(c.effect)) is not None:
+            lines.append(f"      {note.text()}")
     if getattr(d, "outliers", None):
         lines.append("")
         lines.append(

@@ -28,6 +28,7 @@ catalogue effect explains.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,7 @@ from hexcal.diagnosis.scoring import (
     identifiable_candidates,
     pose_whiteners,
     score_candidate,
+    vuong_z,
     whitened_columns,
 )
 from hexcal.effects import CATALOGUE, get_effect
@@ -163,7 +165,7 @@ def judge(
     alike: list[str] = []
     if best is not None:
         verdict = best.effect
-        alike = _alike(best, candidates, s2)
+        alike = _alike(lambda: pose_whiteners(problem, fit), best, candidates, s2, excess)
         notes.extend(_look_alike(problem, best))
         notes.extend(_named_notes(best, alike, fit, candidates, s2))
     elif excess:
@@ -372,17 +374,35 @@ def _catalogue_closes(
     return bool(dof > 0 and (ref.chi2 - removed) / (dof * s2) <= band)
 
 
-def _alike(best: Candidate, candidates: list[Candidate], s2: float) -> list[str]:
-    """The other refitted candidates whose fit is as good as ``best``'s."""
+def _alike(
+    whiteners: Callable[[], np.ndarray],
+    best: Candidate,
+    candidates: list[Candidate],
+    s2: float,
+    excess: bool,
+) -> list[str]:
+    """The other refitted candidates with very strong evidence that the data cannot tell from
+    ``best``: they fit as well (χ² within :data:`ALIKE_DCHI2`), both bring the residual to
+    the floor, or their poses' χ² differ by less than :data:`HELDOUT_Z` standard errors
+    (Vuong's test, :func:`~hexcal.diagnosis.scoring.vuong_z`): a ΔBIC margin inside the noise
+    of the poses is no evidence, and the parameter count alone would pick. ``whiteners``
+    gives the poses' (M, 6, 6) whiteners when a Vuong test is needed."""
     if best.refit is None:
         return []
-    return [
-        c.effect
-        for c in candidates
-        if c is not best
-        and c.refit is not None
-        and abs(c.refit.chi2 - best.refit.chi2) < ALIKE_DCHI2 * s2
-    ]
+    chol = None
+    out = []
+    for c in candidates:
+        if c is best or c.refit is None or not c.delta_bic < BIC_STRONG:
+            continue
+        same_fit = abs(c.refit.chi2 - best.refit.chi2) < ALIKE_DCHI2 * s2
+        both_close = excess and best.closes and c.closes and c.explained >= MOST
+        inside = False
+        if not (same_fit or both_close):
+            chol = whiteners() if chol is None else chol
+            inside = abs(vuong_z(c.refit, best.refit, chol, s2)) < HELDOUT_Z
+        if same_fit or both_close or inside:
+            out.append(c.effect)
+    return out
 
 
 def _look_alike(problem: Problem, named: Candidate) -> list[str]:
@@ -418,15 +438,15 @@ def _named_notes(
     if alike:
         rows = [c for c in candidates if c.effect in (best.effect, *alike) and c.refit]
         out.append(
-            f"{' and '.join([best.effect, *alike])} fit these data alike ("
+            f"{' or '.join([best.effect, *alike])}: these poses cannot tell them apart ("
             + "; ".join(
                 f"{c.effect}: χ² {c.refit.chi2 / s2:.1f}, ΔBIC {c.delta_bic:.0f}, held-out "
                 f"{1000 * c.cv_rms_mm_after:.2f} µm"
                 for c in rows
                 if c.refit is not None
             )
-            + f"): the data do not tell them apart. {best.effect} is taken first (the lowest "
-            f"ΔBIC); record "
+            + f"). {best.effect} is taken first only because its ΔBIC is lowest, a margin "
+            "inside the noise; record "
             + "; ".join(get_effect(e).separating_motion for e in [best.effect, *alike])
             + " to separate them"
         )

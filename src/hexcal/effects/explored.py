@@ -113,7 +113,11 @@ class Shape:
     def describe(self) -> str:
         what = {
             "line": "a straight line",
-            "spline": f"a smooth curve ({len(self.knots[0]) if self.knots else 0} interior knots)",
+            "spline": (
+                f"a smooth curve ({len(self.knots[0])} interior knots)"
+                if self.knots and len(self.knots[0])
+                else "a cubic curve"
+            ),
             "periodic": f"a periodic error of period {self.period:.4g}",
             "step": "a step (a change point)",
             "sign": "a step at its sign change",

@@ -269,20 +269,30 @@ class DiagnosisScreen(HexcalScreen):
         d = self.history[-1]
         if d.verdict == Outcome.NONE:
             return "the residual is at the noise floor: there is no effect to add"
-        if d.verdict == Outcome.UNEXPLAINED:
-            return "no catalogue effect explains the residual: there is none to add"
+        if d.verdict == Outcome.UNEXPLAINED and _lead(d) is None:
+            return "no catalogue effect explains the residual, and it follows no covariate"
         if d.verdict == Outcome.NOISE_UNDERSTATED:
             return "the stated noise looks too low: there is no effect to add"
         return None
 
     @work(thread=True, exclusive=True, group="compute")
-    def _diagnose(self, add: tuple[str, ...]) -> None:
-        from hexcal.app.workflow import diagnose_chain, model_of, store
+    def _diagnose(self, add: tuple[str, ...], explored: bool = False) -> None:
+        from hexcal.app.workflow import diagnose_chain, model_of, store, write_explored
 
         guided, proc, _ = _app_state(self)
         try:
             inp = session_inputs(guided)
             prev = self.history[-1] if self.history else None
+            if explored and prev is not None:
+                # The explorer's lead, written beside the session file as an effect file (the
+                # lab edits it to the physics it suspects) and added.
+                where = guided.sf.path.parent / f"{guided.sf.path.stem}-effects"
+                where.mkdir(exist_ok=True)
+                name = write_explored(prev, where, inp)
+                if name is None:
+                    raise ValueError("the residual follows no covariate: nothing to add")
+                add = (*add, name)
+                self.hexcal.post(self.status, f"the lead written to {where / name}.py and added")
             (d,) = diagnose_chain(inp, proc.model, add=add, previous=prev)
             self.hexcal.post(self._working.stage, f"{d.fit.model_name}: the calibrated model")
             # The step's model as a lab ships it: calibrated with its effects, clamps included.
@@ -328,11 +338,13 @@ class DiagnosisScreen(HexcalScreen):
                 "[yellow]a structured residual no catalogue effect explains[/yellow]: "
                 + escape(d.where["summary"])
             )
-            lead = None if d.exploration is None else d.exploration.lead
+            lead = _lead(d)
             if lead is not None:
                 lines.append(
                     f"it follows the [b]{escape(lead.covariate.label)}[/b] "
-                    f"({100 * lead.share:.0f} % of the excess): {escape(lead.points_at)}"
+                    f"({100 * lead.share:.0f} % of the excess): {escape(lead.points_at)}; "
+                    f"press [b]a[/b] to add it as an effect ({escape(lead.shape.describe())}) "
+                    "and refit"
                 )
         elif d.verdict == Outcome.NOISE_UNDERSTATED:
             lines.append(
@@ -385,14 +397,25 @@ class DiagnosisScreen(HexcalScreen):
         d = self.history[-1]
         self.busy = True
         self.refresh_bindings()
+        held = tuple(e for e in d.effects if e != "offset")
+        lead = _lead(d) if d.verdict == Outcome.UNEXPLAINED else None
+        if lead is not None:
+            self._working.start(f"adding the lead along the {lead.covariate.name} and refitting")
+            self._diagnose(held, explored=True)
+            return
         self._working.start(f"adding {d.verdict} and refitting")
-        self._diagnose(tuple(e for e in d.effects if e != "offset") + (d.verdict,))
+        self._diagnose((*held, d.verdict))
 
     def action_export(self) -> None:
         self.status(*export_text(self))
 
     def action_back(self) -> None:
         self.app.pop_screen()
+
+
+def _lead(d: Any) -> Any:
+    """The explorer's proposed lead of diagnosis ``d``, or None."""
+    return None if d.exploration is None else d.exploration.lead
 
 
 def _history_line(d: Any) -> str:
