@@ -118,11 +118,12 @@ class Lead:
             if np.isfinite(self.cv_rms_after_mm)
             else ""
         )
+        said = "".join(f"; {n}" for n in self.notes)
         return (
             f"{c.label} ({c.name}; {self.shape.describe()} on {self.where()}): explains "
             f"{100 * self.share:.0f} % of the excess on held-out poses (χ² {self.score:.0f} "
             f"in-sample with {self.columns} shape parameters, threshold "
-            f"{self.threshold:.0f}{after})"
+            f"{self.threshold:.0f}{after}){said}"
         )
 
     def to_dict(self) -> dict:
@@ -319,7 +320,27 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
             t.worse = True
             t.notes.append("it fits the poses it saw, not the others (held-out χ² not reduced)")
     out.tested.sort(key=lambda t: (not t.proposed, -t.heldout, -t.score))
+    for t in out.leads:
+        t.notes += _default_notes(problem, t.covariate)
     return out
+
+
+#: What each robot.json key's default is, in words.
+_DEFAULTS = {
+    "platform_com_mm": "the weight acting at the platform's origin",
+    "ujoint_axes": "each base joint's fixed axis horizontal and across its leg at home",
+    "balljoint_axes": "each platform joint's axis horizontal and across its leg at home",
+}
+
+
+def _default_notes(problem: Problem, cov: Covariate) -> list[str]:
+    """What the covariate's values rest on that robot.json leaves at its default."""
+    return [
+        f"its values rest on {key} left at its default ({_DEFAULTS.get(key, 'the default')}): "
+        f"state {key} in robot.json as the robot is built, and diagnose again"
+        for key in cov.default_keys
+        if getattr(problem.design, key, None) is None
+    ]
 
 
 def _own_columns(shape: Shape, values: np.ndarray) -> np.ndarray:

@@ -16,7 +16,11 @@ platform's yaw, the time) is the same for the six legs. The library (:func:`libr
 - the static axial ``force`` holding the platform's weight (N), and its products with the
   stroke (``force_x_stroke``, N·mm) and with the length squared (``force_x_length2``, N·m²:
   a leg bending under its load);
-- the direction of the leg's last move (``last_move``, ±1);
+- the leg's turn about its base and platform joints' fixed axes (``base_joint``,
+  ``platform_joint``, deg from home; robot.json's ``ujoint_axes`` and ``balljoint_axes``, their
+  defaults where not stated);
+- the direction of the leg's last move (``last_move``, ±1) and of the platform's along each
+  axis (``platform_move_x`` … ``_z``);
 - ``time`` (s from the session's start), ``temperature`` (°C) and the place in the procedure
   (``pose_index``, the pose's rank in recording order);
 - every extra numeric column of the measurement table, by its own name (a second
@@ -119,6 +123,42 @@ def _azimuth(data: EffectData) -> np.ndarray:
     return np.degrees(np.angle(np.exp(1j * (az - ref))))
 
 
+def _joint_angle(platform: bool) -> Callable[[EffectData], np.ndarray]:
+    """(M, 6) deg: each leg's turn about its joint's fixed axis from its direction at home —
+    the base U-joint's (robot.json ``ujoint_axes``) or the platform joint's
+    (``balljoint_axes``, in the platform frame), their defaults where not stated."""
+
+    def values(data: EffectData) -> np.ndarray:
+        from hexcal.effects.joint_axes import base_axes, home_legs, platform_axes
+
+        n = _unit(data)
+        n0, rot = home_legs(data.robot, data.a, data.b)
+        if platform:
+            u = platform_axes(data.robot, data.a, data.b)
+            n = np.einsum("mji,mkj->mki", data.rotation, n)  # into the platform frame
+            n0 = n0 @ rot
+        else:
+            u = base_axes(data.robot, data.a, data.b)
+        p = n - np.einsum("mki,ki->mk", n, u)[..., None] * u
+        p0 = n0 - np.einsum("ki,ki->k", n0, u)[:, None] * u
+        sin = np.einsum("ki,mki->mk", u, np.cross(p0, p))
+        cos = np.einsum("ki,mki->mk", p0, p)
+        return np.degrees(np.arctan2(sin, cos))
+
+    return values
+
+
+def _platform_move(axis: int) -> Callable[[EffectData], np.ndarray]:
+    """±1: the sign of the platform's last move along ``axis`` (a change under 0.01 mm is
+    jitter, not a move); 0 until it first moves."""
+
+    def values(data: EffectData) -> np.ndarray:
+        pos = np.asarray(data.position, float)[:, axis : axis + 1]
+        return _per_pose(motion_state(pos, 0.01)[:, 0])
+
+    return values
+
+
 def _force(data: EffectData) -> np.ndarray:
     mass = data.robot.platform_mass_kg or 1.0
     com = getattr(data.robot, "platform_com_mm", None)
@@ -169,18 +209,31 @@ FIXED: tuple[Covariate, ...] = (
     Covariate("azimuth", "leg azimuth about the vertical (from home)", "deg",
               "a joint or an encoder head that reads with the leg's azimuth (joint play, a "
               "cable pull)", _azimuth, uses_geometry=True),
+    Covariate("base_joint", "leg's turn about its base joint's fixed axis (from home)", "deg",
+              "a U-joint that binds, wears or reads with its angle (a joint near its limit, a "
+              "bent cross)", _joint_angle(False), uses_geometry=True,
+              default_keys=("ujoint_axes",)),
+    Covariate("platform_joint", "leg's turn about its platform joint's axis (from home)", "deg",
+              "a platform joint that binds, wears or reads with its angle", _joint_angle(True),
+              uses_geometry=True, default_keys=("balljoint_axes",)),
     Covariate("force", "axial leg force holding the platform's weight", "N",
               "a leg or a joint that yields non-linearly under load", _force,
-              uses_geometry=True, signed=True, default_keys=("platform_mass_kg",)),
+              uses_geometry=True, signed=True, default_keys=("platform_com_mm",)),
     Covariate("force_x_stroke", "axial force × stroke", "N·mm",
               "a leg whose stiffness falls as it extends (a screw loaded over its free length)",
-              _force_x_stroke, uses_geometry=True, default_keys=("platform_mass_kg",)),
+              _force_x_stroke, uses_geometry=True, default_keys=("platform_com_mm",)),
     Covariate("force_x_length2", "axial force × length²", "N·m²",
               "a leg bending under its load (buckling-like shortening ∝ F·L²)",
-              _force_x_length2, uses_geometry=True, default_keys=("platform_mass_kg",)),
+              _force_x_length2, uses_geometry=True, default_keys=("platform_com_mm",)),
     Covariate("last_move", "direction of the leg's last move", "±1",
               "play or friction that depends on the direction of approach",
               lambda d: motion_state(d.readings, deadband_mm(d)), discrete=True),
+    *(
+        Covariate(f"platform_move_{axis}", f"direction of the platform's last move along {axis}",
+                  "±1", "play or friction in the platform's guidance, taken up as it reverses",
+                  _platform_move(i), discrete=True, per_pose=True)
+        for i, axis in enumerate("xyz")
+    ),
     Covariate("temperature", "structure temperature", "°C",
               "an expansion that is not proportional to the leg length (an encoder, a mount)",
               lambda d: _per_pose(np.asarray(d.temperature, float)), per_pose=True),
