@@ -17,6 +17,12 @@ located within ±3 poses, the floor reached once added), a stated noise 2× too 
 (``--auto`` ends at ``unexplained``, the covariate explorer names the covariate they follow,
 and the effect file it writes, loaded from its path as a file loader would, brings the
 held-out RMS within 15 % of the floor).
+
+Issue 34's set of effects outside the catalogue (:mod:`hexcal.sim.foreign_cases`: orientation,
+another leg's stroke, cyclic errors, products with force, a user column, position, uneven
+heating, a knocked tracker, two at once), with the zero jump and the three robots' clean
+sessions: ``--foreign-set`` runs only them, and the run prints the issue's figures over them
+(``verdict_rates.foreign_set_rates``) after the table.
 """
 
 # ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
@@ -36,7 +42,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from verdict_rates import VERDICT_LABELS, run_verdict_case, verdict_extra, verdict_summary
+from verdict_rates import (
+    EXPLORED,
+    VERDICT_LABELS,
+    foreign_set_rates,
+    run_verdict_case,
+    verdict_extra,
+    verdict_summary,
+)
 
 from hexcal.diagnosis import diagnose
 from hexcal.io.measurements import Measurements
@@ -54,10 +67,17 @@ from hexcal.sim.robots import (
     precise_session,
 )
 from hexcal.sim.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
-from hexcal.sim.verdict_cases import ABSORBED, FOREIGN
+from hexcal.sim.verdict_cases import ABSORBED, FOREIGN, MORE_FOREIGN
 
 # The verdict's hard cases, each run at its realistic size; their builders in verdict_cases.
-VERDICT_CASES = ("three effects", *ABSORBED, "zero jump", "noise understated", *FOREIGN)
+VERDICT_CASES = (
+    "three effects",
+    *ABSORBED,
+    "zero jump",
+    "noise understated",
+    *FOREIGN,
+    *MORE_FOREIGN,
+)
 
 INST = Instruments(
     tracker=TrackerNoise(position_sigma_mm=0.01, orientation_sigma_deg=0.002),
@@ -92,6 +112,9 @@ HARD_CASES = {
 }
 #: The cases without any hidden effect: their wrong verdicts are false alarms.
 CLEAN = ("clean", "precision: clean", "motion base: clean")
+#: Issue 34's set: the effects outside the catalogue, one leg's zero jump, and the clean
+#: sessions of the three robots (their false alarms).
+FOREIGN_SET = (*EXPLORED, "zero jump", *CLEAN)
 
 
 @dataclass
@@ -317,6 +340,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="docs/diagnosis_rates.json")
     ap.add_argument("--cases", nargs="*", help="only these cases (default: every one)")
+    ap.add_argument("--foreign-set", action="store_true", help="only issue 34's set (FOREIGN_SET)")
     ap.add_argument("--markdown", metavar="JSON", help="only print the table of an earlier run")
     ap.add_argument(
         "--merge",
@@ -343,6 +367,8 @@ def main() -> None:
     wanted = set(
         args.cases or (*EFFECTS, *JOINT_SIZES, "clean", "foreign", *HARD_CASES, *VERDICT_CASES)
     )
+    if args.foreign_set:
+        wanted = set(FOREIGN_SET)
     jobs = [
         (c, s, 1.0)
         for c in (*EFFECTS, "clean", "foreign", *HARD_CASES, *VERDICT_CASES)
@@ -366,9 +392,12 @@ def main() -> None:
         rows = [r for r in old if r["case"] not in wanted] + rows
     summary = summarise(rows)
     out = {"seconds": time.perf_counter() - t0, "summary": summary, "rows": rows}
+    out["foreign_set"] = foreign_set_rates(rows, CLEAN)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=1))
     print(markdown(summary))
+    for figure, value in out["foreign_set"].items():
+        print(f"{figure}: {100 * value:.0f} %")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 ``benchmarks/diagnosis_rates.py``: several catalogue effects hiding at once, sessions at the
 noise floor although something is hidden (what the geometry absorbs), one leg's zero jumping
 mid-session, a stated noise too low, and effects outside the catalogue that the covariate
-explorer must point at.
+explorer must point at (the three here, and :mod:`hexcal.sim.foreign_cases`' more).
 
 Every session is the Left Hand with a 20 kg platform, 184 poses, tracker noise 10 µm and
 0.002°, encoder noise 2 µm, the temperature rising 5 K over the session (the instruments
@@ -21,6 +21,7 @@ from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.model.robot import Robot
 from hexcal.sim.foreign import joint_play, leg_sag, stroke_dent, stroke_quadratic
+from hexcal.sim.foreign_cases import MORE, draw
 from hexcal.sim.inject import effect_hook, realistic_values, zero_jump_hook
 from hexcal.sim.robots import left_hand
 from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
@@ -33,12 +34,17 @@ INSTRUMENTS = Instruments(
 )
 #: The three catalogue effects hidden at once.
 THREE = ("gain", "thermal", "backlash")
-#: Effects outside the catalogue and the covariate each follows.
+#: Effects outside the catalogue and the covariate each follows (:data:`MORE_FOREIGN`: more,
+#: and the names accepted for each).
 FOREIGN = {
     "stroke quadratic": "stroke",
     "stroke dent": "stroke",
     "joint play": "force",
 }
+#: More effects outside the catalogue (:mod:`hexcal.sim.foreign_cases`): one tuple per hidden
+#: effect of the covariate names accepted for it; the session's own are
+#: :attr:`HiddenCase.covariates`. ``tracker knocked`` has none: its verdict is ``frame_step``.
+MORE_FOREIGN = MORE
 #: Sessions at the floor although something is hidden: what the geometry absorbs.
 ABSORBED = ("tracker scale", "leg sag")
 #: How many times the true noise exceeds the stated one in the ``noise understated`` case.
@@ -67,8 +73,14 @@ class HiddenCase:
     jump_leg: int | None = None
     jump_row: int | None = None
     jump_mm: float | None = None
-    #: ``foreign`` cases: the covariate the residual follows
+    #: ``foreign`` cases: the covariate the residual follows (the first effect's, for
+    #: :data:`MORE_FOREIGN`)
     covariate: str | None = None
+    #: ``foreign`` cases: one tuple per hidden effect, of the covariate names accepted for it
+    #: in this session (the explorer's chain must name one of each)
+    covariates: tuple[tuple[str, ...], ...] = ()
+    #: ``tracker knocked``: the row (0-based, recording order) of the first pose after the knock
+    frame_row: int | None = None
     #: ``noise understated``: the true noise over the stated
     noise_factor: float | None = None
 
@@ -135,7 +147,9 @@ def foreign(case: str, seed: int) -> HiddenCase:
     reading short by q·(reading − 60 mm)², 30–60 µm at the stroke's ends), ``stroke dent``
     (one leg reading 30–60 µm short around one place of its stroke, 3–6 mm wide), ``joint
     play`` (20–60 µm of play in each leg's joints, taken up one way or the other as its load
-    reverses)."""
+    reverses); or one of :data:`MORE_FOREIGN` (:func:`hexcal.sim.foreign_cases.draw`)."""
+    if case in MORE:
+        return _more(case, seed)
     design, rng, plan, truth = _start(seed, 90_000)
     if case == "stroke quadratic":
         ends = rng.choice([-1.0, 1.0], 6) * rng.uniform(*QUADRATIC_MM, 6)
@@ -147,6 +161,30 @@ def foreign(case: str, seed: int) -> HiddenCase:
     elif case == "joint play":
         hooks = [joint_play(truth, rng.uniform(0.02, 0.06, 6))]
     else:
-        raise ValueError(f"no foreign case {case!r}; the cases: {', '.join(FOREIGN)}")
+        cases = ", ".join([*FOREIGN, *MORE])
+        raise ValueError(f"no foreign case {case!r}; the cases: {cases}")
     meas, _ = simulate_session(design, seed, plan, effects=hooks, truth=truth)
-    return HiddenCase(meas, design, INSTRUMENTS, case, "unexplained", covariate=FOREIGN[case])
+    cov = FOREIGN[case]
+    return HiddenCase(
+        meas, design, INSTRUMENTS, case, "unexplained", covariate=cov, covariates=((cov,),)
+    )
+
+
+def _more(case: str, seed: int) -> HiddenCase:
+    design, rng, plan, truth = _start(seed, 100_000)
+    n = 6 * (plan.n_type_i + plan.n_type_ii + plan.n_type_iii) + plan.n_free
+    hidden = draw(case, rng, truth, n)
+    meas, _ = simulate_session(design, seed, plan, effects=hidden.hooks, truth=truth)
+    if hidden.finish is not None:
+        meas = hidden.finish(meas)
+    first = hidden.covariates[0][0] if hidden.covariates else None
+    return HiddenCase(
+        meas,
+        design,
+        INSTRUMENTS,
+        case,
+        hidden.expected,
+        covariate=first,
+        covariates=hidden.covariates,
+        frame_row=hidden.frame_row,
+    )
