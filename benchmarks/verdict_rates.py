@@ -18,6 +18,7 @@ from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_name, write_effect_file
 from hexcal.effects import CATALOGUE
 from hexcal.effects.backlash import deadband_mm
+from hexcal.errors import RefusedError
 from hexcal.sim import verdict_cases as vc
 
 #: The table's label of each case.
@@ -170,7 +171,11 @@ def _explorer(c: vc.HiddenCase, d) -> dict:
     out["right"] = bool(d.verdict == "unexplained" and out["named_right"])
     if lead is None:
         return out
-    after = _written_file_fit(c, d, lead, [e for e in d.effects if e != "offset"])
+    try:
+        after = _written_file_fit(c, d, lead, [e for e in d.effects if e != "offset"])
+    except RefusedError as exc:  # the written file cannot be fitted: a wrong answer, kept
+        out["file_error"] = f"{type(exc).__name__}: {exc}"
+        return out
     out["ratio_after"] = after.fit.cv_rms_mm / after.noise_floor_mm
     out["verdict_after"] = str(after.verdict)
     out["raised"] = bool(after.fit.cv_rms_mm > d.fit.cv_rms_mm)
@@ -190,7 +195,10 @@ def explore_once(c: vc.HiddenCase, d: Any) -> tuple[list[str], float, bool]:
     lead = None if d.exploration is None else d.exploration.lead
     if lead is None:
         return [], d.fit.cv_rms_mm / d.noise_floor_mm, False
-    after = _written_file_fit(c, d, lead, [e for e in d.effects if e != "offset"])
+    try:
+        after = _written_file_fit(c, d, lead, [e for e in d.effects if e != "offset"])
+    except RefusedError:  # the written file cannot be fitted: where the model was
+        return [lead.covariate.name], d.fit.cv_rms_mm / d.noise_floor_mm, False
     raised = bool(after.fit.cv_rms_mm > d.fit.cv_rms_mm)
     return [lead.covariate.name], after.fit.cv_rms_mm / after.noise_floor_mm, raised
 

@@ -11,7 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hexcal.diagnosis import diagnose
-from hexcal.io.measurements import measurements_to_csv_text
+from hexcal.io.measurements import write_measurements
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.sim import foreign_cases as fc
 from hexcal.sim import verdict_cases as vc
 from hexcal.sim.foreign_more import (
@@ -83,12 +84,13 @@ def test_a_knocked_tracker_moves_every_later_pose_rigidly_and_no_reading():
         knock_tracker(c.meas, 0, np.zeros(3), np.zeros(3))
 
 
-def test_the_user_column_is_written_and_follows_neither_time_nor_temperature():
+def test_the_user_column_is_written_and_follows_neither_time_nor_temperature(tmp_path):
     c = vc.foreign("user column", 3)
     (name,) = c.covariates[0]
     assert name in {n for n, *_ in fc.USER_COLUMNS}
     assert c.meas.columns[-1] == name
-    assert measurements_to_csv_text(c.meas).splitlines()[0].endswith(name)
+    write_measurements(c.meas, tmp_path / "measurements.csv")
+    assert read_measurements(tmp_path / "measurements.csv") == c.meas
     v = c.meas.extra[name].astype(float)
     assert v.std() > 0
     for other in (c.meas.t, c.meas.temperature):
