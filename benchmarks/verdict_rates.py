@@ -51,6 +51,9 @@ VERDICT_LABELS = {
 #: the clean sessions of the three simulated robots (no false alarm), run by
 #: ``diagnosis_rates.py`` as their own cases.
 EXPLORED = (*vc.FOREIGN, *vc.MORE_FOREIGN)
+#: The cases the issue's figures are over: each sized so that Model 42 leaves ≥ 2× the floor
+#: (the three older ones leave 1.0–1.4×: they stay in the table, not in the figures).
+JUDGED = tuple(vc.MORE_FOREIGN)
 #: The cases of that set hiding two effects at once: judged through the chained explorer.
 TWO_AT_ONCE = tuple(c for c, covs in vc.MORE_FOREIGN.items() if len(covs) == 2)
 #: Held-out RMS over the floor the cases must reach (once the effect is added).
@@ -314,16 +317,16 @@ def verdict_extra(s: dict) -> str:
 
 
 def foreign_set_rates(rows: list[dict], clean: tuple[str, ...]) -> dict:
-    """Issue 34's "Done when" figures over the rows of the effects outside the catalogue, the
-    zero jump and the ``clean`` cases (shares in 0..1; a figure whose cases did not run is
-    left out)."""
+    """Issue 34's "Done when" figures over the rows of the effects outside the catalogue
+    (:data:`JUDGED`), the zero jump and the ``clean`` cases (shares in 0..1; a figure whose
+    cases did not run is left out)."""
 
     def share(sel: list[dict], key: Callable[[dict], bool]) -> float | None:
         return float(np.mean([bool(key(r)) for r in sel])) if sel else None
 
-    one = [r for r in rows if r["case"] in EXPLORED and r["case"] not in TWO_AT_ONCE]
+    one = [r for r in rows if r["case"] in JUDGED and r["case"] not in TWO_AT_ONCE]
     led = [r for r in one if r["case"] != "tracker knocked"]
-    files = [r for r in rows if r["case"] in EXPLORED and "raised" in r]
+    files = [r for r in rows if r["case"] in JUDGED and "raised" in r]
     figures = {
         "right_covariate_top_lead": share(led, lambda r: r.get("named_right")),
         "written_file_within_15pct": share(led, lambda r: r.get("ratio_after", np.inf) <= WITHIN),
