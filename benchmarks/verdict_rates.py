@@ -41,6 +41,7 @@ VERDICT_LABELS = {
     "force x stroke": "outside: 4–6 legs shortening ∝ force × stroke, 50–110 µm at 33 N, 60 mm",
     "user column": "outside: each leg 15–30 µm per σ of a lab's own sensor column",
     "position pull": "outside: a cable pulled by x, y or z, 15–35 µm per 10 mm per leg",
+    "joint seating": "outside: joints seating ∝ (θ − θ_home)², 22–35 µm at 5° of inclination",
     "uneven heating": "outside: each leg warming 60–120 µm along 1 − e^(−t/τ), τ 8–20 min",
     "tracker knocked": "outside: the tracker knocked mid-session, 0.02–0.025° and 80–120 µm",
     "yaw cable + cycle 7.3 mm": "outside, two at once: yaw cable and the 7.3 mm cycle (chained)",

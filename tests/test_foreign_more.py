@@ -18,7 +18,9 @@ from hexcal.sim import verdict_cases as vc
 from hexcal.sim.foreign_more import (
     angle_pull,
     cross_talk,
+    joint_seating,
     knock_tracker,
+    leg_inclination,
     platform_angle,
     stroke_cycle,
 )
@@ -57,6 +59,19 @@ def test_cross_talk_moves_one_leg_with_anothers_reading():
     assert not np.delete(out, 1, axis=1).any()
     with pytest.raises(ValueError, match="two legs"):
         cross_talk(3, 3, 0.001, 60.0)
+
+
+def test_joint_seating_is_nothing_at_home_and_grows_as_the_legs_inclination_squared():
+    c = vc.foreign("joint seating", 2)
+    truth = c.design
+    home = np.array([truth.home.position, np.add(truth.home.position, [15.0, 0.0, 0.0])])
+    ctx = PoseContext(home, np.stack([np.eye(3)] * 2), np.zeros(2), np.full(2, 20.0))
+    coef = np.full(6, 0.001)
+    out = joint_seating(truth, coef)(np.zeros((2, 6)), ctx)
+    np.testing.assert_allclose(out[0], 0.0, atol=1e-12)
+    dtheta = np.diff(leg_inclination(truth, ctx.position, ctx.rotation), axis=0)[0]
+    np.testing.assert_allclose(out[1], coef * dtheta**2, rtol=1e-12)
+    assert np.abs(dtheta).min() > 0.5  # the move leans every leg: the test sees the square
 
 
 def test_the_cycle_repeats_at_its_period_and_not_at_the_lead_screws():

@@ -67,6 +67,31 @@ def angle_pull(
     return hook
 
 
+def leg_inclination(truth: Robot, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(N, 6) deg: each leg's angle from the base's z axis at the poses (position (N, 3) mm,
+    rotation (N, 3, 3))."""
+    v = position[:, None, :] + np.einsum("nij,kj->nki", rotation, truth.b) - truth.a[None]
+    n = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.rad2deg(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
+
+
+def joint_seating(truth: Robot, coef_mm: np.ndarray) -> LengthEffect:
+    """Leg k is ``coef_mm[k]``·(θ_k − θ_k at home)² longer than it reads, θ_k its angle from
+    the vertical in degrees: a joint whose seat shifts as the leg leans away from where it
+    was assembled (mm/deg²). A sag ∝ sin²θ the joint positions take up
+    (:func:`hexcal.sim.foreign.leg_sag`); a bend about the home angle they do not."""
+    coef = np.asarray(coef_mm, float)
+    home = truth.home
+    rot = Rotation.from_quat(home.quaternion, scalar_first=True).as_matrix()[None]
+    at_home = leg_inclination(truth, np.asarray(home.position, float)[None], rot)
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        return coef * (leg_inclination(truth, ctx.position, ctx.rotation) - at_home) ** 2
+
+    hook.__name__ = "hidden_joint_seating"
+    return hook
+
+
 def position_pull(axis: int, coef_mm: np.ndarray, centre_mm: float) -> LengthEffect:
     """Leg k is ``coef_mm[k]``·(u − ``centre_mm``)/10 mm longer than it reads, u the platform's
     coordinate along ``axis`` (0 x, 1 y, 2 z), mm: a cable dragged by the platform's position.
