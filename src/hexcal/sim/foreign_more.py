@@ -1,7 +1,7 @@
 """More effects outside the catalogue, for judging the covariate explorer on what nobody here
 wrote an effect for: errors that follow the platform's orientation or position, another leg's
-stroke, a cyclic encoder error, products with the axial force, a lab's own sensor column,
-uneven heating in time, and a tracker knocked mid-session. Simulator hooks only (and one
+stroke, a cyclic encoder error, products with the axial force, a leg's inclination, a lab's
+own sensor column, uneven heating in time, and a tracker knocked mid-session. Simulator hooks only (and one
 change to the measured poses), never registered; the sessions are in
 :mod:`hexcal.sim.foreign_cases`.
 
