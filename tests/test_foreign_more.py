@@ -11,13 +11,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hexcal.diagnosis import diagnose
-from hexcal.io.measurements import measurements_to_csv_text
+from hexcal.io.measurements import write_measurements
+from hexcal.io.measurements_csv import read_measurements
 from hexcal.sim import foreign_cases as fc
 from hexcal.sim import verdict_cases as vc
 from hexcal.sim.foreign_more import (
     angle_pull,
     cross_talk,
+    joint_seating,
     knock_tracker,
+    leg_inclination,
     platform_angle,
     stroke_cycle,
 )
@@ -58,6 +61,19 @@ def test_cross_talk_moves_one_leg_with_anothers_reading():
         cross_talk(3, 3, 0.001, 60.0)
 
 
+def test_joint_seating_is_nothing_at_home_and_grows_as_the_legs_inclination_squared():
+    c = vc.foreign("joint seating", 2)
+    truth = c.design
+    home = np.array([truth.home.position, np.add(truth.home.position, [15.0, 0.0, 0.0])])
+    ctx = PoseContext(home, np.stack([np.eye(3)] * 2), np.zeros(2), np.full(2, 20.0))
+    coef = np.full(6, 0.001)
+    out = joint_seating(truth, coef)(np.zeros((2, 6)), ctx)
+    np.testing.assert_allclose(out[0], 0.0, atol=1e-12)
+    dtheta = np.diff(leg_inclination(truth, ctx.position, ctx.rotation), axis=0)[0]
+    np.testing.assert_allclose(out[1], coef * dtheta**2, rtol=1e-12)
+    assert np.abs(dtheta).min() > 0.5  # the move leans every leg: the test sees the square
+
+
 def test_the_cycle_repeats_at_its_period_and_not_at_the_lead_screws():
     r = np.tile(np.linspace(0.0, 100.0, 41)[:, None], (1, 6))
     hook = stroke_cycle(fc.CYCLE_MM, np.full(6, 0.01), np.linspace(0, 3, 6))
@@ -83,12 +99,13 @@ def test_a_knocked_tracker_moves_every_later_pose_rigidly_and_no_reading():
         knock_tracker(c.meas, 0, np.zeros(3), np.zeros(3))
 
 
-def test_the_user_column_is_written_and_follows_neither_time_nor_temperature():
+def test_the_user_column_is_written_and_follows_neither_time_nor_temperature(tmp_path):
     c = vc.foreign("user column", 3)
     (name,) = c.covariates[0]
     assert name in {n for n, *_ in fc.USER_COLUMNS}
     assert c.meas.columns[-1] == name
-    assert measurements_to_csv_text(c.meas).splitlines()[0].endswith(name)
+    write_measurements(c.meas, tmp_path / "measurements.csv")
+    assert read_measurements(tmp_path / "measurements.csv") == c.meas
     v = c.meas.extra[name].astype(float)
     assert v.std() > 0
     for other in (c.meas.t, c.meas.temperature):

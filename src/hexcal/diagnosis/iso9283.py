@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexcal.effects.covariates import numeric_columns
 from hexcal.estimate.predict import LegModel, Poses
 from hexcal.model.iso_tests import Cube, iso9283_cube
 
@@ -137,6 +138,7 @@ def iso9283(model: LegModel, meas) -> Iso9283 | None:
     near = dist[np.arange(len(rows)), nearest] < 0.5 * spacing
     sub = meas.subset(rows)
     rot = sub.rotations.as_matrix()
+    model = model.with_columns(numeric_columns(sub.extra))
     solved, closed = model.solve_poses(sub.readings, sub.t, sub.temperature, Poses(pos, rot))
     poses = []
     for i, label in enumerate(labels):

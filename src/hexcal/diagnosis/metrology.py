@@ -23,6 +23,7 @@ import numpy as np
 
 from hexcal.diagnosis.iso230_2 import LegPositioning, leg_positioning
 from hexcal.diagnosis.iso9283 import Iso9283, iso9283
+from hexcal.effects.covariates import numeric_columns
 from hexcal.estimate.predict import LegModel, Poses
 from hexcal.estimate.uncertainty import (
     K,
@@ -193,6 +194,7 @@ def _uncertainty(
     why_not: str,
 ) -> Uncertainty:
     rot = meas.rotations.as_matrix()
+    model = model.with_columns(numeric_columns(meas.extra))
     solved, closed = model.solve_poses(
         meas.readings, meas.t, meas.temperature, Poses(meas.position, rot)
     )

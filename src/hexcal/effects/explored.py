@@ -235,11 +235,17 @@ class ExploredEffect(Effect):
         """(M, 6, n_params) mm per µm: the shape at the covariate's values."""
         return 1e-3 * self.shape.basis(covariate_values(self.covariate, data))
 
+    def cannot_predict(self, data: EffectData) -> str | None:
+        return self.missing(data)
+
     def missing(self, data: EffectData) -> str | None:
         if self.covariate == "temperature" and data.temperature is None:
             return "the measurements have no temperature column"
         if self.covariate not in _fixed() and self.covariate not in data.columns:
-            return f"the measurements have no numeric column {self.covariate!r}"
+            return (
+                f"it follows the table's column {self.covariate!r}, which these data do not have "
+                "(give the table with that column)"
+            )
         return None
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hexcal.effects.covariates import numeric_columns
 from hexcal.estimate.predict import LegModel, Poses
 from hexcal.model.batched import inverse_and_precision
 from hexcal.model.noise import NoiseSigmas
@@ -46,6 +47,7 @@ def pose_errors(model: LegModel, meas, rows: np.ndarray | None = None) -> PoseEr
     recording order: backlash needs the history)."""
     rot = meas.rotations.as_matrix()
     guess = Poses(meas.position, rot)
+    model = model.with_columns(numeric_columns(meas.extra))  # a lab's sensors, if it reads them
     poses, closed = model.solve_poses(meas.readings, meas.t, meas.temperature, guess, rows)
     if rows is not None:
         rot = rot[rows]

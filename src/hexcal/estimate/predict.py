@@ -23,7 +23,7 @@ direction at home) are refused with the row named (:class:`PredictionError`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -74,6 +74,14 @@ class LegModel:
     robot: Robot
     effects: tuple[str, ...] = ()
     values: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: The measurement table's extra numeric columns, (N,) each, for effects that follow a
+    #: lab's own sensor (:func:`hexcal.effects.covariates.numeric_columns`); given with the
+    #: table whose rows are solved (:meth:`with_columns`)
+    columns: dict = field(default_factory=dict, compare=False)
+
+    def with_columns(self, columns: dict) -> LegModel:
+        """The same model reading the table's extra numeric columns ``columns``."""
+        return replace(self, columns=dict(columns))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "effects", tuple(e for e in self.effects if e != "offset"))
@@ -109,7 +117,10 @@ class LegModel:
         t = np.arange(n, dtype=float) if t is None else np.asarray(t, float)
         temp = None if temperature is None else np.asarray(temperature, float)
         r = self.robot
-        return EffectData(readings, np.asarray(position, float), rotation, t, temp, r, r.a, r.b)
+        cols = {k: v for k, v in self.columns.items() if len(v) == n}
+        return EffectData(
+            readings, np.asarray(position, float), rotation, t, temp, r, r.a, r.b, columns=cols
+        )
 
     def effect_lengths(self, data: EffectData) -> np.ndarray:
         """(N, 6) mm the effects add to ``reading + offset``."""

@@ -25,6 +25,7 @@ from hexcal.sim.foreign_more import (
     cross_talk,
     force_product,
     heating,
+    joint_seating,
     knock_tracker,
     position_pull,
     series_pull,
@@ -46,6 +47,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "force x stroke": (("force_x_stroke",),),
     "user column": (("humidity_pct", "motor_current_a", "air_pressure_hpa"),),
     "position pull": (AXES,),
+    "joint seating": (("inclination",),),
     "uneven heating": (("time",),),
     "tracker knocked": (),
     "yaw cable + cycle 7.3 mm": (("yaw",), ("stroke",)),
@@ -234,6 +236,10 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
         # 15–35 µm per 10 mm of travel: 45–105 µm at the ±30 mm the session reaches
         coef = _signs(rng) * rng.uniform(0.015, 0.035, 6)
         return Drawn([position_pull(axis, coef, centre)], ((AXES[axis],),))
+    if case == "joint seating":
+        # 0.9–1.4 µm/deg² per leg, signs drawn: 22–35 µm 5° from the leg's angle at home
+        coef = _signs(rng) * rng.uniform(0.0009, 0.0014, 6)
+        return Drawn([joint_seating(truth, coef)], (("inclination",),))
     if case == "uneven heating":
         tau = float(rng.uniform(480.0, 1200.0))  # s: legs warm up over 8–20 min
         size = rng.uniform(0.06, 0.12, 6)

@@ -1,7 +1,7 @@
 """More effects outside the catalogue, for judging the covariate explorer on what nobody here
 wrote an effect for: errors that follow the platform's orientation or position, another leg's
-stroke, a cyclic encoder error, products with the axial force, a lab's own sensor column,
-uneven heating in time, and a tracker knocked mid-session. Simulator hooks only (and one
+stroke, a cyclic encoder error, products with the axial force, a leg's inclination, a lab's
+own sensor column, uneven heating in time, and a tracker knocked mid-session. Simulator hooks only (and one
 change to the measured poses), never registered; the sessions are in
 :mod:`hexcal.sim.foreign_cases`.
 
@@ -64,6 +64,31 @@ def angle_pull(
         return coef * (v - v.mean())[:, None]
 
     hook.__name__ = f"hidden_{name}_pull"
+    return hook
+
+
+def leg_inclination(truth: Robot, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(N, 6) deg: each leg's angle from the base's z axis at the poses (position (N, 3) mm,
+    rotation (N, 3, 3))."""
+    v = position[:, None, :] + np.einsum("nij,kj->nki", rotation, truth.b) - truth.a[None]
+    n = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.rad2deg(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
+
+
+def joint_seating(truth: Robot, coef_mm: np.ndarray) -> LengthEffect:
+    """Leg k is ``coef_mm[k]``·(θ_k − θ_k at home)² longer than it reads, θ_k its angle from
+    the vertical in degrees: a joint whose seat shifts as the leg leans away from where it
+    was assembled (mm/deg²). A sag ∝ sin²θ the joint positions take up
+    (:func:`hexcal.sim.foreign.leg_sag`); a bend about the home angle they do not."""
+    coef = np.asarray(coef_mm, float)
+    home = truth.home
+    rot = Rotation.from_quat(home.quaternion, scalar_first=True).as_matrix()[None]
+    at_home = leg_inclination(truth, np.asarray(home.position, float)[None], rot)
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        return coef * (leg_inclination(truth, ctx.position, ctx.rotation) - at_home) ** 2
+
+    hook.__name__ = "hidden_joint_seating"
     return hook
 
 
