@@ -6,6 +6,7 @@ effects outside the catalogue taken together (:func:`foreign_set_rates`)."""
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -217,13 +218,13 @@ def explore_chained(c: vc.HiddenCase, d: Any) -> tuple[list[str], float, bool]:
             CATALOGUE.pop(name, None)
     leads = [
         x.exploration.lead.covariate.name
-        for x, after in zip(chain, chain[1:], strict=False)
+        for x, after in itertools.pairwise(chain)
         if x.exploration is not None
         and x.exploration.lead is not None
         and any(e.startswith("by_") for e in after.effects if e not in x.effects)
     ]
     cv = [x.fit.cv_rms_mm for x in chain]
-    raised = any(b > a for a, b in zip(cv, cv[1:], strict=False))
+    raised = any(b > a for a, b in itertools.pairwise(cv))
     last = chain[-1]
     return leads, last.fit.cv_rms_mm / last.noise_floor_mm, raised
 
