@@ -83,6 +83,7 @@ class Lead:
     #: (M, 6) mm the refitted lead's contribution at each pose and leg (the picture's curve)
     fitted: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    heldout_se: float = 0.0  #: the held-out figure's standard error (the folds' spread)
 
     @property
     def columns(self) -> int:
@@ -307,22 +308,49 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
     for name, rows in pending.items():
         rows.sort(key=lambda row: -row[0])
         for _, lead, st in rows[:N_CV]:
-            lead.heldout = st.heldout()
+            folds = st.heldout_folds()
+            lead.heldout = float(folds.sum())
+            lead.heldout_se = float(np.std(folds, ddof=1) * np.sqrt(len(folds)))
             lead.share = float(lead.heldout * level / excess) if excess > 0 else float("nan")
-            held_best = best.get(name)
-            if held_best is None or not held_best.significant or lead.heldout > held_best.heldout:
-                best[name] = lead
-    tested = sorted(best.values(), key=lambda t: (not t.significant, -t.heldout, -t.score))
+        best[name] = max((lead for _, lead, _ in rows[:N_CV]), key=lambda t: t.heldout)
+    tested = _ranked(list(best.values()), problem, fit)
     out = Exploration(tested, level)
     _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
     for t in tested:
         if t.significant and not t.heldout > 0:
             t.worse = True
             t.notes.append("it fits the poses it saw, not the others (held-out χ² not reduced)")
-    out.tested.sort(key=lambda t: (not t.proposed, -t.heldout, -t.score))
+    out.tested.sort(key=lambda t: not t.proposed)  # stable: the ranking stands
     for t in out.leads:
         t.notes += _default_notes(problem, t.covariate)
     return out
+
+
+def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
+    """Significant leads first, most held-out χ² first; where the first two are the same
+    quantity on these poses (per-pose covariates correlated beyond :data:`SAME_QUANTITY`, as
+    the time and the place in the procedure are when the poses come at a steady pace) and
+    within a standard error of each other, the one the library lists first (the physical
+    one) leads, the other named with it."""
+    out = sorted(leads, key=lambda t: (not t.significant, -t.heldout, -t.score))
+    if len(out) > 1 and out[1].significant and out[0].covariate.per_pose:
+        a, b = out[0], out[1]
+        order = [c.name for c in library(problem.data)]
+        close = a.heldout - b.heldout <= a.heldout_se
+        if (
+            b.covariate.per_pose
+            and close
+            and order.index(b.covariate.name) < order.index(a.covariate.name)
+        ):
+            r = float(np.corrcoef(a.values[:, 0], b.values[:, 0])[0, 1])
+            if abs(r) > SAME_QUANTITY:
+                b.notes.append(f"or the {a.covariate.label}: the same on these poses (r {r:.3f})")
+                out[0], out[1] = b, a
+    return out
+
+
+#: Two per-pose covariates correlated beyond this are the same quantity on these poses.
+SAME_QUANTITY = 0.98
 
 
 #: What each robot.json key's default is, in words.

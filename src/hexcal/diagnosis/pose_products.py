@@ -139,13 +139,18 @@ class ColumnStats:
     def heldout(self) -> float:
         """χ² over the level the columns remove from poses they were not fitted to: each
         fold's coefficients fitted on the other folds."""
+        return float(self.heldout_folds().sum())
+
+    def heldout_folds(self) -> np.ndarray:
+        """(K,) χ² over the level the columns remove from each fold's poses, fitted on the
+        other folds (their spread is the held-out figure's standard error)."""
         g, b = self.g.sum(0), self.b.sum(0)
         keep = self._kept(g)
+        gains = np.zeros(len(self.g))
         if not keep.any():
-            return 0.0
+            return gains
         ix = np.ix_(keep, keep)
-        gain = 0.0
-        for gf, bf in zip(self.g, self.b, strict=True):
+        for i, (gf, bf) in enumerate(zip(self.g, self.b, strict=True)):
             coef = solve((g - gf)[ix], (b - bf)[keep])
-            gain += float(2 * coef @ bf[keep] - coef @ gf[ix] @ coef)
-        return gain / self.level
+            gains[i] = float(2 * coef @ bf[keep] - coef @ gf[ix] @ coef)
+        return gains / self.level
