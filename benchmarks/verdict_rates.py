@@ -36,6 +36,7 @@ VERDICT_LABELS = {
     "roll or pitch cable": "outside: a hose pulled by roll or pitch, 35–55 µm at 10° (∝ angle²)",
     "cross-talk": "outside: two legs reading 2.4–3.4 µm per mm of a third leg's stroke",
     "cycle 7.3 mm": "outside: a cyclic encoder error of period 7.3 mm, 24–42 µm, every leg",
+    "scale joint": "outside: 3–4 legs reading 60–90 µm short past one place of their stroke",
     "cycle 11-17 mm": "outside: a cyclic encoder error of period 11–17 mm, 40–60 µm, 3–5 legs",
     "bending": "outside: legs bowing ∝ axial force × length², 45–100 µm at 33 N, 200 mm",
     "force x stroke": "outside: 4–6 legs shortening ∝ force × stroke, 50–110 µm at 33 N, 60 mm",

@@ -47,8 +47,8 @@ from hexcal.estimate.quantiles import chi2_isf
 EXPLORE_ALPHA = 1e-3
 #: Interior knots of the smooth shapes tried (0: a cubic); cross-validation picks one.
 SPLINE_KNOTS = (0, 4, 11)
-#: Splits of a step shape: these quantiles of the covariate.
-STEP_QUANTILES = np.linspace(0.1, 0.9, 9)
+#: Poses on each side of a step's split at least.
+MIN_SIDE = 5
 #: A signed covariate's sign (a load reversing) must hold this share of the poses both ways.
 MIN_SIGN_SHARE = 0.03
 #: Leads refitted for real (their figure stated, "never worse" checked).
@@ -231,6 +231,37 @@ def _period(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> tuple[floa
     return float(periods[int(np.argmax(power))]), max(int(span * (1 / lo - 1 / hi)), 1)
 
 
+def _splits(values: np.ndarray, resid: np.ndarray, shared: bool) -> tuple[np.ndarray, int]:
+    """((6,) each leg's split of a step along its covariate ``values`` (M, 6): where the mean
+    of its residual (M, 6) shifts most (the CUSUM's peak, :data:`MIN_SIDE` poses a side at
+    least); the legs' summed residual along the pooled values when ``shared``; how many
+    splits were searched (the tests the step stands for: every split, however correlated
+    its neighbours, counted as one)."""
+    legs = [None] if shared else range(6)
+    out = np.zeros(6)
+    tries = 0
+    for k in legs:
+        u = values[:, 0] if k is None else values[:, k]
+        r = resid.sum(axis=1) if k is None else resid[:, k]
+        order = np.argsort(u, kind="stable")
+        us, rs = u[order], r[order] - r.mean()
+        n = len(us)
+        # A split only between distinct values (a clamped leg repeats one reading).
+        cut = np.flatnonzero(np.diff(us) > 0) + 1
+        cut = cut[(cut >= MIN_SIDE) & (cut <= n - MIN_SIDE)]
+        if not len(cut):
+            return np.zeros(6), 0
+        tail = np.cumsum(rs[::-1])[::-1]  # Σ from each row on
+        stat = tail[cut] ** 2 / (cut * (n - cut) / n)
+        i = int(cut[np.argmax(stat)])
+        split = 0.5 * (us[i - 1] + us[i])
+        out[:] = split if k is None else out
+        if k is not None:
+            out[k] = split
+        tries = max(tries, len(cut))
+    return out, tries
+
+
 def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tuple[Shape, int]]:
     """The shapes tried along ``cov`` (own coefficients per leg and shared), each with the
     number of tests it stands for (a period or a split searched counts its tries)."""
@@ -241,8 +272,9 @@ def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tup
     for shared in scopes:
         out.append((line(values, shared), 1))
         out += [(spline(values, n, shared), 1) for n in SPLINE_KNOTS]
-        qs = np.quantile(values.reshape(-1) if shared else values, STEP_QUANTILES, axis=0)
-        out += [(step(np.atleast_1d(q), shared), len(STEP_QUANTILES)) for q in qs]
+        splits, tries = _splits(values, resid, shared)
+        if tries:
+            out.append((step(splits, shared), tries))
         if cov.signed and min((values > 0).mean(), (values < 0).mean()) >= MIN_SIGN_SHARE:
             out.append((sign(shared), 1))
     if cov.periodic:

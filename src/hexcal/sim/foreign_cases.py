@@ -30,6 +30,7 @@ from hexcal.sim.foreign_more import (
     position_pull,
     series_pull,
     stroke_cycle,
+    stroke_step,
 )
 from hexcal.sim.simulate import LengthEffect, PoseContext
 
@@ -42,6 +43,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "roll or pitch cable": (("roll", "pitch"),),
     "cross-talk": (tuple(f"stroke_leg{j}" for j in range(1, 7)),),
     "cycle 7.3 mm": (("stroke",),),
+    "scale joint": (("stroke",),),
     "cycle 11-17 mm": (("stroke",),),
     "bending": (("force_x_length2",),),
     "force x stroke": (("force_x_stroke",),),
@@ -210,6 +212,10 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
         coef = _signs(rng, 2) * rng.uniform(0.0024, 0.0034, 2)
         hooks = [cross_talk(k, source, float(c), 55.0) for k, c in zip(legs, coef, strict=True)]
         return Drawn(hooks, ((f"stroke_leg{source}",),))
+    if case == "scale joint":
+        # 3–4 legs read 60–90 µm short past one place of their stroke (drawn in its middle)
+        size = _subset(rng, 3, 4) * _signs(rng) * rng.uniform(0.06, 0.09, 6)
+        return Drawn([stroke_step(rng.uniform(45.0, 75.0, 6), size)], (("stroke",),))
     if case == "cycle 7.3 mm":
         amp = rng.uniform(0.024, 0.042, 6)
         return Drawn([stroke_cycle(CYCLE_MM, amp, rng.uniform(0, 2 * np.pi, 6))], (("stroke",),))

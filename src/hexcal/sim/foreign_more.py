@@ -133,6 +133,19 @@ def stroke_cycle(period_mm: float, amp_mm: np.ndarray, phase: np.ndarray) -> Len
     return hook
 
 
+def stroke_step(at_mm: np.ndarray, size_mm: np.ndarray) -> LengthEffect:
+    """Leg k reads ``size_mm[k]`` short from reading ``at_mm[k]`` on: a joint between two
+    lengths of an encoder scale, a tape reader that skips at one place. A leg of size 0 has
+    none."""
+    at, size = np.asarray(at_mm, float), np.asarray(size_mm, float)
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        return size * (readings >= at)
+
+    hook.__name__ = "hidden_scale_joint"
+    return hook
+
+
 def force_product(truth: Robot, coef: np.ndarray, kind: str) -> LengthEffect:
     """Leg k shortens by ``coef[k]``·F_k·X_k under its axial force F_k (N, compression
     positive, holding the platform's weight as :func:`~hexcal.effects.compliance.leg_forces`
