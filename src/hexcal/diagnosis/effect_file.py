@@ -82,14 +82,14 @@ def effect_file_text(lead: Lead, source: str, *, name: str | None = None) -> str
     )
     intro = (
         f"{name}: the unexplained residual of {source} follows the {cov.label}. Written by "
-        f"hexcal diagnose: along it, {shape.describe()} on {lead.where()} explains "
+        f"hexcal diagnose: along it, {shape.describe(cov.unit)} on {lead.where()} explains "
         f"{100 * lead.share:.0f} % of the excess over the noise floor on held-out poses{after}; "
         "the shape's constant is left to the leg offsets. Loaded as it is, it is that shape; "
         "edit it to the physics you suspect (a formula in place of the shape, fewer "
         "parameters, a plausible range), then pass the file back and add the effect:"
     )
     physics = (
-        f"The leg length departs from the model along the {cov.label}: {shape.describe()} "
+        f"The leg length departs from the model along the {cov.label}: {shape.describe(cov.unit)} "
         f"(written by hexcal diagnose; replace it with the physics you suspect: "
         f"{lead.points_at})."
     )
@@ -97,7 +97,7 @@ def effect_file_text(lead: Lead, source: str, *, name: str | None = None) -> str
         intro="\n".join(textwrap.wrap(intro, 88, break_on_hyphens=False)),
         name=name,
         cls=cls,
-        describe=shape.describe(),
+        describe=shape.describe(cov.unit),
         shape=textwrap.indent(pprint.pformat(shape.to_dict(), width=84, compact=True), "    "),
         label=cov.label,
         unit=unit,

@@ -121,7 +121,7 @@ class Lead:
         )
         said = "".join(f"; {n}" for n in self.notes)
         return (
-            f"{c.label} ({c.name}; {self.shape.describe()} on {self.where()}): explains "
+            f"{c.label} ({c.name}; {self.shape.describe(c.unit)} on {self.where()}): explains "
             f"{100 * self.share:.0f} % of the excess on held-out poses (χ² {self.score:.0f} "
             f"in-sample with {self.columns} shape parameters, threshold "
             f"{self.threshold:.0f}{after}){said}"
@@ -213,22 +213,32 @@ def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndar
 
 def _period(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> tuple[float, int]:
     """(the period a periodogram of the residual (M, 6) over ``values`` finds, summed over the
-    legs; how many independent periods the search looked at)."""
+    legs — on a grid of 5 points per resolution element, then refined 20× finer about its
+    peak, since a period 0.5 % off drifts a quarter turn over 14 cycles; how many independent
+    periods the search looked at)."""
     span = float(np.max(np.ptp(values, axis=0)))
     m = len(values)
     hi = MAX_PERIOD_SHARE * span
     lo = max(span * POSES_PER_PERIOD / m, hi / 200.0)
     if not (span > 0 and lo < hi):
         return 0.0, 0
-    n = int(np.clip(5 * span * (1 / lo - 1 / hi), 50, 4000))
-    periods = 1.0 / np.linspace(1 / hi, 1 / lo, n)
-    power = np.zeros(n)
     legs = range(1) if cov.per_pose else range(6)
-    for k in legs:
-        if np.ptp(values[:, k]) > 0:
-            r = resid[:, k] if not cov.per_pose else resid.mean(axis=1)
-            power += periodogram(values[:, k], r, periods) ** 2
-    return float(periods[int(np.argmax(power))]), max(int(span * (1 / lo - 1 / hi)), 1)
+    series = [
+        (values[:, k], resid.mean(axis=1) if cov.per_pose else resid[:, k])
+        for k in legs
+        if np.ptp(values[:, k]) > 0
+    ]
+
+    def power(freqs: np.ndarray) -> np.ndarray:
+        return sum((periodogram(u, r, 1.0 / freqs) ** 2 for u, r in series), np.zeros(len(freqs)))
+
+    n = int(np.clip(5 * span * (1 / lo - 1 / hi), 50, 4000))
+    freqs = np.linspace(1 / hi, 1 / lo, n)
+    best = freqs[int(np.argmax(power(freqs)))]
+    step = freqs[1] - freqs[0]
+    fine = np.linspace(best - step, best + step, 41)
+    best = fine[int(np.argmax(power(fine)))]
+    return float(1.0 / best), max(int(span * (1 / lo - 1 / hi)), 1)
 
 
 def _splits(values: np.ndarray, resid: np.ndarray, shared: bool) -> tuple[np.ndarray, int]:

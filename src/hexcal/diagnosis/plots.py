@@ -444,7 +444,7 @@ def _plot_covariate(view: PlotView, outdir: Path, name: str) -> Path:
         f"residual against the {cov.name.replace('_', ' ')}",
         outdir,
         name,
-        note=f"{100 * lead.share:.0f} % of the excess: {lead.shape.describe()}{on}",
+        note=f"{100 * lead.share:.0f} % of the excess: {lead.shape.describe(lead.covariate.unit)}{on}",
         curve=curve,
     )
 

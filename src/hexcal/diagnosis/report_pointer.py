@@ -16,7 +16,7 @@ def pointer_section(d: Diagnosis, sid: str) -> str:
     rows = (
         "".join(
             f"<tr><td>{esc(t.covariate.label)} <span class='muted'>({esc(t.covariate.name)})</span>"
-            f"</td><td>{esc(t.shape.describe())}</td>"
+            f"</td><td>{esc(t.shape.describe(t.covariate.unit))}</td>"
             f"<td>{esc(', '.join(map(str, t.shape.legs)))}</td>"
             f'<td class="num">{100 * t.share:.0f} %</td>'
             f'<td class="num">{t.score:.0f} / {t.threshold:.0f}</td></tr>'

@@ -110,7 +110,9 @@ class Shape:
 
         return replace(self, legs=tuple(legs), shared=self.shared if shared is None else shared)
 
-    def describe(self) -> str:
+    def describe(self, unit: str = "") -> str:
+        """The shape in words (``unit``: the covariate's, for the period)."""
+        per = f" {unit}" if unit else ""
         what = {
             "line": "a straight line",
             "spline": (
@@ -118,7 +120,7 @@ class Shape:
                 if self.knots and len(self.knots[0])
                 else "a cubic curve"
             ),
-            "periodic": f"a periodic error of period {self.period:.4g}",
+            "periodic": f"a periodic error of period {self.period:.4g}{per}",
             "step": "a step (a change point)",
             "sign": "a step at its sign change",
         }[self.kind]

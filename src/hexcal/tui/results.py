@@ -343,7 +343,7 @@ class DiagnosisScreen(HexcalScreen):
                 lines.append(
                     f"it follows the [b]{escape(lead.covariate.label)}[/b] "
                     f"({100 * lead.share:.0f} % of the excess): {escape(lead.points_at)}; "
-                    f"press [b]a[/b] to add it as an effect ({escape(lead.shape.describe())}) "
+                    f"press [b]a[/b] to add it as an effect ({escape(lead.shape.describe(lead.covariate.unit))}) "
                     "and refit"
                 )
         elif d.verdict == Outcome.NOISE_UNDERSTATED:
