@@ -1,11 +1,14 @@
 """``hexcal validate``: it knows the session a model was fitted on (provenance SHA-256, or the
-same pose ids and times) and then gives no verdict that the model holds; on a second session it
-reports each pose's expanded uncertainty and the share inside its 95 % region."""
+same poses' values in any copy: re-numbered, re-timed, re-ordered) and then gives no verdict
+that the model holds; on a second session — the Jugglebot's other half too, numbered and timed
+as the first — it reports each pose's expanded uncertainty and the share inside its 95 %
+region."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +16,8 @@ import pytest
 from hexcal.app.cli import main
 from hexcal.io.measurements import Measurements, write_measurements
 from hexcal.io.measurements_csv import read_measurements
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "jugglebot"
 
 
 @pytest.fixture(scope="module")
@@ -64,13 +69,24 @@ def test_the_session_it_was_fitted_on_is_named_and_no_holds_verdict(fitted, caps
     assert out["own_session"] and out["verdict"] is None
 
 
-def test_the_same_poses_in_another_file_are_recognised_by_ids_and_times(fitted, tmp_path, capsys):
+def _renumbered(meas: Measurements, first_id: int, t0: float) -> Measurements:
+    """The same poses numbered from ``first_id`` at times t0, t0 + 1, … s."""
+    n = len(meas)
+    return dataclasses.replace(
+        meas, pose_id=np.arange(first_id, first_id + n), t=t0 + np.arange(n, dtype=float)
+    )
+
+
+def test_the_same_poses_in_another_file_are_recognised_by_their_values(fitted, tmp_path, capsys):
     first, second, cal = fitted
     meas = read_measurements(first / "measurements.csv")
     whole, mixed = tmp_path / "copy.csv", tmp_path / "mixed.csv"
-    write_measurements(meas.subset(slice(None, None, -1)), whole)  # other bytes, same poses
+    # other bytes, other ids, other times, other order: the same poses
+    write_measurements(_renumbered(meas.subset(slice(None, None, -1)), 501, 7.5), whole)
     text = _validate(cal, whole, first / "instruments.json", capsys)
-    assert f"all {len(meas)} poses were fitted (same pose ids and times" in _stats_head(text)
+    assert f"all {len(meas)} poses were fitted (the same positions, orientations" in _stats_head(
+        text
+    )
     # half of the fitted poses among new ones (ids made unique)
     other = read_measurements(second / "measurements.csv")
     half = meas.subset(slice(0, len(meas) // 2))
@@ -80,6 +96,34 @@ def test_the_same_poses_in_another_file_are_recognised_by_ids_and_times(fitted, 
     n = len(half) + len(other)
     assert f"{len(half)} of these {n} poses were fitted" in _stats_head(text)
     assert "holds" not in text
+
+
+def test_another_session_with_the_fitted_ids_and_times_is_validated(fitted, tmp_path, capsys):
+    first, second, cal = fitted
+    meas = read_measurements(first / "measurements.csv")
+    other = read_measurements(second / "measurements.csv").subset(slice(0, len(meas)))
+    # the second session numbered and timed exactly as the first
+    same_ids = dataclasses.replace(
+        other, pose_id=meas.pose_id[: len(other)], t=meas.t[: len(other)]
+    )
+    path = tmp_path / "same_ids.csv"
+    write_measurements(same_ids, path)
+    out = json.loads(_validate(cal, path, second / "instruments.json", capsys, "--json"))
+    assert out["own_session"] is None and out["verdict"] == "none"
+
+
+def test_an_older_file_without_a_fingerprint_still_knows_its_poses_by_ids(fitted, tmp_path, capsys):
+    first, _, cal = fitted
+    data = json.loads(cal.read_text())
+    del data["calibration"]["fitted_poses"]["fingerprint"]
+    data["calibration"]["format_version"] = 2
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(data))
+    meas = read_measurements(first / "measurements.csv")
+    copy = tmp_path / "copy.csv"
+    write_measurements(meas.subset(slice(None, None, -1)), copy)
+    text = _validate(old, copy, first / "instruments.json", capsys)
+    assert f"all {len(meas)} poses were fitted (same pose ids and times" in _stats_head(text)
 
 
 def test_a_second_session_gets_its_uncertainty_and_coverage(fitted, capsys):
@@ -110,3 +154,55 @@ def _concat(parts: list[Measurements]) -> Measurements:
         pose_id=np.concatenate([p.pose_id for p in parts]),
         temperature=np.concatenate([p.temperature for p in parts]),
     )
+
+
+@pytest.fixture(scope="module")
+def jugglebot_halves(tmp_path_factory):
+    """The Jugglebot's 108 real poses split in two halves as recorded — each numbered 1..54 at
+    t = 0, 1, … s, as two sessions of the robot's own log would be — and a Model 42 + gain model
+    of the first (noise unknown: estimated from its residual)."""
+    from hexcal.io.log_import import import_log
+
+    root = tmp_path_factory.mktemp("jugglebot")
+    meas = import_log(EXAMPLE / "108_calibration_poses.csv", EXAMPLE / "map.toml")
+    half = len(meas) // 2
+    first, second = root / "first.csv", root / "second.csv"
+    write_measurements(_renumbered(meas.subset(slice(0, half)), 1, 0.0), first)
+    write_measurements(_renumbered(meas.subset(slice(half, 2 * half)), 1, 0.0), second)
+    cal = root / "cal.json"
+    robot = EXAMPLE / "design-robot.json"
+    rc = main(["calibrate", str(first), "--robot", str(robot), "--add", "gain", "--out", str(cal)])
+    assert rc == 0
+    return first, second, cal
+
+
+def _validate_json(cal, table, capsys) -> dict:
+    assert main(["validate", str(cal), str(table), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_the_jugglebot_s_other_half_with_the_same_ids_and_times_is_validated(
+    jugglebot_halves, capsys
+):
+    first, second, cal = jugglebot_halves
+    a, b = read_measurements(first), read_measurements(second)
+    assert np.array_equal(a.pose_id, b.pose_id) and np.array_equal(a.t, b.t)
+    out = _validate_json(cal, second, capsys)
+    assert out["own_session"] is None and out["verdict"] is not None
+
+
+def test_a_renumbered_copy_of_the_jugglebot_s_fitted_half_is_no_validation(
+    jugglebot_halves, tmp_path, capsys
+):
+    first, _, cal = jugglebot_halves
+    meas = read_measurements(first)
+    copy = tmp_path / "renumbered.csv"
+    write_measurements(_renumbered(meas, 1001, 3600.0), copy)
+    out = _validate_json(cal, copy, capsys)
+    assert out["own_session"] == (
+        f"all {len(meas)} poses were fitted (the same positions, orientations and readings as "
+        "the model's)"
+    )
+    assert out["verdict"] is None
+    assert main(["validate", str(cal), str(copy)]) == 0
+    assert "NOT A VALIDATION" in capsys.readouterr().out

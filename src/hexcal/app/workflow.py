@@ -30,6 +30,7 @@ from hexcal.estimate.calibrate import Calibration, calibrate
 from hexcal.estimate.model_file import (
     CalibratedRobot,
     CalibrationBlock,
+    FingerprintRecord,
     FitRecord,
     FittedPoses,
     Provenance,
@@ -389,7 +390,9 @@ def build_file(
         name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
     effects = effect_records(model, cal.sigmas())
     block = CalibrationBlock(
-        format_version=format_version_of(effects, covariance=r is not None, fitted_poses=True),
+        format_version=format_version_of(
+            effects, covariance=r is not None, fitted_poses=True, fingerprint=True
+        ),
         model=name,
         kind=cal.model,
         effects=effects,
@@ -409,7 +412,9 @@ def build_file(
         if r is None
         else covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42),
         fitted_poses=FittedPoses(
-            pose_id=[int(i) for i in inp.meas.pose_id], t=[float(t) for t in inp.meas.t]
+            pose_id=[int(i) for i in inp.meas.pose_id],
+            t=[float(t) for t in inp.meas.t],
+            fingerprint=FingerprintRecord.of(inp.meas),
         ),
     )
     data = cal.robot.model_dump(exclude_none=True)

@@ -9,6 +9,8 @@ version, SHA-256 of the inputs, date, pose count). ``calibration.format_version`
 a file from a newer hexcal is refused, not misread. Version 2 adds, to each effect from outside
 hexcal's catalogue, its ``source`` (the package and version, or the file's SHA-256); hexcal
 writes version 1 when every effect is the catalogue's, so older readers still read those files.
+Version 3 adds the fitted poses' ``fingerprint`` (their values, :mod:`hexcal.io.pose_fingerprint`)
+and the ``uncertainty`` terms beyond the parameters and the readings.
 An effect the file names but this process has not loaded is refused, naming what to install or
 pass (:func:`parse_model`); nothing in the file is ever executed.
 
@@ -33,6 +35,14 @@ from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
 from hexcal.estimate.uncertainty import ParameterCovariance, model_parameter_names
 from hexcal.io.fileio import write_text_atomic
+from hexcal.io.pose_fingerprint import (
+    KEY_HEX,
+    QUANTUM_MM,
+    QUANTUM_RAD,
+    Fingerprint,
+    fingerprint,
+    shared_rows,
+)
 from hexcal.io.safe_read import Count, NotBool
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.instruments import Instruments
@@ -47,10 +57,13 @@ Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False),
 FORMAT: Final = "hexcal-calibrated-model"
 #: The newest format version this hexcal reads and writes. 1: the catalogue's effects only;
 #: 2 adds ``covariance`` and ``fitted_poses`` (both optional), and an effect from outside the
-#: catalogue records its ``source``. Version 1 files are still read.
-FORMAT_VERSION = 2
+#: catalogue records its ``source``; 3 adds ``fitted_poses.fingerprint`` and ``uncertainty``.
+#: Version 1 and 2 files are still read.
+FORMAT_VERSION = 3
 #: The version a file needs when an effect records its source.
 SOURCE_VERSION = 2
+#: The version a file needs when it holds a fingerprint or uncertainty terms.
+FINGERPRINT_VERSION = 3
 #: Largest magnitude of a covariance entry: the square of :data:`MAX_PARAMETER`.
 MAX_COVARIANCE = MAX_PARAMETER**2
 
@@ -187,13 +200,35 @@ class CovarianceRecord(BaseModel):
     ]
 
 
+PoseKey = Annotated[str, Field(pattern=rf"^[0-9a-f]{{{KEY_HEX}}}$")]
+
+
+class FingerprintRecord(BaseModel):
+    """The fitted poses' values as keys (format version 3; :mod:`hexcal.io.pose_fingerprint`):
+    each pose's key on a grid of ``quantum_mm`` (position, readings) and ``quantum_rad``
+    (rotation vector), and on the grid shifted by half a step."""
+
+    model_config = _RECORD
+    quantum_mm: Annotated[float, NotBool] = Field(QUANTUM_MM, gt=0, le=1)
+    quantum_rad: Annotated[float, NotBool] = Field(QUANTUM_RAD, gt=0, le=1e-3)
+    keys: list[PoseKey]
+    shifted: list[PoseKey]
+
+    @classmethod
+    def of(cls, meas) -> FingerprintRecord:
+        fp = fingerprint(meas)
+        return cls(keys=fp.keys, shifted=fp.shifted)
+
+
 class FittedPoses(BaseModel):
-    """The poses the model was fitted on (format version 2): their ids and times (s), so that
-    ``hexcal validate`` knows when it is given them again."""
+    """The poses the model was fitted on (format version 2): their ids and times (s), and
+    (version 3) the ``fingerprint`` of their values, by which ``hexcal validate`` knows them
+    again in any copy (the ids and times are kept for the reader; they identify nothing)."""
 
     model_config = _RECORD
     pose_id: list[Annotated[int, Field(ge=1, le=2**53 - 1)]]
     t: list[Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)]]
+    fingerprint: FingerprintRecord | None = None
 
 
 class CalibrationBlock(BaseModel):
@@ -218,6 +253,10 @@ class CalibrationBlock(BaseModel):
     )
     fitted_poses: FittedPoses | None = None
 
+    @property
+    def _fingerprinted(self) -> bool:
+        return self.fitted_poses is not None and self.fitted_poses.fingerprint is not None
+
     @model_validator(mode="after")
     def _version_holds_the_sources(self) -> CalibrationBlock:
         has = [
@@ -226,6 +265,7 @@ class CalibrationBlock(BaseModel):
                 ("effect sources", any(e.source is not None for e in self.effects)),
                 ("covariance", self.covariance is not None),
                 ("fitted_poses", self.fitted_poses is not None),
+                ("fingerprint", self._fingerprinted),
             )
             if held
         ]
@@ -233,6 +273,7 @@ class CalibrationBlock(BaseModel):
             self.effects,
             covariance=self.covariance is not None,
             fitted_poses=self.fitted_poses is not None,
+            fingerprint=self._fingerprinted,
         )
         if self.format_version < need:
             raise ValueError(
@@ -291,6 +332,24 @@ class CalibratedRobot(Robot):
             return None
         return {(int(i), round(float(t), 6)) for i, t in zip(f.pose_id, f.t, strict=True)}
 
+    def fitted_rows(self, meas) -> tuple[np.ndarray, str] | None:
+        """((N,) bool, how): which rows of the table ``meas`` the model was fitted on, and by
+        what they were known — their values (the fingerprint, version 3), or in an older file
+        their ids and times. None when the file lists no fitted poses."""
+        f = self.calibration.fitted_poses
+        if f is None:
+            return None
+        fp = f.fingerprint
+        if fp is not None:
+            if (fp.quantum_mm, fp.quantum_rad) != (QUANTUM_MM, QUANTUM_RAD):
+                return None  # another grid: its keys cannot be compared with this one's
+            rows = shared_rows(meas, Fingerprint(fp.keys, fp.shifted))
+            return rows, "the same positions, orientations and readings as the model's"
+        keys = self.fitted_pose_keys() or set()
+        pairs = zip(meas.pose_id.tolist(), np.round(meas.t, 6).tolist(), strict=True)
+        rows = np.array([(int(i), float(t)) in keys for i, t in pairs], dtype=bool)
+        return rows, "same pose ids and times as the model's; the file has no fingerprint"
+
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""
         return Robot.model_validate(self.model_dump(exclude={"calibration"}, exclude_none=True))
@@ -311,10 +370,17 @@ def _same_source(a: EffectSource, b: EffectSource) -> bool:
 
 
 def format_version_of(
-    effects: list[EffectRecord], *, covariance: bool = False, fitted_poses: bool = False
+    effects: list[EffectRecord],
+    *,
+    covariance: bool = False,
+    fitted_poses: bool = False,
+    fingerprint: bool = False,
 ) -> int:
-    """The format version a file needs: 2 when an effect records its source, or the file holds
-    the parameters' ``covariance`` or its ``fitted_poses``; 1 otherwise."""
+    """The format version a file needs: 3 when it holds the fitted poses' ``fingerprint`` (or
+    uncertainty terms); 2 when an effect records its source, or the file holds the parameters'
+    ``covariance`` or its ``fitted_poses``; 1 otherwise."""
+    if fingerprint:
+        return FINGERPRINT_VERSION
     sources = any(e.source is not None for e in effects)
     return SOURCE_VERSION if (sources or covariance or fitted_poses) else 1
 

@@ -2,7 +2,8 @@
 
 A model given the very measurements it was fitted on is not validated by them: when the file
 given is one of the model's inputs (its SHA-256 is in calibrated.json's provenance) or its poses
-are among those fitted (same pose ids and times, calibrated.json's ``fitted_poses``),
+are among those fitted (the same values: calibrated.json's ``fitted_poses.fingerprint``; in an
+older file, the same pose ids and times),
 :func:`own_session` says so; the report then says it at the top and gives no verdict that the
 model holds.
 
@@ -174,27 +175,26 @@ class Validation:
 
 def own_session(
     inputs: list[tuple[str, str]],
-    fitted: set[tuple[int, float]] | None,
+    fitted: tuple[np.ndarray, str] | None,
     sha256: str,
-    meas,
 ) -> str | None:
-    """Why the table ``meas`` (whose file has SHA-256 ``sha256``) was among a model's inputs,
-    or None: ``inputs`` are the model's provenance (role, sha256) pairs, ``fitted`` its fitted
-    poses' (pose id, t rounded to 1 µs) keys (None when the model file does not list them)."""
+    """Why a table (whose file has SHA-256 ``sha256``) was among a model's inputs, or None:
+    ``inputs`` are the model's provenance (role, sha256) pairs, ``fitted`` which of the table's
+    rows were fitted and by what they were known
+    (:meth:`hexcal.estimate.model_file.CalibratedRobot.fitted_rows`; None when the model file
+    does not list them)."""
     for role, digest in inputs:
         if digest == sha256 and role in ("measurements", "session"):
             return f"this file is the model's own {role} input (its SHA-256 is in the provenance)"
-    if not fitted:
+    if fitted is None:
         return None
-    keys = zip(meas.pose_id.tolist(), np.round(meas.t, 6).tolist(), strict=True)
-    shared = sum((int(i), float(t)) in fitted for i, t in keys)
+    rows, how = fitted
+    shared = int(np.count_nonzero(rows))
     if not shared:
         return None
-    if shared == len(meas):
-        return f"all {shared} poses were fitted (same pose ids and times as the model's)"
-    return (
-        f"{shared} of these {len(meas)} poses were fitted (same pose ids and times as the model's)"
-    )
+    if shared == len(rows):
+        return f"all {shared} poses were fitted ({how})"
+    return f"{shared} of these {len(rows)} poses were fitted ({how})"
 
 
 def _whitened(model: LegModel, meas, sig: NoiseSigmas) -> tuple[np.ndarray, np.ndarray]:

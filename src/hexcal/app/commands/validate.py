@@ -104,7 +104,7 @@ def _own_session(loaded, path: Path, meas) -> str | None:
     if not isinstance(loaded, CalibratedRobot):
         return None
     inputs = [(i.role, i.sha256) for i in loaded.calibration.provenance.inputs]
-    return own_session(inputs, loaded.fitted_pose_keys(), sha256_of(path), meas)
+    return own_session(inputs, loaded.fitted_rows(meas), sha256_of(path))
 
 
 def _metrology(loaded, model, label: str, meas, sig):
