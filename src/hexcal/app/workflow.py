@@ -463,6 +463,7 @@ def calibrate_model(
     effects = tuple(dict.fromkeys((*inp.model_effects, *effects)))
     stage = on_stage or (lambda text: None)
     screen_inputs(inp)
+    inp = locate_effects_of(inp, model, effects)
     stage(f"calibrating Model {int(model)} on {len(inp.meas.pose_id)} poses")
     try:
         cal = calibrate(
@@ -510,6 +511,25 @@ def calibrate_model(
     return ModelResult(
         cal, accuracy, partial(build_file, inp, cal, accuracy, fits[-1].cv_rms_mm, floor)
     )
+
+
+def locate_effects_of(inp: Inputs, model: ModelKind, effects: Sequence[str]) -> Inputs:
+    """The inputs with the places of the searched-for effects among ``effects`` located by the
+    diagnosis' own search (:func:`hexcal.diagnosis.locators.locate_effects`: zero_step's
+    times), unless robot.json states them; refused with the effect's reason when the search
+    finds none."""
+    from hexcal.diagnosis.locators import LOCATORS, locate_effects
+    from hexcal.estimate.effect_fit import Problem
+
+    if not any(e in LOCATORS for e in effects):
+        return inp
+    problem = Problem.build(inp.meas, inp.design, inp.sigmas)
+    base = ("offset",) if model == ModelKind.M42 else ()
+    try:
+        locate_effects(problem, (*base, *effects))
+    except (FitStalled, GeometryOutOfRange) as exc:
+        raise _stall_message(inp, exc) from None
+    return replace(inp, design=problem.design)
 
 
 # -- diagnosis --------------------------------------------------------------------------------
@@ -572,9 +592,10 @@ def model_of(
     outliers = getattr(last, "outlier_ids", [])
     if outliers:  # the diagnosis set them aside: the model is calibrated without them too
         inp = inp.without(outliers)
-    located = getattr(last.problem.design, "zero_steps", None)
-    if "zero_step" in effects and located:  # the steps the diagnosis located, with their times
-        inp = replace(inp, design=inp.design.model_copy(update={"zero_steps": located}))
+    from hexcal.diagnosis.locators import carry_located
+
+    # the places the diagnosis located (zero_step's times), as calibrate would find them
+    inp = replace(inp, design=carry_located(last.problem.design, inp.design, effects))
     try:
         cal = calibrate(
             inp.meas,

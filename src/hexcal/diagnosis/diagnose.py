@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hexcal.diagnosis.changepoint import ChangePoint, locate, located, search
+from hexcal.diagnosis.changepoint import ChangePoint
 from hexcal.diagnosis.covariates import Exploration, explore
+from hexcal.diagnosis.locators import locate_effects
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
@@ -40,7 +41,6 @@ from hexcal.diagnosis.outliers import (
     find_outliers,
     pose_chi2,
     pose_residuals,
-    robust_level,
     session_problem,
 )
 from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
@@ -61,7 +61,6 @@ from hexcal.estimate.effect_fit import (
     Problem,
     design_accuracy,
     design_pose_errors,
-    fit_model,
     heldout_accuracy,
     heldout_pose_errors,
 )
@@ -299,8 +298,7 @@ def diagnose(
     threshold = float("nan")
     work = problem
     search: OutlierSearch | None = None
-    if ZERO_STEP in effects and (given is None or not located(problem)):
-        _locate_first(problem, effects)
+    locate_effects(problem, effects)  # zero_step's steps, found as calibrate finds them
     if set_aside_outliers:
         outliers, threshold, work, search = _set_aside(problem, given, effects, notes)
     j = judge(work, effects, sig, notes, outliers=search)
@@ -359,19 +357,6 @@ def diagnose(
         exploration=exploration,
         noise_factor=noise_factor,
     )
-
-
-def _locate_first(problem: Problem, effects: tuple[str, ...]) -> None:
-    """``zero_step`` in the model on a fresh session: locate its steps first, at the model
-    without it (a clear error when the search finds none)."""
-    fit0 = fit_model(problem, tuple(e for e in effects if e != ZERO_STEP), cross_validate=False)
-    locate(problem, search(problem, fit0, robust_level(problem, fit0)))
-    if not located(problem):
-        raise ValueError(
-            "zero_step: no change of a leg's zero is found in this session (the change-point "
-            "search on each leg's residual in recording order finds no step beyond its "
-            "threshold); leave zero_step out, or state zero_steps in robot.json"
-        )
 
 
 def _noise_understated(j: Judgement, where: dict, exploration: Exploration, stated: bool) -> bool:

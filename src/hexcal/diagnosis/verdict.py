@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hexcal.diagnosis.changepoint import ChangePoint, locate, search
+from hexcal.diagnosis.changepoint import ChangePoint
+from hexcal.diagnosis.locators import locate_candidates
 from hexcal.diagnosis.outliers import OutlierSearch, robust_level
 from hexcal.diagnosis.score import Projection
 from hexcal.diagnosis.scoring import (
@@ -135,10 +136,9 @@ def judge(
         else:
             fit = fit_model(problem, effects)
     level = robust_level(problem, fit)
-    changes: list[ChangePoint] = []
-    if "zero_step" not in effects:
-        changes = search(problem, fit, level)
-        locate(problem, changes)
+    changes: list[ChangePoint] = locate_candidates(problem, fit, level, effects).get(
+        "zero_step", []
+    )
     candidates = identifiable_candidates(problem, fit, effects, CATALOGUE)
     _refit_leaders(problem, fit, candidates, effects)
     floor, floor_source, s2 = _floor(problem, fit, effects, candidates, sig, notes, rich)
