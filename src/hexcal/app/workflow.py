@@ -428,6 +428,7 @@ def _record(a: PoseAccuracy):
     from hexcal.estimate.model_file import AccuracyRecord
 
     d = a.to_dict()
+    d["floor_estimated"] = d["floor_estimated"] or None  # written only when true
     return AccuracyRecord.model_validate(
         {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()}
     )

@@ -26,7 +26,7 @@ longer a verdict: a session with a hidden backlash and three outliers reads ``ba
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -123,6 +123,8 @@ class Diagnosis:
     #: s²: the noise level the floor is relative to (1 with the stated noise; without it, the
     #: richest model's χ²/dof against a typical tracker and encoder)
     noise_level: float = 1.0
+    #: The factor (≤ 1) an estimated floor was capped by: at the best held-out residual
+    floor_scale: float = 1.0
     #: Other effects that fit these data as well as the verdict's (named with it)
     alike: list[str] = field(default_factory=list)
     #: Changes of a leg's zero located by the change-point search (``zero_step``'s times)
@@ -136,6 +138,16 @@ class Diagnosis:
     @property
     def effects(self) -> tuple[str, ...]:
         return self.fit.effects
+
+    @property
+    def floor_estimated(self) -> bool:
+        """The floor is estimated from the residual (no instruments' noise was stated)."""
+        return self.problem.sigmas is None
+
+    def score_shown(self, c: Candidate) -> float:
+        """A candidate's score Δχ² on the scale of its ΔBIC: over the noise level s² (1 with
+        the stated noise; the estimated level otherwise)."""
+        return float(c.score / self.noise_level)
 
     @property
     def model_name(self) -> str:
@@ -183,7 +195,8 @@ class Diagnosis:
             r = f.refinement
             sig = session.sigmas if session.sigmas is not None else DEFAULT_SIGMAS
             cov = leg_covariance(r.a, r.b, m.position[rows], session.R[rows], sig)
-            floor[rows] = np.sqrt(self.noise_level * np.einsum("mkk->mk", cov))
+            level = self.noise_level * self.floor_scale**2
+            floor[rows] = np.sqrt(level * np.einsum("mkk->mk", cov))
         lines = [
             "pose_id,step,leg,measured_mm,predicted_mm,residual_um,heldout_residual_um,floor_um,"
             "set_aside"
@@ -207,6 +220,7 @@ class Diagnosis:
             "cv_blocked_rms_mm": f.cv_blocked_rms_mm,
             "noise_floor_mm": self.noise_floor_mm,
             "noise_floor_source": self.floor_source,
+            "noise_floor_estimated": self.floor_estimated,
             "chi2_per_dof": self.chi2_per_dof,
             "excess_significant": self.excess_significant,
             "verdict": self.verdict,
@@ -220,7 +234,7 @@ class Diagnosis:
             "candidates": [
                 {
                     "effect": c.effect,
-                    "score_dchi2": c.score,
+                    "score_dchi2": self.score_shown(c),
                     "cv_rms_mm_after": _nan_none(c.cv_rms_mm_after),
                     "delta_bic": _nan_none(c.delta_bic),
                     "explained_fraction": _nan_none(c.explained),
@@ -320,11 +334,16 @@ def diagnose(
         if _noise_understated(j, where, exploration, sig is not None):
             verdict, noise_factor = Outcome.NOISE_UNDERSTATED, float(np.sqrt(j.chi2_per_dof))
             notes.append(_noise_note(noise_factor, j))
-    floor_sig = sig if sig is not None else scaled(DEFAULT_SIGMAS, float(np.sqrt(j.s2)))
+    floor_sig = sig
+    if sig is None:  # the estimated level, capped as the leg-length floor was
+        floor_sig = scaled(DEFAULT_SIGMAS, float(np.sqrt(j.s2)) * j.floor_scale)
     errors = heldout_pose_errors(work, fit)
     accuracy = heldout_accuracy(work, fit, floor_sig, errors)
     if work.design_pose_accuracy is None:
         work.design_pose_accuracy = design_accuracy(work, floor_sig)
+    if sig is None:
+        accuracy = replace(accuracy, floor_estimated=True)
+        work.design_pose_accuracy = replace(work.design_pose_accuracy, floor_estimated=True)
     candidates = sorted(
         j.candidates,
         key=lambda c: (
@@ -352,6 +371,7 @@ def diagnose(
         outlier_threshold=threshold,
         outliers_acknowledged=acknowledged,
         noise_level=j.s2,
+        floor_scale=j.floor_scale,
         alike=j.alike,
         changes=j.changes,
         exploration=exploration,

@@ -46,6 +46,7 @@ from hexcal.diagnosis.scoring import (
     whitened_columns,
 )
 from hexcal.effects import CATALOGUE, get_effect
+from hexcal.estimate.accuracy import floor_cap
 from hexcal.estimate.effect_fit import ModelFit, Problem, cross_validated, fit_model, noise_floor
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.vocabulary import Outcome, Verdict
@@ -94,6 +95,8 @@ class Judgement:
     changes: list[ChangePoint] = field(default_factory=list)
     #: s² of the residual from its median pose (:func:`~hexcal.diagnosis.outliers.robust_level`)
     level: float = 1.0
+    #: The factor (≤ 1) an estimated floor was capped by (:func:`~hexcal.estimate.accuracy.floor_cap`)
+    floor_scale: float = 1.0
 
 
 def of_the_session(name: str) -> bool:
@@ -141,7 +144,9 @@ def judge(
     )
     candidates = identifiable_candidates(problem, fit, effects, CATALOGUE)
     _refit_leaders(problem, fit, candidates, effects)
-    floor, floor_source, s2 = _floor(problem, fit, effects, candidates, sig, notes, rich)
+    floor, floor_source, s2, floor_scale = _floor(
+        problem, fit, effects, candidates, sig, notes, rich
+    )
     expected = fit.dof * s2  # χ² the current fit would have from noise alone
     chi2_per_dof = fit.chi2 / expected
     band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
@@ -187,6 +192,7 @@ def judge(
         alike,
         changes,
         level,
+        floor_scale,
     )
 
 
@@ -224,13 +230,14 @@ def _floor(
     sig: NoiseSigmas | None,
     notes: list[str],
     made: ModelFit | None = None,
-) -> tuple[np.ndarray, str, float]:
-    """(floor (M, 6) mm, where it comes from, s²): the stated noise propagated through the
+) -> tuple[np.ndarray, str, float, float]:
+    """(floor (M, 6) mm, where it comes from, s², cap): the stated noise propagated through the
     model; without it, the noise level s (relative to a typical tracker and encoder) of the
-    richest model these data allow."""
+    richest model these data allow, the floor capped (by the factor ``cap`` ≤ 1) at the best
+    held-out residual of the models tried."""
     if sig is not None:
         floor = noise_floor(problem, fit)
-        return floor, "stated instrument noise, propagated through the fitted model", 1.0
+        return floor, "stated instrument noise, propagated through the fitted model", 1.0, 1.0
     richest = tuple(effects) + tuple(c.effect for c in candidates if c.available and c.identifiable)
     if made is not None and made.effects == richest:
         rich = made  # the outlier search's richest fit on these poses
@@ -247,10 +254,18 @@ def _floor(
         "estimated (no instruments file): the residual level of a fit with every identifiable "
         f"catalogue effect ({', '.join(richest)}); an effect outside the catalogue would inflate it"
     )
+    heldout = [fit.cv_rms_mm] + [c.refit.cv_rms_mm for c in candidates if c.refit is not None]
+    cap = floor_cap(float(np.sqrt(np.mean(floor**2))), heldout)
+    if cap < 1.0:
+        floor = cap * floor
+        source += (
+            f", capped at {1000 * min(heldout):.1f} µm, the best held-out residual of the models "
+            "tried: the noise can leave no more than that"
+        )
     notes.append(
         "the noise floor is estimated, not stated: pass --instruments for a firmer verdict"
     )
-    return floor, source, float(s2)
+    return floor, source, float(s2), cap
 
 
 def _weigh(

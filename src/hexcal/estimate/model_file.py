@@ -170,6 +170,9 @@ class AccuracyRecord(BaseModel):
         None, description="position RMS the instruments' noise alone gives"
     )
     floor_orientation_rms_deg: Statistic | None = None
+    floor_estimated: bool | None = Field(
+        None, description="true: the floor is estimated from a residual, no instrument stated"
+    )
     failed: Count = Field(0, description="poses whose readings no pose closes")
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.effects import CATALOGUE, get_effect
-from hexcal.estimate.accuracy import PoseAccuracy, pose_errors, pose_floor
+from hexcal.estimate.accuracy import PoseAccuracy, floor_words, pose_errors, pose_floor
 from hexcal.estimate.predict import LegModel
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance, leg_whiteners
 from hexcal.vocabulary import ModelKind, Outcome, Verdict
@@ -66,6 +66,9 @@ class Validation:
     noise: NoiseSigmas | None = None
     #: Pose ids left out of the verdict: an effect cannot know their readings' contribution
     left_out: list[int] = field(default_factory=list)
+    #: The noise was estimated (from these poses, or the model's own from its residual), not
+    #: stated: the floors are estimates
+    floor_estimated: bool = False
 
     @property
     def verdict_given(self) -> Verdict | None:
@@ -88,6 +91,7 @@ class Validation:
             "orientation_p95_deg": a.orientation_p95_deg,
             "orientation_max_deg": a.orientation_max_deg,
             "position_floor_mm": a.floor_position_rms_mm,
+            "floor_estimated": self.floor_estimated,
             "orientation_floor_deg": a.floor_orientation_rms_deg,
             "poses_out_of_workspace": a.failed,
             "leg_rms_mm": self.leg_rms_mm,
@@ -121,16 +125,17 @@ class Validation:
             ]
         else:
             head = [f"hexcal validate: {self.model} on {source}: poses it was not fitted on"]
+        fl = floor_words(self.floor_estimated)
         lines = [
             *head,
             f"noise: {self.noise_source}",
             "",
             f"pose error:  position {a.position_rms_mm:.4f} mm RMS, 95 % {a.position_p95_mm:.4f} mm, "
-            f"max {a.position_max_mm:.4f} mm (floor {a.floor_position_rms_mm:.4f} mm)",
+            f"max {a.position_max_mm:.4f} mm ({fl} {a.floor_position_rms_mm:.4f} mm)",
             f"             orientation {a.orientation_rms_deg:.4f}° RMS, 95 % "
-            f"{a.orientation_p95_deg:.4f}°, max {a.orientation_max_deg:.4f}° (floor "
+            f"{a.orientation_p95_deg:.4f}°, max {a.orientation_max_deg:.4f}° ({fl} "
             f"{a.floor_orientation_rms_deg:.4f}°)",
-            f"leg lengths: RMS {um * self.leg_rms_mm:.2f} µm against a floor of "
+            f"leg lengths: RMS {um * self.leg_rms_mm:.2f} µm against {'an' if self.floor_estimated else 'a'} {fl} of "
             f"{um * self.noise_floor_mm:.2f} µm; χ²/dof {self.chi2_per_dof:.3f}",
             "  per leg RMS µm " + "".join(f"{um * v:9.2f}" for v in self.leg_rms_per_leg_mm),
             "  per leg mean µm" + "".join(f"{um * v:9.2f}" for v in self.leg_mean_per_leg_mm),
@@ -211,6 +216,7 @@ def validate_model(
     """Judge ``model`` on the table ``meas`` (see module docstring). ``sig`` None: the noise
     level is estimated from a Model 42 refit of these poses, and said so."""
     notes = []
+    estimated = sig is None or "estimated" in noise_source  # not from a stated instrument
     if sig is None:
         sig, how = estimated_noise(model, meas)
         noise_source = how
@@ -293,6 +299,7 @@ def validate_model(
         shifted_legs,
         noise=sig,
         left_out=[int(i) for i in meas.pose_id[~keep]],
+        floor_estimated=estimated,
     )
 
 
