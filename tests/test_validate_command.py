@@ -116,6 +116,7 @@ def test_an_older_file_without_a_fingerprint_still_knows_its_poses_by_ids(fitted
     first, _, cal = fitted
     data = json.loads(cal.read_text())
     del data["calibration"]["fitted_poses"]["fingerprint"]
+    del data["calibration"]["uncertainty"]
     data["calibration"]["format_version"] = 2
     old = tmp_path / "old.json"
     old.write_text(json.dumps(data))
@@ -206,3 +207,54 @@ def test_a_renumbered_copy_of_the_jugglebot_s_fitted_half_is_no_validation(
     assert out["verdict"] is None
     assert main(["validate", str(cal), str(copy)]) == 0
     assert "NOT A VALIDATION" in capsys.readouterr().out
+
+
+def test_rehome_reports_coverage_and_a_failing_coverage_says_which_term_was_missing(
+    jugglebot_halves, capsys
+):
+    """The Jugglebot's other half: every leg reads about 1 mm short (a re-home) and the model
+    lacks something there (45 poses at the stroke's end): the coverage fails, and validate says
+    both — the offsets moved (the between-session term was missing) and the verdict."""
+    _, second, cal = jugglebot_halves
+    assert main(["validate", str(cal), str(second), "--rehome", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["position_coverage_95"] < 0.9
+    assert out["rehomed"]["position_coverage_95"] is not None
+    assert out["rehomed"]["metrology"]["uncertainty"]["k"] == 2
+    missing = " ".join(out["coverage_missing"])
+    assert "the robot changed: its offsets moved" in missing
+    assert "the model lacks something: the verdict is" in missing
+    assert main(["validate", str(cal), str(second), "--rehome"]) == 0
+    text = capsys.readouterr().out
+    assert "metrology (Model 42 + gain re-homed)" in text
+    assert "coverage: the robot changed" in text
+
+
+def test_fold_in_writes_a_between_session_term_judged_on_another_session(fitted, tmp_path, capsys):
+    first, second, cal = fitted
+    folded = tmp_path / "folded.json"
+    inst = first / "instruments.json"
+    args = ["validate", str(cal), str(second / "measurements.csv"), "--instruments", str(inst)]
+    assert main([*args, "--fold-in", str(folded)]) == 0
+    assert "folded in: a between-session term of" in capsys.readouterr().out
+    u = json.loads(folded.read_text())["calibration"]["uncertainty"]
+    assert u["between_session_dof"] == 6 and u["between_session_poses"] > 0
+    assert u["between_session_mm"] >= 0 and "measurements.csv" in u["between_session_source"]
+    # a third session: the statement now names the term and its contribution
+    third = tmp_path / "third"
+    assert main(["simulate", "--out", str(third), "--seed", "8", "--pose-seed", "11"]) == 0
+    capsys.readouterr()
+    assert main(["validate", str(folded), str(third / "measurements.csv"), "--json"]) == 0
+    unc = json.loads(capsys.readouterr().out)["metrology"]["uncertainty"]
+    assert unc["between_session_mm"] == u["between_session_mm"]
+    assert [c["with"].split(" (")[0] for c in unc["contributions"]] == [
+        "the parameters and the readings",
+        "+ model inadequacy",
+        "+ between sessions",
+    ]
+    # never from the session the model was fitted on
+    assert (
+        main([*args[:2], str(first / "measurements.csv"), "--fold-in", str(tmp_path / "x.json")])
+        == 2
+    )
+    assert "needs poses the model was not fitted on" in capsys.readouterr().err

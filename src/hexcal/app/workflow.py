@@ -34,6 +34,7 @@ from hexcal.estimate.model_file import (
     FitRecord,
     FittedPoses,
     Provenance,
+    UncertaintyRecord,
     covariance_record,
     effect_records,
     format_version_of,
@@ -44,6 +45,7 @@ from hexcal.estimate.model_file import (
 from hexcal.estimate.refine import FitStalled
 from hexcal.estimate.sanity import DRAWING_TOLERANCE
 from hexcal.estimate.solvers.whole_robot import Form
+from hexcal.estimate.uncertainty import excess_mm
 from hexcal.io.measurements import Measurements
 from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
@@ -416,12 +418,36 @@ def build_file(
             t=[float(t) for t in inp.meas.t],
             fingerprint=FingerprintRecord.of(inp.meas),
         ),
+        uncertainty=_uncertainty_record(inp, cal, noise, heldout_rms_mm),
     )
     data = cal.robot.model_dump(exclude_none=True)
     data.pop("calibration", None)
     data["name"] = f"{inp.design.name}-calibrated"
     data["calibration"] = block
     return CalibratedRobot.model_validate(data)
+
+
+def _uncertainty_record(
+    inp: Inputs, cal: Calibration, noise: Instruments | None, heldout_rms_mm: float | None
+) -> UncertaintyRecord | None:
+    """The model-inadequacy term of a calibration: its held-out leg RMS above the floor the
+    recorded noise gives on its poses (an estimated floor no higher than that residual, as the
+    diagnosis caps it). None without a held-out residual or a noise."""
+    from hexcal.model.noise import leg_covariance
+
+    if heldout_rms_mm is None or noise is None or not np.isfinite(heldout_rms_mm):
+        return None
+    sig = NoiseSigmas.from_instruments(noise)
+    m = inp.meas
+    cov = leg_covariance(cal.robot.a, cal.robot.b, m.position, m.rotations.as_matrix(), sig)
+    floor = float(np.sqrt(np.mean(np.einsum("mkk->mk", cov))))
+    if inp.instruments is None:
+        floor = min(floor, heldout_rms_mm)
+    return UncertaintyRecord(
+        heldout_rms_mm=heldout_rms_mm,
+        floor_mm=floor,
+        model_inadequacy_mm=excess_mm(heldout_rms_mm, floor),
+    )
 
 
 def _record(a: PoseAccuracy):

@@ -33,7 +33,12 @@ from hexcal.effects import CATALOGUE, EffectSource, get_effect
 from hexcal.effects.plugins import failure_of
 from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
-from hexcal.estimate.uncertainty import ParameterCovariance, model_parameter_names
+from hexcal.estimate.uncertainty import (
+    SESSION_DOF,
+    ParameterCovariance,
+    SessionTerms,
+    model_parameter_names,
+)
 from hexcal.io.fileio import write_text_atomic
 from hexcal.io.pose_fingerprint import (
     KEY_HEX,
@@ -234,6 +239,27 @@ class FittedPoses(BaseModel):
     fingerprint: FingerprintRecord | None = None
 
 
+class UncertaintyRecord(BaseModel):
+    """The leg-length uncertainty terms beyond the parameters and the readings (format version
+    3; :class:`hexcal.estimate.uncertainty.SessionTerms`, docs/metrology.md): the model
+    inadequacy from the fit's held-out residual and its floor, and once a second session was
+    validated (``hexcal validate --fold-in``) the between-session term from its residual."""
+
+    model_config = _RECORD
+    heldout_rms_mm: Statistic | None = Field(None, description="h: the fit's held-out leg RMS")
+    floor_mm: Statistic | None = Field(None, description="f: the leg RMS the noise alone gives")
+    model_inadequacy_mm: Statistic = Field(0.0, description="u_m = √max(0, h² − f²)")
+    between_session_mm: Statistic | None = Field(
+        None, description="u_b = √max(0, r² − h²), r a validated second session's leg RMS"
+    )
+    between_session_dof: Count | None = Field(
+        None, description="its degrees of freedom (6: one session, a draw per leg)"
+    )
+    between_session_leg_rms_mm: Statistic | None = None
+    between_session_poses: Count | None = None
+    between_session_source: str | None = Field(None, max_length=400)
+
+
 class CalibrationBlock(BaseModel):
     """The ``calibration`` key of calibrated.json."""
 
@@ -255,10 +281,12 @@ class CalibrationBlock(BaseModel):
         None, description="the parameters' covariance (absent when the fit did not determine it)"
     )
     fitted_poses: FittedPoses | None = None
+    uncertainty: UncertaintyRecord | None = None
 
     @property
     def _fingerprinted(self) -> bool:
-        return self.fitted_poses is not None and self.fitted_poses.fingerprint is not None
+        fp = self.fitted_poses is not None and self.fitted_poses.fingerprint is not None
+        return fp or self.uncertainty is not None
 
     @model_validator(mode="after")
     def _version_holds_the_sources(self) -> CalibrationBlock:
@@ -268,7 +296,7 @@ class CalibrationBlock(BaseModel):
                 ("effect sources", any(e.source is not None for e in self.effects)),
                 ("covariance", self.covariance is not None),
                 ("fitted_poses", self.fitted_poses is not None),
-                ("fingerprint", self._fingerprinted),
+                ("fingerprint or uncertainty", self._fingerprinted),
             )
             if held
         ]
@@ -352,6 +380,14 @@ class CalibratedRobot(Robot):
         pairs = zip(meas.pose_id.tolist(), np.round(meas.t, 6).tolist(), strict=True)
         rows = np.array([(int(i), float(t)) in keys for i, t in pairs], dtype=bool)
         return rows, "same pose ids and times as the model's; the file has no fingerprint"
+
+    def session_terms(self) -> SessionTerms:
+        """The uncertainty terms the file states (none in a file before version 3)."""
+        u = self.calibration.uncertainty
+        if u is None:
+            return SessionTerms()
+        dof = u.between_session_dof or SESSION_DOF
+        return SessionTerms(u.model_inadequacy_mm, u.between_session_mm, dof)
 
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""

@@ -126,6 +126,7 @@ class Validation:
         else:
             head = [f"hexcal validate: {self.model} on {source}: poses it was not fitted on"]
         fl = floor_words(self.floor_estimated)
+        nf = "estimated noise floor" if self.floor_estimated else "noise floor"
         lines = [
             *head,
             f"noise: {self.noise_source}",
@@ -145,21 +146,21 @@ class Validation:
             lines.append(f"{a.failed} poses' readings are outside the model's workspace")
         if self.verdict == Outcome.NONE and self.own_session:
             lines.append(
-                "verdict: not given — at the noise floor on its own poses, as a fit is on the data "
+                f"verdict: not given — at the {nf} on its own poses, as a fit is on the data "
                 "it was fitted to"
             )
         elif self.verdict == Outcome.NONE:
-            lines.append("verdict: none — the model holds on these poses (at the noise floor)")
+            lines.append(f"verdict: none — the model holds on these poses (at the {nf})")
         elif self.verdict == Outcome.UNEXPLAINED:
             lines.append(
-                "verdict: unexplained — above the noise floor, and no catalogue effect fitted to "
+                f"verdict: unexplained — above the {nf}, and no catalogue effect fitted to "
                 "the residual explains most of it"
             )
         else:
             share = self.explained.get(self.verdict, float("nan"))
             lines.append(
                 f"verdict: {self.verdict} — the model fails here; {self.verdict} explains "
-                f"{100 * share:.0f} % of the excess over the noise floor"
+                f"{100 * share:.0f} % of the excess over the {nf}"
             )
         lines += [f"note: {n}" for n in self.notes]
         if self.rehomed is not None and self.offset_shift_mm is not None:
