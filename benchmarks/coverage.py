@@ -11,7 +11,9 @@ each session's ``position_coverage_95``, their mean and spread, and the standard
 mean. 0.95 is what stated uncertainties that hold give.
 
 ``--jugglebot``: the real robot instead — calibrate on the first half of its 108 poses (Model 42
-+ gain, as docs/diagnosis.md does), validate on the second half.
++ gain, as docs/diagnosis.md does), validate on the second half; then (``terms``) poses 55–81
+folded in as a second session, as calibrated and re-homed, and the statement judged on poses
+82–108.
 
 ``--second rehome|effect``: the uncertainty terms beyond the parameters and the readings
 (docs/metrology.md). Each seed calibrates Model 42 on a first session, validates a **second
@@ -104,7 +106,36 @@ def jugglebot(work: Path) -> dict:
         "U_position_mean_mm": float(np.mean(u.position_mm)),
         "position_rms_mm": v.accuracy.position_rms_mm,
         "shifted_legs": v.shifted_legs,
+        "terms": jugglebot_terms(result.file, meas, sig),
     }
+
+
+def jugglebot_terms(model_file, meas, sig) -> dict:
+    """The terms on the Jugglebot: poses 55–81 folded in as a second session (as calibrated,
+    and re-homed), the statement judged on poses 82–108 alone, each term's contribution."""
+    from hexcal.diagnosis.metrology import of_model_file
+    from hexcal.estimate.model_validation import rehome
+
+    model = model_file.leg_model()
+    second, third = meas.subset(slice(54, 81)), meas.subset(slice(81, None))
+    out = {}
+    for how in ("as calibrated", "re-homed"):
+        on2, on3 = model, model
+        if how == "re-homed":
+            on2, on3 = rehome(model, second, sig)[0], rehome(model, third, sig)[0]
+        v2 = validate_model(on2, how, second, sig, "the model's own")
+        folded = model_file.with_between_session(v2.leg_rms_mm, v2.poses, f"poses 55–81, {how}")
+        u = of_model_file(folded, third, sig, leg_model=on3).uncertainty
+        assert u is not None
+        out[how] = {
+            "between_session_mm": folded.session_terms().between_session_mm,
+            "between_stated_mm": folded.session_terms().between_stated_mm,
+            "poses_82_108": [
+                {"with": w, "U_position_mean_mm": m, "position_coverage_95": c}
+                for w, m, c in u.contributions
+            ],
+        }
+    return out
 
 
 #: σ of each leg's zero moving at a re-home, mm.
@@ -131,7 +162,6 @@ def _session(design, truth, plan, pose_seed: int, hooks, label: str):
 def three_sessions(seed: int, scenario: str) -> dict:
     """Calibrate, fold a second session in, judge on a third (see the module docstring)."""
     from hexcal.diagnosis.metrology import of_model_file
-    from hexcal.estimate.uncertainty import SessionTerms, excess_mm
     from hexcal.sim.inject import effect_hook, realistic_values
     from hexcal.sim.session_sim import perturbed_truth
 
@@ -154,23 +184,10 @@ def three_sessions(seed: int, scenario: str) -> dict:
     model = model_file.leg_model()
     second = _session(design, rehomed(2), plan, seed + 10_000, hooks, "second")
     v2 = validate_model(model, result.name, second.meas, second.sigmas, "stated")
-    unc = model_file.calibration.uncertainty
-    assert unc is not None and unc.heldout_rms_mm is not None
-    terms = SessionTerms(unc.model_inadequacy_mm, excess_mm(v2.leg_rms_mm, unc.heldout_rms_mm))
-    folded = model_file.model_copy(
-        update={
-            "calibration": model_file.calibration.model_copy(
-                update={
-                    "uncertainty": unc.model_copy(
-                        update={
-                            "between_session_mm": terms.between_session_mm,
-                            "between_session_dof": terms.between_session_dof,
-                        }
-                    )
-                }
-            )
-        }
-    )
+    folded = model_file.with_between_session(v2.leg_rms_mm, v2.poses, "second")
+    unc = folded.calibration.uncertainty
+    assert unc is not None
+    terms = folded.session_terms()
     third = _session(design, rehomed(3), plan, seed + 20_000, hooks, "third")
     sig = third.sigmas
     assert sig is not None

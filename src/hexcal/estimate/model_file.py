@@ -37,6 +37,7 @@ from hexcal.estimate.uncertainty import (
     SESSION_DOF,
     ParameterCovariance,
     SessionTerms,
+    excess_mm,
     model_parameter_names,
 )
 from hexcal.io.fileio import write_text_atomic
@@ -388,6 +389,33 @@ class CalibratedRobot(Robot):
             return SessionTerms()
         dof = u.between_session_dof or SESSION_DOF
         return SessionTerms(u.model_inadequacy_mm, u.between_session_mm, dof)
+
+    def with_between_session(self, leg_rms_mm: float, poses: int, source: str) -> CalibratedRobot:
+        """This model with the between-session term of a second session whose leg-length RMS
+        (the model held fixed) was ``leg_rms_mm`` over ``poses`` poses, from ``source`` (its
+        file): u_b = √max(0, r² − h²), h the fit's held-out RMS. Raises ValueError when the
+        file records no h."""
+        block = self.calibration
+        u = block.uncertainty
+        h = u.heldout_rms_mm if u is not None else block.fit.heldout_rms_mm
+        if h is None:
+            raise ValueError(
+                "the model records no held-out residual to compare a second session with: "
+                "calibrate it again with this hexcal"
+            )
+        record = UncertaintyRecord.model_validate(
+            (u.model_dump() if u is not None else {"heldout_rms_mm": h})
+            | {
+                "between_session_mm": excess_mm(leg_rms_mm, h),
+                "between_session_dof": SESSION_DOF,
+                "between_session_leg_rms_mm": leg_rms_mm,
+                "between_session_poses": poses,
+                "between_session_source": source,
+            }
+        )
+        version = max(block.format_version, FINGERPRINT_VERSION)
+        new = block.model_copy(update={"uncertainty": record, "format_version": version})
+        return self.model_copy(update={"calibration": new})
 
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""

@@ -138,7 +138,6 @@ def _missing(v, figures, figures_r) -> list[str]:
 def _fold_in(args: argparse.Namespace, loaded, v, inp) -> dict:
     """Write the model with the between-session term these poses give (see the option)."""
     from hexcal.estimate.model_file import CalibratedRobot, save_model, sha256_of
-    from hexcal.estimate.uncertainty import SESSION_DOF, excess_mm
 
     out: Path = args.fold_in
     if not isinstance(loaded, CalibratedRobot):
@@ -152,50 +151,26 @@ def _fold_in(args: argparse.Namespace, loaded, v, inp) -> dict:
         raise ValueError(f"{out}: this is the measurements input; write the model elsewhere")
     if out.exists() and not args.force and out.resolve() != Path(args.model).resolve():
         raise ValueError(f"{out}: the file exists; pass --force to replace it")
-    block = loaded.calibration
-    u = block.uncertainty
-    h = u.heldout_rms_mm if u is not None else block.fit.heldout_rms_mm
-    if h is None:
-        raise ValueError(
-            f"{args.model}: the model records no held-out residual to compare these poses with: "
-            "calibrate it again with this hexcal"
-        )
     used = v.rehomed if v.rehomed is not None else v
-    term = excess_mm(used.leg_rms_mm, h)
     how = ", re-homed" if v.rehomed is not None else ""
-    record = (u.model_copy() if u is not None else _record_of(h)).model_copy(
-        update={
-            "between_session_mm": term,
-            "between_session_dof": SESSION_DOF,
-            "between_session_leg_rms_mm": used.leg_rms_mm,
-            "between_session_poses": used.poses,
-            "between_session_source": (
-                f"{Path(args.measurements).name} (SHA-256 "
-                f"{sha256_of(args.measurements)[:16]}…, {used.poses} poses{how})"
-            ),
-        }
+    source = (
+        f"{Path(args.measurements).name} (SHA-256 {sha256_of(args.measurements)[:16]}…, "
+        f"{used.poses} poses{how})"
     )
-    from hexcal.estimate.model_file import FINGERPRINT_VERSION
-
-    block = block.model_copy(
-        update={
-            "uncertainty": record,
-            "format_version": max(block.format_version, FINGERPRINT_VERSION),
-        }
-    )
-    save_model(loaded.model_copy(update={"calibration": block}), out)
+    try:
+        folded = loaded.with_between_session(used.leg_rms_mm, used.poses, source)
+    except ValueError as exc:
+        raise ValueError(f"{args.model}: {exc}") from None
+    save_model(folded, out)
+    u = folded.calibration.uncertainty
+    assert u is not None and u.between_session_mm is not None and u.heldout_rms_mm is not None
     text = (
-        f"folded in: a between-session term of {1000 * term:.0f} µm per leg (these poses' leg "
-        f"RMS {1000 * used.leg_rms_mm:.0f} µm{how} against the fit's held-out {1000 * h:.0f} µm) "
-        f"written to {out}; judge it on a third session, not on this one"
+        f"folded in: a between-session term of {1000 * u.between_session_mm:.0f} µm per leg "
+        f"(these poses' leg RMS {1000 * used.leg_rms_mm:.0f} µm{how} against the fit's held-out "
+        f"{1000 * u.heldout_rms_mm:.0f} µm) written to {out}; judge it on a third session, not "
+        "on this one"
     )
-    return {"between_session_mm": term, "file": str(out), "text": text}
-
-
-def _record_of(heldout_mm: float):
-    from hexcal.estimate.model_file import UncertaintyRecord
-
-    return UncertaintyRecord(heldout_rms_mm=heldout_mm)
+    return {"between_session_mm": u.between_session_mm, "file": str(out), "text": text}
 
 
 def _own_session(loaded, path: Path, meas) -> str | None:
