@@ -258,3 +258,32 @@ def test_fold_in_writes_a_between_session_term_judged_on_another_session(fitted,
         == 2
     )
     assert "needs poses the model was not fitted on" in capsys.readouterr().err
+
+
+def test_the_jugglebot_s_term_from_one_quarter_covers_the_last_quarter(
+    jugglebot_halves, tmp_path, capsys
+):
+    """docs/metrology.md's figures: poses 55–81 folded in as a second session, the statement
+    judged on poses 82–108 only — 15 % of the positions covered without the between-session
+    term, all with it (a 1.4 mm term: the model holds little on another part of the day)."""
+    _, second, cal = jugglebot_halves
+    meas = read_measurements(second)
+    q3, q4 = tmp_path / "q3.csv", tmp_path / "q4.csv"
+    write_measurements(meas.subset(slice(0, 27)), q3)
+    write_measurements(meas.subset(slice(27, None)), q4)
+    folded = tmp_path / "folded.json"
+    assert main(["validate", str(cal), str(q3), "--fold-in", str(folded)]) == 0
+    capsys.readouterr()
+    unc = _validate_json(folded, q4, capsys)["metrology"]["uncertainty"]
+    plain, inadequacy, both = (c["position_coverage_95"] for c in unc["contributions"])
+    assert plain < 0.3 and inadequacy == plain  # no inadequacy term: the noise was estimated
+    assert both >= 0.95 and 1.0 < unc["between_session_mm"] < 2.0
+
+
+def test_without_an_instruments_file_validate_calls_every_floor_estimated(jugglebot_halves, capsys):
+    _, second, cal = jugglebot_halves
+    assert main(["validate", str(cal), str(second)]) == 0
+    text = capsys.readouterr().out
+    assert "instruments' own noise" not in text and "instruments allow" not in text
+    floor_lines = [line for line in text.splitlines() if "floor" in line]
+    assert floor_lines and all("estimated" in line for line in floor_lines), floor_lines

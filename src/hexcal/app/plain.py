@@ -97,7 +97,8 @@ def calibration_summary(
     else:
         out.append(
             f"The calibrated {name} still misses something: the platform's pose error is above "
-            f"what the instruments allow. Find what: {next_step}"
+            f"{'its estimated floor' if accuracy[-1].floor_estimated else 'what the instruments allow'}. "
+            f"Find what: {next_step}"
         )
     line = pose_error_line(accuracy)
     if line:
@@ -157,14 +158,17 @@ def validation_summary(v: Any) -> list[str]:
             f"{v.own_session}. Validate on a second session."
         )
     elif v.verdict == Outcome.NONE:
-        first = (
-            f"The model holds on this session: {v.model} predicts it down to the instruments' "
-            "own noise."
+        down_to = (
+            "the estimated noise (no instruments file)"
+            if v.floor_estimated
+            else "the instruments' own noise"
         )
+        first = f"The model holds on this session: {v.model} predicts it down to {down_to}."
     elif v.verdict == Outcome.UNEXPLAINED:
+        noise = "the estimated noise" if v.floor_estimated else "the instruments' noise"
         first = (
             f"The model does not hold on this session: {v.model} misses these poses by more "
-            "than the instruments' noise, and no catalogue effect explains it (see below)."
+            f"than {noise}, and no catalogue effect explains it (see below)."
         )
     else:
         first = (

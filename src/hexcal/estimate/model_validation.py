@@ -22,7 +22,7 @@ each beside the floor the noise alone gives. The verdict uses the diagnosis' voc
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -246,6 +246,7 @@ def validate_model(
         float(np.sqrt(np.mean(res**2))),
         pose_floor(model.robot.a, model.robot.b, meas if keep.all() else meas.subset(keep), sig),
     )
+    acc = replace(acc, floor_estimated=estimated)
     explained: dict[str, float] = {}
     verdict: Verdict = Outcome.NONE
     if excess:
