@@ -261,8 +261,8 @@ def test_excess_is_the_quadrature_difference_and_never_negative():
 
 def test_a_model_lacking_an_effect_states_its_inadequacy(gain_model, tmp_path):
     """The session hides a gain: Model 42 alone leaves a held-out residual above the floor, and
-    the file states the difference (in quadrature) as its model-inadequacy term; Model 42 +
-    gain, at the floor, states almost none."""
+    the file states the difference (in quadrature, less what the parameters' covariance already
+    states) as its model-inadequacy term; Model 42 + gain, at the floor, states almost none."""
     from hexcal.estimate.uncertainty import excess_mm
 
     result, inp = gain_model
@@ -270,7 +270,9 @@ def test_a_model_lacking_an_effect_states_its_inadequacy(gain_model, tmp_path):
     u = lacking.file.calibration.uncertainty
     assert u is not None and u.heldout_rms_mm is not None and u.floor_mm is not None
     assert u.heldout_rms_mm > 1.2 * u.floor_mm  # the held-out RMS of 360 residuals: ±4 %
-    assert u.model_inadequacy_mm == pytest.approx(excess_mm(u.heldout_rms_mm, u.floor_mm))
+    assert u.parameters_mm is not None and 0 < u.parameters_mm < u.floor_mm
+    stated = float(np.hypot(u.floor_mm, u.parameters_mm))  # already in the statement
+    assert u.model_inadequacy_mm == pytest.approx(excess_mm(u.heldout_rms_mm, stated))
     full = result.file.calibration.uncertainty
     assert full is not None and full.model_inadequacy_mm < 0.5 * u.model_inadequacy_mm
     path = tmp_path / "m42.json"

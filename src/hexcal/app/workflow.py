@@ -391,6 +391,9 @@ def build_file(
         shipped = f"Model {cal.model}" + model.name
         name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
     effects = effect_records(model, cal.sigmas())
+    cov = None
+    if r is not None:
+        cov = covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42)
     block = CalibrationBlock(
         format_version=format_version_of(
             effects, covariance=r is not None, fitted_poses=True, fingerprint=True
@@ -410,15 +413,13 @@ def build_file(
         ),
         accuracy=[_record(a) for a in accuracy],
         provenance=Provenance(poses=len(inp.meas), inputs=input_records(dict(inp.files))),
-        covariance=None
-        if r is None
-        else covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42),
+        covariance=cov,
         fitted_poses=FittedPoses(
             pose_id=[int(i) for i in inp.meas.pose_id],
             t=[float(t) for t in inp.meas.t],
             fingerprint=FingerprintRecord.of(inp.meas),
         ),
-        uncertainty=_uncertainty_record(inp, cal, noise, heldout_rms_mm),
+        uncertainty=_uncertainty_record(inp, cal, noise, heldout_rms_mm, cov),
     )
     data = cal.robot.model_dump(exclude_none=True)
     data.pop("calibration", None)
@@ -428,25 +429,35 @@ def build_file(
 
 
 def _uncertainty_record(
-    inp: Inputs, cal: Calibration, noise: Instruments | None, heldout_rms_mm: float | None
+    inp: Inputs,
+    cal: Calibration,
+    noise: Instruments | None,
+    heldout_rms_mm: float | None,
+    cov: Any = None,
 ) -> UncertaintyRecord | None:
-    """The model-inadequacy term of a calibration: its held-out leg RMS above the floor the
-    recorded noise gives on its poses (an estimated floor no higher than that residual, as the
-    diagnosis caps it). None without a held-out residual or a noise."""
+    """The model-inadequacy term of a calibration: its held-out leg RMS above what the recorded
+    noise and the parameters' covariance ``cov`` (already in the statement) give on its poses;
+    an estimated noise floor no higher than that residual, as the diagnosis caps it. None
+    without a held-out residual or a noise."""
+    from hexcal.estimate.uncertainty import parameter_leg_rms_mm
     from hexcal.model.noise import leg_covariance
 
     if heldout_rms_mm is None or noise is None or not np.isfinite(heldout_rms_mm):
         return None
     sig = NoiseSigmas.from_instruments(noise)
     m = inp.meas
-    cov = leg_covariance(cal.robot.a, cal.robot.b, m.position, m.rotations.as_matrix(), sig)
-    floor = float(np.sqrt(np.mean(np.einsum("mkk->mk", cov))))
+    legs = leg_covariance(cal.robot.a, cal.robot.b, m.position, m.rotations.as_matrix(), sig)
+    floor = float(np.sqrt(np.mean(np.einsum("mkk->mk", legs))))
     if inp.instruments is None:
         floor = min(floor, heldout_rms_mm)
+    params = 0.0
+    if cov is not None:
+        params = parameter_leg_rms_mm(cal.leg_model(), cov.parameters, np.array(cov.matrix), m)
     return UncertaintyRecord(
         heldout_rms_mm=heldout_rms_mm,
         floor_mm=floor,
-        model_inadequacy_mm=excess_mm(heldout_rms_mm, floor),
+        parameters_mm=params,
+        model_inadequacy_mm=excess_mm(heldout_rms_mm, float(np.hypot(floor, params))),
     )
 
 

@@ -249,7 +249,10 @@ class UncertaintyRecord(BaseModel):
     model_config = _RECORD
     heldout_rms_mm: Statistic | None = Field(None, description="h: the fit's held-out leg RMS")
     floor_mm: Statistic | None = Field(None, description="f: the leg RMS the noise alone gives")
-    model_inadequacy_mm: Statistic = Field(0.0, description="u_m = √max(0, h² − f²)")
+    parameters_mm: Statistic | None = Field(
+        None, description="p: the leg RMS the parameters' covariance gives on the fitted poses"
+    )
+    model_inadequacy_mm: Statistic = Field(0.0, description="u_m = √max(0, h² − f² − p²)")
     between_session_mm: Statistic | None = Field(
         None, description="u_b = √max(0, r² − h²), r a validated second session's leg RMS"
     )

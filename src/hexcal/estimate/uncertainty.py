@@ -26,8 +26,9 @@ same of the rotation block, in degrees.
 **Terms beyond the parameters and the readings** (:class:`SessionTerms`): the propagation
 above assumes the model is right and the robot unchanged. Two more leg-length variances, each
 independent per leg and per pose, join σ_ρ² where they are known: the **model inadequacy**
-u_m² = max(0, h² − f²), what the fit's held-out leg residual h exceeds the floor f the noise
-gives by (what the model lacks, as it showed on poses the fit did not see); and the
+u_m² = max(0, h² − f² − p²), what the fit's held-out leg residual h exceeds the floor f the
+noise gives and the share p the parameters' covariance already states by (what the model lacks,
+as it showed on poses the fit did not see); and the
 **between-session** term u_b² = max(0, r² − h²), what a second session's leg residual r (the
 model held fixed) exceeded h by (re-homing, what changes from day to day), once such a session
 was validated; from one session it rests on six draws (one per leg), so it is stated widened by
@@ -196,6 +197,16 @@ def excess_mm(rms_mm: float, below_mm: float) -> float:
     if not (np.isfinite(rms_mm) and np.isfinite(below_mm)):
         return 0.0
     return float(np.sqrt(max(rms_mm**2 - below_mm**2, 0.0)))
+
+
+def parameter_leg_rms_mm(model: LegModel, names: Sequence[str], matrix: np.ndarray, meas) -> float:
+    """p, mm: the RMS over the table ``meas``'s poses and legs of the leg-length uncertainty the
+    parameters' covariance (``names``, ``matrix`` (p, p)) gives, √mean diag(J_θ Σ_θ J_θᵀ) at
+    the measured poses — the share of a held-out residual the statement already holds."""
+    poses = Poses(meas.position, meas.rotations.as_matrix())
+    jac = parameter_jacobian(model, names, poses, meas.readings, meas.t, meas.temperature)
+    var = np.einsum("nkp,pq,nkq->nk", jac, np.asarray(matrix, float), jac)
+    return float(np.sqrt(max(float(np.mean(var)), 0.0)))
 
 
 def pose_covariance(
