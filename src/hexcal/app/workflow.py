@@ -439,6 +439,8 @@ def _uncertainty_record(
     noise and the parameters' covariance ``cov`` (already in the statement) give on its poses;
     an estimated noise floor no higher than that residual, as the diagnosis caps it. None
     without a held-out residual or a noise."""
+    from hexcal.estimate.effect_fit import K_FOLDS
+    from hexcal.estimate.model_validation import EXCESS_Z
     from hexcal.estimate.uncertainty import parameter_leg_rms_mm
     from hexcal.model.noise import leg_covariance
 
@@ -453,11 +455,18 @@ def _uncertainty_record(
     params = 0.0
     if cov is not None:
         params = parameter_leg_rms_mm(cal.leg_model(), cov.parameters, np.array(cov.matrix), m)
+    # A held-out residual comes from fits on (K − 1)/K of the poses: their parameters' share
+    # is K/(K − 1) times the whole fit's.
+    stated = float(np.hypot(floor, params * np.sqrt(K_FOLDS / (K_FOLDS - 1))))
+    # Only an excess beyond the held-out RMS's own scatter (the validation's band, 4σ of χ²
+    # over the 6M residuals) is the model's: below it, h exceeds what is stated by chance.
+    band = 1.0 + EXCESS_Z * float(np.sqrt(2.0 / (6 * len(m))))
+    inadequacy = excess_mm(heldout_rms_mm, stated) if heldout_rms_mm**2 > band * stated**2 else 0.0
     return UncertaintyRecord(
         heldout_rms_mm=heldout_rms_mm,
         floor_mm=floor,
         parameters_mm=params,
-        model_inadequacy_mm=excess_mm(heldout_rms_mm, float(np.hypot(floor, params))),
+        model_inadequacy_mm=inadequacy,
     )
 
 

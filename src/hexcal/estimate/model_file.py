@@ -252,7 +252,7 @@ class UncertaintyRecord(BaseModel):
     parameters_mm: Statistic | None = Field(
         None, description="p: the leg RMS the parameters' covariance gives on the fitted poses"
     )
-    model_inadequacy_mm: Statistic = Field(0.0, description="u_m = √max(0, h² − f² − p²)")
+    model_inadequacy_mm: Statistic = Field(0.0, description="u_m = √max(0, h² − f² − 5/4·p²)")
     between_session_mm: Statistic | None = Field(
         None, description="u_b = √max(0, r² − h²), r a validated second session's leg RMS"
     )

@@ -26,9 +26,10 @@ same of the rotation block, in degrees.
 **Terms beyond the parameters and the readings** (:class:`SessionTerms`): the propagation
 above assumes the model is right and the robot unchanged. Two more leg-length variances, each
 independent per leg and per pose, join σ_ρ² where they are known: the **model inadequacy**
-u_m² = max(0, h² − f² − p²), what the fit's held-out leg residual h exceeds the floor f the
-noise gives and the share p the parameters' covariance already states by (what the model lacks,
-as it showed on poses the fit did not see); and the
+u_m² = max(0, h² − f² − K/(K − 1)·p²), what the fit's held-out leg residual h exceeds by the
+floor f the noise gives and the parameters' share p, which the statement already holds (the
+held-out fits use (K − 1)/K of the poses), counted where that excess is beyond the held-out
+RMS's own scatter — what the model lacks, as it showed on poses the fit did not see; and the
 **between-session** term u_b² = max(0, r² − h²), what a second session's leg residual r (the
 model held fixed) exceeded h by (re-homing, what changes from day to day), once such a session
 was validated; from one session it rests on six draws (one per leg), so it is stated widened by
