@@ -181,3 +181,11 @@ def test_validate_leaves_out_the_poses_whose_backlash_side_is_unknown(tmp_path, 
     later = validate(len(meas) // 2, [0, 2, 4])
     assert later["poses_left_out"] == [int(meas.pose_id[0])]
     assert later["verdict"] != "none"
+
+
+def test_an_estimated_floor_is_capped_at_the_best_held_out_residual():
+    from hexcal.estimate.accuracy import floor_cap
+
+    assert floor_cap(0.439, [0.3615, 0.3594, float("nan")]) == pytest.approx(0.3594 / 0.439)
+    assert floor_cap(0.300, [0.3615, 0.3594]) == 1.0  # already below: left as it is
+    assert floor_cap(0.439, []) == 1.0 and floor_cap(0.0, [0.3]) == 1.0

@@ -239,7 +239,7 @@ def test_from_a_file_the_effect_is_named_added_written_and_read_back(bowed, tmp_
     )
     capsys.readouterr()
     block = json.loads(cal.read_text())["calibration"]
-    assert block["format_version"] == 2
+    assert block["format_version"] == 3
     (rec,) = block["effects"]
     import hashlib
 
@@ -311,8 +311,8 @@ def test_a_catalogue_model_records_no_source_and_a_changed_file_is_said(bowed, t
     assert main(["calibrate", *_inputs(bowed), "--add", "gain", "--out", str(cal), "--json"]) == 0
     capsys.readouterr()
     block = json.loads(cal.read_text())["calibration"]
-    # Version 2 for its covariance and fitted poses; a catalogue effect records no source.
-    assert block["format_version"] == 2 and "source" not in block["effects"][0]
+    # Version 3 for its fitted poses' fingerprint; a catalogue effect records no source.
+    assert block["format_version"] == 3 and "source" not in block["effects"][0]
 
     bow = tmp_path / "bow.json"
     assert (

@@ -109,7 +109,7 @@ def test_calibrate_records_the_package_and_a_process_without_it_refuses_the_mode
     site, session, calibrated
 ):
     block = json.loads(calibrated.read_text())["calibration"]
-    assert block["format_version"] == 2
+    assert block["format_version"] == 3
     (rec,) = block["effects"]
     assert rec["name"] == "scalebow"
     assert rec["source"] == {

@@ -64,7 +64,7 @@ def test_the_file_is_a_robot_json_and_records_its_provenance(tmp_path):
     plain = Robot.model_validate({k: v for k, v in data.items() if k != "calibration"})
     assert np.allclose(plain.a, result.calibration.robot.a)
     cal = data["calibration"]
-    assert cal["format"] == "hexcal-calibrated-model" and cal["format_version"] == 2
+    assert cal["format"] == "hexcal-calibrated-model" and cal["format_version"] == 3
     assert cal["fit"]["poses"] == len(inp.meas) == cal["provenance"]["poses"]
     assert {i["role"] for i in cal["provenance"]["inputs"]} == {
         "measurements",
@@ -92,7 +92,7 @@ def test_load_robot_reads_the_geometry_and_refuses_a_newer_format(tmp_path):
     path.write_text(json.dumps(data))
     with pytest.raises(RobotFileError, match=r"format version 7.*upgrade hexcal"):
         load_robot(path)
-    data["calibration"]["format_version"] = 2  # the version written
+    data["calibration"]["format_version"] = 3  # the version written
     data["calibration"]["effects"][0]["parameters"].pop()
     path.write_text(json.dumps(data))
     with pytest.raises(RobotFileError, match=r"calibration\.effects: .*take 6 parameter values"):

@@ -232,3 +232,54 @@ def test_predict_adds_each_rows_expanded_uncertainty(gain_model, tmp_path, capsy
         == 0
     )
     assert "U_position_mm" not in old.read_text().splitlines()[0]
+
+
+def test_the_session_terms_join_the_readings_variance(gain_model):
+    """u_m² and u_b² enter as the readings' σ² does: the covariance with them is the one with
+    σ_ρ² + u_m² + u_b² (u_b widened by t₆(0.975)/z(0.975) = 2.447/1.960)."""
+    from hexcal.estimate.uncertainty import SessionTerms
+
+    result, inp = gain_model
+    model = result.file.leg_model()
+    cov = result.file.parameter_covariance()
+    rows, poses = _free_poses(inp)
+    rho = inp.meas.readings[rows]
+    terms = SessionTerms(0.003, 0.004)
+    assert terms.between_stated_mm == pytest.approx(0.004 * 2.4469118 / 1.9599640, rel=1e-6)
+    extra = pose_covariance(model, cov, poses, rho, 0.002, extra_variance_mm2=terms.variance_mm2)
+    same = pose_covariance(model, cov, poses, rho, float(np.sqrt(0.002**2 + terms.variance_mm2)))
+    assert np.allclose(extra, same, rtol=1e-12, atol=0)
+    assert SessionTerms().variance_mm2 == 0.0
+
+
+def test_excess_is_the_quadrature_difference_and_never_negative():
+    from hexcal.estimate.uncertainty import excess_mm
+
+    assert excess_mm(0.005, 0.003) == pytest.approx(0.004)
+    assert excess_mm(0.003, 0.005) == 0.0 and excess_mm(float("nan"), 0.003) == 0.0
+
+
+def test_a_model_lacking_an_effect_states_its_inadequacy(gain_model, tmp_path):
+    """The session hides a gain: Model 42 alone leaves a held-out residual above the floor, and
+    the file states the difference (in quadrature, less what the parameters' covariance already
+    states) as its model-inadequacy term; Model 42 + gain, at the floor, states almost none."""
+    from hexcal.estimate.uncertainty import excess_mm
+
+    result, inp = gain_model
+    lacking = calibrate_model(inp, 42)
+    u = lacking.file.calibration.uncertainty
+    assert u is not None and u.heldout_rms_mm is not None and u.floor_mm is not None
+    assert u.heldout_rms_mm > 1.2 * u.floor_mm  # the held-out RMS of 360 residuals: ±4 %
+    assert u.parameters_mm is not None and 0 < u.parameters_mm < u.floor_mm
+    # already in the statement: the noise, and the parameters' share of a held-out residual
+    # (fits on 4/5 of the poses: 5/4 of the whole fit's variance)
+    stated = float(np.hypot(u.floor_mm, u.parameters_mm * np.sqrt(5 / 4)))
+    assert u.model_inadequacy_mm == pytest.approx(excess_mm(u.heldout_rms_mm, stated))
+    full = result.file.calibration.uncertainty
+    assert full is not None and full.model_inadequacy_mm < 0.5 * u.model_inadequacy_mm
+    path = tmp_path / "m42.json"
+    path.write_text(lacking.file.to_json())
+    back = load_model(path)
+    assert isinstance(back, CalibratedRobot)
+    assert back.session_terms().model_inadequacy_mm == u.model_inadequacy_mm
+    assert back.session_terms().between_session_mm is None

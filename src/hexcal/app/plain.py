@@ -43,8 +43,14 @@ def pose_error_line(rows: Sequence[PoseAccuracy], floor_mm: float | None = None)
     line = f"Pose error (position RMS, {kind}): {steps}"
     if floor is not None and math.isfinite(floor) and floor > 0:
         ratio = rows[-1].position_rms_mm / floor
-        line += f"; the instruments allow {_um(floor)} ({ratio:.1f}× that now)."
+        allow = _allow(rows[-1].floor_estimated)
+        line += f"; {allow} {_um(floor)} ({ratio:.1f}× that now)."
     return line + ("" if line.endswith(".") else ".")
+
+
+def _allow(estimated: bool) -> str:
+    """Who sets the floor: the instruments, when their noise was stated; else an estimate."""
+    return "the estimated floor is" if estimated else "the instruments allow"
 
 
 def _short(model: str) -> str:
@@ -71,8 +77,18 @@ def calibration_summary(
             f"Do not use this model yet: the calibrated {name} does not match the drawing "
             "(see below). Fix the cause (cables, node ids, columns, units) and record again."
         )
+    elif at_floor is None and accuracy:
+        out.append(
+            f"Calibrated {name}; no instrument noise is known, so there is no floor to judge its "
+            "pose error against (hexcal diagnose estimates one; --instruments states it)."
+        )
     elif at_floor is None:
         out.append(f"Calibrated {name}; no pose error could be measured on these poses.")
+    elif at_floor and accuracy[-1].floor_estimated:
+        out.append(
+            f"The calibrated {name} is at its estimated floor: what is left is no larger than "
+            "the noise estimated from the residual (no instruments file)."
+        )
     elif at_floor:
         out.append(
             f"The calibrated {name} is as good as the instruments can tell: what is left is "
@@ -81,7 +97,8 @@ def calibration_summary(
     else:
         out.append(
             f"The calibrated {name} still misses something: the platform's pose error is above "
-            f"what the instruments allow. Find what: {next_step}"
+            f"{'its estimated floor' if accuracy[-1].floor_estimated else 'what the instruments allow'}. "
+            f"Find what: {next_step}"
         )
     line = pose_error_line(accuracy)
     if line:
@@ -108,6 +125,8 @@ def diagnosis_summary(steps: Sequence[Any]) -> list[str]:
 
 def verdict_words(d: Any) -> str:
     """A diagnosis' verdict as one short sentence (the text UI's first line)."""
+    if d.verdict == Outcome.NONE and getattr(d, "floor_estimated", False):
+        return "Nothing is missing: what is left is at the estimated noise floor."
     if d.verdict == Outcome.NONE:
         return "Nothing is missing: what is left is the instruments' own noise."
     if d.verdict == Outcome.UNEXPLAINED:
@@ -125,7 +144,7 @@ def pose_against_floor(a: PoseAccuracy | None) -> str:
         return ""
     ratio = a.position_rms_mm / a.floor_position_rms_mm
     return (
-        f"pose error {_um(a.position_rms_mm)}, the instruments allow "
+        f"pose error {_um(a.position_rms_mm)}, {_allow(a.floor_estimated)} "
         f"{_um(a.floor_position_rms_mm)} ({ratio:.1f}×)"
     )
 
@@ -139,14 +158,17 @@ def validation_summary(v: Any) -> list[str]:
             f"{v.own_session}. Validate on a second session."
         )
     elif v.verdict == Outcome.NONE:
-        first = (
-            f"The model holds on this session: {v.model} predicts it down to the instruments' "
-            "own noise."
+        down_to = (
+            "the estimated noise (no instruments file)"
+            if v.floor_estimated
+            else "the instruments' own noise"
         )
+        first = f"The model holds on this session: {v.model} predicts it down to {down_to}."
     elif v.verdict == Outcome.UNEXPLAINED:
+        noise = "the estimated noise" if v.floor_estimated else "the instruments' noise"
         first = (
             f"The model does not hold on this session: {v.model} misses these poses by more "
-            "than the instruments' noise, and no catalogue effect explains it (see below)."
+            f"than {noise}, and no catalogue effect explains it (see below)."
         )
     else:
         first = (

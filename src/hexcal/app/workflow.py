@@ -30,9 +30,11 @@ from hexcal.estimate.calibrate import Calibration, calibrate
 from hexcal.estimate.model_file import (
     CalibratedRobot,
     CalibrationBlock,
+    FingerprintRecord,
     FitRecord,
     FittedPoses,
     Provenance,
+    UncertaintyRecord,
     covariance_record,
     effect_records,
     format_version_of,
@@ -43,6 +45,7 @@ from hexcal.estimate.model_file import (
 from hexcal.estimate.refine import FitStalled
 from hexcal.estimate.sanity import DRAWING_TOLERANCE
 from hexcal.estimate.solvers.whole_robot import Form
+from hexcal.estimate.uncertainty import excess_mm
 from hexcal.io.measurements import Measurements
 from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
@@ -388,8 +391,13 @@ def build_file(
         shipped = f"Model {cal.model}" + model.name
         name = f"{shipped} (fitted with {', '.join(cal.session_effects)}: the session's, left out)"
     effects = effect_records(model, cal.sigmas())
+    cov = None
+    if r is not None:
+        cov = covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42)
     block = CalibrationBlock(
-        format_version=format_version_of(effects, covariance=r is not None, fitted_poses=True),
+        format_version=format_version_of(
+            effects, covariance=r is not None, fitted_poses=True, fingerprint=True
+        ),
         model=name,
         kind=cal.model,
         effects=effects,
@@ -405,12 +413,13 @@ def build_file(
         ),
         accuracy=[_record(a) for a in accuracy],
         provenance=Provenance(poses=len(inp.meas), inputs=input_records(dict(inp.files))),
-        covariance=None
-        if r is None
-        else covariance_record(r.names, r.cov, r.sigma, model, cal.model == ModelKind.M42),
+        covariance=cov,
         fitted_poses=FittedPoses(
-            pose_id=[int(i) for i in inp.meas.pose_id], t=[float(t) for t in inp.meas.t]
+            pose_id=[int(i) for i in inp.meas.pose_id],
+            t=[float(t) for t in inp.meas.t],
+            fingerprint=FingerprintRecord.of(inp.meas),
         ),
+        uncertainty=_uncertainty_record(inp, cal, noise, heldout_rms_mm, cov),
     )
     data = cal.robot.model_dump(exclude_none=True)
     data.pop("calibration", None)
@@ -419,10 +428,53 @@ def build_file(
     return CalibratedRobot.model_validate(data)
 
 
+def _uncertainty_record(
+    inp: Inputs,
+    cal: Calibration,
+    noise: Instruments | None,
+    heldout_rms_mm: float | None,
+    cov: Any = None,
+) -> UncertaintyRecord | None:
+    """The model-inadequacy term of a calibration: its held-out leg RMS above what the recorded
+    noise and the parameters' covariance ``cov`` (already in the statement) give on its poses;
+    an estimated noise floor no higher than that residual, as the diagnosis caps it. None
+    without a held-out residual or a noise."""
+    from hexcal.estimate.effect_fit import K_FOLDS
+    from hexcal.estimate.model_validation import EXCESS_Z
+    from hexcal.estimate.uncertainty import parameter_leg_rms_mm
+    from hexcal.model.noise import leg_covariance
+
+    if heldout_rms_mm is None or noise is None or not np.isfinite(heldout_rms_mm):
+        return None
+    sig = NoiseSigmas.from_instruments(noise)
+    m = inp.meas
+    legs = leg_covariance(cal.robot.a, cal.robot.b, m.position, m.rotations.as_matrix(), sig)
+    floor = float(np.sqrt(np.mean(np.einsum("mkk->mk", legs))))
+    if inp.instruments is None:
+        floor = min(floor, heldout_rms_mm)
+    params = 0.0
+    if cov is not None:
+        params = parameter_leg_rms_mm(cal.leg_model(), cov.parameters, np.array(cov.matrix), m)
+    # A held-out residual comes from fits on (K − 1)/K of the poses: their parameters' share
+    # is K/(K − 1) times the whole fit's.
+    stated = float(np.hypot(floor, params * np.sqrt(K_FOLDS / (K_FOLDS - 1))))
+    # Only an excess beyond the held-out RMS's own scatter (the validation's band, 4σ of χ²
+    # over the 6M residuals) is the model's: below it, h exceeds what is stated by chance.
+    band = 1.0 + EXCESS_Z * float(np.sqrt(2.0 / (6 * len(m))))
+    inadequacy = excess_mm(heldout_rms_mm, stated) if heldout_rms_mm**2 > band * stated**2 else 0.0
+    return UncertaintyRecord(
+        heldout_rms_mm=heldout_rms_mm,
+        floor_mm=floor,
+        parameters_mm=params,
+        model_inadequacy_mm=inadequacy,
+    )
+
+
 def _record(a: PoseAccuracy):
     from hexcal.estimate.model_file import AccuracyRecord
 
     d = a.to_dict()
+    d["floor_estimated"] = d["floor_estimated"] or None  # written only when true
     return AccuracyRecord.model_validate(
         {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()}
     )
@@ -458,6 +510,7 @@ def calibrate_model(
     effects = tuple(dict.fromkeys((*inp.model_effects, *effects)))
     stage = on_stage or (lambda text: None)
     screen_inputs(inp)
+    inp = locate_effects_of(inp, model, effects)
     stage(f"calibrating Model {int(model)} on {len(inp.meas.pose_id)} poses")
     try:
         cal = calibrate(
@@ -505,6 +558,25 @@ def calibrate_model(
     return ModelResult(
         cal, accuracy, partial(build_file, inp, cal, accuracy, fits[-1].cv_rms_mm, floor)
     )
+
+
+def locate_effects_of(inp: Inputs, model: ModelKind, effects: Sequence[str]) -> Inputs:
+    """The inputs with the places of the searched-for effects among ``effects`` located by the
+    diagnosis' own search (:func:`hexcal.diagnosis.locators.locate_effects`: zero_step's
+    times), unless robot.json states them; refused with the effect's reason when the search
+    finds none."""
+    from hexcal.diagnosis.locators import LOCATORS, locate_effects
+    from hexcal.estimate.effect_fit import Problem
+
+    if not any(e in LOCATORS for e in effects):
+        return inp
+    problem = Problem.build(inp.meas, inp.design, inp.sigmas)
+    base = ("offset",) if model == ModelKind.M42 else ()
+    try:
+        locate_effects(problem, (*base, *effects))
+    except (FitStalled, GeometryOutOfRange) as exc:
+        raise _stall_message(inp, exc) from None
+    return replace(inp, design=problem.design)
 
 
 # -- diagnosis --------------------------------------------------------------------------------
@@ -597,10 +669,10 @@ def model_of(
     outliers = getattr(last, "outlier_ids", [])
     if outliers:  # the diagnosis set them aside: the model is calibrated without them too
         inp = inp.without(outliers)
-    for effect, key in (("zero_step", "zero_steps"), ("frame_step", "frame_steps")):
-        located = getattr(last.problem.design, key, None)
-        if effect in effects and located:  # the events the diagnosis located, with their times
-            inp = replace(inp, design=inp.design.model_copy(update={key: located}))
+    from hexcal.diagnosis.locators import carry_located
+
+    # the places the diagnosis located (the events' times), as calibrate would find them
+    inp = replace(inp, design=carry_located(last.problem.design, inp.design, effects))
     try:
         cal = calibrate(
             inp.meas,

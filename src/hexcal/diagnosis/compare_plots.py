@@ -116,7 +116,8 @@ def before_after(
         ax.set_ylabel("held-out RMS (µm)")
         ax.set_title(
             f"{tag}: {fit.model_name}\nheld-out RMS {fit.cv_rms_mm * UM:.1f} µm "
-            f"(floor {d.noise_floor_mm * UM:.1f} µm) — verdict {d.verdict}",
+            f"({'estimated floor' if d.floor_estimated else 'floor'} "
+            f"{d.noise_floor_mm * UM:.1f} µm) — verdict {d.verdict}",
             fontsize=10,
         )
         ax.grid(True, axis="y", alpha=0.25)

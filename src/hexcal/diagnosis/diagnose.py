@@ -26,14 +26,15 @@ longer a verdict: a session with a hidden backlash and three outliers reads ``ba
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from hexcal.diagnosis.changepoint import ChangePoint, locate, located, search
+from hexcal.diagnosis.changepoint import ChangePoint
 from hexcal.diagnosis.defaults import DefaultNote, default_notes
 from hexcal.diagnosis.explorer import Exploration, explore
 from hexcal.diagnosis.frame_search import FrameChange
+from hexcal.diagnosis.locators import locate_effects
 from hexcal.diagnosis.outliers import (
     OUTLIER_ALPHA,
     Outlier,
@@ -42,7 +43,6 @@ from hexcal.diagnosis.outliers import (
     find_outliers,
     pose_chi2,
     pose_residuals,
-    robust_level,
     session_problem,
 )
 from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
@@ -63,7 +63,6 @@ from hexcal.estimate.effect_fit import (
     Problem,
     design_accuracy,
     design_pose_errors,
-    fit_model,
     heldout_accuracy,
     heldout_pose_errors,
 )
@@ -126,6 +125,8 @@ class Diagnosis:
     #: s²: the noise level the floor is relative to (1 with the stated noise; without it, the
     #: richest model's χ²/dof against a typical tracker and encoder)
     noise_level: float = 1.0
+    #: The factor (≤ 1) an estimated floor was capped by: at the best held-out residual
+    floor_scale: float = 1.0
     #: Other effects that fit these data as well as the verdict's (named with it)
     alike: list[str] = field(default_factory=list)
     #: Changes of a leg's zero located by the change-point search (``zero_step``'s times)
@@ -146,6 +147,16 @@ class Diagnosis:
     @property
     def effects(self) -> tuple[str, ...]:
         return self.fit.effects
+
+    @property
+    def floor_estimated(self) -> bool:
+        """The floor is estimated from the residual (no instruments' noise was stated)."""
+        return self.problem.sigmas is None
+
+    def score_shown(self, c: Candidate) -> float:
+        """A candidate's score Δχ² on the scale of its ΔBIC: over the noise level s² (1 with
+        the stated noise; the estimated level otherwise)."""
+        return float(c.score / self.noise_level)
 
     @property
     def model_name(self) -> str:
@@ -193,7 +204,8 @@ class Diagnosis:
             r = f.refinement
             sig = session.sigmas if session.sigmas is not None else DEFAULT_SIGMAS
             cov = leg_covariance(r.a, r.b, m.position[rows], session.R[rows], sig)
-            floor[rows] = np.sqrt(self.noise_level * np.einsum("mkk->mk", cov))
+            level = self.noise_level * self.floor_scale**2
+            floor[rows] = np.sqrt(level * np.einsum("mkk->mk", cov))
         lines = [
             "pose_id,step,leg,measured_mm,predicted_mm,residual_um,heldout_residual_um,floor_um,"
             "set_aside"
@@ -217,6 +229,7 @@ class Diagnosis:
             "cv_blocked_rms_mm": f.cv_blocked_rms_mm,
             "noise_floor_mm": self.noise_floor_mm,
             "noise_floor_source": self.floor_source,
+            "noise_floor_estimated": self.floor_estimated,
             "chi2_per_dof": self.chi2_per_dof,
             "excess_significant": self.excess_significant,
             "verdict": self.verdict,
@@ -231,7 +244,7 @@ class Diagnosis:
             "candidates": [
                 {
                     "effect": c.effect,
-                    "score_dchi2": c.score,
+                    "score_dchi2": self.score_shown(c),
                     "cv_rms_mm_after": _nan_none(c.cv_rms_mm_after),
                     "delta_bic": _nan_none(c.delta_bic),
                     "explained_fraction": _nan_none(c.explained),
@@ -312,8 +325,7 @@ def diagnose(
     threshold = float("nan")
     work = problem
     search: OutlierSearch | None = None
-    if ZERO_STEP in effects and (given is None or not located(problem)):
-        _locate_first(problem, effects)
+    locate_effects(problem, effects)  # zero_step's steps, found as calibrate finds them
     if set_aside_outliers:
         outliers, threshold, work, search = _set_aside(problem, given, effects, notes)
     j = judge(work, effects, sig, notes, outliers=search)
@@ -335,11 +347,16 @@ def diagnose(
         if _noise_understated(j, where, exploration, sig is not None):
             verdict, noise_factor = Outcome.NOISE_UNDERSTATED, float(np.sqrt(j.chi2_per_dof))
             notes.append(_noise_note(noise_factor, j))
-    floor_sig = sig if sig is not None else scaled(DEFAULT_SIGMAS, float(np.sqrt(j.s2)))
+    floor_sig = sig
+    if sig is None:  # the estimated level, capped as the leg-length floor was
+        floor_sig = scaled(DEFAULT_SIGMAS, float(np.sqrt(j.s2)) * j.floor_scale)
     errors = heldout_pose_errors(work, fit)
     accuracy = heldout_accuracy(work, fit, floor_sig, errors)
     if work.design_pose_accuracy is None:
         work.design_pose_accuracy = design_accuracy(work, floor_sig)
+    if sig is None:
+        accuracy = replace(accuracy, floor_estimated=True)
+        work.design_pose_accuracy = replace(work.design_pose_accuracy, floor_estimated=True)
     candidates = sorted(
         j.candidates,
         key=lambda c: (
@@ -367,6 +384,7 @@ def diagnose(
         outlier_threshold=threshold,
         outliers_acknowledged=acknowledged,
         noise_level=j.s2,
+        floor_scale=j.floor_scale,
         alike=j.alike,
         changes=j.changes,
         exploration=exploration,
@@ -374,19 +392,6 @@ def diagnose(
         frame=j.frame,
         defaults=default_notes(work, fit, j.candidates),
     )
-
-
-def _locate_first(problem: Problem, effects: tuple[str, ...]) -> None:
-    """``zero_step`` in the model on a fresh session: locate its steps first, at the model
-    without it (a clear error when the search finds none)."""
-    fit0 = fit_model(problem, tuple(e for e in effects if e != ZERO_STEP), cross_validate=False)
-    locate(problem, search(problem, fit0, robust_level(problem, fit0)))
-    if not located(problem):
-        raise ValueError(
-            "zero_step: no change of a leg's zero is found in this session (the change-point "
-            "search on each leg's residual in recording order finds no step beyond its "
-            "threshold); leave zero_step out, or state zero_steps in robot.json"
-        )
 
 
 def _noise_understated(j: Judgement, where: dict, exploration: Exploration, stated: bool) -> bool:

@@ -28,6 +28,7 @@ from hexcal.estimate.predict import LegModel, Poses
 from hexcal.estimate.uncertainty import (
     K,
     ParameterCovariance,
+    SessionTerms,
     coverage,
     model_parameter_names,
     pose_uncertainty,
@@ -48,6 +49,10 @@ class Uncertainty:
     error_mm: np.ndarray
     inside: np.ndarray
     coverage_95: float
+    #: The terms in the statement, one by one: (what was added, mean U mm, coverage), from the
+    #: parameters and the readings alone to every term the model file states
+    contributions: list[tuple[str, float, float]] = field(default_factory=list)
+    terms: SessionTerms = field(default_factory=SessionTerms)
 
     def to_dict(self, per_pose: bool = True) -> dict:
         out: dict = {
@@ -58,6 +63,12 @@ class Uncertainty:
             "orientation_mean_deg": _mean(self.orientation_deg),
             "orientation_max_deg": _max(self.orientation_deg),
             "position_coverage_95": _finite(self.coverage_95),
+            "model_inadequacy_mm": self.terms.model_inadequacy_mm,
+            "between_session_mm": self.terms.between_session_mm,
+            "contributions": [
+                {"with": w, "position_mean_mm": _finite(u), "position_coverage_95": _finite(c)}
+                for w, u, c in self.contributions
+            ],
         }
         if per_pose:
             out["poses"] = [
@@ -86,7 +97,20 @@ class Uncertainty:
             f"{_mean(self.orientation_deg):.4f}° mean, {_max(self.orientation_deg):.4f}° max",
             f"  position errors inside their 95 % region: {100 * self.coverage_95:.1f} % of "
             f"{len(self.pose_id)} poses (0.95 when the stated uncertainties hold)",
+            *self._term_lines(),
         ]
+
+    def _term_lines(self) -> list[str]:
+        """Each term's contribution, and what the statement does not cover."""
+        out = [
+            f"  {w}: U {_mm(u)} mean, coverage {100 * c:.1f} %" for w, u, c in self.contributions
+        ]
+        if self.terms.between_session_mm is None:
+            out.append(
+                "  not covered: what changes between sessions (a re-home, the day) — validate a "
+                "second session with --fold-in to state it"
+            )
+        return out
 
 
 @dataclass
@@ -137,29 +161,42 @@ def metrology(
     sig: NoiseSigmas,
     covariance: ParameterCovariance | None,
     why_no_covariance: str = "",
+    terms: SessionTerms | None = None,
 ) -> Metrology:
     """The figures of ``model`` (called ``label``) on the measurement table ``meas`` with the
     noise ``sig`` (the readings' for the propagation, the tracker's for the coverage);
     ``covariance`` None: the readings' noise alone is propagated, and ``why_no_covariance``
-    says why."""
+    says why; ``terms``: the model file's uncertainty terms beyond those (none: not stated)."""
     out = Metrology(label)
-    out.uncertainty = _uncertainty(model, meas, sig, covariance, why_no_covariance)
+    out.uncertainty = _uncertainty(
+        model, meas, sig, covariance, why_no_covariance, terms or SessionTerms()
+    )
     out.iso9283 = iso9283(model, meas)
     out.iso230_2 = leg_positioning(model, meas)
     return out
 
 
-def of_model_file(model_file, meas, sig: NoiseSigmas, label: str | None = None) -> Metrology:
+def of_model_file(
+    model_file,
+    meas,
+    sig: NoiseSigmas,
+    label: str | None = None,
+    leg_model: LegModel | None = None,
+) -> Metrology:
     """The figures of a model file (calibrated.json, or a plain robot.json: the drawing) on the
-    table ``meas``: its covariance propagated when it carries one."""
+    table ``meas``: its covariance and uncertainty terms propagated when it carries them;
+    ``leg_model``: the model as used instead of the file's own (re-homed: its offsets moved)."""
     from hexcal.estimate.model_file import CalibratedRobot, leg_model_of, model_label
 
     cov, why = None, "a plain robot.json carries no parameter covariance"
+    terms = SessionTerms()
     if isinstance(model_file, CalibratedRobot):
         cov = model_file.parameter_covariance()
         why = "the model file carries no parameter covariance (written before format version 2)"
+        terms = model_file.session_terms()
     name = label or model_label(model_file)
-    return metrology(leg_model_of(model_file), name, meas, sig, cov, why)
+    model = leg_model_of(model_file) if leg_model is None else leg_model
+    return metrology(model, name, meas, sig, cov, why, terms)
 
 
 def of_diagnosis(d) -> Metrology:
@@ -192,17 +229,38 @@ def _uncertainty(
     sig: NoiseSigmas,
     covariance: ParameterCovariance | None,
     why_not: str,
+    terms: SessionTerms,
 ) -> Uncertainty:
     rot = meas.rotations.as_matrix()
     model = model.with_columns(numeric_columns(meas.extra))
     solved, closed = model.solve_poses(
         meas.readings, meas.t, meas.temperature, Poses(meas.position, rot)
     )
-    u = pose_uncertainty(
-        model, covariance, solved, meas.readings, sig.reading_mm, meas.t, meas.temperature
-    )
     err = solved.position - meas.position
-    frac, inside = coverage(err[closed], u.covariance[closed][:, :3, :3], sig.position_mm)
+    steps = [("the parameters and the readings", 0.0)]
+    if terms.model_inadequacy_mm > 0 or terms.between_session_mm is not None:
+        u = terms.model_inadequacy_mm
+        steps.append((f"+ model inadequacy ({1000 * u:.0f} µm per leg)", u**2))
+    if terms.between_session_mm is not None:
+        u, ub = terms.between_session_mm, terms.between_stated_mm
+        what = f"{1000 * u:.0f} µm per leg, ν = {terms.between_session_dof}: {1000 * ub:.0f} µm"
+        steps.append((f"+ between sessions ({what})", ub**2))
+    contributions = []
+    extra = 0.0
+    for what, var in steps:
+        extra += var
+        u_pose = pose_uncertainty(
+            model,
+            covariance,
+            solved,
+            meas.readings,
+            sig.reading_mm,
+            meas.t,
+            meas.temperature,
+            extra,
+        )
+        frac, inside = coverage(err[closed], u_pose.covariance[closed][:, :3, :3], sig.position_mm)
+        contributions.append((what, _mean(u_pose.position_mm), frac))
     inside_all = np.zeros(len(closed), bool)
     inside_all[closed] = inside
     norm = np.where(closed, np.linalg.norm(err, axis=1), np.nan)
@@ -210,9 +268,56 @@ def _uncertainty(
         source = "the model's parameters and the readings' noise"
     else:
         source = "the readings' noise only" + (f": {why_not}" if why_not else "")
+    if len(steps) > 1:
+        source += ", " + " and ".join(w.split(" (")[0].removeprefix("+ ") for w, _ in steps[1:])
     return Uncertainty(
-        source, meas.pose_id, u.position_mm, u.orientation_deg, norm, inside_all, frac
+        source,
+        meas.pose_id,
+        u_pose.position_mm,
+        u_pose.orientation_deg,
+        norm,
+        inside_all,
+        frac,
+        contributions if len(steps) > 1 else [],
+        terms,
     )
+
+
+#: Coverage below this on a validation session says a term is missing from the statement.
+COVERAGE_LOW = 0.90
+
+
+def missing_terms(v, plain: Metrology, rehomed: Metrology | None) -> list[str]:
+    """Why the stated uncertainty does not cover a validation session (``v``, its
+    :class:`~hexcal.estimate.model_validation.Validation`; ``plain``, ``rehomed`` its figures
+    as calibrated and with the offsets re-estimated): the robot changed (its offsets) — the
+    between-session term was missing; or the model lacks something (the verdict) — more than
+    the model-inadequacy term covers. Empty when the coverage holds (≥ :data:`COVERAGE_LOW`)."""
+    u = plain.uncertainty
+    if u is None or not np.isfinite(u.coverage_95) or u.coverage_95 >= COVERAGE_LOW:
+        return []
+    out = [f"the stated uncertainty covers {100 * u.coverage_95:.0f} % of these poses, not 95 %:"]
+    r = None if rehomed is None else rehomed.uncertainty
+    offsets = bool(v.shifted_legs) or (r is not None and r.coverage_95 >= COVERAGE_LOW)
+    if offsets:
+        legs = ", ".join(str(k) for k in v.shifted_legs) or "every leg"
+        again = "" if r is None else f" (re-homed, {100 * r.coverage_95:.0f} % are covered)"
+        out.append(
+            f"the robot changed: its offsets moved ({legs}){again} — the between-session term "
+            "was missing: re-home (--rehome), or fold this session in (--fold-in) to state it"
+        )
+    verdict = v.verdict if r is None or v.rehomed is None else v.rehomed.verdict
+    if verdict != "none" and not (offsets and verdict == "offset"):
+        out.append(
+            f"the model lacks something: the verdict is {verdict} — more than the "
+            "model-inadequacy term covers: add what the verdict names and calibrate again"
+        )
+    if len(out) == 1:
+        out.append(
+            "no offset moved and the model holds here: the stated noise or the parameters' "
+            "covariance is too small for these poses"
+        )
+    return out
 
 
 def _mean(x: np.ndarray) -> float:

@@ -36,6 +36,7 @@ from hexcal.diagnosis.report_tables import (
 )
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.effects import get_effect
+from hexcal.estimate.accuracy import floor_words
 from hexcal.io.fileio import write_text_atomic
 from hexcal.vocabulary import Outcome, Verdict
 
@@ -156,7 +157,7 @@ def explanation(diags: Sequence[Diagnosis]) -> str:
     """One sentence on the last step's verdict (plain text)."""
     d = diags[-1]
     fit = d.fit
-    floor = f"{um(d.noise_floor_mm)} µm"
+    floor = f"{um(d.noise_floor_mm)} µm" + (" (estimated)" if d.floor_estimated else "")
     if d.verdict == Outcome.NONE:
         text = (
             f"{fit.model_name} describes these data to the noise floor: held-out RMS "
@@ -248,7 +249,8 @@ def _accuracy(diags: Sequence[Diagnosis], tmp: Path | None) -> str:
     last = diags[-1].accuracy
     if last is not None and last.floor_position_rms_mm is not None:
         rows.append(
-            '<tr class="muted"><td>noise floor</td><td>the noise alone</td><td></td>'
+            f'<tr class="muted"><td>{"estimated floor" if last.floor_estimated else "noise floor"}'
+            "</td><td>the noise alone</td><td></td>"
             f'<td class="num">{um(last.floor_position_rms_mm)}</td><td></td><td></td>'
             f'<td class="num">{num(last.floor_orientation_rms_deg, ".4f")}</td><td></td></tr>'
         )
@@ -379,7 +381,7 @@ def _change(a: Diagnosis, b: Diagnosis, i: int, tmp: Path | None) -> str:
     what = " + ".join(added) if added else "no effect"
     line = (
         f"held-out RMS {um(a.fit.cv_rms_mm)} → {um(b.fit.cv_rms_mm)} µm "
-        f"(floor {um(b.noise_floor_mm)} µm)"
+        f"({floor_words(b.floor_estimated)} {um(b.noise_floor_mm)} µm)"
     )
     betrays = BETRAYS.get(added[0], "reading") if added else "reading"
     fig = ""

@@ -110,7 +110,7 @@ def candidate_table(d: Diagnosis, sid: str) -> str:
             )
         ident = "yes" if c.identifiable else ("no (data lack it)" if not c.available else "no")
         rows.append(
-            f'<tr class="{cls}"><td>{esc(c.effect)}</td><td class="num">{stat(c.score)}</td>'
+            f'<tr class="{cls}"><td>{esc(c.effect)}</td><td class="num">{stat(d.score_shown(c))}</td>'
             f'<td class="num">{stat(c.delta_bic)}</td>'
             f'<td class="num">{num(100 * c.explained, ".0f") + " %" if finite(c.explained) else "—"}</td>'
             f'<td class="num">{um(c.cv_rms_mm_after)}</td><td>{esc(ident)}</td><td>{esc(why)}</td></tr>'

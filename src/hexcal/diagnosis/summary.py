@@ -107,7 +107,13 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
         out.append(
             "The robot differs from its drawing beyond the geometry: " + "; ".join(clauses) + "."
         )
-    if d.verdict == Outcome.NONE:
+    if d.verdict == Outcome.NONE and d.floor_estimated:
+        out.append(
+            "Nothing else is missing: what remains is at the estimated noise floor "
+            f"({1000 * d.fit.cv_rms_mm:.0f} µm per leg against an estimated floor of "
+            f"{1000 * d.noise_floor_mm:.0f} µm; no instruments file)."
+        )
+    elif d.verdict == Outcome.NONE:
         out.append(
             "Nothing else is missing: what remains is the instruments' own noise "
             f"({1000 * d.fit.cv_rms_mm:.0f} µm per leg against a floor of "
@@ -117,7 +123,8 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
         out.append(
             "Something no catalogue effect describes remains: the model misses the legs by "
             f"{1000 * d.fit.cv_rms_mm:.0f} µm where the noise alone gives "
-            f"{1000 * d.noise_floor_mm:.0f} µm. " + str(d.where.get("summary", "")).capitalize()
+            f"{1000 * d.noise_floor_mm:.0f} µm{' (estimated)' * d.floor_estimated}. "
+            + str(d.where.get("summary", "")).capitalize()
         )
         lead = None if d.exploration is None else d.exploration.lead
         if lead is not None:

@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 from hexcal.diagnosis.diagnose import Diagnosis
+from hexcal.estimate.accuracy import floor_words
 from hexcal.vocabulary import Outcome
+
+
+def _floor(d: Diagnosis) -> str:
+    return "noise floor" if not d.floor_estimated else "estimated noise floor"
 
 
 def _um(x: float) -> str:
@@ -14,13 +19,13 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
     f = d.fit
     lines = [
         f"hexcal diagnose: {f.model_name} on {source}",
-        f"noise floor {_um(d.noise_floor_mm)} µm — {d.floor_source}",
+        f"{_floor(d)} {_um(d.noise_floor_mm)} µm — {d.floor_source}",
         f"residual RMS {_um(f.rms_mm)} µm in-sample, {_um(f.cv_rms_mm)} µm held-out (5-fold over poses), "
         f"{_um(f.cv_blocked_rms_mm)} µm held-out (folds blocked in time); χ²/dof {d.chi2_per_dof:.3f}"
         + (
-            " — above the noise floor"
+            f" — above the {_floor(d)}"
             if d.excess_significant
-            else " — consistent with the noise floor"
+            else f" — consistent with the {_floor(d)}"
         ),
         *_accuracy_lines(d),
         "",
@@ -51,7 +56,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         )
         after = f"{_um(c.cv_rms_mm_after)} µm" if c.refit else "—"
         ident = "yes" if c.identifiable else ("n/a: " + c.reason if not c.available else "no")
-        lines.append(f"  {c.effect:<12}{c.score:11.1f}{bic}{expl}{after:>16}  {ident}")
+        lines.append(f"  {c.effect:<12}{d.score_shown(c):11.1f}{bic}{expl}{after:>16}  {ident}")
         if c.available and not c.identifiable:
             lines.append(f"      {c.reason}")
         if (note := d.default_note(c.effect)) is not None:
@@ -84,12 +89,13 @@ def verdict_lines(d: Diagnosis) -> list[str]:
     v = d.verdict
     if v == Outcome.NONE:
         return [
-            "verdict: none — the residual is at the noise floor; nothing in the catalogue is missing"
+            f"verdict: none — the residual is at the {_floor(d)}; nothing in the catalogue is "
+            "missing"
         ]
     if v == Outcome.UNEXPLAINED:
         return [
-            "verdict: unexplained — the residual is above the noise floor but no catalogue effect "
-            "explains most of it",
+            f"verdict: unexplained — the residual is above the {_floor(d)} but no catalogue "
+            "effect explains most of it",
             f"  look at: {d.where['summary']}",
             *pointer_lines(d),
         ]
@@ -114,7 +120,8 @@ def verdict_lines(d: Diagnosis) -> list[str]:
     out = [
         f"verdict: {v}{alike} — it explains {100 * won.explained:.0f} % of the excess over the "
         f"noise floor (ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → "
-        f"{_um(won.cv_rms_mm_after)} µm (floor {_um(d.noise_floor_mm)} µm). Add it: --add {v}",
+        f"{_um(won.cv_rms_mm_after)} µm ({floor_words(d.floor_estimated)} "
+        f"{_um(d.noise_floor_mm)} µm). Add it: --add {v}",
         f"  physics: {get_effect(v).physics}",
     ]
     if get_effect(v).source.kind != "catalogue":
@@ -149,7 +156,8 @@ def _accuracy_lines(d: Diagnosis) -> list[str]:
     if d.accuracy is not None:
         a = d.accuracy
         floor = (
-            f"; floor {_um(a.floor_position_rms_mm).strip()} µm, {a.floor_orientation_rms_deg:.4f}°"
+            f"; {floor_words(d.floor_estimated)} {_um(a.floor_position_rms_mm).strip()} µm, "
+            f"{a.floor_orientation_rms_deg:.4f}°"
             if a.floor_position_rms_mm is not None
             else ""
         )
@@ -164,20 +172,25 @@ def _accuracy_lines(d: Diagnosis) -> list[str]:
 def before_after_text(steps: list[Diagnosis]) -> str:
     """The fall of the error across added effects, side by side: held-out leg-length RMS and
     pose error (the pose from the readings against the tracker's), µm and degrees."""
+    estimated = bool(steps) and steps[-1].floor_estimated
+    w = 10 if estimated else 8  # the floor column's width
     head = (
-        f"{'model':<34}{'held-out':>10}{'blocked':>10}{'floor':>8}{'pose':>10}{'p95':>9}"
+        f"{'model':<34}{'held-out':>10}{'blocked':>10}"
+        f"{'est.floor' if estimated else 'floor':>{w}}{'pose':>10}{'p95':>9}"
         f"{'angle °':>9}   per-leg held-out"
     )
     lines = [
         "the error as effects are added (µm; pose = position error of the pose the model "
-        "computes from the readings, on held-out poses):",
+        "computes from the readings, on held-out poses"
+        + ("; est.floor: the floor estimated from the residual, no instruments file" * estimated)
+        + "):",
         head.rstrip(),
     ]
     first = steps[0].design_accuracy if steps else None
     if first is not None:
         lines.append(
             f"{'design (drawing, all poses)':<34}{_um(first.leg_rms_mm or float('nan')):>10}"
-            f"{'':>10}{'':>8}{_um(first.position_rms_mm):>10}{_um(first.position_p95_mm):>9}"
+            f"{'':>10}{'':>{w}}{_um(first.position_rms_mm):>10}{_um(first.position_p95_mm):>9}"
             f"{first.orientation_rms_deg:>9.4f}"
         )
     for d in steps:
@@ -190,7 +203,7 @@ def before_after_text(steps: list[Diagnosis]) -> str:
         )
         name = getattr(d, "model_name", f.model_name)
         lines.append(
-            f"{name:<34}{_um(f.cv_rms_mm):>10}{_um(f.cv_blocked_rms_mm):>10}{_um(d.noise_floor_mm):>8}"
+            f"{name:<34}{_um(f.cv_rms_mm):>10}{_um(f.cv_blocked_rms_mm):>10}{_um(d.noise_floor_mm):>{w}}"
             + pose
             + "   "
             + " ".join(f"{1000 * v:5.1f}" for v in f.cv_rms_per_leg)
@@ -199,7 +212,9 @@ def before_after_text(steps: list[Diagnosis]) -> str:
     last = steps[-1].accuracy if steps else None
     if last is not None and last.floor_position_rms_mm is not None:
         lines.append(
-            f"{'pose floor (noise alone)':<34}{'':>28}{_um(last.floor_position_rms_mm):>10}{'':>9}"
+            f"{'pose floor (estimated)' if estimated else 'pose floor (noise alone)':<34}"
+            f"{'':>{20 + w}}"
+            f"{_um(last.floor_position_rms_mm):>10}{'':>9}"
             f"{last.floor_orientation_rms_deg:>9.4f}"
         )
     return "\n".join(lines)

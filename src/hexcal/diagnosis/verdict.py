@@ -33,15 +33,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hexcal.diagnosis.changepoint import ChangePoint, locate, search
-from hexcal.diagnosis.frame_search import (
-    FrameChange,
-    leg_step_beyond_smooth,
-    locate_frame,
-    search_frame,
-)
+from hexcal.diagnosis.changepoint import ChangePoint
+from hexcal.diagnosis.frame_search import FrameChange
+from hexcal.diagnosis.locators import locate_candidates
 from hexcal.diagnosis.outliers import OutlierSearch, robust_level
-from hexcal.diagnosis.pose_products import PoseProducts
 from hexcal.diagnosis.score import Projection
 from hexcal.diagnosis.scoring import (
     Candidate,
@@ -54,12 +49,11 @@ from hexcal.diagnosis.scoring import (
     whitened_columns,
 )
 from hexcal.effects import CATALOGUE, get_effect
+from hexcal.estimate.accuracy import floor_cap
 from hexcal.estimate.effect_fit import ModelFit, Problem, cross_validated, fit_model, noise_floor
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.vocabulary import Outcome, Verdict
 
-#: A leg's zero step within this many poses of a located move of the tracker is the move's.
-FRAME_POSES = 3
 #: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
 BIC_STRONG = -10.0
 #: An effect that brings the residual to the floor (alone or with one more) must explain at
@@ -104,6 +98,8 @@ class Judgement:
     changes: list[ChangePoint] = field(default_factory=list)
     #: s² of the residual from its median pose (:func:`~hexcal.diagnosis.outliers.robust_level`)
     level: float = 1.0
+    #: The factor (≤ 1) an estimated floor was capped by (:func:`~hexcal.estimate.accuracy.floor_cap`)
+    floor_scale: float = 1.0
     #: A rigid move of the tracker located at the fit (the ``frame_step`` effect's time)
     frame: FrameChange | None = None
 
@@ -148,10 +144,14 @@ def judge(
         else:
             fit = fit_model(problem, effects)
     level = robust_level(problem, fit)
-    changes, frame = _events(problem, fit, effects, level)
+    found = locate_candidates(problem, fit, level, effects)
+    changes: list[ChangePoint] = found.get("zero_step", [])
+    frame = next(iter(found.get("frame_step", [])), None)
     candidates = identifiable_candidates(problem, fit, effects, CATALOGUE)
     _refit_leaders(problem, fit, candidates, effects)
-    floor, floor_source, s2 = _floor(problem, fit, effects, candidates, sig, notes, rich)
+    floor, floor_source, s2, floor_scale = _floor(
+        problem, fit, effects, candidates, sig, notes, rich
+    )
     expected = fit.dof * s2  # χ² the current fit would have from noise alone
     chi2_per_dof = fit.chi2 / expected
     band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
@@ -197,33 +197,9 @@ def judge(
         alike,
         changes,
         level,
+        floor_scale,
         frame,
     )
-
-
-def _events(
-    problem: Problem, fit: ModelFit, effects: tuple[str, ...], level: float
-) -> tuple[list[ChangePoint], FrameChange | None]:
-    """Events in time, located before the candidates are scored: a rigid move of the tracker
-    (every leg at one pose), and each leg's own zero steps — a step only where it is
-    significant beyond a smooth curve of that leg's residual in time (uneven heating is a
-    curve). Both are then scored as effects, and the verdict tells them apart."""
-    products = PoseProducts(fit, level)
-    frame = None
-    if "frame_step" not in effects:
-        frame = search_frame(problem, fit, level, products)
-        locate_frame(problem, frame)
-    changes: list[ChangePoint] = []
-    if "zero_step" not in effects:
-        changes = [
-            c
-            for c in search(problem, fit, level)
-            if leg_step_beyond_smooth(products, problem, c.leg, c.index) > c.threshold
-            # the legs that changed at the tracker's move changed with it, not alone
-            and (frame is None or abs(c.index - frame.index) > FRAME_POSES)
-        ]
-        locate(problem, changes)
-    return changes, frame
 
 
 def _refit_leaders(
@@ -260,13 +236,14 @@ def _floor(
     sig: NoiseSigmas | None,
     notes: list[str],
     made: ModelFit | None = None,
-) -> tuple[np.ndarray, str, float]:
-    """(floor (M, 6) mm, where it comes from, s²): the stated noise propagated through the
+) -> tuple[np.ndarray, str, float, float]:
+    """(floor (M, 6) mm, where it comes from, s², cap): the stated noise propagated through the
     model; without it, the noise level s (relative to a typical tracker and encoder) of the
-    richest model these data allow."""
+    richest model these data allow, the floor capped (by the factor ``cap`` ≤ 1) at the best
+    held-out residual of the models tried."""
     if sig is not None:
         floor = noise_floor(problem, fit)
-        return floor, "stated instrument noise, propagated through the fitted model", 1.0
+        return floor, "stated instrument noise, propagated through the fitted model", 1.0, 1.0
     richest = tuple(effects) + tuple(c.effect for c in candidates if c.available and c.identifiable)
     if made is not None and made.effects == richest:
         rich = made  # the outlier search's richest fit on these poses
@@ -283,10 +260,18 @@ def _floor(
         "estimated (no instruments file): the residual level of a fit with every identifiable "
         f"catalogue effect ({', '.join(richest)}); an effect outside the catalogue would inflate it"
     )
+    heldout = [fit.cv_rms_mm] + [c.refit.cv_rms_mm for c in candidates if c.refit is not None]
+    cap = floor_cap(float(np.sqrt(np.mean(floor**2))), heldout)
+    if cap < 1.0:
+        floor = cap * floor
+        source += (
+            f", capped at {1000 * min(heldout):.1f} µm, the best held-out residual of the models "
+            "tried: the noise can leave no more than that"
+        )
     notes.append(
         "the noise floor is estimated, not stated: pass --instruments for a firmer verdict"
     )
-    return floor, source, float(s2)
+    return floor, source, float(s2), cap
 
 
 def _weigh(

@@ -68,8 +68,8 @@ class ZeroStepEffect(Effect):
         steps = steps_of(data.robot)
         if not steps:
             return (
-                "no change of a leg's zero was located (hexcal diagnose searches each leg's "
-                "residual in recording order; robot.json zero_steps states one)"
+                "no change of a leg's zero was located (hexcal diagnose and calibrate search each "
+                "leg's residual in recording order; robot.json zero_steps states one)"
             )
         t = np.asarray(data.t, float)
         for s in steps:

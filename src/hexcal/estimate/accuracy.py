@@ -15,6 +15,7 @@ tracker's own noise; the floor is √(mean trace) of the position and orientatio
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,24 @@ from hexcal.model.noise import NoiseSigmas
 
 #: Poses per block of :func:`pose_floor`'s whole-array computations.
 FLOOR_BLOCK = 8192
+
+
+def floor_cap(floor_rms_mm: float, heldout_rms_mm: Iterable[float]) -> float:
+    """The factor (≤ 1) by which a floor estimated from a fit's residual (no instruments file)
+    comes down to the held-out leg-length RMS of the best model tried, ``heldout_rms_mm`` (mm):
+    noise alone can leave no more than the best model leaves on poses it did not see, so an
+    estimate above that (a guessed mix of tracker and encoder noise turned into mm) is not
+    what the data support. 1 when the estimate is already at or below it."""
+    finite = [h for h in heldout_rms_mm if np.isfinite(h) and h > 0]
+    if not finite or not floor_rms_mm > 0:
+        return 1.0
+    return float(min(1.0, min(finite) / floor_rms_mm))
+
+
+def floor_words(estimated: bool) -> str:
+    """What a floor is called: "estimated floor" when no instrument's noise was stated (it was
+    estimated from the residual), else "floor"."""
+    return "estimated floor" if estimated else "floor"
 
 
 @dataclass(frozen=True)
@@ -110,6 +129,8 @@ class PoseAccuracy:
     leg_rms_mm: float | None = None
     floor_position_rms_mm: float | None = None
     floor_orientation_rms_deg: float | None = None
+    #: The floor comes from noise estimated from a residual, not from stated instruments
+    floor_estimated: bool = False
 
     @classmethod
     def of(

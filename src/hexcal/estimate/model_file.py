@@ -9,6 +9,8 @@ version, SHA-256 of the inputs, date, pose count). ``calibration.format_version`
 a file from a newer hexcal is refused, not misread. Version 2 adds, to each effect from outside
 hexcal's catalogue, its ``source`` (the package and version, or the file's SHA-256); hexcal
 writes version 1 when every effect is the catalogue's, so older readers still read those files.
+Version 3 adds the fitted poses' ``fingerprint`` (their values, :mod:`hexcal.io.pose_fingerprint`)
+and the ``uncertainty`` terms beyond the parameters and the readings.
 An effect the file names but this process has not loaded is refused, naming what to install or
 pass (:func:`parse_model`); nothing in the file is ever executed.
 
@@ -31,8 +33,22 @@ from hexcal.effects import CATALOGUE, EffectSource, get_effect
 from hexcal.effects.plugins import failure_of
 from hexcal.effects.priors import check_priors
 from hexcal.estimate.predict import LegModel
-from hexcal.estimate.uncertainty import ParameterCovariance, model_parameter_names
+from hexcal.estimate.uncertainty import (
+    SESSION_DOF,
+    ParameterCovariance,
+    SessionTerms,
+    excess_mm,
+    model_parameter_names,
+)
 from hexcal.io.fileio import write_text_atomic
+from hexcal.io.pose_fingerprint import (
+    KEY_HEX,
+    QUANTUM_MM,
+    QUANTUM_RAD,
+    Fingerprint,
+    fingerprint,
+    shared_rows,
+)
 from hexcal.io.safe_read import Count, NotBool
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.instruments import Instruments
@@ -47,10 +63,13 @@ Statistic = Annotated[float, Field(ge=0, le=MAX_PARAMETER, allow_inf_nan=False),
 FORMAT: Final = "hexcal-calibrated-model"
 #: The newest format version this hexcal reads and writes. 1: the catalogue's effects only;
 #: 2 adds ``covariance`` and ``fitted_poses`` (both optional), and an effect from outside the
-#: catalogue records its ``source``. Version 1 files are still read.
-FORMAT_VERSION = 2
+#: catalogue records its ``source``; 3 adds ``fitted_poses.fingerprint`` and ``uncertainty``.
+#: Version 1 and 2 files are still read.
+FORMAT_VERSION = 3
 #: The version a file needs when an effect records its source.
 SOURCE_VERSION = 2
+#: The version a file needs when it holds a fingerprint or uncertainty terms.
+FINGERPRINT_VERSION = 3
 #: Largest magnitude of a covariance entry: the square of :data:`MAX_PARAMETER`.
 MAX_COVARIANCE = MAX_PARAMETER**2
 
@@ -157,6 +176,9 @@ class AccuracyRecord(BaseModel):
         None, description="position RMS the instruments' noise alone gives"
     )
     floor_orientation_rms_deg: Statistic | None = None
+    floor_estimated: bool | None = Field(
+        None, description="true: the floor is estimated from a residual, no instrument stated"
+    )
     failed: Count = Field(0, description="poses whose readings no pose closes")
 
 
@@ -187,13 +209,59 @@ class CovarianceRecord(BaseModel):
     ]
 
 
+PoseKey = Annotated[str, Field(pattern=rf"^[0-9a-f]{{{KEY_HEX}}}$")]
+
+
+class FingerprintRecord(BaseModel):
+    """The fitted poses' values as keys (format version 3; :mod:`hexcal.io.pose_fingerprint`):
+    each pose's key on a grid of ``quantum_mm`` (position, readings) and ``quantum_rad``
+    (rotation vector), and on the grid shifted by half a step."""
+
+    model_config = _RECORD
+    quantum_mm: Annotated[float, NotBool] = Field(QUANTUM_MM, gt=0, le=1)
+    quantum_rad: Annotated[float, NotBool] = Field(QUANTUM_RAD, gt=0, le=1e-3)
+    keys: list[PoseKey]
+    shifted: list[PoseKey]
+
+    @classmethod
+    def of(cls, meas) -> FingerprintRecord:
+        fp = fingerprint(meas)
+        return cls(keys=fp.keys, shifted=fp.shifted)
+
+
 class FittedPoses(BaseModel):
-    """The poses the model was fitted on (format version 2): their ids and times (s), so that
-    ``hexcal validate`` knows when it is given them again."""
+    """The poses the model was fitted on (format version 2): their ids and times (s), and
+    (version 3) the ``fingerprint`` of their values, by which ``hexcal validate`` knows them
+    again in any copy (the ids and times are kept for the reader; they identify nothing)."""
 
     model_config = _RECORD
     pose_id: list[Annotated[int, Field(ge=1, le=2**53 - 1)]]
     t: list[Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)]]
+    fingerprint: FingerprintRecord | None = None
+
+
+class UncertaintyRecord(BaseModel):
+    """The leg-length uncertainty terms beyond the parameters and the readings (format version
+    3; :class:`hexcal.estimate.uncertainty.SessionTerms`, docs/metrology.md): the model
+    inadequacy from the fit's held-out residual and its floor, and once a second session was
+    validated (``hexcal validate --fold-in``) the between-session term from its residual."""
+
+    model_config = _RECORD
+    heldout_rms_mm: Statistic | None = Field(None, description="h: the fit's held-out leg RMS")
+    floor_mm: Statistic | None = Field(None, description="f: the leg RMS the noise alone gives")
+    parameters_mm: Statistic | None = Field(
+        None, description="p: the leg RMS the parameters' covariance gives on the fitted poses"
+    )
+    model_inadequacy_mm: Statistic = Field(0.0, description="u_m = √max(0, h² − f² − 5/4·p²)")
+    between_session_mm: Statistic | None = Field(
+        None, description="u_b = √max(0, r² − h²), r a validated second session's leg RMS"
+    )
+    between_session_dof: Count | None = Field(
+        None, description="its degrees of freedom (6: one session, a draw per leg)"
+    )
+    between_session_leg_rms_mm: Statistic | None = None
+    between_session_poses: Count | None = None
+    between_session_source: str | None = Field(None, max_length=400)
 
 
 class CalibrationBlock(BaseModel):
@@ -217,6 +285,12 @@ class CalibrationBlock(BaseModel):
         None, description="the parameters' covariance (absent when the fit did not determine it)"
     )
     fitted_poses: FittedPoses | None = None
+    uncertainty: UncertaintyRecord | None = None
+
+    @property
+    def _fingerprinted(self) -> bool:
+        fp = self.fitted_poses is not None and self.fitted_poses.fingerprint is not None
+        return fp or self.uncertainty is not None
 
     @model_validator(mode="after")
     def _version_holds_the_sources(self) -> CalibrationBlock:
@@ -226,6 +300,7 @@ class CalibrationBlock(BaseModel):
                 ("effect sources", any(e.source is not None for e in self.effects)),
                 ("covariance", self.covariance is not None),
                 ("fitted_poses", self.fitted_poses is not None),
+                ("fingerprint or uncertainty", self._fingerprinted),
             )
             if held
         ]
@@ -233,6 +308,7 @@ class CalibrationBlock(BaseModel):
             self.effects,
             covariance=self.covariance is not None,
             fitted_poses=self.fitted_poses is not None,
+            fingerprint=self._fingerprinted,
         )
         if self.format_version < need:
             raise ValueError(
@@ -291,6 +367,59 @@ class CalibratedRobot(Robot):
             return None
         return {(int(i), round(float(t), 6)) for i, t in zip(f.pose_id, f.t, strict=True)}
 
+    def fitted_rows(self, meas) -> tuple[np.ndarray, str] | None:
+        """((N,) bool, how): which rows of the table ``meas`` the model was fitted on, and by
+        what they were known — their values (the fingerprint, version 3), or in an older file
+        their ids and times. None when the file lists no fitted poses."""
+        f = self.calibration.fitted_poses
+        if f is None:
+            return None
+        fp = f.fingerprint
+        if fp is not None:
+            if (fp.quantum_mm, fp.quantum_rad) != (QUANTUM_MM, QUANTUM_RAD):
+                return None  # another grid: its keys cannot be compared with this one's
+            rows = shared_rows(meas, Fingerprint(fp.keys, fp.shifted))
+            return rows, "the same positions, orientations and readings as the model's"
+        keys = self.fitted_pose_keys() or set()
+        pairs = zip(meas.pose_id.tolist(), np.round(meas.t, 6).tolist(), strict=True)
+        rows = np.array([(int(i), float(t)) in keys for i, t in pairs], dtype=bool)
+        return rows, "same pose ids and times as the model's; the file has no fingerprint"
+
+    def session_terms(self) -> SessionTerms:
+        """The uncertainty terms the file states (none in a file before version 3)."""
+        u = self.calibration.uncertainty
+        if u is None:
+            return SessionTerms()
+        dof = u.between_session_dof or SESSION_DOF
+        return SessionTerms(u.model_inadequacy_mm, u.between_session_mm, dof)
+
+    def with_between_session(self, leg_rms_mm: float, poses: int, source: str) -> CalibratedRobot:
+        """This model with the between-session term of a second session whose leg-length RMS
+        (the model held fixed) was ``leg_rms_mm`` over ``poses`` poses, from ``source`` (its
+        file): u_b = √max(0, r² − h²), h the fit's held-out RMS. Raises ValueError when the
+        file records no h."""
+        block = self.calibration
+        u = block.uncertainty
+        h = u.heldout_rms_mm if u is not None else block.fit.heldout_rms_mm
+        if h is None:
+            raise ValueError(
+                "the model records no held-out residual to compare a second session with: "
+                "calibrate it again with this hexcal"
+            )
+        record = UncertaintyRecord.model_validate(
+            (u.model_dump() if u is not None else {"heldout_rms_mm": h})
+            | {
+                "between_session_mm": excess_mm(leg_rms_mm, h),
+                "between_session_dof": SESSION_DOF,
+                "between_session_leg_rms_mm": leg_rms_mm,
+                "between_session_poses": poses,
+                "between_session_source": source,
+            }
+        )
+        version = max(block.format_version, FINGERPRINT_VERSION)
+        new = block.model_copy(update={"uncertainty": record, "format_version": version})
+        return self.model_copy(update={"calibration": new})
+
     def plain_robot(self) -> Robot:
         """The geometry as a plain robot.json (the calibration block left out)."""
         return Robot.model_validate(self.model_dump(exclude={"calibration"}, exclude_none=True))
@@ -311,10 +440,17 @@ def _same_source(a: EffectSource, b: EffectSource) -> bool:
 
 
 def format_version_of(
-    effects: list[EffectRecord], *, covariance: bool = False, fitted_poses: bool = False
+    effects: list[EffectRecord],
+    *,
+    covariance: bool = False,
+    fitted_poses: bool = False,
+    fingerprint: bool = False,
 ) -> int:
-    """The format version a file needs: 2 when an effect records its source, or the file holds
-    the parameters' ``covariance`` or its ``fitted_poses``; 1 otherwise."""
+    """The format version a file needs: 3 when it holds the fitted poses' ``fingerprint`` (or
+    uncertainty terms); 2 when an effect records its source, or the file holds the parameters'
+    ``covariance`` or its ``fitted_poses``; 1 otherwise."""
+    if fingerprint:
+        return FINGERPRINT_VERSION
     sources = any(e.source is not None for e in effects)
     return SOURCE_VERSION if (sources or covariance or fitted_poses) else 1
 

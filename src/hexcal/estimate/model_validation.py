@@ -2,7 +2,8 @@
 
 A model given the very measurements it was fitted on is not validated by them: when the file
 given is one of the model's inputs (its SHA-256 is in calibrated.json's provenance) or its poses
-are among those fitted (same pose ids and times, calibrated.json's ``fitted_poses``),
+are among those fitted (the same values: calibrated.json's ``fitted_poses.fingerprint``; in an
+older file, the same pose ids and times),
 :func:`own_session` says so; the report then says it at the top and gives no verdict that the
 model holds.
 
@@ -21,12 +22,12 @@ each beside the floor the noise alone gives. The verdict uses the diagnosis' voc
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from hexcal.effects import CATALOGUE, get_effect
-from hexcal.estimate.accuracy import PoseAccuracy, pose_errors, pose_floor
+from hexcal.estimate.accuracy import PoseAccuracy, floor_words, pose_errors, pose_floor
 from hexcal.estimate.predict import LegModel
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance, leg_whiteners
 from hexcal.vocabulary import ModelKind, Outcome, Verdict
@@ -65,6 +66,9 @@ class Validation:
     noise: NoiseSigmas | None = None
     #: Pose ids left out of the verdict: an effect cannot know their readings' contribution
     left_out: list[int] = field(default_factory=list)
+    #: The noise was estimated (from these poses, or the model's own from its residual), not
+    #: stated: the floors are estimates
+    floor_estimated: bool = False
 
     @property
     def verdict_given(self) -> Verdict | None:
@@ -87,6 +91,7 @@ class Validation:
             "orientation_p95_deg": a.orientation_p95_deg,
             "orientation_max_deg": a.orientation_max_deg,
             "position_floor_mm": a.floor_position_rms_mm,
+            "floor_estimated": self.floor_estimated,
             "orientation_floor_deg": a.floor_orientation_rms_deg,
             "poses_out_of_workspace": a.failed,
             "leg_rms_mm": self.leg_rms_mm,
@@ -120,16 +125,18 @@ class Validation:
             ]
         else:
             head = [f"hexcal validate: {self.model} on {source}: poses it was not fitted on"]
+        fl = floor_words(self.floor_estimated)
+        nf = "estimated noise floor" if self.floor_estimated else "noise floor"
         lines = [
             *head,
             f"noise: {self.noise_source}",
             "",
             f"pose error:  position {a.position_rms_mm:.4f} mm RMS, 95 % {a.position_p95_mm:.4f} mm, "
-            f"max {a.position_max_mm:.4f} mm (floor {a.floor_position_rms_mm:.4f} mm)",
+            f"max {a.position_max_mm:.4f} mm ({fl} {a.floor_position_rms_mm:.4f} mm)",
             f"             orientation {a.orientation_rms_deg:.4f}° RMS, 95 % "
-            f"{a.orientation_p95_deg:.4f}°, max {a.orientation_max_deg:.4f}° (floor "
+            f"{a.orientation_p95_deg:.4f}°, max {a.orientation_max_deg:.4f}° ({fl} "
             f"{a.floor_orientation_rms_deg:.4f}°)",
-            f"leg lengths: RMS {um * self.leg_rms_mm:.2f} µm against a floor of "
+            f"leg lengths: RMS {um * self.leg_rms_mm:.2f} µm against {'an' if self.floor_estimated else 'a'} {fl} of "
             f"{um * self.noise_floor_mm:.2f} µm; χ²/dof {self.chi2_per_dof:.3f}",
             "  per leg RMS µm " + "".join(f"{um * v:9.2f}" for v in self.leg_rms_per_leg_mm),
             "  per leg mean µm" + "".join(f"{um * v:9.2f}" for v in self.leg_mean_per_leg_mm),
@@ -139,21 +146,21 @@ class Validation:
             lines.append(f"{a.failed} poses' readings are outside the model's workspace")
         if self.verdict == Outcome.NONE and self.own_session:
             lines.append(
-                "verdict: not given — at the noise floor on its own poses, as a fit is on the data "
+                f"verdict: not given — at the {nf} on its own poses, as a fit is on the data "
                 "it was fitted to"
             )
         elif self.verdict == Outcome.NONE:
-            lines.append("verdict: none — the model holds on these poses (at the noise floor)")
+            lines.append(f"verdict: none — the model holds on these poses (at the {nf})")
         elif self.verdict == Outcome.UNEXPLAINED:
             lines.append(
-                "verdict: unexplained — above the noise floor, and no catalogue effect fitted to "
+                f"verdict: unexplained — above the {nf}, and no catalogue effect fitted to "
                 "the residual explains most of it"
             )
         else:
             share = self.explained.get(self.verdict, float("nan"))
             lines.append(
                 f"verdict: {self.verdict} — the model fails here; {self.verdict} explains "
-                f"{100 * share:.0f} % of the excess over the noise floor"
+                f"{100 * share:.0f} % of the excess over the {nf}"
             )
         lines += [f"note: {n}" for n in self.notes]
         if self.rehomed is not None and self.offset_shift_mm is not None:
@@ -174,27 +181,26 @@ class Validation:
 
 def own_session(
     inputs: list[tuple[str, str]],
-    fitted: set[tuple[int, float]] | None,
+    fitted: tuple[np.ndarray, str] | None,
     sha256: str,
-    meas,
 ) -> str | None:
-    """Why the table ``meas`` (whose file has SHA-256 ``sha256``) was among a model's inputs,
-    or None: ``inputs`` are the model's provenance (role, sha256) pairs, ``fitted`` its fitted
-    poses' (pose id, t rounded to 1 µs) keys (None when the model file does not list them)."""
+    """Why a table (whose file has SHA-256 ``sha256``) was among a model's inputs, or None:
+    ``inputs`` are the model's provenance (role, sha256) pairs, ``fitted`` which of the table's
+    rows were fitted and by what they were known
+    (:meth:`hexcal.estimate.model_file.CalibratedRobot.fitted_rows`; None when the model file
+    does not list them)."""
     for role, digest in inputs:
         if digest == sha256 and role in ("measurements", "session"):
             return f"this file is the model's own {role} input (its SHA-256 is in the provenance)"
-    if not fitted:
+    if fitted is None:
         return None
-    keys = zip(meas.pose_id.tolist(), np.round(meas.t, 6).tolist(), strict=True)
-    shared = sum((int(i), float(t)) in fitted for i, t in keys)
+    rows, how = fitted
+    shared = int(np.count_nonzero(rows))
     if not shared:
         return None
-    if shared == len(meas):
-        return f"all {shared} poses were fitted (same pose ids and times as the model's)"
-    return (
-        f"{shared} of these {len(meas)} poses were fitted (same pose ids and times as the model's)"
-    )
+    if shared == len(rows):
+        return f"all {shared} poses were fitted ({how})"
+    return f"{shared} of these {len(rows)} poses were fitted ({how})"
 
 
 def _whitened(model: LegModel, meas, sig: NoiseSigmas) -> tuple[np.ndarray, np.ndarray]:
@@ -211,6 +217,7 @@ def validate_model(
     """Judge ``model`` on the table ``meas`` (see module docstring). ``sig`` None: the noise
     level is estimated from a Model 42 refit of these poses, and said so."""
     notes = []
+    estimated = sig is None or "estimated" in noise_source  # not from a stated instrument
     if sig is None:
         sig, how = estimated_noise(model, meas)
         noise_source = how
@@ -239,6 +246,7 @@ def validate_model(
         float(np.sqrt(np.mean(res**2))),
         pose_floor(model.robot.a, model.robot.b, meas if keep.all() else meas.subset(keep), sig),
     )
+    acc = replace(acc, floor_estimated=estimated)
     explained: dict[str, float] = {}
     verdict: Verdict = Outcome.NONE
     if excess:
@@ -293,6 +301,7 @@ def validate_model(
         shifted_legs,
         noise=sig,
         left_out=[int(i) for i in meas.pose_id[~keep]],
+        floor_estimated=estimated,
     )
 
 

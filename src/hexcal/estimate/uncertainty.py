@@ -23,6 +23,22 @@ the 3×3 position block, the semi-axis of the k = 2 ellipsoid along its longest 
 the error along any direction has an expanded uncertainty of at most U (mm); for orientation the
 same of the rotation block, in degrees.
 
+**Terms beyond the parameters and the readings** (:class:`SessionTerms`): the propagation
+above assumes the model is right and the robot unchanged. Two more leg-length variances, each
+independent per leg and per pose, join σ_ρ² where they are known: the **model inadequacy**
+u_m² = max(0, h² − f² − K/(K − 1)·p²), what the fit's held-out leg residual h exceeds by the
+floor f the noise gives and the parameters' share p, which the statement already holds (the
+held-out fits use (K − 1)/K of the poses), counted where that excess is beyond the held-out
+RMS's own scatter — what the model lacks, as it showed on poses the fit did not see; and the
+**between-session** term u_b² = max(0, r² − h²), what a second session's leg residual r (the
+model held fixed) exceeded h by (re-homing, what changes from day to day), once such a session
+was validated; from one session it rests on six draws (one per leg), so it is stated widened by
+t₆(0.975)/z(0.975) = 1.25 (:attr:`SessionTerms.between_stated_mm`).
+``Σ_pose = J_p⁻¹ (J_θ Σ_θ J_θᵀ + (σ_ρ² + u_m² + u_b²) I) J_p⁻ᵀ``. Each is a
+variance spread evenly over the legs and the poses: a term that is really a constant per leg (a
+re-home) or follows the pose (an effect missing) is covered on average over poses, not pose by
+pose.
+
 **Coverage.** Against a tracker, the error of the computed pose also holds the tracker's own
 noise (σ_p per axis, independent of the model): a pose's error ``Δp`` (3,) lies in its 95 %
 region when ``Δpᵀ (Σ_pos + σ_p² I)⁻¹ Δp ≤ χ²₃(0.95) = 7.81``. :func:`coverage` is the fraction
@@ -38,7 +54,7 @@ import numpy as np
 
 from hexcal.effects import get_effect
 from hexcal.estimate.predict import LegModel, Poses
-from hexcal.estimate.quantiles import chi2_ppf
+from hexcal.estimate.quantiles import chi2_ppf, norm_ppf, t_ppf
 
 #: Coverage factor of the expanded uncertainties (GUM 6.2.1).
 K = 2.0
@@ -143,6 +159,57 @@ def platform_jacobian(model: LegModel, poses: Poses) -> np.ndarray:
     return np.concatenate([n, np.cross(rb, n)], axis=-1)
 
 
+#: Degrees of freedom of a between-session term from one session: what changes between
+#: sessions (a re-home) is one draw per leg.
+SESSION_DOF = 6
+
+
+@dataclass(frozen=True)
+class SessionTerms:
+    """The leg-length uncertainty terms beyond the parameters and the readings (mm, 1σ per leg;
+    see the module docstring): ``model_inadequacy_mm`` (the fit's held-out residual above its
+    floor) and ``between_session_mm`` (a validated second session's residual above the fit's
+    held-out one; None until one was), estimated with ``between_session_dof`` degrees of
+    freedom."""
+
+    model_inadequacy_mm: float = 0.0
+    between_session_mm: float | None = None
+    between_session_dof: int = SESSION_DOF
+
+    @property
+    def between_stated_mm(self) -> float:
+        """u_b as stated: the estimate times t_ν(0.975) / z(0.975) (GUM G.3: a Type A term of
+        few degrees of freedom ν widens the interval as Student's t does); 0 without one."""
+        if self.between_session_mm is None:
+            return 0.0
+        widen = t_ppf(0.975, self.between_session_dof) / float(norm_ppf(0.975))
+        return float(self.between_session_mm * widen)
+
+    @property
+    def variance_mm2(self) -> float:
+        """u_m² + u_b², mm²: what joins the readings' variance."""
+        return self.model_inadequacy_mm**2 + self.between_stated_mm**2
+
+
+def excess_mm(rms_mm: float, below_mm: float) -> float:
+    """√max(0, rms² − below²), mm: what a residual RMS exceeds a level by, in quadrature
+    (u_m from the held-out residual and its floor, u_b from a second session's residual and the
+    held-out one); 0 where either is unknown."""
+    if not (np.isfinite(rms_mm) and np.isfinite(below_mm)):
+        return 0.0
+    return float(np.sqrt(max(rms_mm**2 - below_mm**2, 0.0)))
+
+
+def parameter_leg_rms_mm(model: LegModel, names: Sequence[str], matrix: np.ndarray, meas) -> float:
+    """p, mm: the RMS over the table ``meas``'s poses and legs of the leg-length uncertainty the
+    parameters' covariance (``names``, ``matrix`` (p, p)) gives, √mean diag(J_θ Σ_θ J_θᵀ) at
+    the measured poses — the share of a held-out residual the statement already holds."""
+    poses = Poses(meas.position, meas.rotations.as_matrix())
+    jac = parameter_jacobian(model, names, poses, meas.readings, meas.t, meas.temperature)
+    var = np.einsum("nkp,pq,nkq->nk", jac, np.asarray(matrix, float), jac)
+    return float(np.sqrt(max(float(np.mean(var)), 0.0)))
+
+
 def pose_covariance(
     model: LegModel,
     covariance: ParameterCovariance | None,
@@ -151,12 +218,15 @@ def pose_covariance(
     reading_sigma_mm: float,
     t: np.ndarray | None = None,
     temperature: np.ndarray | None = None,
+    extra_variance_mm2: float = 0.0,
 ) -> np.ndarray:
     """(N, 6, 6) covariance of the poses the model computes from ``readings`` (N, 6) mm at
     ``poses``: translation (mm²) then rotation (rad², measurement frame). ``covariance`` None:
-    the readings' noise alone (the parameters taken as exact)."""
+    the readings' noise alone (the parameters taken as exact). ``extra_variance_mm2``: the
+    :class:`SessionTerms`' leg-length variance, beside the readings'."""
     jp_inv = np.linalg.inv(platform_jacobian(model, poses))
-    inner = np.broadcast_to(reading_sigma_mm**2 * np.eye(6), (len(poses.position), 6, 6)).copy()
+    var = reading_sigma_mm**2 + extra_variance_mm2
+    inner = np.broadcast_to(var * np.eye(6), (len(poses.position), 6, 6)).copy()
     if covariance is not None:
         jt = parameter_jacobian(model, covariance.names, poses, readings, t, temperature)
         inner += jt @ covariance.matrix @ jt.transpose(0, 2, 1)
@@ -191,10 +261,13 @@ def pose_uncertainty(
     reading_sigma_mm: float,
     t: np.ndarray | None = None,
     temperature: np.ndarray | None = None,
+    extra_variance_mm2: float = 0.0,
 ) -> PoseUncertainty:
     """The expanded uncertainties of the poses ``model`` computes from ``readings`` (see
     :func:`pose_covariance`)."""
-    cov = pose_covariance(model, covariance, poses, readings, reading_sigma_mm, t, temperature)
+    cov = pose_covariance(
+        model, covariance, poses, readings, reading_sigma_mm, t, temperature, extra_variance_mm2
+    )
     return PoseUncertainty.of(cov)
 
 

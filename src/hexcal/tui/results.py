@@ -390,7 +390,8 @@ class DiagnosisScreen(HexcalScreen):
         free = len(shown) + 1 if legend else 0
         plt.ylim(0, top * bar_rows / max(1, bar_rows - free))
         what = "" if legend else f" of {shown[0].fit.model_name}"
-        plt.title(f"held-out RMS per leg{what}, µm — red: noise floor {floor:.1f} µm")
+        kind = "estimated noise floor" if self.history[-1].floor_estimated else "noise floor"
+        plt.title(f"held-out RMS per leg{what}, µm — red: {kind} {floor:.1f} µm")
         plot.refresh()
 
     def action_add(self) -> None:
