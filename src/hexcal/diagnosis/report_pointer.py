@@ -1,5 +1,5 @@
 """The report's "Where the residual points" section: the covariates an unexplained residual
-follows (:mod:`hexcal.diagnosis.covariates`), each with the share of the excess it explains
+follows (:mod:`hexcal.diagnosis.explorer`), each with the share of the excess it explains
 alone and the shape that does it, and what the leading one points at."""
 
 from __future__ import annotations

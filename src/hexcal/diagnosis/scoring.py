@@ -3,9 +3,10 @@ multiplier) statistic, its identifiability against the model's own parameters, a
 held-out comparison of two fitted models.
 
 Everything that asks "would this basis explain part of the residual?" goes through here: the
-catalogue's candidates (:func:`score_candidate`), the richest model of the outlier search, the
-change-point search of :mod:`hexcal.diagnosis.changepoint` and the covariate explorer of
-:mod:`hexcal.diagnosis.covariates` (:func:`projected_scores`). Effects are linear in their
+catalogue's candidates (:func:`score_candidate`), the richest model of the outlier search and
+the change-point search of :mod:`hexcal.diagnosis.changepoint`; the covariate explorer and the
+frame search score in the poses' own terms (:mod:`hexcal.diagnosis.pose_products`), the same
+statistic. Effects are linear in their
 parameters, so the score is exact to first order: the χ² the basis removes once the model's
 own parameters are projected out.
 """
