@@ -341,3 +341,15 @@ def test_inch_machines_get_every_length_in_inches(tmp_path):
         [genhex_inverse((*(p / 25.4), *e), base, platform) for p, e in zip(P, abc, strict=True)]
     )
     assert np.abs(joints * 25.4 - cal.leg_model().geometric(P, R)).max() < 1e-6
+
+
+@pytest.mark.parametrize("kind", ["linuxcnc", "table"])
+def test_out_naming_a_file_says_a_directory_is_needed(tmp_path, capsys, kind):
+    """--out names a directory: a regular file there is refused by name and left as it was
+    (not mkdir's "File exists")."""
+    out = tmp_path / "genhexkins.hal"
+    out.write_text("mine\n")
+    assert main(["export", kind, str(WALKTHROUGH), "--out", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert f"{out}: is a file; --out needs a directory" in err, err
+    assert "File exists" not in err and out.read_text() == "mine\n"

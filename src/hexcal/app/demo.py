@@ -178,7 +178,11 @@ def run_demo(
             "leg_offsets": truth.offsets.tolist(),
         },
         "diagnosis": {
-            "verdict": base.verdict,
+            # The chain's end (none once the effect is added), the chain beside it; what the
+            # first step named is what was found.
+            "verdict": chain[-1].verdict,
+            "chain": [d.verdict for d in chain],
+            "named": base.verdict,
             "found_hidden_effect": base.verdict == effect,
             "steps": [
                 {
@@ -260,7 +264,7 @@ def demo_text(r: dict[str, Any]) -> str:
         lines.append(
             f"  {name:<27} {st['cv_rms_mm']:>9.4f}   {st['noise_floor_mm']:>14.4f}   {st['verdict']}"
         )
-    found = "found it" if d["found_hidden_effect"] else f"did NOT find it (said {d['verdict']})"
+    found = "found it" if d["found_hidden_effect"] else f"did NOT find it (said {d['named']})"
     lines += [
         "",
         f"  the diagnosis {found}",

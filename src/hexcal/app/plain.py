@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from hexcal.estimate.accuracy import PoseAccuracy
-from hexcal.vocabulary import Outcome
+from hexcal.vocabulary import Outcome, counted
 
 #: The heading the statistics follow.
 STATISTICS = "Statistics"
@@ -115,7 +115,9 @@ def verdict_words(d: Any) -> str:
     if d.verdict == Outcome.NOISE_UNDERSTATED:
         return f"The instruments look about {d.noise_factor:.1f}× noisier than stated."
     if d.verdict == Outcome.OUTLIERS:
-        return f"{len(d.outliers)} poses disagree grossly with every model: look at them."
+        return (
+            f"{counted(len(d.outliers), 'pose')} disagree grossly with every model: look at them."
+        )
     return f"The model lacks {d.verdict}: press a to add it."
 
 

@@ -108,9 +108,14 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
             "The robot differs from its drawing beyond the geometry: " + "; ".join(clauses) + "."
         )
     if d.verdict == Outcome.NONE:
+        # "else" only after something was found or added: a clean session had nothing missing.
+        head = (
+            "Nothing else is missing: what remains is the instruments' own noise"
+            if clauses or len(diags) > 1
+            else "Nothing is missing: the model is at the noise floor"
+        )
         out.append(
-            "Nothing else is missing: what remains is the instruments' own noise "
-            f"({1000 * d.fit.cv_rms_mm:.0f} µm per leg against a floor of "
+            f"{head} ({1000 * d.fit.cv_rms_mm:.0f} µm per leg against a floor of "
             f"{1000 * d.noise_floor_mm:.0f} µm)."
         )
     elif d.verdict == Outcome.UNEXPLAINED:

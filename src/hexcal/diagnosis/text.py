@@ -2,8 +2,19 @@
 
 from __future__ import annotations
 
+import textwrap
+
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.vocabulary import Outcome
+
+#: What the ranked table's columns mean (the terminal's table and the report's say the same).
+RANKED_LEGEND = (
+    "score Δχ²: the χ² the effect would remove, to first order (the score test, before any "
+    "refit); ΔBIC: the refit's evidence after a penalty for its parameters, below −10 very "
+    "strong; explains: the share of the excess over the noise floor the refit removes (the "
+    "verdict needs at least half); held-out after: the refit's held-out RMS; —: scored, not "
+    "refitted (only the top three are), or no excess to explain"
+)
 
 
 def _um(x: float) -> str:
@@ -54,6 +65,10 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
         lines.append(f"  {c.effect:<12}{c.score:11.1f}{bic}{expl}{after:>16}  {ident}")
         if c.available and not c.identifiable:
             lines.append(f"      {c.reason}")
+    if d.candidates:
+        lines += textwrap.wrap(
+            RANKED_LEGEND, 96, initial_indent="  legend: ", subsequent_indent="    "
+        )
     if getattr(d, "outliers", None):
         lines.append("")
         lines.append(

@@ -34,6 +34,7 @@ from hexcal.procedure.steps import BUILTIN, Procedure, load_procedure
 from hexcal.tui.backend import Backend, Rig
 from hexcal.tui.record import RecordScreen
 from hexcal.tui.screen import Foot, HexcalScreen
+from hexcal.vocabulary import counted
 
 
 class StartScreen(HexcalScreen):
@@ -144,9 +145,12 @@ class StartScreen(HexcalScreen):
         except (SessionFileError, ValueError) as exc:
             self._say(str(exc), "red")
             return
-        self._say(f"resuming {path} ({len(sf.session.poses)} poses)… opening the devices…")
-        # What loading did (poses set aside, orphan temporary files removed) goes to the log.
-        app.notices = list(sf.notices)
+        self._say(
+            f"resuming {path} ({counted(len(sf.session.poses), 'pose')})… opening the devices…"
+        )
+        # What loading did (poses set aside, a stale lock taken over, orphan temporary files
+        # removed) was logged: the log handler brings it to the recording log, once (it is in
+        # sf.notices too, for callers without a log handler).
         app.begin(sf, proc)
 
 
@@ -202,7 +206,6 @@ class HexcalApp(App):
         self.rig: Rig | None = None
         self.guided: GuidedSession | None = None
         self.procedure: Procedure | None = None
-        self.notices: list[str] = []
         #: Device messages waiting for the recording log (the last 200).
         self.device_backlog: deque[tuple[str, int]] = deque(maxlen=200)
         self.sub_title = backend.title or backend.label
@@ -283,9 +286,6 @@ class HexcalApp(App):
 
     def _show_recording(self) -> None:
         self.switch_screen(RecordScreen())
-        for text in self.notices:
-            self.call_later(self.device_message, text)
-        self.notices = []
 
     def on_unmount(self) -> None:
         if self.guided is not None:

@@ -25,7 +25,7 @@ from hexcal.procedure.guided import GuidedError, GuidedSession, Live
 from hexcal.procedure.recording import MOVED_ON, MotionError
 from hexcal.tui.prompt import TextPrompt
 from hexcal.tui.screen import Foot, HexcalScreen
-from hexcal.vocabulary import Constraint
+from hexcal.vocabulary import Constraint, counted
 
 #: Width of a live number's column: eight characters and a space (``+219.735``).
 COL = 9
@@ -144,7 +144,7 @@ class RecordScreen(HexcalScreen):
         for box, title in (("#live-panel", "Live"), ("#log", "Log"), ("#steps-box", "Steps")):
             self.query_one(box).border_title = title
         self.query_one("#log", RichLog).write(
-            f"session file [b]{g.sf.path}[/b]: {len(g.sf.session.poses)} poses so far"
+            f"session file [b]{g.sf.path}[/b]: {counted(len(g.sf.session.poses), 'pose')} so far"
         )
         self.show_step()
         self.refresh_live()
@@ -179,7 +179,9 @@ class RecordScreen(HexcalScreen):
             self.query_one("#instruction", Static).update(
                 "Press [b]k[/b] to calibrate and see where the model fails."
             )
-            self.query_one("#counts", Static).update(f"{len(g.sf.session.poses)} poses recorded")
+            self.query_one("#counts", Static).update(
+                f"{counted(len(g.sf.session.poses), 'pose')} recorded"
+            )
             self.query_one("#conditioning", Static).update("")
         else:
             st = g.step

@@ -35,7 +35,6 @@ class HexcalHost(Protocol):
     procedure_name: str
     session_path: Path
     sessions_dir: Path
-    notices: list[str]
 
     def post(self, fn: Callable[..., object], *args: object) -> None: ...
     def take_device_messages(self) -> list[tuple[str, int]]: ...
