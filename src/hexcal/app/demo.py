@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hexcal.estimate.quantiles import chi2_sf
+from hexcal.io import advice
 from hexcal.vocabulary import names_an_addition
 
 if TYPE_CHECKING:
@@ -291,8 +292,17 @@ def demo_text(r: dict[str, Any]) -> str:
             f"    {'noise floor':<26} position {last['floor_position_rms_mm']:.4f} RMS; "
             f"orientation {last['floor_orientation_rms_deg']:.4f}°"
         )
+    # What the diagnosis named (not the hidden truth), and a report named after this session:
+    # a second session's advice must not write over the first's report.
+    named = [] if d["named"] in ("none", "unexplained", "noise_understated") else [d["named"]]
+    report = advice.beside(r["session"], "report", ".html")
     lines += [
         "",
-        f"  next: hexcal diagnose {r['session']} --add {eff['name']} --report report.html",
+        "  next: the diagnosis with its figures, as one HTML page:",
+        advice.line(advice.command("diagnose", r["session"], *_add(named), "--report", report)),
     ]
     return "\n".join(lines)
+
+
+def _add(effects: list[str]) -> list[str]:
+    return ["--add", *effects] if effects else []

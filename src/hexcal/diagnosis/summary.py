@@ -111,7 +111,7 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
         # "else" only after something was found or added: a clean session had nothing missing.
         head = (
             "Nothing else is missing: what remains is the instruments' own noise"
-            if clauses or len(diags) > 1
+            if clauses or len(diags) > 1 or any(e != "offset" for e in d.effects)
             else "Nothing is missing: the model is at the noise floor"
         )
         out.append(

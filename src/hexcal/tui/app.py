@@ -21,6 +21,7 @@ from textual.containers import Grid, Horizontal, VerticalScroll
 from textual.message import Message
 from textual.widgets import Button, DataTable, Header, Input, Label, Select, Static
 
+from hexcal.io.advice import command
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.recording import Step
 from hexcal.procedure.session import Session, SessionFile, SessionFileError
@@ -139,7 +140,7 @@ class StartScreen(HexcalScreen):
             if sf.session.procedure is None:
                 raise SessionFileError(
                     f"{path}: holds no procedure (imported from a table?) — calibrate it with "
-                    "`hexcal calibrate`, or start a new session"
+                    f"`{command('calibrate', path)}`, or start a new session"
                 )
             proc = Procedure.model_validate(sf.session.procedure)
         except (SessionFileError, ValueError) as exc:
