@@ -58,3 +58,31 @@ def test_the_result_screens_words_name_keys_not_command_lines():
     assert "hexcal" not in clamps.text and "--" not in clamps.text, clamps.text
     plain = calibration_summary(result.name, result.accuracy, [], "press d to diagnose")
     assert plain[0].endswith("Find what: press d to diagnose"), plain
+
+
+def test_at_80x24_the_log_shows_the_session_files_name_whole_and_rewraps_on_resize(tmp_path):
+    """The log wrapped a path at a width 2 columns wider than it shows (the scroll bar's
+    gutter), so "…-064859.json" read "…-06485" / "json"; and it kept its wrapping when the
+    window grew. Every character is on screen now, at 80×24 and again at 120×40."""
+    path = tmp_path / "hexcal-session-20261128-064859.json"
+    app = instant_app(path)
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.click("#new")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 20)
+            await pilot.pause(0.3)
+            log = app.screen.query_one("#log")
+            widest = []
+            for size in ((80, 24), (120, 40)):
+                await pilot.resize_terminal(*size)
+                await pilot.pause(0.3)
+                shown = log.scrollable_content_region.width
+                lines = [line.text.rstrip() for line in log.lines]
+                assert all(len(line) <= shown for line in lines), (shown, lines)
+                assert str(path) in "".join(lines), lines  # wrapped, nothing lost
+                widest.append((shown, max(len(line) for line in lines)))
+            (narrow, _), (wide, used) = widest
+            assert used > narrow and wide > narrow, widest  # wrapped again, at the new width
+
+    asyncio.run(run())

@@ -82,16 +82,41 @@ class StartScreen(HexcalScreen):
 
     def on_mount(self) -> None:
         self.query_one("#new", Button).focus()  # Enter starts; Tab reaches the fields
+        self.call_after_refresh(self._show_file_name)
         table = self.query_one("#sessions", DataTable)
         table.add_columns(*SessionEntry.COLUMNS)
         self.entries = list_sessions(self.hexcal.sessions_dir)
         for entry in self.entries:
             table.add_row(*entry.row(), key=str(entry.path))
-        if not self.entries:
+        if self.entries:  # the list may be below the fold at 24 rows: its title says how to go
+            self.query_one("#sessions-title", Static).update(
+                f"{counted(len(self.entries), 'session')} in {self.hexcal.sessions_dir}: "
+                "[b]ctrl+l[/b] to choose one ↓"
+            )
+        else:
             table.display = False
             self.query_one("#sessions-title", Static).update(
                 f"Sessions are kept in {self.hexcal.sessions_dir} (none yet)"
             )
+
+    def on_resize(self) -> None:
+        self.call_after_refresh(self._show_file_name)
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        if event.input.id == "session-path":
+            self._cue(event.input)
+
+    def _show_file_name(self) -> None:
+        """A path longer than its field shows its end, the file's name (it showed the folders
+        and cut the name), and says that its start is hidden."""
+        field = self.query_one("#session-path", Input)
+        field.scroll_to(x=field.max_scroll_x, animate=False, immediate=True)
+        self._cue(field)
+
+    @staticmethod
+    def _cue(field: Input) -> None:
+        cut = len(field.value) > field.content_region.width
+        field.border_subtitle = "… starts further left: Home" if cut else ""
 
     def why_not(self, action: str) -> str | None:
         if action == "sessions" and not getattr(self, "entries", None):
