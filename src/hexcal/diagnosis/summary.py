@@ -62,6 +62,9 @@ def _in_words(p: ParamRow) -> str | None:
         return f"leg {leg_of(p.name)}'s screw has a {1000 * abs(p.value):.3g} µm error per turn"
     if effect == "compliance":
         return f"the legs give under load ({p.name} = {p.value:.3g} {p.unit})"
+    if effect == "zero_step":
+        # A property of the session, not of the robot: said, so the operator checks the leg.
+        return f"leg {leg_of(p.name)}'s encoder zero stepped by {p.value:.3g} µm during the session"
     if effect == "drift":
         return f"the tracker or the robot drifted during the session ({p.value:.3g} {p.unit})"
     return None
@@ -70,11 +73,17 @@ def _in_words(p: ParamRow) -> str | None:
 def found(d: Diagnosis) -> list[str]:
     """What the final model holds beyond the geometry, in words: one clause per parameter that
     is clearly not zero (≥ 3 σ), grouped by effect."""
-    clauses = []
+    clauses, steps = [], 0
     for p in d.fit.params:
         words = _in_words(p) if _significant(p) else None
         if words:
             clauses.append(words)
+            steps += p.name.startswith("zero_step.")
+    if steps:  # once, after the last: what a step is and what to check
+        last = max(i for i, c in enumerate(clauses) if "zero stepped" in c)
+        clauses[last] += " (lost counts or a re-home: check " + (
+            "that encoder)" if steps == 1 else "those encoders)"
+        )
     return clauses
 
 

@@ -124,9 +124,14 @@ def verdict_lines(d: Diagnosis) -> list[str]:
     from hexcal.effects import get_effect
 
     alike = f" (or {' or '.join(d.alike)}: they fit alike, see the notes)" if d.alike else ""
+    # No share when the residual is already at or below the estimated floor ("nan %" was said).
+    share = (
+        f"it explains {100 * won.explained:.0f} % of the excess over the noise floor"
+        if won.explained == won.explained
+        else "the residual is already at the noise floor, and it lowers it"
+    )
     out = [
-        f"verdict: {v}{alike} — it explains {100 * won.explained:.0f} % of the excess over the "
-        f"noise floor (ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → "
+        f"verdict: {v}{alike} — {share} (ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → "
         f"{_um(won.cv_rms_mm_after)} µm (floor {_um(d.noise_floor_mm)} µm). Add it: --add {v}",
         f"  physics: {get_effect(v).physics}",
     ]
