@@ -86,3 +86,18 @@ def test_at_80x24_the_log_shows_the_session_files_name_whole_and_rewraps_on_resi
             assert used > narrow and wide > narrow, widest  # wrapped again, at the new width
 
     asyncio.run(run())
+
+
+def test_the_diagnosis_screens_statistics_name_the_key_that_adds():
+    """The statistics the diagnosis screen shows are the command line's, with the key where
+    the command line says its option ("Add it: --add backlash" on a screen where it is a)."""
+    from hexcal.app.workflow import diagnose_chain, read_inputs
+    from hexcal.diagnosis.text import diagnosis_text
+
+    d = Path(__file__).resolve().parents[1] / "examples" / "left-hand-backlash"
+    inp = read_inputs(d / "measurements.csv", d / "robot.json", d / "instruments.json")
+    (first,) = diagnose_chain(inp, 42)
+    assert first.verdict == "backlash"
+    assert "Add it: --add backlash" in diagnosis_text(first, "cli")
+    screen = diagnosis_text(first, "session.json", add="key a")
+    assert "Add it: key a" in screen and "--add" not in screen

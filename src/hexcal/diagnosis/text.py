@@ -21,7 +21,9 @@ def _um(x: float) -> str:
     return f"{1000 * x:6.2f}"
 
 
-def diagnosis_text(d: Diagnosis, source: str) -> str:
+def diagnosis_text(d: Diagnosis, source: str, add: str = "--add {}") -> str:
+    """The diagnosis for a terminal; ``add``: how its reader adds an effect, ``{}`` the effect's
+    name (the command line's option, or the text UI's key)."""
     f = d.fit
     lines = [
         f"hexcal diagnose: {f.model_name} on {source}",
@@ -76,7 +78,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             + ", ".join(f"#{o.pose_id} ({o.step}, t {o.t:g} s)" for o in d.outliers[:10])
         )
     lines.append("")
-    lines += verdict_lines(d)
+    lines += verdict_lines(d, add)
     bad = f.nonphysical()
     notes = d.notes + f.notes
     if notes:
@@ -91,7 +93,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
     return "\n".join(lines)
 
 
-def verdict_lines(d: Diagnosis) -> list[str]:
+def verdict_lines(d: Diagnosis, add: str = "--add {}") -> list[str]:
     """The verdict in words, what it rests on, and what to do next."""
     f = d.fit
     v = d.verdict
@@ -116,7 +118,7 @@ def verdict_lines(d: Diagnosis) -> list[str]:
         return [
             f"verdict: outliers — {len(d.outliers)} poses no model explains (a bumped tracker, a "
             "pose taken mid-move); without them the model is at the noise floor. They stay in the "
-            "session, set aside: --add outliers acknowledges them"
+            f"session, set aside: {add.format('outliers')} acknowledges them"
         ]
     won = d.candidate(v)
     if won is None:
@@ -132,7 +134,7 @@ def verdict_lines(d: Diagnosis) -> list[str]:
     )
     out = [
         f"verdict: {v}{alike} — {share} (ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → "
-        f"{_um(won.cv_rms_mm_after)} µm (floor {_um(d.noise_floor_mm)} µm). Add it: --add {v}",
+        f"{_um(won.cv_rms_mm_after)} µm (floor {_um(d.noise_floor_mm)} µm). Add it: {add.format(v)}",
         f"  physics: {get_effect(v).physics}",
     ]
     if get_effect(v).source.kind != "catalogue":

@@ -308,7 +308,9 @@ class DiagnosisScreen(HexcalScreen):
         self.busy = False
         guided, _, rig = _app_state(self)
         self._details = (
-            before_after_text(self.history) + "\n\n" + diagnosis_text(d, str(guided.sf.path))
+            before_after_text(self.history)
+            + "\n\n"
+            + diagnosis_text(d, str(guided.sf.path), add="key a")
         )
         self._fit()
         # Plain words first: the verdict, then the pose error against what the instruments
