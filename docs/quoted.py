@@ -4,7 +4,8 @@ walkthrough's sessions — one script, so a quote cannot drift from what hexcal 
 - in README.md and docs/diagnosis.md, between cog's markers (``[[[cog …]]]`` … ``[[[end]]]``,
   inside HTML comments), the blocks the functions below print: the walkthrough's table and
   abridged output, the Jugglebot's headline, verdict chain and scales;
-- the walkthrough's whole outputs, :data:`TEXT_FILES` (docs/walkthrough/*.txt).
+- the walkthrough's whole outputs, :data:`TEXT_FILES` (docs/walkthrough/*.txt);
+- the walkthrough's report and its screenshots (written, not checked: :func:`report`).
 
     python docs/quoted.py          # write them all anew
     python docs/quoted.py --check  # exit 1, with a diff, where a quote differs from today's
@@ -239,9 +240,7 @@ def jugglebot_scales() -> None:
 
     _, out = jugglebot()
     scales = _scales(out)
-    ci = max(
-        p["ci95"] for p in out["parameters"] if p["name"].startswith("gain.") and "ci95" in p
-    )
+    ci = max(p["ci95"] for p in out["parameters"] if p["name"].startswith("gain.") and "ci95" in p)
     worst = max(range(6), key=lambda k: _off(*scales[k]))
     others = [_off(*s) for k, s in enumerate(scales) if k != worst]
     hand = scales[worst][0]
@@ -256,15 +255,17 @@ def jugglebot_scales() -> None:
 
 
 def jugglebot_worst() -> str:
-    """"6.4 %": how far the worst hand measure is off (README's sentence)."""
+    """ "6.4 %": how far the worst hand measure is off (README's sentence)."""
     return f"{max(_off(h, f) for h, f in _scales(jugglebot()[1])):.1f} %"
 
 
 def jugglebot_steps() -> str:
-    """"legs 1 and 2": the legs whose zero stepped during the session."""
+    """ "legs 1 and 2": the legs whose zero stepped during the session."""
     legs = [p["name"][len("zero_step.d") :] for p in jugglebot()[1]["parameters"]]
     legs = [k for k in legs if k.isdigit()]
-    return "leg " + legs[0] if len(legs) == 1 else "legs " + ", ".join(legs[:-1]) + " and " + legs[-1]
+    return (
+        "leg " + legs[0] if len(legs) == 1 else "legs " + ", ".join(legs[:-1]) + " and " + legs[-1]
+    )
 
 
 # -- the whole ---------------------------------------------------------------------------------
@@ -300,12 +301,45 @@ def check() -> list[str]:
     return found
 
 
+def report() -> None:
+    """docs/walkthrough/report.html and its screenshots at 390, 768 and 1280 px (not checked:
+    the page holds its date; tests/test_report_browser.py measures it). Headless Chromium lays
+    a page out at least 500 px wide, so each width is a frame of that width in a host page."""
+    page = ROOT / "docs" / "walkthrough" / "report.html"
+    hexcal("diagnose", *_inputs(WALK), "--auto", "--report", str(page.relative_to(ROOT)))
+    browser = next((b for b in ("chromium", "chromium-browser") if shutil.which(b)), None)
+    if browser is None:
+        print("no Chromium: the report's screenshots are left as they were", file=sys.stderr)
+        return
+    from PIL import Image  # matplotlib's
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for width in (390, 768, 1280):
+            host = Path(tmp) / f"host-{width}.html"
+            host.write_text(
+                f'<body style="margin:0"><iframe src="{page.as_uri()}" '
+                f'style="border:0;width:{width}px;height:2200px"></iframe></body>'
+            )
+            shot = Path(tmp) / f"{width}.png"
+            subprocess.run(
+                [browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                 "--allow-file-access-from-files", "--virtual-time-budget=5000",
+                 f"--window-size={max(width, 520)},2200", f"--screenshot={shot}", host.as_uri()],
+                check=True, capture_output=True, timeout=120,
+            )  # fmt: skip
+            Image.open(shot).crop((0, 0, width, 2200)).save(
+                page.with_name(f"report-{width}.png"), optimize=True
+            )
+
+
 def write() -> None:
-    """Every quote anew (the effect file the unexplained walkthrough writes, too)."""
+    """Every quote anew (the effect file the unexplained walkthrough writes, too), and the
+    walkthrough's report with its screenshots."""
     for name, make in TEXT_FILES.items():
         (ROOT / name).write_text(make(), encoding="utf-8")
     (ROOT / UNEXPLAINED / "by_stroke.py").write_text(_unexplained()[2], encoding="utf-8")
     _cog(COG_FILES, check=False)
+    report()
 
 
 if __name__ == "__main__":

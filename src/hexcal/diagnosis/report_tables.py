@@ -12,6 +12,7 @@ import numpy as np
 
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.diagnosis.report_html import esc, finite, num, stat, um, value_ci
+from hexcal.diagnosis.text import RANKED_LEGEND
 from hexcal.estimate.effect_fit import ParamRow
 
 
@@ -121,11 +122,9 @@ def candidate_table(d: Diagnosis, sid: str) -> str:
     return (
         f'<div id="{sid}-candidates"><h3>What could be missing: the catalogue, ranked</h3><table>'
         '<tr><th>effect</th><th class="num">score Δχ²</th><th class="num">ΔBIC</th>'
-        '<th class="num">explained</th><th class="num">held-out after µm</th><th>identifiable</th>'
+        '<th class="num">explains</th><th class="num">held-out after µm</th><th>identifiable</th>'
         "<th>reason / note</th></tr>" + "".join(rows) + "</table>"
-        '<p class="muted">Score: the χ² the effect would remove to first order. ΔBIC &lt; −10 is very '
-        "strong evidence; the verdict also needs the refit to explain at least half of the excess "
-        "over the floor. Effects outside the top three are scored, not refitted.</p></div>"
+        f'<p class="muted">{esc(RANKED_LEGEND)}.</p></div>'
     )
 
 
