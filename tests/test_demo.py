@@ -31,6 +31,9 @@ def test_the_diagnosis_finds_the_hidden_effect_and_the_error_falls(demo):
     assert demo["hidden_effect"]["name"] == "backlash" and d["found_hidden_effect"]
     before, after = d["steps"]
     assert after["effects"] == ["backlash"] and after["verdict"] == "none"
+    # The top-level verdict is where the chain ends, the chain beside it (not its first step's).
+    assert d["verdict"] == "none" and d["chain"] == ["backlash", "none"]
+    assert d["named"] == "backlash"
     assert after["cv_rms_mm"] < 0.5 * before["cv_rms_mm"]
     assert after["cv_rms_mm"] < 1.3 * after["noise_floor_mm"]
 

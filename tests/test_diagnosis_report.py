@@ -46,7 +46,9 @@ def report(session, tmp_path_factory):
             lambda d, outdir: plots_mod.plot_jobs(d, outdir, only=DRAWN),
         )
         path = write_report([before, after], out / "report.html", {"measurements": csv})
-    return out, path, path.read_text(encoding="utf-8")
+    # The words as read: a number and its unit are joined by a non-breaking space on the page
+    # (tests/test_report_browser.py measures that they stay on one line).
+    return out, path, path.read_text(encoding="utf-8").replace("\u00a0", " ")
 
 
 def test_report_is_one_file(report):
@@ -213,3 +215,27 @@ def test_figure_count_is_the_number_of_figures_drawn(session, tmp_path):
         assert report_mod.figure_count(diags) == len(jobs)
         # the map, one before/after per change, each step's plots
         assert len(jobs) == 1 + (len(diags) - 1) + sum(len(plots_mod.plot_names(d)) for d in diags)
+
+
+def test_the_page_is_made_for_any_width():
+    """for_any_width, without a browser: a number keeps its unit and a label its number
+    (non-breaking spaces), a timestamp is one unbreakable piece, and a table's cells carry
+    their column's header for the phone's card layout (a two-column table keeps its rows)."""
+    from hexcal.diagnosis.report_html import for_any_width
+
+    page = for_any_width(
+        "<p>leg 1 reads 22.1 µm long, Model 42 at 2026-11-28T06:48:59+00:00</p>"
+        '<table><tr><th>leg</th><th class="num">RMS µm</th></tr>'
+        '<tr><td>leg 2</td><td class="num">9.8</td></tr>'
+        '<tr class="note"><td colspan="2">a note</td></tr></table>'
+        '<table class="narrow"><tr><th>figure</th><th>value</th></tr><tr><td>a</td><td>1</td></tr>'
+        "</table>"
+    )
+    assert "leg\u00a01 reads 22.1\u00a0µm long, Model\u00a042" in page
+    assert '<time class="nowrap">2026-11-28T06:48:59+00:00</time>' in page
+    assert '<table class="cards"><tr class="head">' in page
+    assert '<td data-label="leg"><div class="v">leg\u00a02</div></td>' in page
+    assert '<td class="num" data-label="RMS µm"><div class="v">9.8</div></td>' in page
+    assert '<td colspan="2">a note</td>' in page  # a note across the row keeps no label
+    assert '<table class="narrow"><tr><th>' in page and "<td>a</td>" in page
+    assert page.count('<div class="tbl">') == 2

@@ -406,3 +406,15 @@ def test_the_model_shipped_and_what_linuxcnc_leaves_out_are_said_like_with_like(
     worse.write_text(json.dumps(data))
     assert main(["export", "linuxcnc", str(worse), "--out", str(tmp_path / "lx2"), *args]) == 0
     assert "Model 42 holds better on held-out poses" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("kind", ["linuxcnc", "table"])
+def test_out_naming_a_file_says_a_directory_is_needed(tmp_path, capsys, kind):
+    """--out names a directory: a regular file there is refused by name and left as it was
+    (not mkdir's "File exists")."""
+    out = tmp_path / "genhexkins.hal"
+    out.write_text("mine\n")
+    assert main(["export", kind, str(WALKTHROUGH), "--out", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert f"{out}: is a file; --out needs a directory" in err, err
+    assert "File exists" not in err and out.read_text() == "mine\n"

@@ -70,8 +70,16 @@ def test_diagnose_verbose_shows_every_step(capsys):
 
 def test_a_clean_example_says_nothing_is_missing(capsys):
     assert main(["diagnose", *_inputs("left-hand-sim")]) == 0
-    head = _opening(capsys.readouterr().out)
-    assert "Nothing else is missing" in head and "the instruments allow" in head
+    text = capsys.readouterr().out
+    head = _opening(text)
+    # Nothing was ever missing: no "else" (that is for after an effect was found or added).
+    assert head.startswith("Nothing is missing: the model is at the noise floor"), head
+    assert "Nothing else" not in head and "the instruments allow" in head
+    # The ranked table carries its legend in the terminal too, right under it.
+    table = text.split("missing effects, ranked:")[1].split("verdict:")[0]
+    legend = " ".join(table.split("legend:")[1].split())
+    for column in ("score Δχ²:", "ΔBIC:", "explains:", "held-out after:", "—:"):
+        assert column in legend, legend
 
 
 def test_calibrate_opens_with_what_to_do_and_hides_the_correlations(capsys):

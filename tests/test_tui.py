@@ -265,12 +265,25 @@ def _assert_fits(pilot) -> None:
             assert view.contains_region(plot), (view, plot)
 
 
-def test_snapshot_start(snap_compare, in_tmp):
+@pytest.mark.parametrize("size", [SMALL, MEDIUM], ids=lambda s: f"{s[0]}x{s[1]}")
+def test_snapshot_start(snap_compare, in_tmp, size):
+    """The start screen with three sessions listed and a session path longer than its field:
+    the field shows the file's name and says its start is hidden; the list's title says how
+    to reach it when it is below the fold."""
+    from test_tui_session_lock import _session
+
     async def fits(pilot) -> None:
         _assert_fits(pilot)
 
-    app = instant_app(Path("session.json"), sessions=Path("sessions"))
-    assert snap_compare(app, terminal_size=SMALL, run_before=fits)
+    sessions = Path("sessions")
+    sessions.mkdir()
+    for k, stamp in enumerate(("20261127-101010", "20261128-064859", "20261128-070000")):
+        _session(sessions / f"hexcal-session-{stamp}.json")
+        when = 1_795_000_000 + 3600 * k  # fixed "changed" times: the snapshot must not move
+        os.utime(sessions / f"hexcal-session-{stamp}.json", (when, when))
+    path = Path("a lab's sessions", "platform 2", "hexcal-session-20261128-064859.json")
+    app = instant_app(path, sessions=sessions)
+    assert snap_compare(app, terminal_size=size, run_before=fits)
 
 
 async def _record_some(pilot) -> None:
@@ -335,8 +348,9 @@ async def _diagnose_and_add(pilot) -> None:
 @pytest.mark.parametrize("size", [SMALL, MEDIUM])
 def test_the_diagnosis_chart_compares_the_models_where_it_has_the_rows(tmp_path, size):
     """The chart of held-out RMS per leg shows every model of the chain, named in its legend,
-    where it has rows for bars below the legend; at 80×24 it shows the latest model alone, its
-    bars over the chart's whole height (the summary above lists every model)."""
+    where it has rows for bars below the legend; at 80×24, without the rows for a legend, it
+    shows the fall: the first model and the last, each leg's pair of bars, named in its title
+    (it showed the latest model alone)."""
 
     async def run() -> None:
         app = instant_app(tmp_path / "session.json")
@@ -344,14 +358,19 @@ def test_the_diagnosis_chart_compares_the_models_where_it_has_the_rows(tmp_path,
             await _diagnose_and_add(pilot)
             chart = pilot.app.screen.query_one("#diag-plot").plt.build()
             assert "Model 42 + gain" in chart
-            assert ("Model 42 " in chart.replace("Model 42 +", "")) == (size == MEDIUM), chart
+            assert "Model 42 " in chart.replace("Model 42 +", ""), chart  # the model before
+            if size == SMALL:
+                assert "Model 42 (left) → Model 42 + gain (right)" in chart, chart
 
     asyncio.run(run())
 
 
-def test_snapshot_diagnosis(snap_compare, in_tmp):
+@pytest.mark.parametrize("size", [SMALL, MEDIUM], ids=lambda s: f"{s[0]}x{s[1]}")
+def test_snapshot_diagnosis(snap_compare, in_tmp, size):
+    """After adding the named effect: at 80×24 the chart shows the fall as each leg's pair of
+    bars (before, after), at 120×40 every model with its legend."""
     assert snap_compare(
-        instant_app(Path("session.json")), terminal_size=SMALL, run_before=_diagnose_and_add
+        instant_app(Path("session.json")), terminal_size=size, run_before=_diagnose_and_add
     )
 
 

@@ -156,3 +156,9 @@ ModelKindField = Annotated[
     _AS_VALUE,
     _values_schema(ModelKind, "integer"),
 ]
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and its noun, singular for one: "1 pose", "0 poses", "12 poses" (``plural``:
+    when adding "s" is wrong)."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"

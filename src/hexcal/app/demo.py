@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hexcal.estimate.quantiles import chi2_sf
+from hexcal.io import advice
 from hexcal.vocabulary import names_an_addition
 
 if TYPE_CHECKING:
@@ -178,7 +179,11 @@ def run_demo(
             "leg_offsets": truth.offsets.tolist(),
         },
         "diagnosis": {
-            "verdict": base.verdict,
+            # The chain's end (none once the effect is added), the chain beside it; what the
+            # first step named is what was found.
+            "verdict": chain[-1].verdict,
+            "chain": [d.verdict for d in chain],
+            "named": base.verdict,
             "found_hidden_effect": base.verdict == effect,
             "steps": [
                 {
@@ -260,7 +265,7 @@ def demo_text(r: dict[str, Any]) -> str:
         lines.append(
             f"  {name:<27} {st['cv_rms_mm']:>9.4f}   {st['noise_floor_mm']:>14.4f}   {st['verdict']}"
         )
-    found = "found it" if d["found_hidden_effect"] else f"did NOT find it (said {d['verdict']})"
+    found = "found it" if d["found_hidden_effect"] else f"did NOT find it (said {d['named']})"
     lines += [
         "",
         f"  the diagnosis {found}",
@@ -287,8 +292,17 @@ def demo_text(r: dict[str, Any]) -> str:
             f"    {'noise floor':<26} position {last['floor_position_rms_mm']:.4f} RMS; "
             f"orientation {last['floor_orientation_rms_deg']:.4f}°"
         )
+    # What the diagnosis named (not the hidden truth), and a report named after this session:
+    # a second session's advice must not write over the first's report.
+    named = [] if d["named"] in ("none", "unexplained", "noise_understated") else [d["named"]]
+    report = advice.beside(r["session"], "report", ".html")
     lines += [
         "",
-        f"  next: hexcal diagnose {r['session']} --add {eff['name']} --report report.html",
+        "  next: the diagnosis with its figures, as one HTML page:",
+        advice.line(advice.command("diagnose", r["session"], *_add(named), "--report", report)),
     ]
     return "\n".join(lines)
+
+
+def _add(effects: list[str]) -> list[str]:
+    return ["--add", *effects] if effects else []

@@ -9,13 +9,15 @@ diagnosis' sentences are :func:`hexcal.diagnosis.summary.plain_summary`, the rep
 
 from __future__ import annotations
 
+import argparse
 import math
 import textwrap
 from collections.abc import Sequence
 from typing import Any
 
 from hexcal.estimate.accuracy import PoseAccuracy
-from hexcal.vocabulary import Outcome
+from hexcal.io import advice
+from hexcal.vocabulary import Outcome, counted, names_an_addition
 
 #: The heading the statistics follow.
 STATISTICS = "Statistics"
@@ -68,9 +70,10 @@ def calibration_summary(
     name: str, accuracy: Sequence[PoseAccuracy], mismatch: Sequence[str], next_step: str
 ) -> list[str]:
     """The opening of ``hexcal calibrate``: whether the calibrated model (``name``) can be used,
-    and its pose error against the floor. ``next_step``: how to find what is missing (a
-    command, a key)."""
+    and its pose error against the floor. ``next_step``: how to find what is missing (a key,
+    or a command's line from :mod:`hexcal.io.advice`, printed on a line of its own)."""
     out = []
+    command = next_step if advice.is_line(next_step) else None
     at_floor = _at_floor(accuracy)
     if mismatch:
         out.append(
@@ -98,17 +101,20 @@ def calibration_summary(
         out.append(
             f"The calibrated {name} still misses something: the platform's pose error is above "
             f"{'its estimated floor' if accuracy[-1].floor_estimated else 'what the instruments allow'}. "
-            f"Find what: {next_step}"
+            f"Find what:{'' if command else ' ' + next_step}"
         )
+        if command is not None:
+            out.append(command)
     line = pose_error_line(accuracy)
     if line:
         out.append(line)
     return out
 
 
-def diagnosis_summary(steps: Sequence[Any]) -> list[str]:
+def diagnosis_summary(steps: Sequence[Any], args: argparse.Namespace | None = None) -> list[str]:
     """The opening of ``hexcal diagnose``: the report's plain-language summary, then the pose
-    error of each model of the chain against the floor."""
+    error of each model of the chain against the floor, then what to run next with the
+    command's own inputs (``args``: its parsed arguments; None: the option alone)."""
     from hexcal.diagnosis.summary import plain_summary
 
     d = steps[-1]
@@ -117,10 +123,25 @@ def diagnosis_summary(steps: Sequence[Any]) -> list[str]:
     line = pose_error_line(rows)
     if line:
         out.append(line)
-    if d.verdict not in (Outcome.NONE, Outcome.UNEXPLAINED, Outcome.OUTLIERS) and d.verdict:
-        if d.verdict != Outcome.NOISE_UNDERSTATED:
-            out.append(f"Next: add it (--add {d.verdict}), or let --auto add what is named.")
+    if not d.verdict or not names_an_addition(d.verdict):
+        unasked = args is not None and getattr(args, "effect_file", None) is None
+        if args is not None and unasked and d.verdict == Outcome.UNEXPLAINED and _points(d):
+            out.append("Next, to write an effect of the shape the residual follows, to edit:")
+            effect = advice.beside(args.measurements, "effect", ".py")
+            out.append(advice.line(advice.diagnose_command(args, effect_file=effect)))
+        return out
+    what = "acknowledge them" if d.verdict == Outcome.OUTLIERS else "add it"
+    if args is None:
+        out.append(f"Next: {what} (--add {d.verdict}), or let --auto add what is named.")
+        return out
+    out.append(f"Next, to {what} and diagnose again (--auto adds what is named):")
+    out.append(advice.line(advice.diagnose_command(args, add=[d.verdict])))
     return out
+
+
+def _points(d: Any) -> bool:
+    """Whether an unexplained residual follows a covariate an effect file can take."""
+    return d.exploration is not None and d.exploration.lead is not None
 
 
 def verdict_words(d: Any) -> str:
@@ -134,7 +155,9 @@ def verdict_words(d: Any) -> str:
     if d.verdict == Outcome.NOISE_UNDERSTATED:
         return f"The instruments look about {d.noise_factor:.1f}× noisier than stated."
     if d.verdict == Outcome.OUTLIERS:
-        return f"{len(d.outliers)} poses disagree grossly with every model: look at them."
+        return (
+            f"{counted(len(d.outliers), 'pose')} disagree grossly with every model: look at them."
+        )
     return f"The model lacks {d.verdict}: press a to add it."
 
 
@@ -184,5 +207,9 @@ def validation_summary(v: Any) -> list[str]:
 
 def opening(lines: Sequence[str], width: int = 96) -> str:
     """The summary lines wrapped at ``width``, followed by the statistics' heading."""
-    body = "\n".join(textwrap.fill(s, width, break_on_hyphens=False) for s in lines if s)
+    body = "\n".join(
+        s if advice.is_line(s) else textwrap.fill(s, width, break_on_hyphens=False)
+        for s in lines
+        if s
+    )
     return f"{body}\n\n{STATISTICS}\n{'-' * len(STATISTICS)}"

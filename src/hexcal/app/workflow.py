@@ -51,7 +51,7 @@ from hexcal.io.measurements_csv import read_measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, load_instruments
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas
 from hexcal.model.robot import GeometryOutOfRange, Robot
-from hexcal.vocabulary import ModelKind, names_an_addition
+from hexcal.vocabulary import ModelKind, counted, names_an_addition
 
 #: The most effects ``diagnose --auto`` adds before it stops.
 MAX_AUTO_STEPS = 8
@@ -97,7 +97,9 @@ class Inputs:
             )
         keep = ~np.isin(self.meas.pose_id, sorted(ids))
         meas = self.meas.subset(keep)
-        label = f"{self.label.rsplit(' (', 1)[0]} ({len(meas)} poses; {len(ids)} excluded)"
+        label = (
+            f"{self.label.rsplit(' (', 1)[0]} ({counted(len(meas), 'pose')}; {len(ids)} excluded)"
+        )
         return replace(self, meas=meas, label=label, consistency=None)
 
 
@@ -273,7 +275,7 @@ def read_inputs(
                 "--robot robot.json (a session file carries its own)"
             )
         meas = read_measurements(measurements, notices)
-    label = f"{measurements} ({len(meas)} poses)"
+    label = f"{measurements} ({counted(len(meas), 'pose')})"
     return Inputs(meas, design, inst, source, label, files, effects, notices)
 
 
@@ -300,7 +302,7 @@ def session_inputs(session: Any, path: Path | str) -> Inputs:
         session.robot,
         inst,
         source,
-        f"{path} ({len(meas)} poses)",
+        f"{path} ({counted(len(meas), 'pose')})",
         {"session": Path(path)},
     )
 

@@ -24,7 +24,7 @@ from hexcal.diagnosis.figure_pool import FigureJob, draw_all
 from hexcal.diagnosis.metrology import of_diagnosis
 from hexcal.diagnosis.metrology_html import metrology_section
 from hexcal.diagnosis.plots import plot_jobs
-from hexcal.diagnosis.report_html import esc, figure, finite, num, stat, um
+from hexcal.diagnosis.report_html import esc, figure, finite, for_any_width, num, stat, um
 from hexcal.diagnosis.report_pointer import pointer_section
 from hexcal.diagnosis.report_style import CSS
 from hexcal.diagnosis.report_tables import (
@@ -487,8 +487,7 @@ def render_report(
         "predicted reading; held-out = predicted by a fit that did not see the pose.</footer>"
         "</main></body></html>\n"
     )
-    html = "\n".join(parts)
-    return html.replace("<table", '<div class="tbl"><table').replace("</table>", "</table></div>")
+    return for_any_width("\n".join(parts))
 
 
 def write_report(

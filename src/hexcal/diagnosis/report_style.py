@@ -34,6 +34,9 @@ td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-sp
 /* A table wider than its box scrolls inside its own box; the page never does. */
 .tbl { max-width: 100%; overflow-x: auto; margin: 6px 0 4px; }
 .tbl table { margin: 0; }
+table.narrow { width: auto; min-width: 50%; }
+th.bars { min-width: 9em; }
+th.num { white-space: normal; }  /* a header may wrap between its words, never inside one */
 .hash .h-full { position: absolute; width: 1px; height: 1px; overflow: hidden;
                 clip: rect(0 0 0 0); white-space: nowrap; }
 .verdict .lead { font-size: 21px; font-weight: 600; margin: 0 0 8px; }
@@ -41,15 +44,11 @@ td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-sp
                   font-weight: 700; text-transform: none; letter-spacing: 0; }
 .v-none .badge { background: #2e7d32; } .v-effect .badge { background: #b86e00; }
 .v-unexplained .badge { background: #c62828; }
-@media (max-width: 640px) {
-  body { padding: 6px; font-size: 15px; }
-  section, header { padding: 12px 10px; border-radius: 6px; }
-  .verdict { border-left-width: 8px; }
-  .verdict .lead { font-size: 18px; }
-  .kv { grid-template-columns: 1fr; } .kv dd { margin-bottom: 6px; }
-  nav ol { columns: 1; }
-  figure { margin-left: -10px; margin-right: -10px; }
-}
+.nowrap { white-space: nowrap; overflow-wrap: normal; }
+/* Tables side by side on a grid with the page's gap; one column when they do not fit. */
+.pair { display: grid; grid-template-columns: repeat(auto-fit, minmax(min(420px, 100%), 1fr)); gap: 16px; }
+.pair > div { min-width: 0; }
+.pair .tbl { margin: 0; }
 tr.win td { background: #fff4dc; font-weight: 600; }
 tr.off td { color: #888; }
 tr.bad td { color: #b71c1c; }
@@ -70,4 +69,26 @@ figure.skipped { padding: 10px 12px; background: #f4f5f7; color: #666; border-ra
 ul.notes { margin: 4px 0; padding-left: 20px; font-size: 14px; }
 details summary { cursor: pointer; color: #345; margin-top: 8px; }
 .muted { color: #666; font-size: 14px; }
+/* Last, so that it overrides the rules above on a phone (.kv's columns were not). */
+@media (max-width: 640px) {
+  /* A phone: each row a card, each value beside its column's label (data-label). */
+  table.cards, .cards tbody, .cards tr { display: block; width: 100%; }
+  .cards colgroup, .cards tr.head { display: none; }
+  .cards tr { border-bottom: 1px solid #e3e5e8; padding: 4px 0; }
+  .cards td { display: block; border: 0; padding: 1px 4px; }
+  .cards td[data-label] { display: grid; grid-template-columns: minmax(0, 42%) minmax(0, 1fr);
+                          gap: 0 10px; }
+  .cards td[data-label]::before { content: attr(data-label); color: #555; font-size: 13px;
+                                  text-align: left; white-space: normal; }
+  .cards td[data-label]:has(> .v:empty) { display: none; }
+  .cards td:first-child .v { font-weight: 600; }
+  .cards td.num { white-space: normal; }
+  body { padding: 6px; font-size: 15px; }
+  section, header { padding: 12px 10px; border-radius: 6px; }
+  .verdict { border-left-width: 8px; }
+  .verdict .lead { font-size: 18px; }
+  .kv { grid-template-columns: 1fr; } .kv dd { margin-bottom: 6px; }
+  nav ol { columns: 1; }
+  figure { margin-left: -10px; margin-right: -10px; }
+}
 """

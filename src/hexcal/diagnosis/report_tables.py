@@ -12,6 +12,7 @@ import numpy as np
 
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.diagnosis.report_html import esc, finite, num, stat, um, value_ci
+from hexcal.diagnosis.text import RANKED_LEGEND
 from hexcal.estimate.effect_fit import ParamRow
 
 
@@ -36,11 +37,12 @@ def fit_table(d: Diagnosis, sid: str) -> str:
             + (" — excess significant" if d.excess_significant else " — within noise"),
         ),
     ]
-    head = "".join(f"<th>{esc(k)}</th>" for k, _ in cells)
-    row = "".join(f'<td class="num">{v}</td>' for _, v in cells)
+    # One row per figure: six long headers over one row of numbers stood 4 lines tall at 768 px.
+    rows = "".join(f'<tr><td>{esc(k)}</td><td class="num">{v}</td></tr>' for k, v in cells)
     return (
         f'<div id="{sid}-fit"><h3>Fit against the noise floor</h3>'
-        f"<table><tr>{head}</tr><tr>{row}</tr></table>"
+        '<table class="narrow"><tr><th>figure</th><th class="num">value</th></tr>'
+        f"{rows}</table>"
         f'<p class="muted">Noise floor: {esc(d.floor_source)}.</p></div>'
     )
 
@@ -81,11 +83,9 @@ def leg_table(d: Diagnosis, sid: str) -> str:
         )
     return (
         f'<div id="{sid}-legs"><h3>Per leg</h3><table>'
-        '<colgroup><col style="width:9%"><col style="width:12%"><col style="width:12%">'
-        '<col style="width:14%"><col style="width:11%"><col style="width:16%"><col></colgroup>'
         '<tr><th>leg</th><th class="num">RMS µm</th><th class="num">held-out µm</th>'
         '<th class="num">blocked held-out µm</th><th class="num">floor µm</th>'
-        '<th class="num">mean (r/floor)²</th><th>held-out RMS (bar) vs floor (tick)</th></tr>'
+        '<th class="num">mean (r/floor)²</th><th class="bars">held-out (bar), floor (tick)</th></tr>'
         + "".join(rows)
         + "</table></div>"
     )
@@ -121,14 +121,10 @@ def candidate_table(d: Diagnosis, sid: str) -> str:
         )
     return (
         f'<div id="{sid}-candidates"><h3>What could be missing: the catalogue, ranked</h3><table>'
-        '<colgroup><col style="width:11%"><col style="width:10%"><col style="width:10%">'
-        '<col style="width:9%"><col style="width:11%"><col style="width:10%"><col></colgroup>'
         '<tr><th>effect</th><th class="num">score Δχ²</th><th class="num">ΔBIC</th>'
-        '<th class="num">explained</th><th class="num">held-out after µm</th><th>identifiable</th>'
+        '<th class="num">explains</th><th class="num">held-out after µm</th><th>identifiable</th>'
         "<th>reason / note</th></tr>" + "".join(rows) + "</table>"
-        '<p class="muted">Score: the χ² the effect would remove to first order. ΔBIC &lt; −10 is very '
-        "strong evidence; the verdict also needs the refit to explain at least half of the excess "
-        "over the floor. Effects outside the top three are scored, not refitted.</p></div>"
+        f'<p class="muted">{esc(RANKED_LEGEND)}.</p></div>'
     )
 
 
@@ -156,12 +152,13 @@ def where_table(d: Diagnosis, sid: str) -> str:
     return (
         f'<div id="{sid}-where"><h3>Where the residual concentrates</h3>'
         f"<p>{esc(w.get('summary', ''))}</p>"
-        '<table><colgroup><col style="width:50%"><col style="width:50%"></colgroup><tr><td style="padding:0 8px 0 0">'
+        # Side by side on a grid, one column on a narrow page (report_style's .pair).
+        '<div class="pair"><div>'
         '<table><colgroup><col><col style="width:16%"><col style="width:24%"></colgroup>'
         '<tr><th>group standing out</th><th class="num">n</th><th class="num">mean (r/floor)²</th></tr>'
-        f'{standout}</table></td><td style="padding:0 0 0 8px">'
+        f"{standout}</table></div><div>"
         '<table><tr><th class="num">worst pose</th><th>step</th><th class="num">mean (r/floor)²</th>'
-        f'<th class="num">worst leg</th></tr>{worst}</table></td></tr></table></div>'
+        f'<th class="num">worst leg</th></tr>{worst}</table></div></div></div>'
     )
 
 

@@ -62,6 +62,9 @@ def _in_words(p: ParamRow) -> str | None:
         return f"leg {leg_of(p.name)}'s screw has a {1000 * abs(p.value):.3g} µm error per turn"
     if effect == "compliance":
         return f"the legs give under load ({p.name} = {p.value:.3g} {p.unit})"
+    if effect == "zero_step":
+        # A property of the session, not of the robot: said, so the operator checks the leg.
+        return f"leg {leg_of(p.name)}'s encoder zero stepped by {p.value:.3g} µm during the session"
     if effect == "drift":
         return f"the tracker or the robot drifted during the session ({p.value:.3g} {p.unit})"
     return None
@@ -70,11 +73,17 @@ def _in_words(p: ParamRow) -> str | None:
 def found(d: Diagnosis) -> list[str]:
     """What the final model holds beyond the geometry, in words: one clause per parameter that
     is clearly not zero (≥ 3 σ), grouped by effect."""
-    clauses = []
+    clauses, steps = [], 0
     for p in d.fit.params:
         words = _in_words(p) if _significant(p) else None
         if words:
             clauses.append(words)
+            steps += p.name.startswith("zero_step.")
+    if steps:  # once, after the last: what a step is and what to check
+        last = max(i for i, c in enumerate(clauses) if "zero stepped" in c)
+        clauses[last] += " (lost counts or a re-home: check " + (
+            "that encoder)" if steps == 1 else "those encoders)"
+        )
     return clauses
 
 
@@ -107,16 +116,23 @@ def plain_summary(diags: Sequence[Diagnosis]) -> list[str]:
         out.append(
             "The robot differs from its drawing beyond the geometry: " + "; ".join(clauses) + "."
         )
+    # "else" only after something was found or added: a clean session had nothing missing.
+    something = bool(clauses or len(diags) > 1 or any(e != "offset" for e in d.effects))
     if d.verdict == Outcome.NONE and d.floor_estimated:
+        head = "Nothing else is missing" if something else "Nothing is missing"
         out.append(
-            "Nothing else is missing: what remains is at the estimated noise floor "
+            f"{head}: what remains is at the estimated noise floor "
             f"({1000 * d.fit.cv_rms_mm:.0f} µm per leg against an estimated floor of "
             f"{1000 * d.noise_floor_mm:.0f} µm; no instruments file)."
         )
     elif d.verdict == Outcome.NONE:
+        head = (
+            "Nothing else is missing: what remains is the instruments' own noise"
+            if something
+            else "Nothing is missing: the model is at the noise floor"
+        )
         out.append(
-            "Nothing else is missing: what remains is the instruments' own noise "
-            f"({1000 * d.fit.cv_rms_mm:.0f} µm per leg against a floor of "
+            f"{head} ({1000 * d.fit.cv_rms_mm:.0f} µm per leg against a floor of "
             f"{1000 * d.noise_floor_mm:.0f} µm)."
         )
     elif d.verdict == Outcome.UNEXPLAINED:

@@ -2,9 +2,20 @@
 
 from __future__ import annotations
 
+import textwrap
+
 from hexcal.diagnosis.diagnose import Diagnosis
 from hexcal.estimate.accuracy import floor_words
 from hexcal.vocabulary import Outcome
+
+#: What the ranked table's columns mean (the terminal's table and the report's say the same).
+RANKED_LEGEND = (
+    "score Δχ²: the χ² the effect would remove, to first order (the score test, before any "
+    "refit); ΔBIC: the refit's evidence after a penalty for its parameters, below −10 very "
+    "strong; explains: the share of the excess over the noise floor the refit removes (the "
+    "verdict needs at least half); held-out after: the refit's held-out RMS; —: scored, not "
+    "refitted (only the top three are), or no excess to explain"
+)
 
 
 def _floor(d: Diagnosis) -> str:
@@ -15,7 +26,9 @@ def _um(x: float) -> str:
     return f"{1000 * x:6.2f}"
 
 
-def diagnosis_text(d: Diagnosis, source: str) -> str:
+def diagnosis_text(d: Diagnosis, source: str, add: str = "--add {}") -> str:
+    """The diagnosis for a terminal; ``add``: how its reader adds an effect, ``{}`` the effect's
+    name (the command line's option, or the text UI's key)."""
     f = d.fit
     lines = [
         f"hexcal diagnose: {f.model_name} on {source}",
@@ -61,6 +74,10 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             lines.append(f"      {c.reason}")
         if (note := d.default_note(c.effect)) is not None:
             lines.append(f"      {note.text()}")
+    if d.candidates:
+        lines += textwrap.wrap(
+            RANKED_LEGEND, 96, initial_indent="  legend: ", subsequent_indent="    "
+        )
     if getattr(d, "outliers", None):
         lines.append("")
         lines.append(
@@ -68,7 +85,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
             + ", ".join(f"#{o.pose_id} ({o.step}, t {o.t:g} s)" for o in d.outliers[:10])
         )
     lines.append("")
-    lines += verdict_lines(d)
+    lines += verdict_lines(d, add)
     bad = f.nonphysical()
     notes = d.notes + f.notes
     if notes:
@@ -83,7 +100,7 @@ def diagnosis_text(d: Diagnosis, source: str) -> str:
     return "\n".join(lines)
 
 
-def verdict_lines(d: Diagnosis) -> list[str]:
+def verdict_lines(d: Diagnosis, add: str = "--add {}") -> list[str]:
     """The verdict in words, what it rests on, and what to do next."""
     f = d.fit
     v = d.verdict
@@ -109,7 +126,7 @@ def verdict_lines(d: Diagnosis) -> list[str]:
         return [
             f"verdict: outliers — {len(d.outliers)} poses no model explains (a bumped tracker, a "
             "pose taken mid-move); without them the model is at the noise floor. They stay in the "
-            "session, set aside: --add outliers acknowledges them"
+            f"session, set aside: {add.format('outliers')} acknowledges them"
         ]
     won = d.candidate(v)
     if won is None:
@@ -117,11 +134,16 @@ def verdict_lines(d: Diagnosis) -> list[str]:
     from hexcal.effects import get_effect
 
     alike = f" (or {' or '.join(d.alike)}: they fit alike, see the notes)" if d.alike else ""
+    # No share when the residual is already at or below the estimated floor ("nan %" was said).
+    share = (
+        f"it explains {100 * won.explained:.0f} % of the excess over the noise floor"
+        if won.explained == won.explained
+        else "the residual is already at the noise floor, and it lowers it"
+    )
     out = [
-        f"verdict: {v}{alike} — it explains {100 * won.explained:.0f} % of the excess over the "
-        f"noise floor (ΔBIC {won.delta_bic:.0f}); held-out RMS {_um(f.cv_rms_mm)} → "
-        f"{_um(won.cv_rms_mm_after)} µm ({floor_words(d.floor_estimated)} "
-        f"{_um(d.noise_floor_mm)} µm). Add it: --add {v}",
+        f"verdict: {v}{alike} — {share} (ΔBIC {won.delta_bic:.0f}); held-out RMS "
+        f"{_um(f.cv_rms_mm)} → {_um(won.cv_rms_mm_after)} µm ({floor_words(d.floor_estimated)} "
+        f"{_um(d.noise_floor_mm)} µm). Add it: {add.format(v)}",
         f"  physics: {get_effect(v).physics}",
     ]
     if get_effect(v).source.kind != "catalogue":

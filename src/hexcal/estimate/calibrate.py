@@ -142,7 +142,7 @@ class ClampCheck:
             return (
                 f"clamp constraints used: {head}: the clamp rows fit as well as the leg lengths "
                 f"do, but those alone leave χ²/dof {fit.chi2 / fit.dof:.2f} against the "
-                "instruments' noise: the model misses an effect (run hexcal diagnose, then --add it)"
+                "instruments' noise: the model misses an effect (the diagnosis names it)"
             )
         if self.used:
             return f"clamp constraints used: {head}: the clamps held"
@@ -150,7 +150,7 @@ class ClampCheck:
             return (
                 f"clamp constraints not used: {head}, but the leg lengths alone already leave "
                 f"χ²/dof {fit.chi2 / fit.dof:.2f} against the instruments' noise: the model misses an "
-                "effect (run hexcal diagnose, then --add it) and the clamps can be judged only "
+                "effect (the diagnosis names it) and the clamps can be judged only "
                 "once it fits; the geometry is fitted from the leg lengths alone"
             )
         return (

@@ -36,7 +36,7 @@ from hexcal.estimate.solvers.linalg import lstsq
 from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
 from hexcal.model.robot import Robot
-from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint
+from hexcal.vocabulary import LEG_CONSTRAINTS, Constraint, counted
 
 #: The clamped steps of one leg, in the order an operator records them.
 LEG_STEPS = LEG_CONSTRAINTS
@@ -420,7 +420,7 @@ def record_procedure(
                 failed = None if check.ok else check.message
             if failed is None:
                 session.accepted += [AcceptedPose(step, p) for p in rec.poses]
-                on_event(f"{step.name}: {len(rec.poses)} poses recorded")
+                on_event(f"{step.name}: {counted(len(rec.poses), 'pose')} recorded")
                 break
             session.rejected += [RejectedPose(step, failed, p) for p in rec.poses]
             for p in rec.poses:

@@ -43,6 +43,7 @@ from pydantic_core import PydanticSerializationError
 from hexcal import __version__
 from hexcal.acquire.acquisition import RecordedPose
 from hexcal.effects.priors import check_priors
+from hexcal.io.advice import beside, command, line
 from hexcal.io.fileio import (
     OutputFileError,
     remove_orphan_temp_files,
@@ -323,11 +324,12 @@ class SessionFile:
             what = "made unreadable"
         mine = self.conflict_path()
         write_text_atomic(mine, session_to_text(self.session))
+        merged = beside(self.path, "merged", self.path.suffix)
         raise SessionConflict(
             f"{self.path}: {what} by another program since this hexcal opened it, so it is not "
             f"overwritten. Nothing is lost: the file there holds the other program's work, and "
-            f"{mine} holds this session as it is here. To merge them: hexcal session merge "
-            f"{self.path} {mine} --out MERGED.json",
+            f"{mine} holds this session as it is here. To merge them:\n"
+            + line(command("session", "merge", self.path, mine, "--out", merged)),
             mine,
         )
 

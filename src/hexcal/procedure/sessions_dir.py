@@ -67,14 +67,15 @@ class SessionEntry:
     problem: str = ""
 
     #: The table's columns, in the order of :meth:`row`.
-    COLUMNS = ("file", "poses", "last step", "robot", "changed")
+    #: "changed" before "robot": at 80 columns the last column is the one cut.
+    COLUMNS = ("file", "poses", "last step", "changed", "robot")
 
     def row(self) -> tuple[str, str, str, str, str]:
-        """(file, poses, last step, robot, when changed) for a table."""
+        """(file, poses, last step, when changed, robot) for a table."""
         when = datetime.fromtimestamp(self.modified).strftime("%Y-%m-%d %H:%M")
         if self.problem:
-            return (self.path.name, "—", f"unreadable: {self.problem}", "—", when)
-        return (self.path.name, str(self.poses), self.last_step or "—", self.robot, when)
+            return (self.path.name, "—", f"unreadable: {self.problem}", when, "—")
+        return (self.path.name, str(self.poses), self.last_step or "—", when, self.robot)
 
 
 def _entry(path: Path) -> SessionEntry:

@@ -21,6 +21,7 @@ from textual.containers import Grid, Horizontal, VerticalScroll
 from textual.message import Message
 from textual.widgets import Button, DataTable, Header, Input, Label, Select, Static
 
+from hexcal.io.advice import command
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.recording import Step
 from hexcal.procedure.session import Session, SessionFile, SessionFileError
@@ -34,6 +35,7 @@ from hexcal.procedure.steps import BUILTIN, Procedure, load_procedure
 from hexcal.tui.backend import Backend, Rig
 from hexcal.tui.record import RecordScreen
 from hexcal.tui.screen import Foot, HexcalScreen
+from hexcal.vocabulary import counted
 
 
 class StartScreen(HexcalScreen):
@@ -80,16 +82,41 @@ class StartScreen(HexcalScreen):
 
     def on_mount(self) -> None:
         self.query_one("#new", Button).focus()  # Enter starts; Tab reaches the fields
+        self.call_after_refresh(self._show_file_name)
         table = self.query_one("#sessions", DataTable)
         table.add_columns(*SessionEntry.COLUMNS)
         self.entries = list_sessions(self.hexcal.sessions_dir)
         for entry in self.entries:
             table.add_row(*entry.row(), key=str(entry.path))
-        if not self.entries:
+        if self.entries:  # the list may be below the fold at 24 rows: its title says how to go
+            self.query_one("#sessions-title", Static).update(
+                f"{counted(len(self.entries), 'session')} in {self.hexcal.sessions_dir}: "
+                "[b]ctrl+l[/b] to choose one ↓"
+            )
+        else:
             table.display = False
             self.query_one("#sessions-title", Static).update(
                 f"Sessions are kept in {self.hexcal.sessions_dir} (none yet)"
             )
+
+    def on_resize(self) -> None:
+        self.call_after_refresh(self._show_file_name)
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        if event.input.id == "session-path":
+            self._cue(event.input)
+
+    def _show_file_name(self) -> None:
+        """A path longer than its field shows its end, the file's name (it showed the folders
+        and cut the name), and says that its start is hidden."""
+        field = self.query_one("#session-path", Input)
+        field.scroll_to(x=field.max_scroll_x, animate=False, immediate=True)
+        self._cue(field)
+
+    @staticmethod
+    def _cue(field: Input) -> None:
+        cut = len(field.value) > field.content_region.width
+        field.border_subtitle = "… starts further left: Home" if cut else ""
 
     def why_not(self, action: str) -> str | None:
         if action == "sessions" and not getattr(self, "entries", None):
@@ -138,15 +165,18 @@ class StartScreen(HexcalScreen):
             if sf.session.procedure is None:
                 raise SessionFileError(
                     f"{path}: holds no procedure (imported from a table?) — calibrate it with "
-                    "`hexcal calibrate`, or start a new session"
+                    f"`{command('calibrate', path)}`, or start a new session"
                 )
             proc = Procedure.model_validate(sf.session.procedure)
         except (SessionFileError, ValueError) as exc:
             self._say(str(exc), "red")
             return
-        self._say(f"resuming {path} ({len(sf.session.poses)} poses)… opening the devices…")
-        # What loading did (poses set aside, orphan temporary files removed) goes to the log.
-        app.notices = list(sf.notices)
+        self._say(
+            f"resuming {path} ({counted(len(sf.session.poses), 'pose')})… opening the devices…"
+        )
+        # What loading did (poses set aside, a stale lock taken over, orphan temporary files
+        # removed) was logged: the log handler brings it to the recording log, once (it is in
+        # sf.notices too, for callers without a log handler).
         app.begin(sf, proc)
 
 
@@ -202,7 +232,6 @@ class HexcalApp(App):
         self.rig: Rig | None = None
         self.guided: GuidedSession | None = None
         self.procedure: Procedure | None = None
-        self.notices: list[str] = []
         #: Device messages waiting for the recording log (the last 200).
         self.device_backlog: deque[tuple[str, int]] = deque(maxlen=200)
         self.sub_title = backend.title or backend.label
@@ -283,9 +312,6 @@ class HexcalApp(App):
 
     def _show_recording(self) -> None:
         self.switch_screen(RecordScreen())
-        for text in self.notices:
-            self.call_later(self.device_message, text)
-        self.notices = []
 
     def on_unmount(self) -> None:
         if self.guided is not None:

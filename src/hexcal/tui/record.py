@@ -18,14 +18,14 @@ from textual import work
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.content import Content
-from textual.widgets import Header, ProgressBar, RichLog, Static
+from textual.widgets import Header, ProgressBar, Static
 
 from hexcal.estimate.nbp import Suggestion, motion_text
 from hexcal.procedure.guided import GuidedError, GuidedSession, Live
 from hexcal.procedure.recording import MOVED_ON, MotionError
 from hexcal.tui.prompt import TextPrompt
-from hexcal.tui.screen import Foot, HexcalScreen
-from hexcal.vocabulary import Constraint
+from hexcal.tui.screen import Foot, HexcalScreen, WrappedLog
+from hexcal.vocabulary import Constraint, counted
 
 #: Width of a live number's column: eight characters and a space (``+219.735``).
 COL = 9
@@ -135,7 +135,7 @@ class RecordScreen(HexcalScreen):
                 yield Static("", id="live")
                 yield Static("", id="clamp")
         with Horizontal(id="bottom"):
-            yield RichLog(id="log", wrap=True, markup=True, min_width=20)
+            yield WrappedLog(id="log", min_width=20)
             with VerticalScroll(id="steps-box"):
                 yield Static("", id="steps")
 
@@ -143,8 +143,8 @@ class RecordScreen(HexcalScreen):
         g = self.guided
         for box, title in (("#live-panel", "Live"), ("#log", "Log"), ("#steps-box", "Steps")):
             self.query_one(box).border_title = title
-        self.query_one("#log", RichLog).write(
-            f"session file [b]{g.sf.path}[/b]: {len(g.sf.session.poses)} poses so far"
+        self.query_one("#log", WrappedLog).say(
+            f"session file [b]{g.sf.path}[/b]: {counted(len(g.sf.session.poses), 'pose')} so far"
         )
         self.show_step()
         self.refresh_live()
@@ -166,7 +166,7 @@ class RecordScreen(HexcalScreen):
 
     # -- display --------------------------------------------------------------------------------
     def log_line(self, text: str, style: str = "") -> None:
-        self.query_one("#log", RichLog).write(f"[{style}]{text}[/{style}]" if style else text)
+        self.query_one("#log", WrappedLog).say(f"[{style}]{text}[/{style}]" if style else text)
 
     def show_step(self) -> None:
         g = self.guided
@@ -179,7 +179,9 @@ class RecordScreen(HexcalScreen):
             self.query_one("#instruction", Static).update(
                 "Press [b]k[/b] to calibrate and see where the model fails."
             )
-            self.query_one("#counts", Static).update(f"{len(g.sf.session.poses)} poses recorded")
+            self.query_one("#counts", Static).update(
+                f"{counted(len(g.sf.session.poses), 'pose')} recorded"
+            )
             self.query_one("#conditioning", Static).update("")
         else:
             st = g.step

@@ -318,7 +318,9 @@ class DiagnosisScreen(HexcalScreen):
         self.busy = False
         guided, _, rig = _app_state(self)
         self._details = (
-            before_after_text(self.history) + "\n\n" + diagnosis_text(d, str(guided.sf.path))
+            before_after_text(self.history)
+            + "\n\n"
+            + diagnosis_text(d, str(guided.sf.path), add="key a")
         )
         self._fit()
         # Plain words first: the verdict, then the pose error against what the instruments
@@ -367,15 +369,15 @@ class DiagnosisScreen(HexcalScreen):
     def _plot(self) -> None:
         """Held-out RMS per leg of each model of the chain, the noise floor as a red line. The
         legend sits in the top rows, which the y range leaves free of bars; where the chart
-        has too few rows for that (80×24, several models) it shows the latest model alone and
-        names it in its title (the summary above lists them all)."""
+        has too few rows for a legend of every model (80×24), it shows the fall: the first
+        model and the last, side by side in each leg's pair of bars, named in its title."""
         plot = self.query_one("#diag-plot", PlotextPlot)
         plt = plot.plt
         plt.clear_figure()
         bar_rows = max(1, plot.size.height - 4)  # less the title, frame, axis and leg labels
         shown = self.history
-        if bar_rows - (len(shown) + 1) < 2:
-            shown = shown[-1:]
+        if len(shown) > 2 and bar_rows - (len(shown) + 1) < 2:
+            shown = [shown[0], shown[-1]]  # before and after: the fall
         legend = bar_rows - (len(shown) + 1) >= 2
         rms = [(1000 * d.fit.cv_rms_per_leg).tolist() for d in shown]
         plt.multiple_bar(
@@ -389,9 +391,15 @@ class DiagnosisScreen(HexcalScreen):
         top = max(floor, *(max(r) for r in rms))
         free = len(shown) + 1 if legend else 0
         plt.ylim(0, top * bar_rows / max(1, bar_rows - free))
-        what = "" if legend else f" of {shown[0].fit.model_name}"
         kind = "estimated noise floor" if self.history[-1].floor_estimated else "noise floor"
-        plt.title(f"held-out RMS per leg{what}, µm — red: {kind} {floor:.1f} µm")
+        short = "estimated floor" if self.history[-1].floor_estimated else "floor"
+        if legend:
+            plt.title(f"held-out RMS per leg, µm — red: {kind} {floor:.1f} µm")
+        elif len(shown) == 1:
+            plt.title(f"held-out RMS per leg of {shown[0].fit.model_name}, µm — red: {short}")
+        else:
+            first, last = shown[0].fit.model_name, shown[-1].fit.model_name
+            plt.title(f"µm per leg: {first} (left) → {last} (right); red: {short}")
         plot.refresh()
 
     def action_add(self) -> None:

@@ -4,6 +4,7 @@ use of the app. The screens import this module, never the app's: the app imports
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
@@ -13,7 +14,7 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.content import Content
 from textual.screen import Screen
-from textual.widgets import Static
+from textual.widgets import RichLog, Static
 
 from hexcal.procedure.guided import GuidedSession
 from hexcal.procedure.steps import Procedure
@@ -35,7 +36,6 @@ class HexcalHost(Protocol):
     procedure_name: str
     session_path: Path
     sessions_dir: Path
-    notices: list[str]
 
     def post(self, fn: Callable[..., object], *args: object) -> None: ...
     def take_device_messages(self) -> list[tuple[str, int]]: ...
@@ -106,3 +106,37 @@ class Foot(Vertical):
     def compose(self) -> ComposeResult:
         yield Static("", id="status")
         yield KeyBar()
+
+
+class WrappedLog(RichLog):
+    """A log whose lines wrap at the width it shows, and wrap again when it is resized.
+
+    RichLog wrapped a line once, at the width it had when written, the scroll bar's gutter
+    counted in: the gutter then hid the last 2 characters of every wrapped line (a session
+    file's name lost two), and a resized log kept its old wrapping. This one keeps what was
+    written (the last :attr:`KEPT` lines) and renders it again at each new width."""
+
+    KEPT = 1000
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__(wrap=True, markup=True, **kwargs)  # type: ignore[arg-type]
+        self._said: deque[str] = deque(maxlen=self.KEPT)
+        self._wrapped_at = 0
+
+    def say(self, markup: str) -> None:
+        """Add one message (Rich markup) at the end."""
+        self._said.append(markup)
+        if self._wrapped_at:
+            self.write(markup, width=self._wrapped_at)
+
+    def on_resize(self, event: events.Resize) -> None:
+        width = self.scrollable_content_region.width
+        if width > 0 and width != self._wrapped_at:
+            self._wrapped_at = width
+            self.clear()
+            for markup in self._said:
+                self.write(markup, width=width)
+
+    def text(self) -> str:
+        """What it shows, a line per line (for tests and copies)."""
+        return "\n".join(line.text for line in self.lines)

@@ -111,8 +111,9 @@ def run(args: argparse.Namespace) -> int:
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         from hexcal.app.plain import calibration_summary, opening
+        from hexcal.io.advice import diagnose_command, line
 
-        next_step = f"hexcal diagnose {args.measurements} --auto"
+        next_step = line(diagnose_command(args, auto=True))
         plain = calibration_summary(result.name, result.accuracy, mismatch, next_step)
         print(opening(plain))
         print(calibration_text(cal, inp.label, _noise_line(inp, cal), verbose=args.verbose))

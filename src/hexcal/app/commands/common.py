@@ -118,7 +118,13 @@ def check_outputs(*outputs: tuple[object, str]) -> None:
 
 
 def refuse_existing(directory: Path, names: list[str], force: bool) -> None:
-    """An output directory whose files would be replaced needs --force."""
+    """An output directory whose files would be replaced needs --force; a file where the
+    directory should be is refused by name (not "File exists" from mkdir)."""
+    if Path(directory).exists() and not Path(directory).is_dir():
+        raise ValueError(
+            f"{directory}: is a file; --out needs a directory (it writes {' and '.join(names)} "
+            "into it): give a new or existing directory's path"
+        )
     there = [n for n in names if (Path(directory) / n).exists()]
     if there and not force:
         raise ValueError(

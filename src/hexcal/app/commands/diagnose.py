@@ -155,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         from hexcal.app.plain import diagnosis_summary, opening
 
-        print(opening(diagnosis_summary(steps)))
+        print(opening(diagnosis_summary(steps, args)))
         if limit_lines:
             left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""
             print(f"poses at the end of a leg's stroke or a joint's limit{left}:")
@@ -185,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         if result is not None and not mismatch:
             print(f"calibrated model ({result.name}) written to {args.out}")
         if args.effect_file:
-            print(_effect_file_line(effect_written))
+            print(_effect_file_line(effect_written, args))
         for f in _explored_files(steps, args.explore) if args.explore is not None else []:
             print(
                 f"effect {f['effect']} (the explorer's lead along the {f['covariate']}) written to "
@@ -224,12 +224,15 @@ def _write_effect_file(d: Diagnosis, path: Path, inp: Inputs) -> dict:
     return {"path": str(path), "effect": effect_name(lead), "covariate": lead.covariate.name}
 
 
-def _effect_file_line(written: dict | None) -> str:
+def _effect_file_line(written: dict | None, args: argparse.Namespace) -> str:
+    from hexcal.io.advice import diagnose_command, line
+
     if not written or written.get("path") is None:
         return (written or {}).get("reason", "no effect file written")
+    again = diagnose_command(args, add=[written["effect"]], effects=[written["path"]])
     return (
         f"effect {written['effect']} (along the {written['covariate']}) written to "
-        f"{written['path']}: edit it, then --effects {written['path']} --add {written['effect']}"
+        f"{written['path']}: edit it, then run\n{line(again)}"
     )
 
 

@@ -5,6 +5,7 @@ repository's examples/ folder) to a directory, so a pip user can run the command
 from __future__ import annotations
 
 import argparse
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -78,8 +79,16 @@ def run(args: argparse.Namespace) -> int:
     folders = sorted({name.split("/")[0] for name in files if "/" in name})
     print(f"hexcal's examples written to {out}/: {', '.join(f + '/' for f in folders)}")
     print(f"{out / 'README.md'} says what each is and the command to run inside it, e.g.:")
-    print(
-        f"  cd {out / 'left-hand-backlash'} && hexcal diagnose measurements.csv "
-        "--robot robot.json --instruments instruments.json --auto"
+    from hexcal.io.advice import command, line
+
+    diagnose = command(
+        "diagnose",
+        "measurements.csv",
+        "--robot",
+        "robot.json",
+        "--instruments",
+        "instruments.json",
+        "--auto",
     )
+    print(line(f"cd {shlex.quote(str(out / 'left-hand-backlash'))} && {diagnose}"))
     return 0

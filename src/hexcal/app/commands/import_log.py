@@ -30,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.app.commands.common import check_outputs
     from hexcal.io.log_import import import_log
     from hexcal.io.measurements import write_measurements
+    from hexcal.vocabulary import counted
 
     out = Path(args.out)
     check_outputs((out, "measurements.csv"))
@@ -39,5 +40,5 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{out}: the file exists; pass --force to replace it")
     meas = import_log(args.log, args.map)
     write_measurements(meas, out)
-    print(f"{len(meas)} poses from {args.log} written to {out} (mapping {args.map})")
+    print(f"{counted(len(meas), 'pose')} from {args.log} written to {out} (mapping {args.map})")
     return 0

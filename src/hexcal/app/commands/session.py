@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from hexcal.io.fileio import check_output
     from hexcal.io.measurements_csv import read_measurements
     from hexcal.procedure.session import Session, SessionFile, export_session, load_session
+    from hexcal.vocabulary import counted
 
     if args.session_command == "export":
         check_output(args.out, folder=True)
@@ -69,5 +70,7 @@ def run(args: argparse.Namespace) -> int:
     meas = read_measurements(args.measurements)
     robot = load_robot(args.robot)
     with SessionFile.create(args.out, Session.from_measurements(meas, robot)) as sf:
-        print(f"session {sf.path} created with {len(meas)} poses from {args.measurements}")
+        print(
+            f"session {sf.path} created with {counted(len(meas), 'pose')} from {args.measurements}"
+        )
     return 0
