@@ -130,18 +130,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
-            out["steps"] = [
-                {
-                    "model": d.fit.model_name,
-                    "effects": list(d.effects),
-                    "cv_rms_mm": d.fit.cv_rms_mm,
-                    "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
-                    "noise_floor_mm": d.noise_floor_mm,
-                    "verdict": d.verdict,
-                    "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
-                }
-                for d in steps
-            ]
+            out["steps"] = _step_rows(steps)
         out["at_limits"] = limits_json
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
         out["metrology"] = figures.to_dict(per_pose=False)
@@ -192,6 +181,22 @@ def run(args: argparse.Namespace) -> int:
                 f"{f['path']} and added; edit it, then --effects {f['path']} --add {f['effect']}"
             )
     return report_mismatch(mismatch, args)
+
+
+def _step_rows(steps: list[Diagnosis]) -> list[dict]:
+    """The chain's steps, one object each, for ``--json``."""
+    return [
+        {
+            "model": d.fit.model_name,
+            "effects": list(d.effects),
+            "cv_rms_mm": d.fit.cv_rms_mm,
+            "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
+            "noise_floor_mm": d.noise_floor_mm,
+            "verdict": d.verdict,
+            "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
+        }
+        for d in steps
+    ]
 
 
 def _explored_files(steps: list[Diagnosis], directory: Path) -> list[dict]:
