@@ -158,6 +158,11 @@ def type_iii_rows(P, R, b, a, sig: NoiseSigmas):
     return dist, n, jac, (1.0 / var)[..., None, None]
 
 
+#: The relative decrease of the weighted cost below which :func:`refine_type_ii_iii` counts a
+#: member as converged (its step is then a few nanometres, a millionth of the noise).
+CONVERGED = 1e-12
+
+
 def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterations: int = 4):
     """The paper's §3.3 pose sets fitted together: a Type II set (``P2`` (..., N1, 3), ``R2``)
     and a Type III set (``P3`` (..., N, 3), ``R3``) of the same leg share its platform point b,
@@ -189,21 +194,32 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
     P3, R3 = P3.reshape(-1, *P3.shape[-2:]), R3.reshape(-1, *R3.shape[-3:])
     j2 = j2.reshape(-1, *j2.shape[-3:])
     now = terms(x)
+    active = np.arange(len(x))
     for _ in range(iterations):
-        res2, w2, j3, w3, res3, cost = now
+        res2, w2, j3, w3, res3, cost = (v[active] for v in now)
         j3 = np.concatenate([j3[..., :3], np.zeros((*j3.shape[:-1], 3)), j3[..., 3:]], axis=-1)
-        jtj, jtr = _normal(j2, w2, res2)
+        jtj, jtr = _normal(j2[active], w2, res2)
         jtj3, jtr3 = _normal(j3, w3, res3)
-        dx = _solve_step(jtj + jtj3, jtr + jtr3)
+        step = _solve_step(jtj + jtj3, jtr + jtr3)
+        # A member whose step promises to lower its cost by less than CONVERGED of it is at
+        # its minimum: its trial steps would only compare rounding errors (and be halved in
+        # vain). It is left where it is, and no longer stepped.
+        gain = -np.einsum("bi,bi->b", (jtr + jtr3)[..., 0], step)
+        moving = gain > CONVERGED * cost
+        active, step = active[moving], step[moving]
+        if not len(active):
+            break
+        dx = np.zeros_like(x)
+        dx[active] = step
         # Step control: with few Type III poses the sphere is barely determined and a full
         # step can run away; a step that raises the weighted cost is halved, up to 6 times,
         # and a member whose every trial step does is left where it is. Only the members
         # still stepping are evaluated again.
-        todo = np.arange(len(x))
+        todo = active
         for _half in range(7):
             trial = x[todo] + dx[todo]
             got = terms(trial, todo)
-            better = got[-1] <= cost[todo]
+            better = got[-1] <= now[-1][todo]
             took = todo[better]
             x[took] = trial[better]
             for kept, new in zip(now, got, strict=True):
