@@ -85,15 +85,17 @@ def run_study(
     streams = np.random.SeedSequence(config.seed).spawn(5)
     sweeps = _sweeps.SWEEPS
     with ThreadPoolExecutor(max_workers=min(5, os.cpu_count() or 1)) as pool:
-        futures = [
-            pool.submit(f, config, robot, np.random.default_rng(s))
-            for f, s in zip(sweeps, streams, strict=True)
-        ]
-        for done in as_completed(futures):
+        # The costliest first (:data:`~hexcal.sim.study_sweeps.COST_ORDER`), so that the
+        # threads end together; each sweep keeps its own stream, the rows their order.
+        futures = {
+            i: pool.submit(sweeps[i], config, robot, np.random.default_rng(streams[i]))
+            for i in _sweeps.COST_ORDER
+        }
+        for done in as_completed(futures.values()):
             done.result()  # a sweep's error surfaces at once
             if on_sweep is not None:
                 on_sweep()
-        rows = [row for f in futures for row in f.result()]
+        rows = [row for i in range(len(sweeps)) for row in futures[i].result()]
     return StudyResult(config, rows)
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from contextvars import ContextVar
-from itertools import pairwise
 
 import numpy as np
 
@@ -45,20 +44,20 @@ def lstsq(
 
 
 def _lstsq_nested(a: np.ndarray, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """:func:`lstsq` with ``rows``: AᵀA and Aᵀy summed segment by segment between the counts,
-    then cumulated; each system's columns scaled to unit norm as :func:`lstsq` does (the same
-    scaling, applied to the sums)."""
+    """:func:`lstsq` with ``rows``: AᵀA and Aᵀy summed over blocks of g rows (g the greatest
+    common divisor of the counts: a pose's rows, or the poses between two counts), cumulated
+    over the blocks and read at the counts; each system's columns scaled to unit norm as
+    :func:`lstsq` does (the same scaling, applied to the sums)."""
     edges = np.concatenate([[0], rows])
     if np.any(np.diff(edges) <= 0) or edges[-1] > a.shape[-2]:
         raise ValueError(f"rows must increase from 1 to at most {a.shape[-2]}: {rows.tolist()}")
-    at = np.swapaxes(a, -1, -2)
-    segments = list(pairwise(edges))
-    ata = np.stack([at[..., lo:hi] @ a[..., lo:hi, :] for lo, hi in segments], axis=-3)
-    aty = np.stack(
-        [np.einsum("...mn,...m->...n", a[..., lo:hi, :], y[..., lo:hi]) for lo, hi in segments],
-        axis=-2,
-    )
-    ata, aty = ata.cumsum(axis=-3), aty.cumsum(axis=-2)
+    g = int(np.gcd.reduce(rows))
+    m, n = rows[-1], a.shape[-1]
+    # (..., blocks, g, n): one small product per block, all blocks in one matmul call.
+    blocks = a[..., :m, :].reshape(*a.shape[:-2], m // g, g, n)
+    ata = (np.swapaxes(blocks, -1, -2) @ blocks).cumsum(axis=-3)[..., rows // g - 1, :, :]
+    yb = y[..., :m].reshape(*y.shape[:-1], m // g, g, 1)
+    aty = (np.swapaxes(blocks, -1, -2) @ yb)[..., 0].cumsum(axis=-2)[..., rows // g - 1, :]
     scale = np.sqrt(np.diagonal(ata, axis1=-2, axis2=-1))
     scale = np.where(scale == 0.0, 1.0, scale)
     scaled = ata / (scale[..., :, None] * scale[..., None, :])

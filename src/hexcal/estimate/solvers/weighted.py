@@ -41,16 +41,19 @@ def _rotated(R: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...nij,...j->...ni", R, b)
 
 
-def _point_cov(R: np.ndarray, b: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
-    """Covariance (..., N, 3, 3) of the measured B_i = P_i + R_i b: position plus orientation.
+def _point_cov(
+    R: np.ndarray, b: np.ndarray, sig: NoiseSigmas, rb: np.ndarray | None = None
+) -> np.ndarray:
+    """Covariance (..., N, 3, 3) of the measured B_i = P_i + R_i b: position plus orientation
+    (``rb``: R_i b when the caller has it).
 
     The orientation part is ``σθ² (R[b]x)(R[b]x)ᵀ = σθ² (|b|² I − (Rb)(Rb)ᵀ)``.
     """
-    rb = _rotated(R, b)
-    b2 = np.sum(b * b, axis=-1)[..., None, None, None]
-    return (sig.position_mm**2 + sig.orientation_rad**2 * b2) * np.eye(
-        3
-    ) - sig.orientation_rad**2 * (rb[..., :, None] * rb[..., None, :])
+    rb = _rotated(R, b) if rb is None else rb
+    cov = rb[..., :, None] * (-(sig.orientation_rad**2) * rb[..., None, :])
+    diag = sig.position_mm**2 + sig.orientation_rad**2 * np.sum(b * b, axis=-1)
+    cov.reshape(*cov.shape[:-2], 9)[..., ::4] += diag[..., None, None]  # the diagonal, a view
+    return cov
 
 
 def _point_var(R: np.ndarray, b: np.ndarray, n: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
@@ -99,15 +102,18 @@ def refine_type_i(P, R, length, b0, a0, u0, sig: NoiseSigmas, iterations: int = 
     """Weighted Type I fit: (b, a, u) each (..., 3), seeded by a linear solution."""
     b, a = b0.copy(), a0.copy()
     u = u0 / np.linalg.norm(u0, axis=-1, keepdims=True)
-    eye = np.broadcast_to(np.eye(3), R.shape)
+    # The Jacobian's R and −I blocks stay; only the direction's columns change.
+    j = np.zeros((*R.shape[:-1], 8))
+    j[..., :3] = R
+    j[..., [0, 1, 2], [3, 4, 5]] = -1.0
+    lt = -length[..., None]
     for _ in range(iterations):
-        w = _inv3_sym(_point_cov(R, b, sig) + sig.reading_mm**2 * _outer(u)[..., None, :, :])
+        rb = _rotated(R, b)
+        w = _inv3_sym(_point_cov(R, b, sig, rb) + sig.reading_mm**2 * _outer(u)[..., None, :, :])
         e1, e2 = _tangent_basis(u)
-        res = P + _rotated(R, b) - a[..., None, :] - length[..., None] * u[..., None, :]
-        lt = -length[..., None, None]
-        j = np.concatenate(
-            [R, -eye, lt * e1[..., None, :, None], lt * e2[..., None, :, None]], axis=-1
-        )
+        res = P + rb - a[..., None, :] - length[..., None] * u[..., None, :]
+        j[..., 6] = lt * e1[..., None, :]
+        j[..., 7] = lt * e2[..., None, :]
         dx = _gn_step(j, w, res)
         b = b + dx[..., :3]
         a = a + dx[..., 3:6]
@@ -228,5 +234,8 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
             if not len(todo):
                 break
             dx = 0.5 * dx
+        # A member whose every trial step failed is where it was: its next step would be the
+        # same, and fail the same way. It is left there.
+        active = np.setdiff1d(active, todo, assume_unique=True)
     x = x.reshape(*batch, x.shape[-1])
     return x[..., :3], x[..., 3:6], x[..., 6:9], x[..., 9]
