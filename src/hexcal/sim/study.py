@@ -136,6 +136,11 @@ def _figure(**kwargs):
         return fig, fig.subplots(**kwargs)
 
 
+def _design(cfg: StudyConfig) -> str:
+    """The pose sets' design in a figure's subtitle."""
+    return "nested pose sets" if cfg.nested else "a new pose set per N"
+
+
 def _panels(cfg: StudyConfig) -> list[tuple[str, str, list[tuple[str, str]]]]:
     """(pose set, title, [(row key, label)]) of each figure of :func:`plot`."""
     return [
@@ -163,7 +168,7 @@ def _plot_set(result: StudyResult, path: Path, pose_set: str) -> Path:
     title, keys = next((t, k) for s, t, k in _panels(cfg) if s == pose_set)
     noise_txt = (
         f"{cfg.noise} noise: ±{cfg.err_p_mm} mm position, ±{cfg.err_a_deg}° orientation, "
-        f"±{cfg.err_l_mm} mm reading; {cfg.trials} trials per N; leg {cfg.leg}"
+        f"±{cfg.err_l_mm} mm reading; {cfg.trials} trials per N, {_design(cfg)}; leg {cfg.leg}"
     )
     style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
     fig, axes = _figure(nrows=1, ncols=len(keys), figsize=(5.5 * len(keys), 4.2), squeeze=False)
@@ -302,7 +307,7 @@ def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
     fig.suptitle(
         f"efficiency against the KCR bound — {cfg.noise} noise: {kind}{cfg.err_p_mm} mm position, "
         f"{kind}{cfg.err_a_deg}° orientation, {kind}{cfg.err_l_mm} mm reading; "
-        f"{cfg.trials} trials per N; leg {cfg.leg}",
+        f"{cfg.trials} trials per N, {_design(cfg)}; leg {cfg.leg}",
         fontsize=9,
     )
     fig.tight_layout()
