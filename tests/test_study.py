@@ -120,3 +120,25 @@ def test_nested_and_independent_designs_agree_within_their_standard_errors():
             assert abs(mean_n - mean_i) <= 4.0 * np.sqrt(var), (key(rn), q, mean_n, mean_i)
             compared += 1
     assert compared > 150
+
+
+def test_cli_independent_draws_a_set_per_n(tmp_path, monkeypatch):
+    """``--independent`` reaches the study's config (the JSON says which design ran); the grid
+    is shrunk to keep the test quick."""
+    from dataclasses import replace
+
+    import hexcal.sim.study as study_mod
+
+    real = study_mod.run_study
+    tiny = dict(n_type_i=(4, 5), n_type_ii=(4, 5), n_type_iii=(5, 6), n_free=(20,), trials_free=4)
+    monkeypatch.setattr(
+        study_mod,
+        "run_study",
+        lambda cfg, on_sweep=None: real(replace(cfg, **tiny), None, on_sweep),
+    )
+    for flag, nested in (([], True), (["--independent"], False)):
+        out = tmp_path / str(nested)
+        args = ["study", "--trials", "5", "--no-plots", "--json", "--out", str(out), *flag]
+        assert main(args) == 0
+        data = json.loads((out / "study.json").read_text())
+        assert data["config"]["nested"] is nested
