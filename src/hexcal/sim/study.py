@@ -5,7 +5,10 @@ constrained poses with uniform noise of half-width err_p (mm) on each position c
 err_a (deg) about each platform axis, err_l (mm) on each reading; the mean over trials of
 ``‖a_c − a_r‖`` and ``‖b_c − b_r‖``. §3.2 runs on Type I sets (N = 4..50); §3.3 on Type II
 sets for b (N = 4..30) and on Type III sets for a (N = 5..30) with b taken from an independent
-Type II set of N1 = 7, then the offset by eq. (19) over the Type III poses.
+Type II set of N1 = 7, then the offset by eq. (19) over the Type III poses. By default the
+sets are nested — each trial's first N poses of one set of the largest N — and
+``StudyConfig(nested=False)`` draws a new set for every N as the paper did
+(:mod:`hexcal.sim.study_sweeps`).
 
 The paper's output/input factor divides the mean error by the noise, with the noise in cm and
 degrees given the same number. The defaults keep that pairing: err_p = err_l = 0.1 mm
@@ -74,7 +77,7 @@ def run_study(
     robot: Robot | None = None,
     on_sweep: Callable[[], None] | None = None,
 ) -> StudyResult:
-    """Run the whole grid. Every trial of one N is drawn and solved in one batch; the pose-set
+    """Run the whole grid. The trials of one N are solved in one batch; the pose-set
     sweeps (:data:`SWEEPS` of them) run on their own threads (numpy releases the GIL) with
     independent random streams, so the result does not depend on the scheduling. ``on_sweep``
     is called as each sweep ends (a progress bar)."""
