@@ -11,9 +11,14 @@ cached but the operating system's files; wall time and peak resident memory (the
 - ``scale``: ``hexcal simulate --n-free N --seed 1`` (a session of N free poses and the
   clamped steps), then ``hexcal calibrate`` and ``hexcal diagnose`` on it, for each N of
   ``--sizes``; the time per pose at each size as a ratio against the first size's;
-- ``report``: ``hexcal diagnose --auto --report`` on examples/left-hand-sim (one step) and on a
-  simulated gain session (``--effect gain``, two steps), against the same without the report;
-- ``study``: ``hexcal study`` with its plots and with ``--no-plots``.
+- ``report``: ``hexcal diagnose --auto --report`` on examples/left-hand-sim (one step),
+  examples/left-hand-backlash and a simulated gain session (``--effect gain``, two steps),
+  against the same without the report (the ratio run by run, the two taking turns);
+- ``study``: ``hexcal study`` with its plots and with ``--no-plots`` (nested pose sets, its
+  default), and ``--independent --no-plots``, each run taking turns with a process that only
+  imports numpy, scipy.optimize and scipy.spatial.transform (``bare``, the reference of
+  benchmarks/cli_startup.py): the ratio to it run by run, its median and its minimum, so that
+  the machine's load weighs on both sides alike.
 
 Progress and the figures in words go to stderr, ``--json`` prints them all on stdout. Numbers,
 no pass or fail (the targets and the figures measured are in docs/performance.md).
@@ -33,6 +38,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "left-hand-sim"
+BACKLASH = ROOT / "examples" / "left-hand-backlash"
+#: The reference process: the fit's libraries imported, nothing else (as cli_startup.py's).
+BARE = [sys.executable, "-c", "import numpy, scipy.optimize, scipy.spatial.transform"]
 
 
 def hexcal() -> list[str]:
@@ -41,13 +49,13 @@ def hexcal() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "hexcal.app.cli"]
 
 
-def run(args: list[str]) -> tuple[float, float]:
-    """(wall s, peak RSS MB) of one ``hexcal`` process; its output is discarded, a failure
-    stops the benchmark with the command's own message."""
+def run(args: list[str], command: list[str] | None = None) -> tuple[float, float]:
+    """(wall s, peak RSS MB) of one ``hexcal`` process (or of ``command``); its output is
+    discarded, a failure stops the benchmark with the command's own message."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     t0 = time.perf_counter()
     proc = subprocess.Popen(
-        [*hexcal(), *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env
+        command or [*hexcal(), *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env
     )
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
@@ -55,6 +63,23 @@ def run(args: list[str]) -> tuple[float, float]:
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"hexcal {' '.join(args)} failed:\n{err}")
     return wall, usage.ru_maxrss / 1024.0  # KiB on Linux
+
+
+def paired(args: list[str], ref: list[str], runs: int, ref_cmd: list[str] | None = None) -> dict:
+    """``args`` and a reference (``hexcal ref``, or the process ``ref_cmd``) taking turns
+    ``runs`` times: each one's median wall time, and the ratio run by run (median, minimum)."""
+    pairs = [(run(args), run(ref, ref_cmd)) for _ in range(runs)]
+    ratios = [a[0] / b[0] for a, b in pairs]
+    return {
+        "wall_s": statistics.median(a[0] for a, _ in pairs),
+        "min_wall_s": min(a[0] for a, _ in pairs),
+        "rss_mb": max(a[1] for a, _ in pairs),
+        "ref_wall_s": statistics.median(b[0] for _, b in pairs),
+        "ratio_median": statistics.median(ratios),
+        "ratio_min": min(ratios),
+        "runs": [round(a[0], 3) for a, _ in pairs],
+        "ref_runs": [round(b[0], 3) for _, b in pairs],
+    }
 
 
 def median_of(args: list[str], runs: int) -> dict:
@@ -107,33 +132,59 @@ def report(runs: int, tmp: Path) -> dict:
         "--instruments",
         str(EXAMPLE / "instruments.json"),
     ]
+    backlash = [
+        str(BACKLASH / "measurements.csv"),
+        "--robot",
+        str(BACKLASH / "robot.json"),
+        "--instruments",
+        str(BACKLASH / "instruments.json"),
+    ]
     gain = session(tmp / "gain", 40, "--effect", "gain")
     out = {}
-    for name, files in (("example (one step)", example), ("gain session (two steps)", gain)):
+    for name, files in (
+        ("example (one step)", example),
+        ("left-hand-backlash", backlash),
+        ("gain session (two steps)", gain),
+    ):
         html = tmp / f"{name.split()[0]}.html"
+        got = paired(
+            ["diagnose", *files, "--auto", "--report", str(html), "--force"],
+            ["diagnose", *files],
+            runs,
+        )
         out[name] = {
-            "with_report": median_of(
-                ["diagnose", *files, "--auto", "--report", str(html), "--force"], runs
-            ),
-            "without": median_of(["diagnose", *files, "--auto"], runs),
+            "with_report": got,
+            "without_auto": median_of(["diagnose", *files, "--auto"], runs),
         }
-        w, wo = out[name]["with_report"]["wall_s"], out[name]["without"]["wall_s"]
-        print(f"diagnose --auto --report, {name}: {w:.2f} s ({wo:.2f} s without)", file=sys.stderr)
+        print(
+            f"diagnose --auto --report, {name}: {got['wall_s']:.2f} s, plain diagnose "
+            f"{got['ref_wall_s']:.2f} s: {got['ratio_median']:.2f}× (min {got['ratio_min']:.2f}×)"
+            f"; --auto without the report {out[name]['without_auto']['wall_s']:.2f} s",
+            file=sys.stderr,
+        )
     return out
 
 
 def study(runs: int, tmp: Path) -> dict:
     out = {
-        "plots": median_of(["study", "--out", str(tmp / "study"), "--force"], runs),
-        "no_plots": median_of(
-            ["study", "--out", str(tmp / "study-np"), "--no-plots", "--force"], runs
+        "plots": paired(["study", "--out", str(tmp / "study"), "--force"], [], runs, BARE),
+        "no_plots": paired(
+            ["study", "--out", str(tmp / "study-np"), "--no-plots", "--force"], [], runs, BARE
+        ),
+        "independent_no_plots": paired(
+            ["study", "--out", str(tmp / "study-in"), "--independent", "--no-plots", "--force"],
+            [],
+            runs,
+            BARE,
         ),
     }
-    print(
-        f"study: {out['plots']['wall_s']:.2f} s with plots, "
-        f"{out['no_plots']['wall_s']:.2f} s --no-plots",
-        file=sys.stderr,
-    )
+    for name, got in out.items():
+        print(
+            f"study, {name.replace('_', ' ')}: {got['wall_s']:.2f} s (min {got['min_wall_s']:.2f}"
+            f" s), {got['ratio_median']:.1f}× the bare imports (min {got['ratio_min']:.1f}×; "
+            f"bare {got['ref_wall_s']:.3f} s)",
+            file=sys.stderr,
+        )
     return out
 
 

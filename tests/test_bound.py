@@ -139,3 +139,49 @@ def test_free_pose_refinement_meets_its_bound_in_the_small_noise_limit():
     )
     rows = [r for r in run_study(cfg).rows if r["set"] == "free" and r["method"] == "refined"]
     assert rows[0]["all_efficiency"] == pytest.approx(1.0, abs=0.1)
+
+
+def test_nested_counts_sum_each_leading_subsets_information():
+    """``counts``: the information of each set's first N poses for every N at once is the
+    information of those N poses alone (independent poses' information adds up)."""
+    sim = Simulator(ROBOT, ranges=RANGES, noise=NoiseModel(0.1, 0.01, 0.1, "gaussian"))
+    sig = NoiseSigmas(0.1, np.deg2rad(0.01), 0.1)
+    rng = np.random.default_rng(5)
+    T, counts = 6, [5, 9, 16]
+    bb, aa = np.broadcast_to(B, (T, 3)), np.broadcast_to(A, (T, 3))
+    P1, R1 = sim.type_i(K, (T, 16), rng)
+    v = P1 + (R1 @ B[:, None])[..., 0] - A
+    length = np.linalg.norm(v, axis=-1)
+    P2, R2 = sim.type_ii(K, (T, 7), rng)
+    P3, R3 = sim.type_iii(K, (T, 16), rng)
+    nested = {
+        "i": bound.information_type_i(P1, R1, length, bb, aa, v[:, 0], sig, counts),
+        "ii": bound.information_type_ii(P1, R1, bb, sig, counts),
+        "iii": bound.information_type_iii(P3, R3, bb, aa, sig, counts=counts),
+        "ii_iii": bound.information_type_ii_iii(P2, R2, P3, R3, bb, aa, sig, counts),
+    }
+    for i, n in enumerate(counts):
+        alone = {
+            "i": bound.information_type_i(
+                P1[:, :n], R1[:, :n], length[:, :n], bb, aa, v[:, 0], sig
+            ),
+            "ii": bound.information_type_ii(P1[:, :n], R1[:, :n], bb, sig),
+            "iii": bound.information_type_iii(P3[:, :n], R3[:, :n], bb, aa, sig),
+            "ii_iii": bound.information_type_ii_iii(P2, R2, P3[:, :n], R3[:, :n], bb, aa, sig),
+        }
+        for name, info in nested.items():
+            scale = np.abs(alone[name]).max()  # entries that cancel to rounding: absolute
+            np.testing.assert_allclose(info[:, i], alone[name], rtol=1e-12, atol=1e-14 * scale)
+
+
+def test_bound_is_the_pseudo_inverse_well_posed_or_not():
+    """The inverse of a well-posed information and the pseudo-inverse of a singular one, in
+    one batch (the fast path and its fall-back give what ``pinv`` gives)."""
+    rng = np.random.default_rng(2)
+    g = rng.normal(size=(5, 8, 20)) * np.array([1e-3, 1.0, 1e3, 1.0, 1.0, 10.0, 1.0, 1.0])[:, None]
+    info = g @ g.swapaxes(-1, -2)
+    want = np.linalg.pinv(info, hermitian=True)
+    np.testing.assert_allclose(bound.bound(info), want, rtol=1e-8, atol=1e-12 * np.abs(want).max())
+    info[1, 3, :] = info[1, :, 3] = 0.0  # one direction left undetermined in one set
+    want = np.linalg.pinv(info, hermitian=True)
+    np.testing.assert_allclose(bound.bound(info), want, rtol=1e-8, atol=1e-12 * np.abs(want).max())

@@ -59,3 +59,39 @@ def test_direct_noisy_spread_matches_first_order_theory(method, truth, rng):
     trials = 4000
     ratio, _, _ = spread_matches_theory(sim, solve, P0, R0, K, trials, rng)
     assert abs(ratio - 1.0) < trace_ratio_tolerance(trials), ratio
+
+
+def test_nested_counts_solve_each_leading_subset(truth, rng):
+    """``counts``: the solutions from the first N poses of each set, for every N at once, are
+    those of the N poses solved alone (to rounding), for the direct and the paper's forms."""
+    from hexcal.estimate.solvers import paper
+
+    sim = Simulator(truth, noise=NoiseModel(0.1, 0.01, 0.1, "uniform"))
+    counts = [5, 8, 20]
+    P, R = sim.type_i(K, (30, 20), rng)
+    P, R, rho = sim.measure(rng, P, R)
+    length = rho[..., K] + truth.offsets[K]
+    P3, R3 = sim.type_iii(K, (30, 20), rng)
+    P3, R3, _ = sim.measure(rng, P3, R3)
+    b = np.broadcast_to(truth.b[K], (30, 3))
+    nested = {
+        "type_i_direct": direct.type_i_direct(P, R, length, counts),
+        "type_i_paper": paper.type_i_paper(P, R, length, counts),
+        "type_ii_direct": direct.type_ii_direct(P, R, counts),
+        "type_ii_paper": (paper.type_ii_paper(P, R, counts),),
+        "type_iii_direct": direct.type_iii_direct(P3, R3, b, counts),
+        "type_iii_paper": (paper.type_iii_paper(P3, R3, b, counts),),
+    }
+    for i, n in enumerate(counts):
+        alone = {
+            "type_i_direct": direct.type_i_direct(P[:, :n], R[:, :n], length[:, :n]),
+            "type_i_paper": paper.type_i_paper(P[:, :n], R[:, :n], length[:, :n]),
+            "type_ii_direct": direct.type_ii_direct(P[:, :n], R[:, :n]),
+            "type_ii_paper": (paper.type_ii_paper(P[:, :n], R[:, :n]),),
+            "type_iii_direct": direct.type_iii_direct(P3[:, :n], R3[:, :n], b),
+            "type_iii_paper": (paper.type_iii_paper(P3[:, :n], R3[:, :n], b),),
+        }
+        for name, parts in nested.items():
+            for got, want in zip(parts, alone[name], strict=True):
+                # 1e-9 mm: rounding of normal equations on mm-sized columns (the noise is 0.1).
+                np.testing.assert_allclose(got[:, i], want, rtol=0, atol=1e-9, err_msg=name)

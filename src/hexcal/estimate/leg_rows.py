@@ -275,13 +275,20 @@ def pose_precisions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(W (B, M, 6, 6), S (B, 6, 6, M)) of each pose's six rows at the geometry of x (B, p):
     the whitener (W Σ Wᵀ = I, :func:`hexcal.model.noise.leg_whiteners`) and the precision
-    S = WᵀW = Σ⁻¹, pose axis last."""
+    S = WᵀW = Σ⁻¹, pose axis last. The B problems' poses go through as one array, each pose
+    with its problem's geometry (one pass over B·M poses, not B passes)."""
     from hexcal.model.noise import leg_precisions
 
-    a, b = lay.a(x), lay.b(x)
-    out = [
-        leg_precisions(a[i], b[i], d.P[i], d.R[i], sig, poses_last=True) for i in range(x.shape[0])
-    ]
-    if len(out) == 1:
-        return out[0][0][None], out[0][1][None]
-    return np.stack([w for w, _ in out]), np.stack([s for _, s in out])
+    nb, m = x.shape[0], d.P.shape[-1]
+    if nb == 1:
+        W, S = leg_precisions(lay.a(x)[0], lay.b(x)[0], d.P[0], d.R[0], sig, poses_last=True)
+        return W[None], S[None]
+
+    def per_pose(v: np.ndarray) -> np.ndarray:  # (B, 6, 3) → (6, 3, B·M)
+        return np.broadcast_to(v.transpose(1, 2, 0)[..., None], (6, 3, nb, m)).reshape(6, 3, -1)
+
+    P = d.P.transpose(1, 0, 2).reshape(3, -1)
+    R = d.R.transpose(1, 2, 0, 3).reshape(3, 3, -1)
+    W, S = leg_precisions(per_pose(lay.a(x)), per_pose(lay.b(x)), P, R, sig, poses_last=True)
+    S = np.ascontiguousarray(S.reshape(6, 6, nb, m).transpose(2, 0, 1, 3))
+    return W.reshape(nb, m, 6, 6), S

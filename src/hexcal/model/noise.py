@@ -66,20 +66,20 @@ def _sensitivities(
 def sensitivities_soa(
     a: np.ndarray, b: np.ndarray, P: np.ndarray, R: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """N and G (3, 6, M) for poses laid out pose axis last: P (3, M) mm, R (3, 3, M)."""
+    """N and G (3, 6, M) for poses laid out pose axis last: P (3, M) mm, R (3, 3, M); a, b
+    (6, 3) mm, or (6, 3, M): each pose its own geometry (a batch of sessions' poses)."""
+    if np.ndim(a) == 2:
+        a, b = a[..., None], b[..., None]
     v = np.stack(
         [
-            R[i, 0] * b[:, 0, None]
-            + R[i, 1] * b[:, 1, None]
-            + R[i, 2] * b[:, 2, None]
-            + (P[i] - a[:, i, None])
+            R[i, 0] * b[:, 0] + R[i, 1] * b[:, 1] + R[i, 2] * b[:, 2] + (P[i] - a[:, i])
             for i in range(3)
         ]
     )  # (3, 6, M): P + R b_k − a_k
     n = v / np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
     # Rᵀ n, then b × Rᵀ n: dL/dθ with θ about the platform's axes.
     u = [R[0, c] * n[0] + R[1, c] * n[1] + R[2, c] * n[2] for c in range(3)]  # (6, M) each
-    bx, by, bz = (b[:, c, None] for c in range(3))
+    bx, by, bz = (b[:, c] for c in range(3))
     g = np.stack([by * u[2] - bz * u[1], bz * u[0] - bx * u[2], bx * u[1] - by * u[0]])
     return n, g
 
@@ -140,14 +140,17 @@ def leg_precisions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(W (M, 6, 6), S (6, 6, M)): :func:`leg_whiteners` and the precision S = WᵀW = Σ⁻¹ of
     each pose's six leg lengths, 1/mm², laid out pose axis last (empty without
-    ``precision``). P (M, 3) mm, R (M, 3, 3), or with ``poses_last`` P (3, M), R (3, 3, M)."""
+    ``precision``). P (M, 3) mm, R (M, 3, 3), or with ``poses_last`` P (3, M), R (3, 3, M),
+    and then a, b may be (6, 3, M): each pose its own geometry (:func:`sensitivities_soa`)."""
     m = P.shape[-1] if poses_last else len(P)
     W = np.empty((m, 6, 6))
     S = np.empty((6, 6, m if precision else 0))
+    per_pose = np.ndim(a) == 3
     for start in range(0, m, BLOCK):
         blk = slice(start, start + BLOCK)
         if poses_last:
-            n, g = sensitivities_soa(a, b, P[:, blk], R[..., blk])
+            ab = (a[..., blk], b[..., blk]) if per_pose else (a, b)
+            n, g = sensitivities_soa(*ab, P[:, blk], R[..., blk])
         else:
             n, g = _sensitivities(a, b, P[blk], R[blk])
         cov = _covariance_soa(n, g, sig)

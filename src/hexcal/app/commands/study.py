@@ -65,6 +65,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument(
         "--out", default="study-out", help="directory for study.csv, study.json and the PNGs"
     )
+    s.add_argument(
+        "--independent",
+        action="store_true",
+        help="a new pose set for every N and trial, as the paper drew them (default: nested "
+        "sets, each trial's first N poses of one set of the largest N; docs/methods.md)",
+    )
     s.add_argument("--no-plots", action="store_true", help="write the tables only")
     s.add_argument("--force", action="store_true", help="replace the files of an earlier run")
     s.add_argument("--json", action="store_true", help="print the JSON on stdout too")
@@ -96,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         err_l_mm=args.err_l_mm,
         noise=args.noise,
         seed=args.seed,
+        nested=not args.independent,
         ranges=PoseRanges(stroke_mm=args.stroke_mm, tilt_deg=args.tilt_deg, cone_deg=args.cone_deg),
     )
     check_outputs((args.out, "/"))

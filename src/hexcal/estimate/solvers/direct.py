@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from hexcal.estimate.solvers.linalg import lstsq
-from hexcal.estimate.solvers.paper import platform_point_positions
+from hexcal.estimate.solvers.paper import Counts, platform_point_positions
 
 
 def type_i_system(
@@ -31,9 +31,14 @@ def type_i_system(
     return m.reshape(*batch, -1, 9), -P.reshape(*batch, -1)
 
 
-def type_i_direct(P: np.ndarray, R: np.ndarray, length: np.ndarray):
-    """(b_k, a_k, u) each (..., 3) from Type I poses with known full lengths ρ_i (mm)."""
-    x = lstsq(*type_i_system(P, R, length))
+def _rows(counts: Counts, per_pose: int) -> np.ndarray | None:
+    return None if counts is None else per_pose * np.asarray(counts)
+
+
+def type_i_direct(P: np.ndarray, R: np.ndarray, length: np.ndarray, counts: Counts = None):
+    """(b_k, a_k, u) each (..., 3) from Type I poses with known full lengths ρ_i (mm). With
+    ``counts`` (C,), from the first counts[c] poses of each set: (..., C, 3) each."""
+    x = lstsq(*type_i_system(P, R, length), rows=_rows(counts, 3))
     return x[..., :3], x[..., 3:6], x[..., 6:]
 
 
@@ -55,26 +60,34 @@ def type_ii_system(P: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.concatenate([R, -eye], axis=-1).reshape(*batch, -1, 6), -P.reshape(*batch, -1)
 
 
-def type_ii_direct(P: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(b_k, C) each (..., 3) mm: platform point and the fixed point it was clamped at."""
-    x = lstsq(*type_ii_system(P, R))
+def type_ii_direct(
+    P: np.ndarray, R: np.ndarray, counts: Counts = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(b_k, C) each (..., 3) mm: platform point and the fixed point it was clamped at
+    ((..., C, 3) with ``counts``, as :func:`type_i_direct`)."""
+    x = lstsq(*type_ii_system(P, R), rows=_rows(counts, 3))
     return x[..., :3], x[..., 3:]
 
 
-def sphere_fit(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Algebraic sphere fit through V (..., N, 3) mm: centre (..., 3) and radius (...,) mm.
+def sphere_fit(V: np.ndarray, counts: Counts = None) -> tuple[np.ndarray, np.ndarray]:
+    """Algebraic sphere fit through V (..., N, 3) mm: centre (..., 3) and radius (...,) mm;
+    with ``counts`` (C,), through the first counts[c] points: (..., C, 3) and (..., C).
 
-    The points are centred first so the |V|² column does not dwarf the others.
+    The points are centred first so the |V|² column does not dwarf the others (on the mean of
+    all N: the fit is the same wherever the origin is, only its rounding is not).
     """
     centre0 = V.mean(axis=-2, keepdims=True)
     w = V - centre0
     m = np.concatenate([2.0 * w, np.ones((*w.shape[:-1], 1))], axis=-1)
-    x = lstsq(m, np.einsum("...i,...i->...", w, w))
+    x = lstsq(m, np.einsum("...i,...i->...", w, w), rows=_rows(counts, 1))
     c = x[..., :3]
     r2 = x[..., 3] + np.einsum("...i,...i->...", c, c)
-    return c + centre0[..., 0, :], np.sqrt(np.maximum(r2, 0.0))
+    return c + centre0[..., 0, :] if counts is None else c + centre0, np.sqrt(np.maximum(r2, 0.0))
 
 
-def type_iii_direct(P: np.ndarray, R: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(a_k (..., 3), clamped length r (...,)) mm from Type III poses and a known b_k."""
-    return sphere_fit(platform_point_positions(P, R, b))
+def type_iii_direct(
+    P: np.ndarray, R: np.ndarray, b: np.ndarray, counts: Counts = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(a_k (..., 3), clamped length r (...,)) mm from Type III poses and a known b_k
+    ((..., C, 3) and (..., C) with ``counts``, as :func:`sphere_fit`)."""
+    return sphere_fit(platform_point_positions(P, R, b), counts)

@@ -21,16 +21,17 @@ MIN_POSES = 17
 
 
 def free_system(P: np.ndarray, R: np.ndarray, reading: np.ndarray, offset: float | None):
-    """Design matrix (N, 17 or 16) and right side (N,) for one leg's free-pose form."""
-    n = len(P)
-    rtp = np.einsum("nji,nj->ni", R, P)  # Rᵀ P
-    cols = [2.0 * rtp, -2.0 * P, -2.0 * R.reshape(n, 9), np.ones((n, 1))]
-    rhs = reading**2 - np.einsum("ni,ni->n", P, P)
+    """Design matrix (..., N, 17 or 16) and right side (..., N) for one leg's free-pose form:
+    P (..., N, 3) mm, R (..., N, 3, 3), reading (..., N) mm (batched over leading axes)."""
+    rtp = np.einsum("...ji,...j->...i", R, P)  # Rᵀ P
+    ones = np.ones((*P.shape[:-1], 1))
+    cols = [2.0 * rtp, -2.0 * P, -2.0 * R.reshape(*R.shape[:-2], 9), ones]
+    rhs = reading**2 - np.einsum("...i,...i->...", P, P)
     if offset is None:
-        cols.append(-2.0 * reading[:, None])
+        cols.append(-2.0 * reading[..., None])
     else:
         rhs = rhs + 2.0 * reading * offset
-    return np.concatenate(cols, axis=1), rhs
+    return np.concatenate(cols, axis=-1), rhs
 
 
 def free_linear(P: np.ndarray, R: np.ndarray, reading: np.ndarray, offset: float | None = None):

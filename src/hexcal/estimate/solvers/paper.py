@@ -14,9 +14,14 @@ correct as printed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from hexcal.estimate.solvers.linalg import lstsq
+
+#: Nested pose sets: the numbers of leading poses (C,) to solve from, or None for all of them.
+Counts = Sequence[int] | np.ndarray | None
 
 
 def eq5_system(P: np.ndarray, R: np.ndarray, length: np.ndarray, printed: bool = False):
@@ -35,10 +40,18 @@ def eq5_system(P: np.ndarray, R: np.ndarray, length: np.ndarray, printed: bool =
     return m.reshape(*batch, -1, 6), rhs.reshape(*batch, -1)
 
 
-def type_i_paper(P: np.ndarray, R: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Method 3.2, eq. (4)-(7): (b_k, a_k), each (..., 3) mm, from Type I poses."""
+def _pair_rows(counts: Counts, per_pair: int) -> np.ndarray | None:
+    """The rows of the differenced systems of the first ``counts`` poses (N − 1 pairs each)."""
+    return None if counts is None else per_pair * (np.asarray(counts) - 1)
+
+
+def type_i_paper(
+    P: np.ndarray, R: np.ndarray, length: np.ndarray, counts: Counts = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Method 3.2, eq. (4)-(7): (b_k, a_k), each (..., 3) mm, from Type I poses. With
+    ``counts`` (C,), from the first counts[c] poses of each set: (..., C, 3) each."""
     m, n = eq5_system(P, R, length)
-    x = lstsq(m, n)
+    x = lstsq(m, n, rows=_pair_rows(counts, 3))
     return x[..., :3], x[..., 3:]
 
 
@@ -50,9 +63,10 @@ def eq10_system(P: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a.reshape(*batch, -1, 3), b.reshape(*batch, -1)
 
 
-def type_ii_paper(P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Method 3.3.1, eq. (9)-(12): b_k (..., 3) mm from Type II poses."""
-    return lstsq(*eq10_system(P, R))
+def type_ii_paper(P: np.ndarray, R: np.ndarray, counts: Counts = None) -> np.ndarray:
+    """Method 3.3.1, eq. (9)-(12): b_k (..., 3) mm from Type II poses ((..., C, 3) with
+    ``counts``, as :func:`type_i_paper`)."""
+    return lstsq(*eq10_system(P, R), rows=_pair_rows(counts, 3))
 
 
 def platform_point_positions(P: np.ndarray, R: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -67,9 +81,12 @@ def eq15_system(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, 0.5 * (sq[..., 1:] - sq[..., :-1])
 
 
-def type_iii_paper(P: np.ndarray, R: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Method 3.3.2, eq. (13)-(17): a_k (..., 3) mm from Type III poses and a known b_k."""
-    return lstsq(*eq15_system(platform_point_positions(P, R, b)))
+def type_iii_paper(
+    P: np.ndarray, R: np.ndarray, b: np.ndarray, counts: Counts = None
+) -> np.ndarray:
+    """Method 3.3.2, eq. (13)-(17): a_k (..., 3) mm from Type III poses and a known b_k
+    ((..., C, 3) with ``counts``, as :func:`type_i_paper`)."""
+    return lstsq(*eq15_system(platform_point_positions(P, R, b)), rows=_pair_rows(counts, 1))
 
 
 def offset_eq19(

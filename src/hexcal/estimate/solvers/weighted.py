@@ -41,16 +41,19 @@ def _rotated(R: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...nij,...j->...ni", R, b)
 
 
-def _point_cov(R: np.ndarray, b: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
-    """Covariance (..., N, 3, 3) of the measured B_i = P_i + R_i b: position plus orientation.
+def _point_cov(
+    R: np.ndarray, b: np.ndarray, sig: NoiseSigmas, rb: np.ndarray | None = None
+) -> np.ndarray:
+    """Covariance (..., N, 3, 3) of the measured B_i = P_i + R_i b: position plus orientation
+    (``rb``: R_i b when the caller has it).
 
     The orientation part is ``σθ² (R[b]x)(R[b]x)ᵀ = σθ² (|b|² I − (Rb)(Rb)ᵀ)``.
     """
-    rb = _rotated(R, b)
-    b2 = np.sum(b * b, axis=-1)[..., None, None, None]
-    return (sig.position_mm**2 + sig.orientation_rad**2 * b2) * np.eye(
-        3
-    ) - sig.orientation_rad**2 * (rb[..., :, None] * rb[..., None, :])
+    rb = _rotated(R, b) if rb is None else rb
+    cov = rb[..., :, None] * (-(sig.orientation_rad**2) * rb[..., None, :])
+    diag = sig.position_mm**2 + sig.orientation_rad**2 * np.sum(b * b, axis=-1)
+    cov.reshape(*cov.shape[:-2], 9)[..., ::4] += diag[..., None, None]  # the diagonal, a view
+    return cov
 
 
 def _point_var(R: np.ndarray, b: np.ndarray, n: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
@@ -99,15 +102,18 @@ def refine_type_i(P, R, length, b0, a0, u0, sig: NoiseSigmas, iterations: int = 
     """Weighted Type I fit: (b, a, u) each (..., 3), seeded by a linear solution."""
     b, a = b0.copy(), a0.copy()
     u = u0 / np.linalg.norm(u0, axis=-1, keepdims=True)
-    eye = np.broadcast_to(np.eye(3), R.shape)
+    # The Jacobian's R and −I blocks stay; only the direction's columns change.
+    j = np.zeros((*R.shape[:-1], 8))
+    j[..., :3] = R
+    j[..., [0, 1, 2], [3, 4, 5]] = -1.0
+    lt = -length[..., None]
     for _ in range(iterations):
-        w = _inv3_sym(_point_cov(R, b, sig) + sig.reading_mm**2 * _outer(u)[..., None, :, :])
+        rb = _rotated(R, b)
+        w = _inv3_sym(_point_cov(R, b, sig, rb) + sig.reading_mm**2 * _outer(u)[..., None, :, :])
         e1, e2 = _tangent_basis(u)
-        res = P + _rotated(R, b) - a[..., None, :] - length[..., None] * u[..., None, :]
-        lt = -length[..., None, None]
-        j = np.concatenate(
-            [R, -eye, lt * e1[..., None, :, None], lt * e2[..., None, :, None]], axis=-1
-        )
+        res = P + rb - a[..., None, :] - length[..., None] * u[..., None, :]
+        j[..., 6] = lt * e1[..., None, :]
+        j[..., 7] = lt * e2[..., None, :]
         dx = _gn_step(j, w, res)
         b = b + dx[..., :3]
         a = a + dx[..., 3:6]
@@ -158,6 +164,11 @@ def type_iii_rows(P, R, b, a, sig: NoiseSigmas):
     return dist, n, jac, (1.0 / var)[..., None, None]
 
 
+#: The relative decrease of the weighted cost below which :func:`refine_type_ii_iii` counts a
+#: member as converged (its step is then a few nanometres, a millionth of the noise).
+CONVERGED = 1e-12
+
+
 def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterations: int = 4):
     """The paper's §3.3 pose sets fitted together: a Type II set (``P2`` (..., N1, 3), ``R2``)
     and a Type III set (``P3`` (..., N, 3), ``R3``) of the same leg share its platform point b,
@@ -189,21 +200,32 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
     P3, R3 = P3.reshape(-1, *P3.shape[-2:]), R3.reshape(-1, *R3.shape[-3:])
     j2 = j2.reshape(-1, *j2.shape[-3:])
     now = terms(x)
+    active = np.arange(len(x))
     for _ in range(iterations):
-        res2, w2, j3, w3, res3, cost = now
+        res2, w2, j3, w3, res3, cost = (v[active] for v in now)
         j3 = np.concatenate([j3[..., :3], np.zeros((*j3.shape[:-1], 3)), j3[..., 3:]], axis=-1)
-        jtj, jtr = _normal(j2, w2, res2)
+        jtj, jtr = _normal(j2[active], w2, res2)
         jtj3, jtr3 = _normal(j3, w3, res3)
-        dx = _solve_step(jtj + jtj3, jtr + jtr3)
+        step = _solve_step(jtj + jtj3, jtr + jtr3)
+        # A member whose step promises to lower its cost by less than CONVERGED of it is at
+        # its minimum: its trial steps would only compare rounding errors (and be halved in
+        # vain). It is left where it is, and no longer stepped.
+        gain = -np.einsum("bi,bi->b", (jtr + jtr3)[..., 0], step)
+        moving = gain > CONVERGED * cost
+        active, step = active[moving], step[moving]
+        if not len(active):
+            break
+        dx = np.zeros_like(x)
+        dx[active] = step
         # Step control: with few Type III poses the sphere is barely determined and a full
         # step can run away; a step that raises the weighted cost is halved, up to 6 times,
         # and a member whose every trial step does is left where it is. Only the members
         # still stepping are evaluated again.
-        todo = np.arange(len(x))
+        todo = active
         for _half in range(7):
             trial = x[todo] + dx[todo]
             got = terms(trial, todo)
-            better = got[-1] <= cost[todo]
+            better = got[-1] <= now[-1][todo]
             took = todo[better]
             x[took] = trial[better]
             for kept, new in zip(now, got, strict=True):
@@ -212,5 +234,8 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
             if not len(todo):
                 break
             dx = 0.5 * dx
+        # A member whose every trial step failed is where it was: its next step would be the
+        # same, and fail the same way. It is left there.
+        active = np.setdiff1d(active, todo, assume_unique=True)
     x = x.reshape(*batch, x.shape[-1])
     return x[..., :3], x[..., 3:6], x[..., 6:9], x[..., 9]
