@@ -145,7 +145,10 @@ def screen_inputs(inp: Inputs) -> list[str]:
     """The cheap checks, before any fit: the data's own consistency (units, signs, quaternion
     order, and against the drawing its size, its legs and offsets), then gross outlier poses.
     Raises :class:`DataMismatch` (or the outliers' refusal); returns what is reported without
-    refusing (findings that rest on the drawing when :attr:`Inputs.drawing_check` is off)."""
+    refusing (findings that rest on the drawing when :attr:`Inputs.drawing_check` is off).
+    Readings beyond the stroke (``leg_range_mm``) are refused first: no other finding holds
+    on readings no leg can give."""
+    screen_stroke(inp)
     c = consistency_of(inp)
     refused = c.refusals(inp.drawing_check)
     if refused:
@@ -161,6 +164,20 @@ def screen_inputs(inp: Inputs) -> list[str]:
         )
     screen_outliers(inp)
     return [f.text for f in c.warnings(inp.drawing_check)]
+
+
+def screen_stroke(inp: Inputs) -> None:
+    """Refuse readings beyond robot.json's ``leg_range_mm`` by more than the reading noise
+    (:func:`hexcal.diagnosis.limits.beyond_stroke`): :class:`DataMismatch` naming the legs,
+    how far and the likely cause."""
+    from hexcal.diagnosis.limits import beyond_stroke, stroke_message
+
+    sigma = None if inp.instruments is None else inp.instruments.sigma_reading_mm
+    found = beyond_stroke(inp.meas, inp.design, sigma)
+    if found:
+        raise DataMismatch(
+            stroke_message(inp.meas, inp.design, found, inp.label.rsplit(" (", 1)[0])
+        )
 
 
 def _causes(inp: Inputs) -> str:

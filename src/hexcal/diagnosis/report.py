@@ -447,6 +447,7 @@ def render_report(
     plots: bool = True,
     limits: Sequence[str] = (),
     on_figure: Callable[[], None] | None = None,
+    limits_advice: str = "",
 ) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     if not diags:
@@ -464,9 +465,7 @@ def render_report(
         items = "".join(f"<li>{esc(line)}</li>" for line in limits)
         parts.append(
             "<section id=\"limits\"><h2>Poses at a stroke's end or a joint's limit</h2>"
-            f'<ul>{items}</ul><p class="muted">A leg against its end stop does not follow the '
-            "model: give leg_range_mm in robot.json, or leave these poses out with "
-            "--exclude-at-limits.</p></section>"
+            f'<ul>{items}</ul><p class="muted">{esc(_sentence(limits_advice))}</p></section>'
         )
     with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
         tmp = Path(t) if plots else None
@@ -489,6 +488,14 @@ def render_report(
     return html.replace("<table", '<div class="tbl"><table').replace("</table>", "</table></div>")
 
 
+def _sentence(advice: str) -> str:
+    """The limits' advice as a sentence (capitalised, a full stop)."""
+    from hexcal.diagnosis.limits import LEAVE_OUT
+
+    text = advice or LEAVE_OUT
+    return text[:1].upper() + text[1:] + "."
+
+
 def write_report(
     diags: Sequence[Diagnosis],
     path: Path,
@@ -496,6 +503,7 @@ def write_report(
     plots: bool = True,
     limits: Sequence[str] = (),
     on_figure: Callable[[], None] | None = None,
+    limits_advice: str = "",
 ) -> Path:
     """Write ONE self-contained HTML report of a diagnosis sequence to ``path`` (atomically).
 
@@ -503,9 +511,11 @@ def write_report(
     ``none``); between consecutive steps a before/after figure is drawn. ``inputs``: label →
     input file, listed with its SHA-256. ``plots=False`` leaves the figures out (a quick,
     tables-only page). ``on_figure`` is called as each figure is drawn (a progress bar of
-    :func:`figure_count` figures).
+    :func:`figure_count` figures). ``limits``: the lines of the poses at a stroke's end or a
+    joint's limit, ``limits_advice`` what to do with them
+    (:func:`hexcal.diagnosis.limits.advice`; by default, leave them out).
     Returns ``path``.
     """
     path = Path(path)
-    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_figure))
+    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_figure, limits_advice))
     return path

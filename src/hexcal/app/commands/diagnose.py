@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
             refuse_overwrite(Path(out_path), inp, force=True)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)
+    from hexcal.diagnosis.limits import advice as limits_advice
     from hexcal.diagnosis.limits import at_limits
 
     sigma = None if inp.instruments is None else inp.instruments.sigma_reading_mm
@@ -148,10 +149,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"poses at the end of a leg's stroke or a joint's limit{left}:")
             print("\n".join(f"  {line}" for line in limit_lines))
             if not args.exclude_at_limits:
-                print(
-                    "  a leg against its end stop does not follow the model: give leg_range_mm in "
-                    "robot.json, or leave these poses out with --exclude-at-limits"
-                )
+                print(f"  {limits_advice(inp.design)}")
             print()
         shown = steps if args.verbose else steps[-1:]
         if len(shown) < len(steps):
@@ -259,10 +257,16 @@ def _diagnose_and_write(
 
         write_text_atomic(args.residuals, steps[-1].residual_table())
     if args.report:
+        from hexcal.diagnosis.limits import advice
         from hexcal.diagnosis.report import figure_count, write_report
 
         bar.stage("writing the report", total=figure_count(steps))
         write_report(
-            steps, Path(args.report), dict(inp.files), limits=limit_lines, on_figure=bar.advance
+            steps,
+            Path(args.report),
+            dict(inp.files),
+            limits=limit_lines,
+            on_figure=bar.advance,
+            limits_advice=advice(inp.design),
         )
     return steps, result, mismatch
