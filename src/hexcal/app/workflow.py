@@ -322,7 +322,8 @@ def session_inputs(session: Any, path: Path | str) -> Inputs:
 def procedure_steps(proc: Any, poses_per_step: int | None, free_poses: int | None) -> list:
     """The procedure's steps with the operator's pose counts: ``poses_per_step`` for clamped
     steps, ``free_poses`` for free ones (None: the procedure's recommended counts), never below
-    a step's minimum; steps at home keep theirs."""
+    a step's minimum; steps at home keep theirs. Counts that add up to more than a session holds
+    are refused (:func:`hexcal.procedure.steps.check_total`)."""
 
     def count(s: Any) -> int:
         if s.at_home:
@@ -330,7 +331,11 @@ def procedure_steps(proc: Any, poses_per_step: int | None, free_poses: int | Non
         n = free_poses if s.leg == 0 else poses_per_step
         return max(int(n), int(s.min_poses)) if n else int(s.n_poses)
 
-    return [replace(s, n_poses=count(s)) for s in proc.expand()]
+    from hexcal.procedure.steps import check_total
+
+    steps = [replace(s, n_poses=count(s)) for s in proc.expand()]
+    check_total([s.n_poses for s in steps], f"procedure {proc.name!r}", "these pose counts ask for")
+    return steps
 
 
 # -- calibration ------------------------------------------------------------------------------

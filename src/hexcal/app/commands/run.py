@@ -7,8 +7,8 @@ import sys
 from pathlib import Path
 
 from hexcal.app.commands.common import (
-    COUNT,
-    POSITIVE_COUNT,
+    FREE_POSES,
+    POSES_PER_STEP,
     SECONDS,
     SEED,
     add_effects_option,
@@ -50,9 +50,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "direction and length, then length clamping)",
     )
     rn.add_argument(
-        "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"
+        "--poses-per-step", type=POSES_PER_STEP, help="instead of the procedure's counts"
     )
-    rn.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
+    rn.add_argument("--free-poses", type=FREE_POSES, help="instead of the procedure's count")
     rn.add_argument("--seed", type=SEED, default=1, help="--mock: the simulated robot")
     rn.add_argument(
         "--effect",
