@@ -36,7 +36,7 @@ from hexcal.diagnosis.report_tables import (
 )
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.effects import get_effect
-from hexcal.io.fileio import write_text_atomic
+from hexcal.io.fileio import OutputFileError, write_error, write_text_atomic
 from hexcal.vocabulary import Outcome, Verdict
 
 #: Plot order in the report: the overview first, then one figure per suspect quantity.
@@ -517,5 +517,13 @@ def write_report(
     Returns ``path``.
     """
     path = Path(path)
-    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_figure, limits_advice))
+    try:
+        text = render_report(diags, inputs, plots, limits, on_figure, limits_advice)
+    except OSError as exc:  # a figure, in the temporary folder the report draws in
+        if not isinstance(exc, OutputFileError):
+            exc = write_error(exc, exc.filename or tempfile.gettempdir())
+        raise OutputFileError(
+            f"{path}: not written: its figures could not be drawn ({exc})", path
+        ) from None
+    write_text_atomic(path, text)
     return path

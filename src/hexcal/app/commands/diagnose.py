@@ -237,21 +237,21 @@ def _diagnose_and_write(
         from hexcal.diagnosis.compare_plots import before_after_job, pose_error_job
         from hexcal.diagnosis.figure_pool import draw_all
         from hexcal.diagnosis.plots import plot_jobs
+        from hexcal.io.fileio import new_folder
 
-        out = Path(args.plots)
-        out.mkdir(parents=True, exist_ok=True)
-        jobs = plot_jobs(steps[-1], out)
-        jobs.append(pose_error_job(steps, out / "pose_error.png"))
-        jobs += [
-            before_after_job(steps[i - 1], steps[i], out / f"before_after_{i}.png")
-            for i in range(1, len(steps))
-        ]
-        bar.stage("drawing the plots", total=len(jobs))
+        with new_folder(args.plots) as out:  # removed again if it was made and stays empty
+            jobs = plot_jobs(steps[-1], out)
+            jobs.append(pose_error_job(steps, out / "pose_error.png"))
+            jobs += [
+                before_after_job(steps[i - 1], steps[i], out / f"before_after_{i}.png")
+                for i in range(1, len(steps))
+            ]
+            bar.stage("drawing the plots", total=len(jobs))
 
-        def advance(_path: Path) -> None:
-            bar.advance()
+            def advance(_path: Path) -> None:
+                bar.advance()
 
-        draw_all(jobs, advance)
+            draw_all(jobs, advance)
     if args.residuals:
         from hexcal.io.fileio import write_text_atomic
 

@@ -107,7 +107,7 @@ def _joint_order(text: str) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     from hexcal.estimate.model_file import load_model, sha256_of
-    from hexcal.io.fileio import write_text_atomic
+    from hexcal.io.fileio import write_files_atomic
 
     loaded = load_model(args.model)
     sha = sha256_of(args.model)
@@ -126,9 +126,7 @@ def run(args: argparse.Namespace) -> int:
             units=args.units,
         )
         refuse_existing(out, [HAL, INI], args.force)
-        out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(out / HAL, files.hal)
-        write_text_atomic(out / INI, files.ini)
+        write_files_atomic(out, {HAL: files.hal, INI: files.ini})
         print(f"{out / HAL} and {out / INI} written ({files.model})")
         for e in files.left_out:
             print(
@@ -150,13 +148,16 @@ def run(args: argparse.Namespace) -> int:
         args.temperature,
     )
     refuse_existing(out, [TABLE_JSON, TABLE_CSV], args.force)
-    out.mkdir(parents=True, exist_ok=True)
     label = model_label(loaded)
-    write_text_atomic(
-        out / TABLE_JSON,
-        table_json(table, label, str(args.model), sha, args.tilt_deg, args.temperature),
+    write_files_atomic(
+        out,
+        {
+            TABLE_JSON: table_json(
+                table, label, str(args.model), sha, args.tilt_deg, args.temperature
+            ),
+            TABLE_CSV: table_csv(table),
+        },
     )
-    write_text_atomic(out / TABLE_CSV, table_csv(table))
     e = table.error["readings"]
     print(
         f"{out / TABLE_JSON} and {out / TABLE_CSV} written: {table.readings.size // 6} poses; "
