@@ -78,6 +78,8 @@ class Inputs:
     #: without refusing
     consistency: Any = field(default=None, repr=False)
     warnings: list[str] = field(default_factory=list)
+    #: The legs whose encoder rebooted while recording, with the first pose after: (leg, pose id)
+    reboots: tuple[tuple[int, int], ...] = ()
 
     @property
     def sigmas(self) -> NoiseSigmas | None:
@@ -276,6 +278,7 @@ def read_inputs(
         session = load_session(measurements, notices)
         meas = session.measurements()
         design = design or session.robot
+        reboots = tuple((r.leg, r.pose_id) for r in session.encoder_reboots)
         if inst is None and session.instruments is not None:
             inst = session.instruments
             how = getattr(session.instruments, "source", None) or "the session's noise"
@@ -288,7 +291,10 @@ def read_inputs(
             )
         meas = read_measurements(measurements, notices)
     label = f"{measurements} ({len(meas)} poses)"
-    return Inputs(meas, design, inst, source, label, files, effects, notices)
+    inp = Inputs(meas, design, inst, source, label, files, effects, notices)
+    if looks_like_session(measurements):
+        inp.reboots = reboots
+    return inp
 
 
 def session_instruments(session: Any) -> Instruments | None:
@@ -569,6 +575,17 @@ def diagnose_chain(
         if not auto or not names_an_addition(d.verdict) or len(steps) >= MAX_AUTO_STEPS:
             return steps
         added.append(d.verdict)
+
+
+def reboot_findings(inp: Inputs, steps: Sequence[Any]) -> list[Any]:
+    """The zero step at each encoder reboot the session marked, tested on the chain's first
+    model (:func:`hexcal.diagnosis.reboot.reboot_steps`); empty without reboots."""
+    if not inp.reboots or not steps:
+        return []
+    from hexcal.diagnosis.reboot import reboot_steps
+
+    d = steps[0]
+    return reboot_steps(d.problem, d.fit, inp.reboots, d.noise_level)
 
 
 def _name_the_floor(d: Any, inp: Inputs) -> None:

@@ -419,6 +419,7 @@ class SessionFile:
         last = max((r.t for r in self.session.poses), default=-1.0)
         offset = last + 1.0 - run_start if self.session.poses else -run_start
         ids: dict[int, int] = {}
+        counts = [0] * 6  # the encoders' reboots at the run's last pose (the driver's from 0)
 
         def sink(kind: str, step, pose: RecordedPose | None, reason: str) -> None:
             rec = None
@@ -437,6 +438,8 @@ class SessionFile:
                 if rec is None:
                     raise SessionFileError(f"step {step.name}: a recorded pose came without values")
                 ids[id(pose)] = rec.pose_id
+                if pose is not None:
+                    self._mark_reboots(pose, rec, counts)
                 self.add_pose(rec)
             elif kind == "refused":
                 self.set_aside(SetAside(step=step.name, reason=reason, pose=rec))
@@ -452,6 +455,21 @@ class SessionFile:
                 raise ValueError(f"unknown record kind {kind!r}")
 
         return sink
+
+    def _mark_reboots(self, pose: RecordedPose, rec: PoseRecord, counts: list[int]) -> None:
+        """The legs whose encoder rebooted since the run's last pose (``counts``, updated):
+        each is checked against the tracker's pose and the model, marked on ``rec`` and in the
+        session (:mod:`hexcal.procedure.reboots`), and logged."""
+        from hexcal.procedure.reboots import check_reboot, reboot_counts, reboot_note
+
+        now = reboot_counts(pose)
+        for k, n in enumerate(now[:6]):
+            if n > counts[k]:
+                found = check_reboot(self.session, rec, k + 1, float(pose.reading_spread_mm))
+                self.session.encoder_reboots.append(found)
+                rec.notes.append(reboot_note(found))
+                log.warning("%s: %s", self.path, rec.notes[-1])
+                counts[k] = n
 
     def add_note(self, text: str) -> None:
         self.session.notes.append(OperatorNote(text=text))

@@ -114,8 +114,10 @@ def run(args: argparse.Namespace) -> int:
     effect_written = (
         _write_effect_file(steps[-1], args.effect_file, inp) if args.effect_file else None
     )
+    from hexcal.app.workflow import reboot_findings
     from hexcal.diagnosis.metrology import of_diagnosis
 
+    reboots = reboot_findings(inp, steps)
     figures = of_diagnosis(steps[-1])
     if args.json:
         out = steps[-1].to_dict()
@@ -132,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
                 }
                 for d in steps
             ]
+        out["encoder_reboots"] = [r.to_dict() for r in reboots]
         out["at_limits"] = limits_json
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
         out["metrology"] = figures.to_dict(per_pose=False)
@@ -143,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         from hexcal.app.plain import diagnosis_summary, opening
 
+        for r in reboots:  # a known pose, tested first: before what the search and fit say
+            print(f"{r.text()}\n")
         print(opening(diagnosis_summary(steps)))
         if limit_lines:
             left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""
