@@ -133,13 +133,23 @@ def screen_outliers(inp: Inputs) -> None:
 
 def consistency_of(inp: Inputs) -> Any:
     """The data's consistency (:func:`hexcal.estimate.consistency.check_consistency`), checked
-    once per inputs."""
+    once per inputs; in a session whose encoder rebooted, on the poses before the first reboot
+    when they are enough to judge, else on all of them less the findings of the rebooted legs
+    alone (the diagnosis tests the zero step at the reboot)."""
+    from hexcal.estimate.consistency import MIN_POSES as CONSISTENCY_MIN_POSES
     from hexcal.estimate.consistency import check_consistency
 
     if inp.consistency is None:
-        inp.consistency = check_consistency(
-            inp.meas, inp.design, inp.drawing_tolerance, inp.label.rsplit(" (", 1)[0]
-        )
+        meas, whole = inp.meas, True
+        if inp.reboots:  # a lost zero breaks the linear check: judged on the poses before it
+            before = meas.pose_id < min(pose_id for _, pose_id in inp.reboots)
+            if before.sum() >= CONSISTENCY_MIN_POSES:
+                meas, whole = meas.subset(before), False
+        c = check_consistency(meas, inp.design, inp.drawing_tolerance, inp.label.rsplit(" (", 1)[0])
+        if inp.reboots and whole:  # too few before: a rebooted leg's findings are the step's
+            rebooted = {leg for leg, _ in inp.reboots}
+            c.findings = [f for f in c.findings if not f.legs or not set(f.legs) <= rebooted]
+        inp.consistency = c
     return inp.consistency
 
 
