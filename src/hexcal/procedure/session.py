@@ -43,6 +43,7 @@ from pydantic_core import PydanticSerializationError
 from hexcal import __version__
 from hexcal.acquire.acquisition import RecordedPose
 from hexcal.effects.priors import check_priors
+from hexcal.io.capacity import MAX_SESSION_BYTES, MB
 from hexcal.io.fileio import (
     OutputFileError,
     remove_orphan_temp_files,
@@ -90,9 +91,10 @@ def _error(message: str) -> SessionFileError:
 def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
     """Read a session file. Refuses — naming the file and saying what to do — a missing file,
     one that is not JSON or not a session, one beyond the limits of :mod:`hexcal.io.safe_read`
-    (512 MB, nesting, non-finite numbers, a key given twice), one written by a newer hexcal,
-    and one whose poses break the rules of the table it exports to (a repeated pose id, a
-    header without its columns: :mod:`hexcal.procedure.session_check`).
+    (:data:`hexcal.io.capacity.MAX_SESSION_BYTES`, nesting, non-finite numbers, a key given
+    twice), one written by a newer hexcal, and one whose poses break the rules of the table it
+    exports to (a repeated pose id, a header without its columns:
+    :mod:`hexcal.procedure.session_check`).
 
     Poses an older hexcal saved with ``null`` values are set aside (see the module docstring);
     each one's reason is appended to ``notices`` when given, and logged."""
@@ -151,6 +153,25 @@ def _load(path: Path, notices: list[str] | None = None) -> tuple[Session, bytes]
 def session_to_text(session: Session) -> str:
     """The session file's text (indented JSON)."""
     return session.model_dump_json(indent=1, exclude_none=False) + "\n"
+
+
+def _check_size(path: Path, text: str, creating: bool) -> None:
+    """Refuse to write a session the readers would refuse: more than the session file's limit
+    (:data:`hexcal.io.capacity.MAX_SESSION_BYTES`, the readers' own), named with the size."""
+    size = len(text.encode("utf-8"))
+    if size <= MAX_SESSION_BYTES:
+        return
+    what = (
+        "the session file was not created; import a part of the table (a step, a stretch of "
+        "time) per session, or calibrate straight from the table"
+        if creating
+        else "the last saved state is still on disk; record the rest in a new session"
+    )
+    raise SessionFileError(
+        f"{path}: the session would take {size / MB:.0f} MB, more than the "
+        f"{MAX_SESSION_BYTES // MB} MB a session file may have (what every hexcal command "
+        f"reads); {what}"
+    )
 
 
 def _acquire(path: Path, creating: bool) -> SessionLock:
@@ -339,6 +360,7 @@ class SessionFile:
         # A schema 1 file is upgraded when hexcal writes it (schema 2 only adds fields).
         self.session.schema_version = SCHEMA_VERSION
         text = session_to_text(self.session)
+        _check_size(self.path, text, creating)
         if not creating:
             self._check_disk()
         try:
