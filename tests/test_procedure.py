@@ -233,3 +233,7 @@ def test_the_operators_pose_counts_are_held_to_the_same_caps(tmp_path, capsys):
     assert main(["demo", "--procedure", str(p), "--session", str(session)]) == 2
     assert "20,000,000 poses in all" in capsys.readouterr().err
     assert not session.exists()
+    # The text UI's: 12 clamped steps at the cap, home and 30 free poses, before it starts.
+    assert main(["run", "--mock", "--poses-per-step", "10000", "--session", str(session)]) == 2
+    assert "these pose counts ask for 120,031 poses in all (14 steps" in capsys.readouterr().err
+    assert not session.exists()

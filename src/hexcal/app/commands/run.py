@@ -70,6 +70,11 @@ def run(args: argparse.Namespace) -> int:
 
     backend: MockBackend | RealBackend
     load_effects(args)
+    # The pose counts beyond what a session holds are refused before anything starts.
+    from hexcal.app.workflow import procedure_steps
+    from hexcal.procedure.steps import load_procedure
+
+    procedure_steps(load_procedure(args.procedure), args.poses_per_step, args.free_poses)
     if args.mock:
         backend = mock_backend(args.seed, args.effect, args.window_s)
         if args.robot:
