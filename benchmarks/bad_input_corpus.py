@@ -8,12 +8,12 @@ session file, a lab's log or its mapping (from examples/ and tests/data/) — mu
 way files go wrong (a value replaced by NaN, Infinity, 1e308, a huge integer, true, null, a
 string or deep nesting; a key given twice, removed or added; a row repeated, a column removed,
 swapped or scaled; quaternions reordered, a reading's sign flipped, readings or positions in
-cm; semicolons and decimal commas; a byte-order mark, CRLF, a byte that is not UTF-8, a cut)
-and runs the command that reads it, in-process through ``hexcal.app.cli.main`` as the console
-script does: ``calibrate --json`` (table, robot, instruments, session), ``validate --json``
-(a mutated calibrated.json), ``session export`` (session), ``import`` (log, mapping). Case
-``i`` is drawn from ``random.Random(seed * 1_000_003 + i)``: any case reruns alone with
-``--only i``.
+cm; semicolons and decimal commas; a byte-order mark, CRLF, a byte that is not UTF-8, a cut;
+for robot.json, a stroke the readings may lie beyond) and runs the command that reads it,
+in-process through ``hexcal.app.cli.main`` as the console script does: ``calibrate --json``
+(table, robot, instruments, session), ``validate --json`` (a mutated calibrated.json),
+``session export`` (session), ``import`` (log, mapping). Case ``i`` is drawn from
+``random.Random(seed * 1_000_003 + i)``: any case reruns alone with ``--only i``.
 
 A case fails when: the exit status is 1 (hexcal's "internal error": an exception no message
 was written for) or the command raised; stderr holds a traceback; the run took over 30 s of
@@ -58,6 +58,9 @@ CSV_TOKENS = ["NaN", "inf", "1e308", "1e400", "-0", "", " ", "x", "1_000", "3.0"
               "9007199254740992", "12,5", '"', "free", "Direction", "length", "7"]  # fmt: skip
 TOML_TOKENS = ["nan", "inf", "1e400", "-1", "0", "true", '"x"', "[]", "{}", "99999999999999999999",
                "[1, nan]", "[" * 40 + "]" * 40]  # fmt: skip
+#: Strokes (leg_range_mm) given to robot.json: the example's readings lie within the second,
+#: 300 mm past the third, in cm against the fourth; the first cuts them, the last is generous.
+STROKES = [[0.0, 100.0], [-5.0, 115.0], [-400.0, -300.0], [-0.5, 11.5], [-1000.0, 1000.0]]
 BAD_BYTES = [b"\x96", b"\xff", b"\xc3", b"\x00"]
 
 
@@ -248,6 +251,8 @@ def make_case(
     kind = KINDS[i % len(KINDS)]
     src = files[kind]
     text = src.read_text(encoding="utf-8")
+    if kind == "robot" and rng.random() < 0.3:  # a stroke the readings may lie beyond
+        text = json.dumps(json.loads(text) | {"leg_range_mm": rng.choice(STROKES)})
     suffix = {"table": ".csv", "log": ".csv", "map": ".toml"}.get(kind, ".json")
     path = folder / f"case{i}{suffix}"
     if kind in ("table", "log"):

@@ -234,6 +234,9 @@ class LegEncoders(_ReceivePath, Device):
         self._own_syncs: deque[_Pending] = deque(maxlen=64)
         self._t_start = time.monotonic()
         self._last_hb: list[float | None] = [None] * 6
+        #: How many times each leg's node rebooted (a boot-up while running) since the start:
+        #: every reading set carries these counts, so a pose recorded after a reboot is known.
+        self._reboots = [0] * 6
         self._hb_state: list[int | None] = [None] * 6
         self._silent = [False] * 6
         self._last_nmt = [-math.inf] * 6

@@ -256,6 +256,8 @@ class ReadingSet:
     ``complete``: all six arrived in time and nothing went wrong; otherwise ``faults`` says what
     (operator sentences naming leg, node, bus and what to do).
     ``index``: 0, 1, 2... in SYNC order since :meth:`LegEncoders.start`; never skips.
+    ``reboots``: (6,) how many times each leg's node had rebooted (boot-up while running) when
+    the set closed: a reading after a reboot may have lost the encoder's zero (its preset).
     """
 
     sync_counter: int
@@ -265,6 +267,7 @@ class ReadingSet:
     complete: bool
     faults: list[str] = field(default_factory=list)
     index: int = 0
+    reboots: tuple[int, ...] = (0, 0, 0, 0, 0, 0)
 
     def to_leg_sample(self) -> LegSample:
         """This set as the acquisition's :class:`~hexcal.acquire.acquisition.LegSample`, stamped with the
@@ -272,4 +275,4 @@ class ReadingSet:
         faults = tuple(self.faults)
         if not self.complete and not faults:  # cannot happen by construction; never hide it
             faults = ("leg encoder reading set incomplete",)
-        return LegSample(self.t_sync, self.readings_mm.copy(), faults)
+        return LegSample(self.t_sync, self.readings_mm.copy(), faults, self.reboots)

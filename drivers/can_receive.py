@@ -160,6 +160,7 @@ class _ReceivePath:
     _last_nmt: list[float]
     _frames: list[int]
     _missing: list[int]
+    _reboots: list[int]
 
     # Defined by LegEncoders (messages and sending); the receive path calls them.
     def _age(self, k: int, now: float) -> float:
@@ -306,6 +307,7 @@ class _ReceivePath:
             complete=complete,
             faults=list(s.faults.values()),
             index=s.index,
+            reboots=tuple(self._reboots),
         )
         if not complete:
             self._incomplete += 1
@@ -516,6 +518,7 @@ class _ReceivePath:
                 self._silent[k] = False
                 log.info("%s heartbeat back on %s", self._names[k], self._bus_name)
             if state == NMT_BOOTUP and self._running:
+                self._reboots[k] += 1
                 self._note(
                     f"bootup{k}",
                     f"{self._names[k]} rebooted (boot-up message on {self._bus_name}) — "

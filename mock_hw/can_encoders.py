@@ -35,7 +35,8 @@ is stamped when sent.
 
 Faults, injectable while running: :meth:`silence` (a node stops: cable cut), :meth:`drop_next`
 (a TPDO lost), :meth:`error_frames`, :meth:`bus_off` / :meth:`recover`, :meth:`reboot` (a node
-resets: its factory settings again), :meth:`emergency` (an encoder alarm: EMCY), ``jitter_s``,
+resets: its factory settings again; with ``zero_shift_mm`` it comes back off by a lost
+preset), :meth:`emergency` (an encoder alarm: EMCY), ``jitter_s``,
 :meth:`stamp_next` / :meth:`step_clock` (the bus clock's faults), and at construction
 ``device_types`` (a node that is not a 406 encoder), ``sdo_aborts`` (a node refusing a write)
 and ``sdo_deaf`` (nodes that do not answer SDO). The virtual bus has no physical layer, so
@@ -158,6 +159,7 @@ class MockEncoderNodes(Device):
             for c in config.legs
         }
         self._silent = dict.fromkeys(range(1, 7), False)
+        self._zero_shift = dict.fromkeys(range(1, 7), 0.0)  # mm a reboot's lost preset adds
         self._drop = dict.fromkeys(range(1, 7), 0)
         self._skew_next: dict[int, float] = {}  # leg -> s added to its next TPDO's stamp
         self._clock_step_s = 0.0  # s added to every stamp (the interface's clock jumped)
@@ -303,9 +305,13 @@ class MockEncoderNodes(Device):
                 "MockEncoderNodes with preserve_timestamps): on a real bus the interface stamps them"
             )
 
-    def reboot(self, leg: int) -> None:
+    def reboot(self, leg: int, zero_shift_mm: float = 0.0) -> None:
         """Leg ``leg``'s node resets (a supply dip): boot-up, PRE-OPERATIONAL, factory settings
-        (no heartbeat, TPDO2 on SYNC) — until the master sets it up again."""
+        (no heartbeat, TPDO2 on SYNC) — until the master sets it up again. ``zero_shift_mm``:
+        an encoder that keeps no preset (incremental, a lost battery) comes back reading that
+        much more from then on."""
+        with self._lock:
+            self._zero_shift[leg] += zero_shift_mm
         enc = self.encoders[leg]
         enc.factory_reset(communication_only=False)
         self._boot(enc)
@@ -520,7 +526,7 @@ class MockEncoderNodes(Device):
                 delay = float(self._rng.uniform(0.0, self.jitter_s)) if self.jitter_s > 0 else 0.0
                 frame = can.Message(
                     arbitration_id=cob & 0x7FF,
-                    data=self._pdo_data(enc, n, float(readings[leg - 1])),
+                    data=self._pdo_data(enc, n, float(readings[leg - 1]) + self._zero_shift[leg]),
                     is_extended_id=False,
                     # Never later than now (+ its delay): a wire time is never in the future.
                     timestamp=min(t_bus + self.latency_s, time.time()) + delay + skew

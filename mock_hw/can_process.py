@@ -46,7 +46,7 @@ def _calls(nodes: Any, robot: Any) -> dict[str, Callable[..., Any]]:
     return {
         "silence": lambda leg, silent=True: nodes.silence(leg, silent),
         "drop_next": lambda leg, n=1: nodes.drop_next(leg, n),
-        "reboot": lambda leg: nodes.reboot(leg),
+        "reboot": lambda leg, shift=0.0: nodes.reboot(leg, shift),
         "emergency": lambda leg, code, register=1: nodes.emergency(leg, code, register),
         "set_jitter": lambda s: setattr(nodes, "jitter_s", float(s)),
         "latched": lambda: [[c, r.tolist()] for c, r in nodes.latched().items()],
@@ -242,8 +242,8 @@ class EncoderProcess:
     def drop_next(self, leg: int, n: int = 1) -> None:
         self.call("drop_next", leg, n)
 
-    def reboot(self, leg: int) -> None:
-        self.call("reboot", leg)
+    def reboot(self, leg: int, zero_shift_mm: float = 0.0) -> None:
+        self.call("reboot", leg, zero_shift_mm)
 
     def emergency(self, leg: int, code: int, register: int = 0x01) -> None:
         self.call("emergency", leg, code, register)

@@ -4,6 +4,7 @@ drawn here."""
 
 from __future__ import annotations
 
+import errno
 import multiprocessing
 import os
 import threading
@@ -27,8 +28,10 @@ def _writer(text: str, log: Path | None = None, pause_s: float = 0.0):
         time.sleep(pause_s)
         path.write_text(text)
         if log is not None:
+            # The figure is drawn into its temporary file, ".NAME.XXXXXXXX.tmp", then renamed.
+            name = path.name.removeprefix(".").rsplit(".", 2)[0]
             with open(log, "a") as fh:
-                fh.write(f"{path.name} {os.getpid()}\n")
+                fh.write(f"{name} {os.getpid()}\n")
 
     return draw
 
@@ -112,3 +115,45 @@ def test_a_figure_the_copy_took_but_did_not_finish_is_drawn_here(tmp_path, monke
     paths = draw_all(jobs, done.append)
     assert [p.read_text() for p in paths] == ["0", "1", "2"]
     assert sorted(done) == sorted(paths)
+
+
+def test_a_full_disk_is_one_message_naming_the_figure_and_leaves_no_figure(
+    tmp_path, monkeypatch, capfd
+):
+    """The disk fills at the third figure: whoever meets it (the copy stops without a word and
+    this process draws its figure again), the set ends in one error naming that figure's path,
+    no traceback on stderr, and none of the set's figures nor a temporary file is left; a
+    figure there before is kept."""
+    from hexcal.io.fileio import OutputFileError
+
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+
+    def full(path: Path) -> None:
+        path.write_bytes(b"\x89PNG cut")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    (tmp_path / "0.png").write_text("old")
+    jobs = [
+        FigureJob(tmp_path / f"{i}.png", full if i == 2 else _writer(str(i), None, 0.02), w)
+        for i, w in enumerate([1, 1, 3, 1, 1])
+    ]
+    with pytest.raises(OutputFileError) as exc:
+        draw_all(jobs)
+    assert (
+        str(exc.value) == f"{tmp_path / '2.png'}: the disk is full; free some space and try again"
+    )
+    assert "Traceback" not in capfd.readouterr().err
+    assert [p.name for p in tmp_path.iterdir()] == ["0.png"]
+    assert (tmp_path / "0.png").read_text() == "0"  # replaced whole, as asked, and kept
+
+
+def test_no_shared_memory_under_a_file_size_limit_draws_here_alone(tmp_path, monkeypatch):
+    """The turns' shared memory is a file: beyond ``ulimit -f`` (or on a full /dev/shm) it
+    cannot be had, and the figures are drawn here."""
+
+    def refused(order):
+        raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
+
+    monkeypatch.setattr(figure_pool, "_Turns", refused)
+    jobs = [FigureJob(tmp_path / f"{i}.txt", _writer(str(i))) for i in range(3)]
+    assert [p.read_text() for p in draw_all(jobs)] == ["0", "1", "2"]

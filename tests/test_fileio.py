@@ -3,6 +3,7 @@ file keeps its own; the temporary files of an interrupted write are found by the
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -54,3 +55,67 @@ def test_a_killed_write_leaves_a_temp_file_that_orphan_temp_files_finds(tmp_path
         "session.json",
     ]
     assert target.read_text() == "old"
+
+
+def _failing(code: int):
+    """A writer that writes a little, then fails as the disk or the file-size limit would."""
+
+    def write(path: Path) -> None:
+        path.write_bytes(b"\x89PNG partial")
+        raise OSError(code, os.strerror(code))
+
+    return write
+
+
+@pytest.mark.parametrize(
+    ("code", "said"),
+    [(errno.ENOSPC, "the disk is full"), (errno.EFBIG, "file-size limit, ulimit -f")],
+)
+def test_a_figure_that_fails_leaves_nothing_and_names_the_users_path(tmp_path, code, said):
+    from hexcal.io.fileio import OutputFileError, write_atomic_with
+
+    target = tmp_path / "pose_error.png"
+    with pytest.raises(OutputFileError) as exc:
+        write_atomic_with(target, _failing(code))
+    assert str(exc.value).startswith(f"{target}: ") and said in str(exc.value)
+    assert list(tmp_path.iterdir()) == []
+    write_atomic_with(target, lambda p: p.write_bytes(b"whole"))
+    assert target.read_bytes() == b"whole" and [p.name for p in tmp_path.iterdir()] == [
+        "pose_error.png"
+    ]
+
+
+def test_a_new_folder_is_removed_when_what_fills_it_fails(tmp_path):
+    from hexcal.io.fileio import new_folder
+
+    with pytest.raises(RuntimeError), new_folder(tmp_path / "a" / "b") as out:
+        assert out.is_dir()
+        raise RuntimeError
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(RuntimeError), new_folder(tmp_path / "kept" / "new"):
+        raise RuntimeError
+    assert [p.name for p in tmp_path.iterdir()] == ["kept"]
+    assert list((tmp_path / "kept").iterdir()) == []
+
+
+def test_several_files_in_subfolders_are_all_or_nothing(tmp_path, monkeypatch):
+    from hexcal.io.fileio import OutputFileError, write_files_atomic
+
+    files = {"README.md": "r", "a/b/c.txt": "c", "a/d.txt": "d"}
+    write_files_atomic(tmp_path / "ex", files)
+    assert (tmp_path / "ex" / "a" / "b" / "c.txt").read_text() == "c"
+    real = os.fdopen
+    calls = []
+
+    def full(fd, *args, **kw):  # the third file meets a full disk
+        calls.append(fd)
+        if len(calls) == 3:
+            os.close(fd)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(fd, *args, **kw)
+
+    monkeypatch.setattr(os, "fdopen", full)
+    with pytest.raises(OutputFileError, match=r"new/a/d.txt: the disk is full"):
+        write_files_atomic(tmp_path / "new", files)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ex"]

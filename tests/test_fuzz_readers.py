@@ -16,7 +16,7 @@ import io
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -50,6 +50,7 @@ from hexcal.procedure.session import (
     load_session,
     session_to_text,
 )
+from hexcal.procedure.session_model import EncoderReboot
 from hexcal.procedure.steps import ProcedureError, load_procedure
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,6 +132,9 @@ def session_text() -> str:
     s.set_aside.append(SetAside(step="free", reason="undone", pose=s.poses[0]))
     s.notes.append(OperatorNote(text="clamp re-tightened"))
     s.progress.append(StepProgress(step="free", status="done", poses=1))
+    s.encoder_reboots.append(
+        EncoderReboot(leg=3, pose_id=2, jump_mm=7.0, threshold_mm=0.5, beyond=True)
+    )
     s.results.append(
         ResultRecord(kind="calibration", model=42, pose_ids=[1, 2], robot=s.robot, summary={})
     )
@@ -516,3 +520,79 @@ def test_arbitrary_bytes(reader: Reader, fuzz_dir: Path, data: bytes) -> None:
 def test_mutated_valid_files(reader: Reader, fuzz_dir: Path, data: st.DataObject) -> None:
     mutated = data.draw(MUTATORS[reader.syntax](reader.valid()), label="file")
     run_reader(reader, fuzz_dir / f"mutated-{reader.name}{reader.suffix}", mutated)
+
+
+# -- the limits at the edges (issue 36): the stroke, a procedure's total ---------------------
+
+
+@pytest.mark.fuzz
+@given(
+    steps=st.integers(1, 3000),
+    poses=st.integers(1, 10_000),
+    legs=st.sampled_from([None, [1], [1, 2, 3, 4, 5, 6]]),
+)
+def test_a_procedure_is_held_to_what_a_session_holds(fuzz_dir: Path, steps, poses, legs) -> None:
+    """Any number of steps and poses per step: loaded only within the cap, else refused
+    naming the total and the cap."""
+    from hexcal.io.capacity import MAX_PROCEDURE_POSES
+
+    kind = "constraint = 'free'" if legs is None else f"legs = {legs}\nconstraint = 'direction'"
+    one = (
+        f"[[steps]]\nid = 's{{i}}'\n{kind}\ninstruction = 'x'\nmin_poses = 1\n"
+        f"recommended_poses = {poses}\n"
+    )
+    path = fuzz_dir / "p.toml"
+    path.write_text("name = 'n'\nmodel = 42\n" + "".join(one.format(i=i) for i in range(steps)))
+    total = steps * poses * (1 if legs is None else len(legs))
+    if total <= MAX_PROCEDURE_POSES:
+        assert sum(s.n_poses for s in load_procedure(path).expand()) == total
+        return
+    with pytest.raises(ProcedureError) as exc:
+        load_procedure(path)
+    assert f"asks for {total:,} poses in all" in str(exc.value)
+    assert f"at most {MAX_PROCEDURE_POSES:,} recorded poses" in str(exc.value)
+
+
+@pytest.mark.fuzz
+@given(
+    lo=st.floats(-500, 500, allow_nan=False),
+    width=st.floats(1, 600, allow_nan=False),
+    shift=st.floats(-400, 400, allow_nan=False),
+    sigma=st.one_of(st.none(), st.floats(1e-4, 0.1)),
+)
+def test_the_stroke_refuses_what_lies_beyond_it_and_calls_only_inside_at_the_end(
+    lo, width, shift, sigma
+) -> None:
+    """Any stroke and any shift of the readings: every leg with a reading beyond the stroke by
+    more than the margin is named, with how far and a likely cause, and no reading beyond it
+    is said to be at the end."""
+    from hexcal.diagnosis.limits import at_limits, beyond_stroke, end_margin_mm, stroke_message
+
+    meas = _stroke_table()
+    meas = replace(meas, readings=meas.readings + shift)
+    design = _stroke_design().model_copy(update={"leg_range_mm": [lo, lo + width]})
+    found = beyond_stroke(meas, design, sigma)
+    hi = lo + width
+    for k in range(6):
+        x = meas.readings[:, k]
+        margin = end_margin_mm(float(np.ptp(x)), sigma)
+        past = np.maximum(x - hi, lo - x)
+        named = [f for f in found if f.leg == k + 1]
+        assert bool(named) == bool((past > margin).any())
+        if named:
+            assert named[0].worst_mm == pytest.approx(float(past.max()))
+        at_end = {r for e in at_limits(meas, design, sigma).legs if e.leg == k + 1 for r in e.rows}
+        assert not at_end & set(np.nonzero(past > margin)[0].tolist())
+    if found:
+        text = stroke_message(meas, design, found, "t.csv")
+        assert text.startswith("t.csv: leg") and "likely causes" in text and "wrong range" in text
+
+
+@cache
+def _stroke_table() -> Measurements:
+    return read_measurements(EXAMPLE / "measurements.csv")
+
+
+@cache
+def _stroke_design():
+    return load_robot(EXAMPLE / "robot.json")

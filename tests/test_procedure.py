@@ -174,3 +174,66 @@ def test_hexcal_run_offers_every_shipped_procedure():
     run = build_parser()._subparsers._group_actions[0].choices["run"]
     choices = next(a.choices for a in run._actions if a.dest == "procedure")
     assert sorted(choices) == sorted(BUILTIN)
+
+
+def _huge_procedure(steps: int, poses: int) -> str:
+    """A procedure of ``steps`` free steps of ``poses`` poses each (the campaign's: 2,000 ×
+    10,000, 20 million poses in a ~200 KB file)."""
+    one = (
+        "[[steps]]\nid = 's{i}'\nconstraint = 'free'\ninstruction = 'move'\n"
+        f"min_poses = 1\nrecommended_poses = {poses}\n"
+    )
+    return "name = 'huge'\nmodel = 42\n" + "".join(one.format(i=i) for i in range(steps))
+
+
+def test_a_procedure_beyond_what_a_session_holds_is_refused_naming_total_and_cap(tmp_path):
+    from hexcal.io.capacity import MAX_PROCEDURE_POSES
+
+    p = tmp_path / "huge.toml"
+    p.write_text(_huge_procedure(2000, 10_000))
+    with pytest.raises(ProcedureError) as exc:
+        load_procedure(p)
+    text = str(exc.value)
+    assert text.startswith(f"{p}: the procedure asks for 20,000,000 poses in all (2,000 steps")
+    assert f"a session holds at most {MAX_PROCEDURE_POSES:,} recorded poses" in text
+    # Legs count: 7 clamped steps over 6 legs at the cap's share stay within it, one more not.
+    per = MAX_PROCEDURE_POSES // 6 // 7
+    step = (
+        "[[steps]]\nid = 'c{i}'\nlegs = [1, 2, 3, 4, 5, 6]\nconstraint = 'direction'\n"
+        f"instruction = 'clamp'\nmin_poses = 4\nrecommended_poses = {per}\n"
+    )
+    head = "name = 'legs'\nmodel = 42\n"
+    assert len(parse_procedure(head + "".join(step.format(i=i) for i in range(7))).expand())
+    with pytest.raises(ProcedureError, match=r"asks for [\d,]+ poses in all \(48 steps"):
+        parse_procedure(head + "".join(step.format(i=i) for i in range(8)), "legs.toml")
+
+
+def test_the_operators_pose_counts_are_held_to_the_same_caps(tmp_path, capsys):
+    """``--poses-per-step`` takes the procedure file's per-step cap (10,000), and counts that
+    add up to more than a session holds are refused before anything is recorded."""
+    from hexcal.app.cli import main
+    from hexcal.app.workflow import procedure_steps
+    from hexcal.io.capacity import MAX_POSES_PER_STEP
+
+    session = tmp_path / "s.json"
+    for option in ("--poses-per-step", "--free-poses"):
+        args = ["demo", option, str(MAX_POSES_PER_STEP + 1), "--session", str(session)]
+        with pytest.raises(SystemExit) as exc:
+            main(args)
+        assert exc.value.code == 2
+        assert f"10001 is outside [{0 if option == '--free-poses' else 1}, 10000]" in (
+            capsys.readouterr().err
+        )
+    proc = parse_procedure(_huge_procedure(10, 10))
+    assert sum(s.n_poses for s in procedure_steps(proc, None, 4000)) == 40_000
+    with pytest.raises(ProcedureError, match=r"these pose counts ask for 50,000 poses in all"):
+        procedure_steps(proc, None, 5000)
+    p = tmp_path / "huge.toml"
+    p.write_text(_huge_procedure(2000, 10_000))
+    assert main(["demo", "--procedure", str(p), "--session", str(session)]) == 2
+    assert "20,000,000 poses in all" in capsys.readouterr().err
+    assert not session.exists()
+    # The text UI's: 12 clamped steps at the cap, home and 30 free poses, before it starts.
+    assert main(["run", "--mock", "--poses-per-step", "10000", "--session", str(session)]) == 2
+    assert "these pose counts ask for 120,031 poses in all (14 steps" in capsys.readouterr().err
+    assert not session.exists()

@@ -296,3 +296,48 @@ def test_a_session_that_does_not_load_keeps_its_temporary_files(tmp_path):
     with pytest.raises(SessionFileError, match="not valid JSON"):
         SessionFile.resume(path)
     assert tmp.read_text() == "perhaps the newer state"
+
+
+def test_the_writer_refuses_what_the_readers_would_and_names_the_limit(tmp_path, monkeypatch):
+    """One limit, read by the readers and the writer alike: a session beyond it is never
+    written (here the limit lowered to 50 KB for a 93 KB session), and neither a file nor a
+    lock is left."""
+    import hexcal.procedure.session as session_module
+    from hexcal.io import capacity
+    from hexcal.io.safe_read import KINDS
+
+    assert KINDS["session"].max_bytes == capacity.MAX_SESSION_BYTES
+    assert session_module.MAX_SESSION_BYTES == capacity.MAX_SESSION_BYTES
+    meas = read_measurements(EXAMPLE / "measurements.csv")
+    monkeypatch.setattr(session_module, "MAX_SESSION_BYTES", 50 * 1024)
+    monkeypatch.setattr(session_module, "MB", 1024)  # the sizes said in KB, as they are
+    path = tmp_path / "s.json"
+    with pytest.raises(SessionFileError) as exc:
+        SessionFile.create(
+            path, Session.from_measurements(meas, load_robot(EXAMPLE / "robot.json"))
+        )
+    assert str(exc.value).startswith(f"{path}: the session would take 9")
+    assert "more than the 50 MB a session file may have" in str(exc.value)  # (KB, as lowered)
+    assert "was not created" in str(exc.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_import_refuses_a_table_beyond_what_a_session_holds_before_writing(
+    tmp_path, monkeypatch, capsys
+):
+    from hexcal.app.cli import main
+    from hexcal.io import capacity
+
+    monkeypatch.setattr(capacity, "MAX_IMPORTED_POSES", 100)
+    out = tmp_path / "s.json"
+    args = [
+        "session",
+        "import",
+        str(EXAMPLE / "measurements.csv"),
+        "--robot",
+        str(EXAMPLE / "robot.json"),
+    ]
+    assert main([*args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "184 poses; a session file holds at most 100 imported poses (its 512 MB limit" in err
+    assert f"{out} was not written" in err and list(tmp_path.iterdir()) == []

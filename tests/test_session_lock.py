@@ -325,3 +325,23 @@ def test_the_example_session_round_trips_unchanged(tmp_path):
     assert np.array_equal(
         read_measurements(tmp_path / "out" / "measurements.csv").readings, meas.readings
     )
+
+
+def test_a_lock_that_cannot_be_written_leaves_no_lock_file(tmp_path, monkeypatch):
+    """A full disk (2 KB free in the campaign) fails the lock's first write: the lock file
+    this process made is removed, so no stale lock stays beside the session."""
+    import errno
+
+    from hexcal.procedure.session_lock import SessionLock, lock_path
+
+    session = tmp_path / "s.json"
+
+    def full(fd, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "write", full)
+    with pytest.raises(OSError):
+        SessionLock.acquire(session)
+    monkeypatch.undo()
+    assert not lock_path(session).exists() and list(tmp_path.iterdir()) == []
+    SessionLock.acquire(session).release()  # and the next one takes it

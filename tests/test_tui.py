@@ -496,7 +496,7 @@ RECORDER = textwrap.dedent(
 
     async def main():
         app = instant_app(Path(sys.argv[1]))
-        app.free_poses = 100000  # records until killed
+        app.free_poses = 10000  # records until killed (a step's cap: hexcal.io.capacity)
         async with app.run_test(size=(130, 42)) as pilot:
             await pilot.click("#new")
             await pilot.app.workers.wait_for_complete()

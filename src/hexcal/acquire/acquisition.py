@@ -71,11 +71,13 @@ class TrackerSample:
 @dataclass(frozen=True)
 class LegSample:
     """One set of six readings: arrival time t (monotonic s), readings (6,) mm (NaN when a leg
-    is missing), and the faults the bus reported for it."""
+    is missing), the faults the bus reported for it, and ``reboots``: how many times each
+    leg's encoder had rebooted since the source started (empty: the source does not tell)."""
 
     t: float
     readings: np.ndarray
     faults: tuple[str, ...] = ()
+    reboots: tuple[int, ...] = ()
 
     @property
     def complete(self) -> bool:

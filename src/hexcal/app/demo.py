@@ -119,14 +119,16 @@ def run_demo(
     settings: DemoSettings | None = None, on_event: Callable[[str], None] = lambda m: None
 ) -> dict[str, Any]:
     """Run the demo; the JSON-ready result (see module docstring)."""
-    from hexcal.app.workflow import calibrate_model, diagnose_chain, model_of, session_inputs, store
     from hexcal.procedure.steps import load_procedure
 
     st = settings or DemoSettings()
+    # The procedure first: one beyond what a session holds is refused before anything else.
+    proc = load_procedure(st.procedure)
+    from hexcal.app.workflow import calibrate_model, diagnose_chain, model_of, session_inputs, store
+
     hr = hidden_robot(st.seed, st.effect, st.effect_scale)
     truth, effect = hr.truth, hr.effect
 
-    proc = load_procedure(st.procedure)
     if st.session_path is None:  # beside the operator's sessions, not in the current folder
         from hexcal.procedure.sessions_dir import sessions_dir
 

@@ -81,6 +81,8 @@ class Inputs:
     #: without refusing
     consistency: Any = field(default=None, repr=False)
     warnings: list[str] = field(default_factory=list)
+    #: The legs whose encoder rebooted while recording, with the first pose after: (leg, pose id)
+    reboots: tuple[tuple[int, int], ...] = ()
 
     @property
     def sigmas(self) -> NoiseSigmas | None:
@@ -136,13 +138,23 @@ def screen_outliers(inp: Inputs) -> None:
 
 def consistency_of(inp: Inputs) -> Any:
     """The data's consistency (:func:`hexcal.estimate.consistency.check_consistency`), checked
-    once per inputs."""
+    once per inputs; in a session whose encoder rebooted, on the poses before the first reboot
+    when they are enough to judge, else on all of them less the findings of the rebooted legs
+    alone (the diagnosis tests the zero step at the reboot)."""
+    from hexcal.estimate.consistency import MIN_POSES as CONSISTENCY_MIN_POSES
     from hexcal.estimate.consistency import check_consistency
 
     if inp.consistency is None:
-        inp.consistency = check_consistency(
-            inp.meas, inp.design, inp.drawing_tolerance, inp.label.rsplit(" (", 1)[0]
-        )
+        meas, whole = inp.meas, True
+        if inp.reboots:  # a lost zero breaks the linear check: judged on the poses before it
+            before = meas.pose_id < min(pose_id for _, pose_id in inp.reboots)
+            if before.sum() >= CONSISTENCY_MIN_POSES:
+                meas, whole = meas.subset(before), False
+        c = check_consistency(meas, inp.design, inp.drawing_tolerance, inp.label.rsplit(" (", 1)[0])
+        if inp.reboots and whole:  # too few before: a rebooted leg's findings are the step's
+            rebooted = {leg for leg, _ in inp.reboots}
+            c.findings = [f for f in c.findings if not f.legs or not set(f.legs) <= rebooted]
+        inp.consistency = c
     return inp.consistency
 
 
@@ -150,7 +162,10 @@ def screen_inputs(inp: Inputs) -> list[str]:
     """The cheap checks, before any fit: the data's own consistency (units, signs, quaternion
     order, and against the drawing its size, its legs and offsets), then gross outlier poses.
     Raises :class:`DataMismatch` (or the outliers' refusal); returns what is reported without
-    refusing (findings that rest on the drawing when :attr:`Inputs.drawing_check` is off)."""
+    refusing (findings that rest on the drawing when :attr:`Inputs.drawing_check` is off).
+    Readings beyond the stroke (``leg_range_mm``) are refused first: no other finding holds
+    on readings no leg can give."""
+    screen_stroke(inp)
     c = consistency_of(inp)
     refused = c.refusals(inp.drawing_check)
     if refused:
@@ -166,6 +181,20 @@ def screen_inputs(inp: Inputs) -> list[str]:
         )
     screen_outliers(inp)
     return [f.text for f in c.warnings(inp.drawing_check)]
+
+
+def screen_stroke(inp: Inputs) -> None:
+    """Refuse readings beyond robot.json's ``leg_range_mm`` by more than the reading noise
+    (:func:`hexcal.diagnosis.limits.beyond_stroke`): :class:`DataMismatch` naming the legs,
+    how far and the likely cause."""
+    from hexcal.diagnosis.limits import beyond_stroke, stroke_message
+
+    sigma = None if inp.instruments is None else inp.instruments.sigma_reading_mm
+    found = beyond_stroke(inp.meas, inp.design, sigma)
+    if found:
+        raise DataMismatch(
+            stroke_message(inp.meas, inp.design, found, inp.label.rsplit(" (", 1)[0])
+        )
 
 
 def _causes(inp: Inputs) -> str:
@@ -264,6 +293,7 @@ def read_inputs(
         session = load_session(measurements, notices)
         meas = session.measurements()
         design = design or session.robot
+        reboots = tuple((r.leg, r.pose_id) for r in session.encoder_reboots)
         if inst is None and session.instruments is not None:
             inst = session.instruments
             how = getattr(session.instruments, "source", None) or "the session's noise"
@@ -276,7 +306,10 @@ def read_inputs(
             )
         meas = read_measurements(measurements, notices)
     label = f"{measurements} ({counted(len(meas), 'pose')})"
-    return Inputs(meas, design, inst, source, label, files, effects, notices)
+    inp = Inputs(meas, design, inst, source, label, files, effects, notices)
+    if looks_like_session(measurements):
+        inp.reboots = reboots
+    return inp
 
 
 def session_instruments(session: Any) -> Instruments | None:
@@ -310,7 +343,8 @@ def session_inputs(session: Any, path: Path | str) -> Inputs:
 def procedure_steps(proc: Any, poses_per_step: int | None, free_poses: int | None) -> list:
     """The procedure's steps with the operator's pose counts: ``poses_per_step`` for clamped
     steps, ``free_poses`` for free ones (None: the procedure's recommended counts), never below
-    a step's minimum; steps at home keep theirs."""
+    a step's minimum; steps at home keep theirs. Counts that add up to more than a session holds
+    are refused (:func:`hexcal.procedure.steps.check_total`)."""
 
     def count(s: Any) -> int:
         if s.at_home:
@@ -318,7 +352,11 @@ def procedure_steps(proc: Any, poses_per_step: int | None, free_poses: int | Non
         n = free_poses if s.leg == 0 else poses_per_step
         return max(int(n), int(s.min_poses)) if n else int(s.n_poses)
 
-    return [replace(s, n_poses=count(s)) for s in proc.expand()]
+    from hexcal.procedure.steps import check_total
+
+    steps = [replace(s, n_poses=count(s)) for s in proc.expand()]
+    check_total([s.n_poses for s in steps], f"procedure {proc.name!r}", "these pose counts ask for")
+    return steps
 
 
 # -- calibration ------------------------------------------------------------------------------
@@ -651,6 +689,17 @@ def write_explored(d: Any, directory: Path, inp: Inputs) -> str | None:
     write_effect_file(lead, path, inp.label, name=name)
     (loaded,) = load_file(path)
     return str(loaded)
+
+
+def reboot_findings(inp: Inputs, steps: Sequence[Any]) -> list[Any]:
+    """The zero step at each encoder reboot the session marked, tested on the chain's first
+    model (:func:`hexcal.diagnosis.reboot.reboot_steps`); empty without reboots."""
+    if not inp.reboots or not steps:
+        return []
+    from hexcal.diagnosis.reboot import reboot_steps
+
+    d = steps[0]
+    return reboot_steps(d.problem, d.fit, inp.reboots, d.noise_level)
 
 
 def _name_the_floor(d: Any, inp: Inputs) -> None:

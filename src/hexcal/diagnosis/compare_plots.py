@@ -199,7 +199,7 @@ def pose_error_map(diags: list[Diagnosis], outdir: Path, name: str = "pose_error
         fontsize=11,
     )
     path = outdir / name
-    fig.savefig(path, dpi=DPI)  # not cleared: see plot_parts.finish
+    fig.savefig(path, dpi=DPI, format="png")  # not cleared: see plot_parts.finish
     return path
 
 

@@ -9,7 +9,13 @@ its PNGs and exits, and this process waits for it. A fork is taken only where it
 pays: two cores or more, the ``fork`` start method (not Windows, not macOS' default), and no
 other thread in this process (the text UI's workers: a fork copies one thread only). A figure
 the copy took but did not finish (it failed, or died) is drawn again here, so that an error
-shows where it is seen.
+shows where it is seen: the copy stops at its first failure without a word (no traceback of
+its own), and this process meets the same failure, as one message naming the file.
+
+Each PNG is written to a temporary file beside it and renamed
+(:func:`hexcal.io.fileio.write_atomic_with`): a full disk or a file-size limit leaves no
+figure cut short. When this process fails, the copy is told to take no more figures and is
+waited for, so that nothing is written after the error.
 """
 
 from __future__ import annotations
@@ -67,6 +73,11 @@ class _Turns:
         finally:
             lock.release()
 
+    def stop(self) -> None:
+        """Leave no figure to take: the copy ends after the one it is drawing."""
+        with self._next.get_lock():
+            self._next.value = len(self.order)
+
 
 def draw_all(
     jobs: Sequence[FigureJob], on_done: Callable[[Path], None] | None = None
@@ -74,13 +85,27 @@ def draw_all(
     """Draw every job, in turns with a forked copy of this process where that is safe and pays
     (see the module's docstring); return the paths in the jobs' order. ``on_done`` is called
     once with each path when its figure is written: this process's as each ends, the copy's as
-    this process sees them between its own and when the copy has ended (a progress bar)."""
+    this process sees them between its own and when the copy has ended (a progress bar).
+    When a figure fails, the figures of this set written by then that were not there before are
+    removed: a failed set leaves none of its new files."""
+    there = {job.path for job in jobs if job.path.exists()}
+    try:
+        return _draw_set(jobs, on_done)
+    except BaseException:
+        for job in jobs:
+            if job.path not in there:
+                job.path.unlink(missing_ok=True)
+        raise
+
+
+def _draw_set(jobs: Sequence[FigureJob], on_done: Callable[[Path], None] | None) -> list[Path]:
+    """:func:`draw_all`'s drawing."""
     order = sorted(range(len(jobs)), key=lambda i: -jobs[i].weight)
-    turns = _Turns(order) if len(jobs) > 1 and _forks() else None
+    turns = _shared_turns(order) if len(jobs) > 1 and _forks() else None
     proc = None if turns is None else _fork(lambda: _draw_turns(jobs, turns, TAKEN_BY_COPY))
     if turns is None or proc is None:
         for job in jobs:
-            job.draw(job.path)
+            _draw(job)
             if on_done is not None:
                 on_done(job.path)
         return [job.path for job in jobs]
@@ -91,25 +116,55 @@ def draw_all(
             on_done(jobs[i].path)
         told.add(i)
 
-    while (i := turns.take(TAKEN_HERE)) is not None:
-        jobs[i].draw(jobs[i].path)
-        tell(i)
-        for j in range(len(jobs)):
-            if turns.state[j] == DRAWN_BY_COPY:
-                tell(j)
+    try:
+        while (i := turns.take(TAKEN_HERE)) is not None:
+            _draw(jobs[i])
+            tell(i)
+            for j in range(len(jobs)):
+                if turns.state[j] == DRAWN_BY_COPY:
+                    tell(j)
+    except BaseException:
+        turns.stop()
+        proc.join()
+        raise
     proc.join()
     for i in range(len(jobs)):
         if turns.state[i] in (FREE, TAKEN_BY_COPY):  # the copy's unfinished, or never taken
-            jobs[i].draw(jobs[i].path)
+            _draw(jobs[i])
         tell(i)
     return [job.path for job in jobs]
 
 
+def _shared_turns(order: Sequence[int]) -> _Turns | None:
+    """The turns in shared memory, or None (draw here alone) where it cannot be had: its
+    backing file beyond this process's file-size limit (ulimit -f) or on a full disk."""
+    try:
+        return _Turns(order)
+    except OSError:
+        return None
+
+
+def _draw(job: FigureJob) -> None:
+    """Draw one figure into a temporary file and rename it to its path."""
+    from hexcal.io.fileio import write_atomic_with, write_error
+
+    try:
+        job.path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise write_error(exc, job.path.parent) from None
+    write_atomic_with(job.path, job.draw)
+
+
 def _draw_turns(jobs: Sequence[FigureJob], turns: _Turns, who: int) -> None:
-    """The copy's part: take the next figure and draw it until none is left."""
-    while (i := turns.take(who)) is not None:
-        jobs[i].draw(jobs[i].path)
-        turns.state[i] = DRAWN_BY_COPY
+    """The copy's part: take the next figure and draw it until none is left. At a failure it
+    stops quietly, the figure left marked as taken by it: this process draws it again and
+    meets the failure where its message is seen."""
+    try:
+        while (i := turns.take(who)) is not None:
+            _draw(jobs[i])
+            turns.state[i] = DRAWN_BY_COPY
+    except Exception:
+        return
 
 
 def _forks() -> bool:

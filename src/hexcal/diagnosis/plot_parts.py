@@ -164,7 +164,7 @@ def finish(fig: Figure, outdir: Path, name: str, legend: list | None = None) -> 
     path = outdir / name
     # Not fig.clear(): that resets every axes' ticks before dropping them, a fifth of the
     # figure's time; the garbage collector frees the figure (a few MB) soon enough.
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=DPI, format="png")  # the suffix may be a temporary file's
     return path
 
 

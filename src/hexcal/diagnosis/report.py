@@ -37,7 +37,7 @@ from hexcal.diagnosis.report_tables import (
 from hexcal.diagnosis.summary import GLOSSARY, plain_summary
 from hexcal.effects import get_effect
 from hexcal.estimate.accuracy import floor_words
-from hexcal.io.fileio import write_text_atomic
+from hexcal.io.fileio import OutputFileError, write_error, write_text_atomic
 from hexcal.vocabulary import Outcome, Verdict
 
 #: Plot order in the report: the overview first, then one figure per suspect quantity.
@@ -449,6 +449,7 @@ def render_report(
     plots: bool = True,
     limits: Sequence[str] = (),
     on_figure: Callable[[], None] | None = None,
+    limits_advice: str = "",
 ) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     if not diags:
@@ -466,9 +467,7 @@ def render_report(
         items = "".join(f"<li>{esc(line)}</li>" for line in limits)
         parts.append(
             "<section id=\"limits\"><h2>Poses at a stroke's end or a joint's limit</h2>"
-            f'<ul>{items}</ul><p class="muted">A leg against its end stop does not follow the '
-            "model: give leg_range_mm in robot.json, or leave these poses out with "
-            "--exclude-at-limits.</p></section>"
+            f'<ul>{items}</ul><p class="muted">{esc(_sentence(limits_advice))}</p></section>'
         )
     with tempfile.TemporaryDirectory(prefix="hexcal-report-") as t:
         tmp = Path(t) if plots else None
@@ -490,6 +489,14 @@ def render_report(
     return for_any_width("\n".join(parts))
 
 
+def _sentence(advice: str) -> str:
+    """The limits' advice as a sentence (capitalised, a full stop)."""
+    from hexcal.diagnosis.limits import LEAVE_OUT
+
+    text = advice or LEAVE_OUT
+    return text[:1].upper() + text[1:] + "."
+
+
 def write_report(
     diags: Sequence[Diagnosis],
     path: Path,
@@ -497,6 +504,7 @@ def write_report(
     plots: bool = True,
     limits: Sequence[str] = (),
     on_figure: Callable[[], None] | None = None,
+    limits_advice: str = "",
 ) -> Path:
     """Write ONE self-contained HTML report of a diagnosis sequence to ``path`` (atomically).
 
@@ -504,9 +512,19 @@ def write_report(
     ``none``); between consecutive steps a before/after figure is drawn. ``inputs``: label →
     input file, listed with its SHA-256. ``plots=False`` leaves the figures out (a quick,
     tables-only page). ``on_figure`` is called as each figure is drawn (a progress bar of
-    :func:`figure_count` figures).
+    :func:`figure_count` figures). ``limits``: the lines of the poses at a stroke's end or a
+    joint's limit, ``limits_advice`` what to do with them
+    (:func:`hexcal.diagnosis.limits.advice`; by default, leave them out).
     Returns ``path``.
     """
     path = Path(path)
-    write_text_atomic(path, render_report(diags, inputs, plots, limits, on_figure))
+    try:
+        text = render_report(diags, inputs, plots, limits, on_figure, limits_advice)
+    except OSError as exc:  # a figure, in the temporary folder the report draws in
+        if not isinstance(exc, OutputFileError):
+            exc = write_error(exc, exc.filename or tempfile.gettempdir())
+        raise OutputFileError(
+            f"{path}: not written: its figures could not be drawn ({exc})", path
+        ) from None
+    write_text_atomic(path, text)
     return path

@@ -1,7 +1,11 @@
-"""Atomic text writes: a crash never leaves a half-written file where a good one was.
+"""Atomic writes: a crash, a full disk or a file-size limit never leaves a half-written file
+where a good one was, nor a new file or folder cut short.
 
 Every error names the user's path (never the hidden temporary file) and says what to do;
-:func:`check_output` checks an output path before any work is done.
+:func:`check_output` checks an output path before any work is done. Text goes through
+:func:`write_text_atomic`, several files as one step through :func:`write_files_atomic`, and
+what a library writes itself (a figure's PNG) through :func:`write_atomic_with`;
+:func:`new_folder` removes a folder it made when what was to fill it failed.
 """
 
 from __future__ import annotations
@@ -10,7 +14,10 @@ import errno
 import os
 import re
 import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from hexcal.errors import HexcalError
 
@@ -45,6 +52,11 @@ def _why(exc: OSError, path: Path) -> str:
         return "the disk is full; free some space and try again"
     if code == errno.EDQUOT:
         return "the disk quota is exceeded; free some space and try again"
+    if code == errno.EFBIG:
+        return (
+            "the file would be larger than this process may write (its file-size limit, "
+            "ulimit -f); raise the limit, or write elsewhere"
+        )
     return f"cannot be written ({exc.strerror or exc}); check the path and its folder"
 
 
@@ -132,11 +144,61 @@ def _write(path: Path, text: str) -> None:
         raise
 
 
+def write_atomic_with(path: str | Path, write: Callable[[Path], Any]) -> None:
+    """Have ``write(temporary path)`` write a file (a figure's PNG: a library that writes to a
+    path itself), then fsync it and rename it to ``path``, so ``path`` is either whole or not
+    there. An OS error becomes :class:`OutputFileError` naming ``path``; the temporary file
+    (named as :func:`write_text_atomic` names its own) never stays."""
+    path = Path(path)
+    mode = _new_mode(path)
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(
+            prefix=_temp_prefix(path), suffix=TEMP_SUFFIX, dir=path.parent or "."
+        )
+        os.close(fd)
+        write(Path(tmp))
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and not isinstance(exc, OutputFileError):
+            raise write_error(exc, path) from None
+        raise
+    _fsync_directory(path.parent)
+
+
+@contextmanager
+def new_folder(folder: str | Path) -> Iterator[Path]:
+    """``folder``, made with its parents when missing, for the ``with`` block to fill: when the
+    block fails, the folders made here are removed again if they are still empty (a failed
+    export or plot set leaves no empty folder); an OS error making it names it."""
+    folder = Path(folder)
+    made = [p for p in reversed([folder, *folder.parents]) if not p.exists()]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _undo([], made)
+        raise write_error(exc, folder) from None
+    try:
+        yield folder
+    except BaseException:
+        _undo([], made)
+        raise
+
+
 def write_files_atomic(folder: str | Path, files: dict[str, str]) -> None:
     """Write several files into ``folder`` (made if needed, with its parents) as one step: each
     text goes to a temporary file first, and only when all are on disk are they renamed into
-    place. A failure before the renames leaves nothing behind — no file, and no folder this
-    call made — and is raised as :class:`OutputFileError` naming the user's path."""
+    place. A name may hold ``/`` (a file in a subfolder, made as needed). A failure before the
+    renames leaves nothing behind — no file, and no folder this call made — and is raised as
+    :class:`OutputFileError` naming the user's path."""
     folder = Path(folder)
     made: list[Path] = []
     for parent in reversed([folder, *folder.parents]):
@@ -148,7 +210,13 @@ def write_files_atomic(folder: str | Path, files: dict[str, str]) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         for name, text in files.items():
             target = folder / name
-            fd, temp = tempfile.mkstemp(prefix=_temp_prefix(target), suffix=TEMP_SUFFIX, dir=folder)
+            for sub in reversed(target.parents):
+                if sub.is_relative_to(folder) and sub != folder and not sub.exists():
+                    sub.mkdir()
+                    made.append(sub)
+            fd, temp = tempfile.mkstemp(
+                prefix=_temp_prefix(target), suffix=TEMP_SUFFIX, dir=target.parent
+            )
             staged.append((name, Path(temp)))
             with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
                 fh.write(text)

@@ -36,6 +36,7 @@ from pydantic import BeforeValidator, Field
 from pydantic_core import PydanticCustomError
 
 from hexcal.errors import InputError
+from hexcal.io.capacity import MAX_SESSION_BYTES
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -123,7 +124,7 @@ KINDS: dict[str, FileKind] = {
     ),
     "session": FileKind(
         "session file",
-        512 * MB,
+        MAX_SESSION_BYTES,
         "no such session file",
         "the file is damaged; it is left untouched. Restore it from a backup, or start a new "
         "session under another name",

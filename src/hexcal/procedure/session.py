@@ -44,6 +44,7 @@ from hexcal import __version__
 from hexcal.acquire.acquisition import RecordedPose
 from hexcal.effects.priors import check_priors
 from hexcal.io.advice import beside, command, line
+from hexcal.io.capacity import MAX_SESSION_BYTES, MB
 from hexcal.io.fileio import (
     OutputFileError,
     remove_orphan_temp_files,
@@ -91,9 +92,10 @@ def _error(message: str) -> SessionFileError:
 def load_session(path: str | Path, notices: list[str] | None = None) -> Session:
     """Read a session file. Refuses — naming the file and saying what to do — a missing file,
     one that is not JSON or not a session, one beyond the limits of :mod:`hexcal.io.safe_read`
-    (512 MB, nesting, non-finite numbers, a key given twice), one written by a newer hexcal,
-    and one whose poses break the rules of the table it exports to (a repeated pose id, a
-    header without its columns: :mod:`hexcal.procedure.session_check`).
+    (:data:`hexcal.io.capacity.MAX_SESSION_BYTES`, nesting, non-finite numbers, a key given
+    twice), one written by a newer hexcal, and one whose poses break the rules of the table it
+    exports to (a repeated pose id, a header without its columns:
+    :mod:`hexcal.procedure.session_check`).
 
     Poses an older hexcal saved with ``null`` values are set aside (see the module docstring);
     each one's reason is appended to ``notices`` when given, and logged."""
@@ -152,6 +154,25 @@ def _load(path: Path, notices: list[str] | None = None) -> tuple[Session, bytes]
 def session_to_text(session: Session) -> str:
     """The session file's text (indented JSON)."""
     return session.model_dump_json(indent=1, exclude_none=False) + "\n"
+
+
+def _check_size(path: Path, text: str, creating: bool) -> None:
+    """Refuse to write a session the readers would refuse: more than the session file's limit
+    (:data:`hexcal.io.capacity.MAX_SESSION_BYTES`, the readers' own), named with the size."""
+    size = len(text.encode("utf-8"))
+    if size <= MAX_SESSION_BYTES:
+        return
+    what = (
+        "the session file was not created; import a part of the table (a step, a stretch of "
+        "time) per session, or calibrate straight from the table"
+        if creating
+        else "the last saved state is still on disk; record the rest in a new session"
+    )
+    raise SessionFileError(
+        f"{path}: the session would take {size / MB:.0f} MB, more than the "
+        f"{MAX_SESSION_BYTES // MB} MB a session file may have (what every hexcal command "
+        f"reads); {what}"
+    )
 
 
 def _acquire(path: Path, creating: bool) -> SessionLock:
@@ -341,6 +362,7 @@ class SessionFile:
         # A schema 1 file is upgraded when hexcal writes it (schema 2 only adds fields).
         self.session.schema_version = SCHEMA_VERSION
         text = session_to_text(self.session)
+        _check_size(self.path, text, creating)
         if not creating:
             self._check_disk()
         try:
@@ -421,6 +443,7 @@ class SessionFile:
         last = max((r.t for r in self.session.poses), default=-1.0)
         offset = last + 1.0 - run_start if self.session.poses else -run_start
         ids: dict[int, int] = {}
+        counts = [0] * 6  # the encoders' reboots at the run's last pose (the driver's from 0)
 
         def sink(kind: str, step, pose: RecordedPose | None, reason: str) -> None:
             rec = None
@@ -439,6 +462,8 @@ class SessionFile:
                 if rec is None:
                     raise SessionFileError(f"step {step.name}: a recorded pose came without values")
                 ids[id(pose)] = rec.pose_id
+                if pose is not None:
+                    self._mark_reboots(pose, rec, counts)
                 self.add_pose(rec)
             elif kind == "refused":
                 self.set_aside(SetAside(step=step.name, reason=reason, pose=rec))
@@ -454,6 +479,21 @@ class SessionFile:
                 raise ValueError(f"unknown record kind {kind!r}")
 
         return sink
+
+    def _mark_reboots(self, pose: RecordedPose, rec: PoseRecord, counts: list[int]) -> None:
+        """The legs whose encoder rebooted since the run's last pose (``counts``, updated):
+        each is checked against the tracker's pose and the model, marked on ``rec`` and in the
+        session (:mod:`hexcal.procedure.reboots`), and logged."""
+        from hexcal.procedure.reboots import check_reboot, reboot_counts, reboot_note
+
+        now = reboot_counts(pose)
+        for k, n in enumerate(now[:6]):
+            if n > counts[k]:
+                found = check_reboot(self.session, rec, k + 1, float(pose.reading_spread_mm))
+                self.session.encoder_reboots.append(found)
+                rec.notes.append(reboot_note(found))
+                log.warning("%s: %s", self.path, rec.notes[-1])
+                counts[k] = n
 
     def add_note(self, text: str) -> None:
         self.session.notes.append(OperatorNote(text=text))

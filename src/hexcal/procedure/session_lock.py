@@ -191,7 +191,9 @@ class SessionLock:
             os.lseek(fd, 0, os.SEEK_SET)
             os.write(fd, LockHolder.me().to_bytes())
             os.fsync(fd)
-        except OSError:
+        except OSError:  # a full disk: the lock file is ours, and must not stay behind
+            if _same_file(fd, path):
+                path.unlink(missing_ok=True)
             _unlock(fd)
             os.close(fd)
             raise

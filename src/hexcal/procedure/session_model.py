@@ -210,6 +210,22 @@ class ResultRecord(BaseModel):
         return strict(summary, accuracy_reason)
 
 
+class EncoderReboot(BaseModel):
+    """A leg's encoder rebooted (its node's boot-up while recording) before the pose
+    ``pose_id``: that pose and every later one were read after it, when an encoder that kept
+    no preset reads off by its lost zero. ``jump_mm``: at that pose, how far the leg's reading
+    moved against its prediction from the tracker's pose and the model, beyond the scatter of
+    that difference over the poses before (None: too few poses before to judge); ``beyond``:
+    whether the jump exceeds what that scatter and the noise allow (marked at once)."""
+
+    model_config = ConfigDict(extra="forbid")
+    leg: int = Field(ge=1, le=6)
+    pose_id: PoseId
+    jump_mm: Millimetres | None = None
+    threshold_mm: Millimetres | None = None
+    beyond: bool = False
+
+
 class Session(BaseModel):
     """A calibration session (see the module docstring)."""
 
@@ -235,6 +251,10 @@ class Session(BaseModel):
     results: list[ResultRecord] = Field(default_factory=list)
     progress: list[StepProgress] = Field(
         default_factory=list, description="the guided procedure's finished and skipped steps"
+    )
+    encoder_reboots: list[EncoderReboot] = Field(
+        default_factory=list,
+        description="the legs whose encoder rebooted while recording, and the first pose after",
     )
 
     # -- the interchange table ----------------------------------------------------------------

@@ -40,6 +40,7 @@ file, the step (number and id) and the field.
 
 from __future__ import annotations
 
+from collections import Counter
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -47,6 +48,13 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hexcal.errors import InputError
+from hexcal.io.capacity import (
+    MAX_POSES_PER_STEP,
+    MAX_PROCEDURE_POSES,
+    MAX_SESSION_BYTES,
+    MB,
+    RECORDED_POSE_BYTES,
+)
 from hexcal.io.safe_read import KINDS, FileKind, parse_toml, read_text
 from hexcal.io.validation import format_validation_error
 from hexcal.procedure.recording import Step
@@ -63,9 +71,9 @@ BUILTIN = {
 
 Check = Literal["clamp-length", "step-fit"]
 
-#: Limits on a step's numbers: a clamp's tolerance and a step's target σ, mm; poses per step.
+#: Limits on a step's numbers: a clamp's tolerance and a step's target σ, mm. The poses per step
+#: and in all are bounded by what a session holds (:mod:`hexcal.io.capacity`).
 MAX_TOLERANCE_MM = 10.0
-MAX_POSES_PER_STEP = 10_000
 #: The longest step id or procedure name, characters (instructions may be longer).
 MAX_ID_CHARS = 200
 
@@ -145,8 +153,7 @@ class Procedure(BaseModel):
 
     @model_validator(mode="after")
     def _unique_ids(self) -> Procedure:
-        ids = [s.id for s in self.steps]
-        dup = sorted({i for i in ids if ids.count(i) > 1})
+        dup = sorted(i for i, n in Counter(s.id for s in self.steps).items() if n > 1)
         if dup:
             raise ValueError(f"step ids must be unique; repeated: {', '.join(dup)}")
         return self
@@ -170,6 +177,21 @@ class Procedure(BaseModel):
                 block.append(s)
         flush()
         return out
+
+
+def check_total(counts: list[int], source: str, what: str = "the procedure asks for") -> None:
+    """Refuse steps whose pose ``counts`` (one per concrete step, legs expanded) add up to more
+    than a session holds (:data:`hexcal.io.capacity.MAX_PROCEDURE_POSES`), naming the total
+    and the cap; ``source`` names the procedure."""
+    total = sum(counts)
+    if total > MAX_PROCEDURE_POSES:
+        raise ProcedureError(
+            f"{source}: {what} {total:,} poses in all ({len(counts):,} steps, legs counted); a "
+            f"session holds at most {MAX_PROCEDURE_POSES:,} recorded poses (its "
+            f"{MAX_SESSION_BYTES // MB} MB at about {RECORDED_POSE_BYTES // 1024} KB a pose "
+            "with its still window): ask for fewer steps or fewer poses per step, and record "
+            "the rest as a second session"
+        )
 
 
 def _step(s: ProcedureStep, leg: int) -> Step:
@@ -211,11 +233,13 @@ def parse_procedure(text: str, source: str = "<procedure>") -> Procedure:
     """A procedure from TOML text; errors name ``source``, the step and the field."""
     data = parse_toml(text, source, _procedure_error)
     try:
-        return Procedure.model_validate(data)
+        proc = Procedure.model_validate(data)
     except ValidationError as exc:
         raise ProcedureError(
             format_validation_error(exc, source, data, locate=lambda loc: _where(loc, data))
         ) from None
+    check_total([s.recommended_poses for s in proc.steps for _ in s.legs or [0]], source)
+    return proc
 
 
 #: Procedure files, with what to do when one is missing.

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hexcal.io.fileio import write_text_atomic
-from hexcal.io.measurements import Measurements, write_measurements
-from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise, save_instruments
-from hexcal.model.robot import Robot, save_robot
+from hexcal.io.fileio import write_files_atomic
+from hexcal.io.measurements import Measurements, measurements_to_csv_text
+from hexcal.model.instruments import EncoderNoise, Instruments, TrackerNoise
+from hexcal.model.robot import Robot
 from hexcal.sim.simulate import LengthEffect, NoiseModel, PoseContext, PoseRanges, Simulator
 from hexcal.vocabulary import Constraint
 
@@ -203,7 +203,6 @@ def write_session_dir(
     session, driven in joint space by a controller running the design
     (:mod:`hexcal.sim.metrology_sim`)."""
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     truth = perturbed_truth(design, rng, plan)
     hooks, label, values = [], "none beyond Model 42", None
@@ -220,8 +219,6 @@ def write_session_dir(
     meas, truth = simulate_session(design, poses, plan, effects=hooks, truth=truth)
     if tests:
         meas = _with_tests(meas, design, truth, effect, values, plan, tests, poses)
-    save_robot(design, outdir / "robot.json")
-    write_measurements(meas, outdir / "measurements.csv")
     inst = Instruments(
         tracker=TrackerNoise(
             position_sigma_mm=plan.noise.sigma_position_mm,
@@ -229,7 +226,6 @@ def write_session_dir(
         ),
         encoders=EncoderNoise(reading_sigma_mm=plan.noise.sigma_reading_mm),
     )
-    save_instruments(inst, outdir / "instruments.json")
     text = truth_json(truth, seed, plan, label)
     if effect and values is not None:
         from hexcal.effects import get_effect
@@ -238,5 +234,14 @@ def write_session_dir(
         names = [sp.name for sp in get_effect(effect).params(design)]
         data["effect_values"] = dict(zip(names, values.tolist(), strict=True))
         text = json.dumps(data, indent=2, allow_nan=False) + "\n"
-    write_text_atomic(outdir / "truth.json", text)
+    # The four files as one step: a failure (a full disk) leaves none of them, nor the folder.
+    write_files_atomic(
+        outdir,
+        {
+            "robot.json": design.to_json(),
+            "measurements.csv": measurements_to_csv_text(meas),
+            "instruments.json": inst.to_json(),
+            "truth.json": text,
+        },
+    )
     return outdir

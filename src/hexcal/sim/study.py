@@ -187,7 +187,7 @@ def _plot_set(result: StudyResult, path: Path, pose_set: str) -> Path:
         ax.legend()
     fig.suptitle(f"{title}\n{noise_txt}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, format="png")  # the suffix may be a temporary file's
     return path
 
 
@@ -219,7 +219,7 @@ def write_plots(result: StudyResult, outdir: str | Path) -> list[Path]:
     jobs.append(
         FigureJob(
             outdir / "study_efficiency.png",
-            lambda path: plot_efficiency(result, path.parent),
+            lambda path: plot_efficiency(result, path.parent, path.name),
             2.4,
         )
     )
@@ -283,8 +283,10 @@ def efficiency_table(result: StudyResult, ns: tuple[int, ...] = (7, 20)) -> str:
     return "\n".join(lines)
 
 
-def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
-    """PNG: efficiency against N for every estimate and method."""
+def plot_efficiency(
+    result: StudyResult, outdir: str | Path, name: str = "study_efficiency.png"
+) -> Path:
+    """PNG ``outdir``/``name``: efficiency against N for every estimate and method."""
     style = {"paper": ("C3", "o"), "direct": ("C0", "s"), "refined": ("C2", "^")}
     cols = (len(EFFICIENCY_ROWS) + 1) // 2
     fig, axes = _figure(nrows=2, ncols=cols, figsize=(3.4 * cols, 7.2), sharey=True, squeeze=False)
@@ -314,8 +316,8 @@ def plot_efficiency(result: StudyResult, outdir: str | Path) -> Path:
         fontsize=9,
     )
     fig.tight_layout()
-    path = Path(outdir) / "study_efficiency.png"
-    fig.savefig(path, dpi=110)
+    path = Path(outdir) / name
+    fig.savefig(path, dpi=110, format="png")  # the suffix may be a temporary file's
     return path
 
 

@@ -147,6 +147,7 @@ class StartScreen(HexcalScreen):
         name = str(self.query_one("#procedure", Select).value)
         try:
             proc = load_procedure(name)
+            app.steps(proc)  # pose counts beyond what a session holds: refused before it exists
             path.parent.mkdir(parents=True, exist_ok=True)
             sf = SessionFile.create(
                 path, Session(robot=app.backend.design, procedure=proc.model_dump(by_alias=True))
@@ -168,6 +169,7 @@ class StartScreen(HexcalScreen):
                     f"`{command('calibrate', path)}`, or start a new session"
                 )
             proc = Procedure.model_validate(sf.session.procedure)
+            app.steps(proc)  # the pose counts held to what a session holds
         except (SessionFileError, ValueError) as exc:
             self._say(str(exc), "red")
             return

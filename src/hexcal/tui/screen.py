@@ -22,6 +22,7 @@ from hexcal.tui.backend import Backend, Rig
 from hexcal.tui.keys import KeyBar
 
 if TYPE_CHECKING:
+    from hexcal.procedure.recording import Step
     from hexcal.procedure.session import SessionFile
 
 
@@ -40,6 +41,7 @@ class HexcalHost(Protocol):
     def post(self, fn: Callable[..., object], *args: object) -> None: ...
     def take_device_messages(self) -> list[tuple[str, int]]: ...
     def begin(self, sf: SessionFile, proc: Procedure) -> object: ...
+    def steps(self, proc: Procedure) -> list[Step]: ...
 
 
 class HexcalScreen(Screen):

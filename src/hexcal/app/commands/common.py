@@ -8,6 +8,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from hexcal.io.capacity import MAX_POSES_PER_STEP
+
 EXIT_INPUT = 2  # bad input: a file, a field or a pose set the user must fix
 EXIT_REFUSED = 3  # the data cannot calibrate the robot: more or other poses are needed
 EXIT_DRAWING = 4  # the calibration fits but does not match the drawing (swapped legs, …)
@@ -44,6 +46,10 @@ COUNT = number(int, 0, 100_000)  # poses or trials
 #: minutes, and hexcal's fit is linear in the poses (docs/performance.md).
 SESSION_POSES = number(int, 0, 1_000_000)
 POSITIVE_COUNT = number(int, 1, 100_000)
+#: A step's poses (``--poses-per-step``, ``--free-poses``): the procedure file's own cap.
+POSES_PER_STEP = number(int, 1, MAX_POSES_PER_STEP)
+#: The free steps' poses (``--free-poses``; 0: the procedure's count), under the same cap.
+FREE_POSES = number(int, 0, MAX_POSES_PER_STEP)
 SEED = number(int, 0, 2**32 - 1)
 SIGMA = number(float, 0.0, 1000.0)
 SECONDS = number(float, 0.0, 60.0, lo_open=True)

@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hexcal.app.commands.common import COUNT, POSITIVE_COUNT, SECONDS, SEED, check_outputs
+from hexcal.app.commands.common import (
+    FREE_POSES,
+    POSES_PER_STEP,
+    SECONDS,
+    SEED,
+    check_outputs,
+)
 
 #: The command's name on the command line.
 NAME = "demo"
@@ -31,9 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     dm.add_argument("--procedure", default="model42-direction-length", help="name or TOML file")
     dm.add_argument(
-        "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"
+        "--poses-per-step", type=POSES_PER_STEP, help="instead of the procedure's counts"
     )
-    dm.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
+    dm.add_argument("--free-poses", type=FREE_POSES, help="instead of the procedure's count")
     dm.add_argument("--window-s", type=SECONDS, default=0.25, help="still window per pose, s")
     dm.add_argument(
         "--session",

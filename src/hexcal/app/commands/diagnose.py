@@ -111,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
             refuse_overwrite(Path(out_path), inp, force=True)
     if args.out:
         refuse_overwrite(args.out, inp, args.force)
+    from hexcal.diagnosis.limits import advice as limits_advice
     from hexcal.diagnosis.limits import at_limits
 
     sigma = None if inp.instruments is None else inp.instruments.sigma_reading_mm
@@ -124,13 +125,16 @@ def run(args: argparse.Namespace) -> int:
     effect_written = (
         _write_effect_file(steps[-1], args.effect_file, inp) if args.effect_file else None
     )
+    from hexcal.app.workflow import reboot_findings
     from hexcal.diagnosis.metrology import of_diagnosis
 
+    reboots = reboot_findings(inp, steps)
     figures = of_diagnosis(steps[-1])
     if args.json:
         out = steps[-1].to_dict()
         if len(steps) > 1:
             out["steps"] = _step_rows(steps)
+        out["encoder_reboots"] = [r.to_dict() for r in reboots]
         out["at_limits"] = limits_json
         out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
         out["metrology"] = figures.to_dict(per_pose=False)
@@ -144,16 +148,15 @@ def run(args: argparse.Namespace) -> int:
     else:
         from hexcal.app.plain import diagnosis_summary, opening
 
+        for r in reboots:  # a known pose, tested first: before what the search and fit say
+            print(f"{r.text()}\n")
         print(opening(diagnosis_summary(steps, args)))
         if limit_lines:
             left = "; left out (--exclude-at-limits)" if args.exclude_at_limits else ""
             print(f"poses at the end of a leg's stroke or a joint's limit{left}:")
             print("\n".join(f"  {line}" for line in limit_lines))
             if not args.exclude_at_limits:
-                print(
-                    "  a leg against its end stop does not follow the model: give leg_range_mm in "
-                    "robot.json, or leave these poses out with --exclude-at-limits"
-                )
+                print(f"  {limits_advice(inp.design)}")
             print()
         shown = steps if args.verbose else steps[-1:]
         if len(shown) < len(steps):
@@ -281,30 +284,36 @@ def _diagnose_and_write(
         from hexcal.diagnosis.compare_plots import before_after_job, pose_error_job
         from hexcal.diagnosis.figure_pool import draw_all
         from hexcal.diagnosis.plots import plot_jobs
+        from hexcal.io.fileio import new_folder
 
-        out = Path(args.plots)
-        out.mkdir(parents=True, exist_ok=True)
-        jobs = plot_jobs(steps[-1], out)
-        jobs.append(pose_error_job(steps, out / "pose_error.png"))
-        jobs += [
-            before_after_job(steps[i - 1], steps[i], out / f"before_after_{i}.png")
-            for i in range(1, len(steps))
-        ]
-        bar.stage("drawing the plots", total=len(jobs))
+        with new_folder(args.plots) as out:  # removed again if it was made and stays empty
+            jobs = plot_jobs(steps[-1], out)
+            jobs.append(pose_error_job(steps, out / "pose_error.png"))
+            jobs += [
+                before_after_job(steps[i - 1], steps[i], out / f"before_after_{i}.png")
+                for i in range(1, len(steps))
+            ]
+            bar.stage("drawing the plots", total=len(jobs))
 
-        def advance(_path: Path) -> None:
-            bar.advance()
+            def advance(_path: Path) -> None:
+                bar.advance()
 
-        draw_all(jobs, advance)
+            draw_all(jobs, advance)
     if args.residuals:
         from hexcal.io.fileio import write_text_atomic
 
         write_text_atomic(args.residuals, steps[-1].residual_table())
     if args.report:
+        from hexcal.diagnosis.limits import advice
         from hexcal.diagnosis.report import figure_count, write_report
 
         bar.stage("writing the report", total=figure_count(steps))
         write_report(
-            steps, Path(args.report), dict(inp.files), limits=limit_lines, on_figure=bar.advance
+            steps,
+            Path(args.report),
+            dict(inp.files),
+            limits=limit_lines,
+            on_figure=bar.advance,
+            limits_advice=advice(inp.design),
         )
     return steps, result, mismatch

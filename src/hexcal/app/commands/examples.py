@@ -60,7 +60,7 @@ def example_files() -> dict[str, str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hexcal.io.fileio import write_text_atomic
+    from hexcal.io.fileio import write_files_atomic
 
     out: Path = args.out
     if out.exists() and not out.is_dir():
@@ -72,10 +72,7 @@ def run(args: argparse.Namespace) -> int:
             f"{out}: already holds {len(there)} of the examples' {len(files)} files (e.g. "
             f"{there[0]}); pass --force to replace them, or choose another --out"
         )
-    for name, text in files.items():
-        target = out / name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(target, text)
+    write_files_atomic(out, files)  # all or nothing: a failure leaves no part of them
     folders = sorted({name.split("/")[0] for name in files if "/" in name})
     print(f"hexcal's examples written to {out}/: {', '.join(f + '/' for f in folders)}")
     print(f"{out / 'README.md'} says what each is and the command to run inside it, e.g.:")

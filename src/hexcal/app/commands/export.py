@@ -159,7 +159,7 @@ def _joint_order(text: str) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     from hexcal.estimate.model_file import load_model, sha256_of
-    from hexcal.io.fileio import write_text_atomic
+    from hexcal.io.fileio import write_files_atomic
 
     loaded = load_model(args.model)
     sha = sha256_of(args.model)
@@ -180,13 +180,16 @@ def run(args: argparse.Namespace) -> int:
         args.temperature,
     )
     refuse_existing(out, [TABLE_JSON, TABLE_CSV], args.force)
-    out.mkdir(parents=True, exist_ok=True)
     label = model_label(loaded)
-    write_text_atomic(
-        out / TABLE_JSON,
-        table_json(table, label, str(args.model), sha, args.tilt_deg, args.temperature),
+    write_files_atomic(
+        out,
+        {
+            TABLE_JSON: table_json(
+                table, label, str(args.model), sha, args.tilt_deg, args.temperature
+            ),
+            TABLE_CSV: table_csv(table),
+        },
     )
-    write_text_atomic(out / TABLE_CSV, table_csv(table))
     e = table.error["readings"]
     print(
         f"{out / TABLE_JSON} and {out / TABLE_CSV} written: {table.readings.size // 6} poses; "
@@ -204,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _linuxcnc(args: argparse.Namespace, loaded, sha: str, out: Path) -> int:
     from hexcal.app.export_linuxcnc import export_linuxcnc, session_and_drawing
-    from hexcal.io.fileio import write_text_atomic
+    from hexcal.io.fileio import write_files_atomic
 
     session, drawing = session_and_drawing(loaded, args.session, args.drawing)
     files = export_linuxcnc(
@@ -223,9 +226,7 @@ def _linuxcnc(args: argparse.Namespace, loaded, sha: str, out: Path) -> int:
         home=args.home,
     )
     refuse_existing(out, [HAL, INI], args.force)
-    out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / HAL, files.hal)
-    write_text_atomic(out / INI, files.ini)
+    write_files_atomic(out, {HAL: files.hal, INI: files.ini})  # both or neither, no empty folder
     print(f"{out / HAL} and {out / INI} written ({files.model})")
     for line in dict.fromkeys(x.strip() for x in [*files.shipping[:2], *files.warnings]):
         print(f"  {line}")

@@ -7,8 +7,8 @@ import sys
 from pathlib import Path
 
 from hexcal.app.commands.common import (
-    COUNT,
-    POSITIVE_COUNT,
+    FREE_POSES,
+    POSES_PER_STEP,
     SECONDS,
     SEED,
     add_effects_option,
@@ -50,9 +50,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "direction and length, then length clamping)",
     )
     rn.add_argument(
-        "--poses-per-step", type=POSITIVE_COUNT, help="instead of the procedure's counts"
+        "--poses-per-step", type=POSES_PER_STEP, help="instead of the procedure's counts"
     )
-    rn.add_argument("--free-poses", type=COUNT, help="instead of the procedure's count")
+    rn.add_argument("--free-poses", type=FREE_POSES, help="instead of the procedure's count")
     rn.add_argument("--seed", type=SEED, default=1, help="--mock: the simulated robot")
     rn.add_argument(
         "--effect",
@@ -70,6 +70,11 @@ def run(args: argparse.Namespace) -> int:
 
     backend: MockBackend | RealBackend
     load_effects(args)
+    # The pose counts beyond what a session holds are refused before anything starts.
+    from hexcal.app.workflow import procedure_steps
+    from hexcal.procedure.steps import load_procedure
+
+    procedure_steps(load_procedure(args.procedure), args.poses_per_step, args.free_poses)
     if args.mock:
         backend = mock_backend(args.seed, args.effect, args.window_s)
         if args.robot:

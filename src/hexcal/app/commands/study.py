@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
 
     from hexcal.app.progress import progress, wanted
     from hexcal.io import json_out
-    from hexcal.io.fileio import write_text_atomic
+    from hexcal.io.fileio import new_folder, write_text_atomic
     from hexcal.sim.simulate import PoseRanges
     from hexcal.sim.study import (
         SWEEPS,
@@ -112,15 +112,14 @@ def run(args: argparse.Namespace) -> int:
         bar.stage(f"the study: {cfg.trials} trials per point, pose-set sweeps", total=SWEEPS)
         result = run_study(cfg, on_sweep=bar.advance)
         elapsed = time.perf_counter() - t0
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        write_csv(result, out / "study.csv")
-        # Strict JSON, whatever the study's own writer lets through (a NaN becomes null).
-        text = json_out.dumps(json.loads(to_json(result)), indent=1)
-        write_text_atomic(out / "study.json", text)
-        if not args.no_plots:
-            bar.stage("drawing the plots")
-        pngs = [] if args.no_plots else write_plots(result, out)
+        with new_folder(args.out) as out:  # removed again if it was made and stays empty
+            write_csv(result, out / "study.csv")
+            # Strict JSON, whatever the study's own writer lets through (a NaN becomes null).
+            text = json_out.dumps(json.loads(to_json(result)), indent=1)
+            write_text_atomic(out / "study.json", text)
+            if not args.no_plots:
+                bar.stage("drawing the plots")
+            pngs = [] if args.no_plots else write_plots(result, out)
     if args.json:
         print(text)
     else:

@@ -1,0 +1,119 @@
+"""Peak memory of ``hexcal session import`` against the CSV's size, and of reading the session.
+
+    python benchmarks/session_import_memory.py [--poses 20000 80000] [--json]
+
+Each size is a measurement table of ``--poses`` poses made from the example session's rows
+(examples/left-hand-sim, 184 poses, repeated with new pose ids and times; about 168 bytes a
+row). For each: ``hexcal session import`` in a process of its own (its peak resident memory,
+``ru_maxrss``, and wall time), the session file's size against the CSV's, and the peak of a
+process that only loads the session and builds its table (what every command that reads it
+does first: :func:`hexcal.app.workflow.read_inputs`). The growth per MB of CSV between the
+smallest and largest size (the interpreter's own ~100 MB cancels) extrapolates to the
+campaign's 400 MB CSV (2.2 million poses). Numbers, no pass or fail; run it with ``nice``.
+"""
+
+# ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
+from __future__ import annotations
+
+from hexcal.app.cli import single_thread_blas
+
+single_thread_blas()
+
+import argparse
+import csv
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "left-hand-sim"
+#: The campaign's table: 400 MB, about 2.2 million poses.
+CAMPAIGN_CSV_MB = 400.0
+
+_PEAK = (
+    "import resource, sys\n"
+    "from hexcal.app.cli import main\n"
+    "{body}\n"
+    "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+)
+
+
+def make_table(path: Path, poses: int) -> None:
+    """``poses`` rows from the example's, each repeat with new ids and later times."""
+    with open(EXAMPLE / "measurements.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    span = float(rows[-1]["t"]) + 10.0
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, list(rows[0]))
+        w.writeheader()
+        for i in range(poses):
+            r = dict(rows[i % len(rows)])
+            r["pose_id"] = str(i + 1)
+            r["t"] = f"{float(r['t']) + span * (i // len(rows)):.3f}"
+            w.writerow(r)
+
+
+def peak_of(body: str) -> tuple[float, float, str]:
+    """(peak resident MB, wall s, stderr's last line but one) of ``body`` in a new process."""
+    t0 = time.perf_counter()
+    p = subprocess.run(
+        [sys.executable, "-c", _PEAK.format(body=body)], capture_output=True, text=True
+    )
+    wall = time.perf_counter() - t0
+    lines = p.stderr.strip().splitlines()
+    return int(lines[-1]) / 1024, wall, (lines[-2] if len(lines) > 1 else "")
+
+
+def measure(poses: int, folder: Path) -> dict:
+    table, session = folder / f"m{poses}.csv", folder / f"s{poses}.json"
+    make_table(table, poses)
+    args = ["session", "import", str(table), "--robot", str(EXAMPLE / "robot.json")]
+    imp_mb, imp_s, said = peak_of(f"main({[*args, '--out', str(session)]!r})")
+    csv_mb = table.stat().st_size / 2**20
+    out = {"poses": poses, "csv_mb": round(csv_mb, 1), "import_peak_mb": round(imp_mb)}
+    out["import_s"] = round(imp_s, 1)
+    if not session.exists():
+        out["refused"] = said
+        return out
+    out["session_mb"] = round(session.stat().st_size / 2**20, 1)
+    read = f"from hexcal.app.workflow import read_inputs\nread_inputs({str(session)!r})"
+    out["read_peak_mb"] = round(peak_of(read)[0])
+    out["import_peak_per_csv"] = round(imp_mb / csv_mb, 1)
+    out["session_per_csv"] = round(out["session_mb"] / csv_mb, 2)
+    out["read_peak_per_csv"] = round(out["read_peak_mb"] / csv_mb, 1)
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--poses", type=int, nargs="+", default=[20_000, 80_000])
+    p.add_argument("--json", action="store_true")
+    opts = p.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        results = [measure(n, Path(tmp)) for n in opts.poses]
+    if opts.json:
+        print(json.dumps(results, indent=2))
+        return 0
+    for r in results:
+        print(json.dumps(r))
+    done = [r for r in results if "import_peak_per_csv" in r]
+    if len(done) >= 2:
+        a, b = done[0], done[-1]
+        d_csv = b["csv_mb"] - a["csv_mb"]
+        imp = (b["import_peak_mb"] - a["import_peak_mb"]) / d_csv
+        read = (b["read_peak_mb"] - a["read_peak_mb"]) / d_csv
+        print(
+            f"per MB of CSV: import {imp:.1f} MB, reading the session {read:.1f} MB, the session "
+            f"file {b['session_per_csv']:.2f} MB; at the campaign's {CAMPAIGN_CSV_MB:.0f} MB: "
+            f"import {imp * CAMPAIGN_CSV_MB / 1024:.1f} GB, a session of "
+            f"{b['session_per_csv'] * CAMPAIGN_CSV_MB:.0f} MB, reading it "
+            f"{read * CAMPAIGN_CSV_MB / 1024:.1f} GB"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
