@@ -633,11 +633,12 @@ def diagnose_chain(
     the named effect and diagnose again until the verdict is ``none`` or ``unexplained`` (at
     most :data:`MAX_AUTO_STEPS`). With ``explore_dir`` too, an ``unexplained`` verdict whose
     residual the explorer can point at goes on as well: the lead is written there as an effect
-    file (:func:`write_explored`), loaded, added, and the chain diagnoses again — until the
-    residual is at the floor or nothing significant is left. ``previous``: an earlier diagnosis
+    file (:func:`hexcal.diagnosis.effect_file.write_explored`), loaded, added, and the chain
+    diagnoses again — until the residual is at the floor or nothing significant is left. ``previous``: an earlier diagnosis
     of the same inputs, whose precomputed problem is reused. ``on_step`` is called with each
     diagnosis as it is done."""
     from hexcal.diagnosis import diagnose
+    from hexcal.diagnosis.effect_file import write_explored
 
     added = list(dict.fromkeys((*inp.model_effects, *add)))
     problem = None if previous is None else previous.problem
@@ -665,30 +666,10 @@ def diagnose_chain(
             return steps
         if names_an_addition(d.verdict):
             added.append(d.verdict)
-        elif explore_dir is not None and (name := write_explored(d, explore_dir, inp)):
+        elif explore_dir is not None and (name := write_explored(d, explore_dir, inp.label)):
             added.append(name)
         else:
             return steps
-
-
-def write_explored(d: Any, directory: Path, inp: Inputs) -> str | None:
-    """The explorer's lead of diagnosis ``d``, written as an effect file in ``directory``
-    (``<effect>.py``, a name no effect holds yet) and loaded; its effect's name, or None when
-    the residual points at nothing the explorer proposes."""
-    from hexcal.diagnosis.effect_file import write_effect_file
-    from hexcal.effects import CATALOGUE, load_file
-
-    lead = None if d.exploration is None else d.exploration.lead
-    if lead is None:
-        return None
-    name, n = lead.effect_name, 1
-    while name in CATALOGUE:
-        n += 1
-        name = f"{lead.effect_name[:36]}_{n}"
-    path = Path(directory) / f"{name}.py"
-    write_effect_file(lead, path, inp.label, name=name)
-    (loaded,) = load_file(path)
-    return str(loaded)
 
 
 def reboot_findings(inp: Inputs, steps: Sequence[Any]) -> list[Any]:

@@ -15,6 +15,7 @@ import json
 import pprint
 import textwrap
 from pathlib import Path
+from typing import Any
 
 from hexcal.diagnosis.explorer import Lead
 from hexcal.io.fileio import write_text_atomic
@@ -120,3 +121,23 @@ def write_effect_file(
     path = Path(path)
     write_text_atomic(path, effect_file_text(lead, source, name=name))
     return path
+
+
+def write_explored(d: Any, directory: str | Path, source: str) -> str | None:
+    """The explorer's lead of diagnosis ``d`` (found on ``source``), written as an effect file
+    in ``directory`` (``<effect>.py``, a name no effect holds yet) and loaded from there as
+    ``--effects`` would; its effect's name, or None when the residual points at nothing the
+    explorer proposes."""
+    from hexcal.effects import CATALOGUE, load_file
+
+    lead = None if d.exploration is None else d.exploration.lead
+    if lead is None:
+        return None
+    name, n = lead.effect_name, 1
+    while name in CATALOGUE:
+        n += 1
+        name = f"{lead.effect_name[:36]}_{n}"
+    path = Path(directory) / f"{name}.py"
+    write_effect_file(lead, path, source, name=name)
+    (loaded,) = load_file(path)
+    return str(loaded)

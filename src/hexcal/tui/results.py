@@ -277,7 +277,8 @@ class DiagnosisScreen(HexcalScreen):
 
     @work(thread=True, exclusive=True, group="compute")
     def _diagnose(self, add: tuple[str, ...], explored: bool = False) -> None:
-        from hexcal.app.workflow import diagnose_chain, model_of, store, write_explored
+        from hexcal.app.workflow import diagnose_chain, model_of, store
+        from hexcal.diagnosis.effect_file import write_explored
 
         guided, proc, _ = _app_state(self)
         try:
@@ -288,7 +289,7 @@ class DiagnosisScreen(HexcalScreen):
                 # lab edits it to the physics it suspects) and added.
                 where = guided.sf.path.parent / f"{guided.sf.path.stem}-effects"
                 where.mkdir(exist_ok=True)
-                name = write_explored(prev, where, inp)
+                name = write_explored(prev, where, inp.label)
                 if name is None:
                     raise ValueError("the residual follows no covariate: nothing to add")
                 add = (*add, name)
