@@ -165,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
     sha = sha256_of(args.model)
     out = Path(args.out)
     if args.export_command == "linuxcnc":
+        refuse_existing(out, [HAL, INI], args.force)  # before any work: --out must be usable
         return _linuxcnc(args, loaded, sha, out)
     from hexcal.app.export_table import build_table, table_csv, table_json
     from hexcal.estimate.model_file import leg_model_of, load_robot, model_label
