@@ -226,3 +226,21 @@ def test_pose_products_score_as_the_rows_do():
     got = pp.stats(f).score()
     want = block_score(d.fit, whitened_columns(d.fit, shape.basis(values)))
     assert got == pytest.approx(want, rel=1e-6)
+
+
+def test_the_text_ui_sketches_the_residual_against_the_lead_and_its_shape(foreign):
+    """The diagnosis screen's picture of the lead: two rows of bars over the covariate's bins,
+    the residual's and the fitted shape's on one scale; where the lead is right the shape's
+    bars follow the residual's: their heights correlate (> 0.5; a bin's median residual keeps
+    the noise of its few poses, flat stretches of a dent or a step keep only noise)."""
+    from hexcal.tui.results import _BARS, lead_sketch
+
+    _, chain = foreign
+    d = chain[-1]
+    head, resid, shape = lead_sketch(d, d.exploration.lead)
+    assert head.startswith("leg ") and d.exploration.lead.covariate.name in head
+    r, s = resid.split()[-1], shape.split()[-1]
+    assert len(r) == len(s) >= 2
+    a = np.array([_BARS.index(ch) for ch in r], float)
+    b = np.array([_BARS.index(ch) for ch in s], float)
+    assert np.corrcoef(a, b)[0, 1] > 0.5, (r, s)

@@ -343,12 +343,13 @@ class DiagnosisScreen(HexcalScreen):
             )
             lead = _lead(d)
             if lead is not None:
+                shape = escape(lead.shape.describe(lead.covariate.unit))
                 lines.append(
                     f"it follows the [b]{escape(lead.covariate.label)}[/b] "
                     f"({100 * lead.share:.0f} % of the excess): {escape(lead.points_at)}; "
-                    f"press [b]a[/b] to add it as an effect ({escape(lead.shape.describe(lead.covariate.unit))}) "
-                    "and refit"
+                    f"press [b]a[/b] to add it as an effect ({shape}) and refit"
                 )
+                lines += [escape(line) for line in lead_sketch(d, lead)]
         elif d.verdict == Outcome.NOISE_UNDERSTATED:
             lines.append(
                 f"[yellow]the stated noise looks about {d.noise_factor:.1f}× too low[/yellow]: the "
@@ -421,6 +422,44 @@ class DiagnosisScreen(HexcalScreen):
 
     def action_back(self) -> None:
         self.app.pop_screen()
+
+
+#: Bars of a sketch, lowest first.
+_BARS = "▁▂▃▄▅▆▇█"
+
+
+def lead_sketch(d: Any, lead: Any, width: int = 32) -> list[str]:
+    """The residual against the lead's covariate, and the lead's fitted shape, as two rows of
+    bars on the leg that carries most of it: each bar one of ``width`` bins of the covariate
+    (its median held-out residual; the shape's mean), both on one scale."""
+    legs = list(lead.shape.legs)
+    if lead.fitted is None or not legs:
+        return []
+    fitted = -np.asarray(lead.fitted) * 1000.0  # µm, as the residual sees it
+    k = max(legs, key=lambda leg: float(np.ptp(fitted[:, leg - 1]))) - 1
+    u = np.asarray(lead.values)[:, k]
+    resid = np.asarray(d.fit.held_out_residuals)[:, k] * 1000.0
+    curve = fitted[:, k] - fitted[:, k].mean()
+    edges = np.linspace(u.min(), u.max(), width + 1)
+    where = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, width - 1)
+    cells = [(resid[where == i], curve[where == i]) for i in range(width)]
+    got = [(float(np.median(r)), float(np.mean(c))) for r, c in cells if len(r)]
+    if len(got) < 2:
+        return []
+    lo = min(min(a, b) for a, b in got)
+    hi = max(max(a, b) for a, b in got)
+    span = max(hi - lo, 1e-9)
+
+    def bars(values: list[float]) -> str:
+        return "".join(_BARS[round((v - lo) / span * (len(_BARS) - 1))] for v in values)
+
+    cov = lead.covariate
+    unit = f" {cov.unit}" if cov.unit else ""
+    return [
+        f"leg {k + 1}, {cov.name} {u.min():.4g} … {u.max():.4g}{unit}; {lo:.0f} … {hi:.0f} µm:",
+        f"  residual   {bars([a for a, _ in got])}",
+        f"  its shape  {bars([b for _, b in got])}",
+    ]
 
 
 def _lead(d: Any) -> Any:
