@@ -37,10 +37,12 @@ import numpy as np
 
 from hexcal.diagnosis.periodogram import periodogram
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
+from hexcal.diagnosis.scoring import heldout_gain, pose_whiteners
+from hexcal.diagnosis.verdict import HELDOUT_Z
 from hexcal.effects import CATALOGUE
 from hexcal.effects.covariates import Covariate, library
 from hexcal.effects.explored import ExploredEffect, Shape, line, periodic, sign, spline, step
-from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
+from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
 from hexcal.estimate.quantiles import chi2_isf
 
 #: Family-wise false-alarm probability over every covariate and shape tried.
@@ -88,6 +90,15 @@ class Lead:
     @property
     def columns(self) -> int:
         return self.shape.n_params
+
+    @property
+    def ranked_by(self) -> float:
+        """What ranks the lead: its held-out χ², less one standard error for a step, whose
+        split was searched on every pose (so its held-out figure flatters it: a step placed at
+        a signed covariate's zero does no better than the covariate's own sign)."""
+        if self.shape.kind == "step":
+            return self.heldout - self.heldout_se
+        return self.heldout
 
     @property
     def effect_name(self) -> str:
@@ -198,11 +209,10 @@ class Exploration:
 
 
 def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndarray | None:
-    """(M, 6) ``cov`` at ``problem``'s poses (at the fitted geometry when it uses it), or None
-    when the data cannot carry it (no temperature, or one that hardly changed)."""
+    """(M, 6) ``cov`` at ``problem``'s poses, or None when the data cannot carry it (no
+    temperature, or one that hardly changed). At the geometry the data carry, as the effect
+    written for it evaluates it (:class:`~hexcal.effects.explored.ExploredEffect`)."""
     data = problem.data
-    if cov.uses_geometry:
-        data = data.at_geometry(fitted_robot(problem.design, fit.refinement))
     if cov.name == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
         return None
     values = np.asarray(cov.values(data), float)
@@ -354,7 +364,7 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
             lead.heldout = float(folds.sum())
             lead.heldout_se = float(np.std(folds, ddof=1) * np.sqrt(len(folds)))
             lead.share = float(lead.heldout * level / excess) if excess > 0 else float("nan")
-        best[name] = max((lead for _, lead, _ in rows[:N_CV]), key=lambda t: t.heldout)
+        best[name] = max((lead for _, lead, _ in rows[:N_CV]), key=lambda t: t.ranked_by)
     tested = _ranked(list(best.values()), problem, fit)
     out = Exploration(tested, level)
     _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
@@ -370,28 +380,27 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
 
 def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
     """Significant leads first, most held-out χ² first; where the first two are the same
-    quantity on these poses (per-pose covariates correlated beyond :data:`SAME_QUANTITY`, as
-    the time and the place in the procedure are when the poses come at a steady pace) and
-    within a standard error of each other, the one the library lists first (the physical
+    quantity on these poses and within a standard error of each other — covariates correlated
+    beyond :data:`SAME_QUANTITY` (the time and the place in the procedure when the poses come
+    at a steady pace), or shapes that explain exactly alike (a step at zero of the force ×
+    length² is the force's sign) — the one the library lists first (the plainer, physical
     one) leads, the other named with it."""
-    out = sorted(leads, key=lambda t: (not t.significant, -t.heldout, -t.score))
-    if len(out) > 1 and out[1].significant and out[0].covariate.per_pose:
+    out = sorted(leads, key=lambda t: (not t.significant, -t.ranked_by, -t.score))
+    if len(out) > 1 and out[1].significant:
         a, b = out[0], out[1]
         order = [c.name for c in library(problem.data)]
         close = a.heldout - b.heldout <= a.heldout_se
-        if (
-            b.covariate.per_pose
-            and close
-            and order.index(b.covariate.name) < order.index(a.covariate.name)
-        ):
-            r = float(np.corrcoef(a.values[:, 0], b.values[:, 0])[0, 1])
-            if abs(r) > SAME_QUANTITY:
-                b.notes.append(f"or the {a.covariate.label}: the same on these poses (r {r:.3f})")
+        if close and order.index(b.covariate.name) < order.index(a.covariate.name):
+            r = float(np.corrcoef(a.values.ravel(), b.values.ravel())[0, 1])
+            alike = abs(a.heldout - b.heldout) <= 1e-6 * abs(a.heldout)
+            if abs(r) > SAME_QUANTITY or alike:
+                why = f"r {r:.3f}" if abs(r) > SAME_QUANTITY else "they explain exactly alike"
+                b.notes.append(f"or the {a.covariate.label}: the same on these poses ({why})")
                 out[0], out[1] = b, a
     return out
 
 
-#: Two per-pose covariates correlated beyond this are the same quantity on these poses.
+#: Two covariates correlated beyond this are the same quantity on these poses.
 SAME_QUANTITY = 0.98
 
 
@@ -456,6 +465,7 @@ def _refit(problem: Problem, fit: ModelFit, leads: list[Lead], out: Exploration)
     """Refit the model with each lead as an effect: its held-out RMS, its fitted curve, and
     whether it predicts held-out poses worse than the model without it (then not proposed)."""
     effects = fit.effects
+    chol = pose_whiteners(problem, fit) if leads else None
     for lead in leads:
         lead.cv_rms_before_mm = fit.cv_rms_mm
         with lead_effect(problem, lead) as name:
@@ -469,10 +479,21 @@ def _refit(problem: Problem, fit: ModelFit, leads: list[Lead], out: Exploration)
             basis = problem.basis(name)
         lead.cv_rms_after_mm = after.cv_rms_mm
         lead.fitted = basis @ coef if basis.shape[-1] == coef.size else None
+        z = heldout_gain(fit, after, chol, out.level)[1] if chol is not None else 0.0
         if not after.cv_rms_mm < fit.cv_rms_mm:
             lead.worse = True
             lead.notes.append(
                 f"not proposed: with it the held-out RMS rises ({1000 * fit.cv_rms_mm:.2f} → "
                 f"{1000 * after.cv_rms_mm:.2f} µm): it fits the poses it saw, not the others"
+            )
+            out.notes.append(f"{lead.covariate.name}: " + lead.notes[-1])
+        elif not z > HELDOUT_Z:
+            # As a catalogue effect at the floor: a gain inside the poses' own scatter is no
+            # gain another set of poses would keep.
+            lead.worse = True
+            lead.notes.append(
+                f"not proposed: it predicts held-out poses better by {z:.1f} standard errors "
+                f"only (held-out RMS {1000 * fit.cv_rms_mm:.2f} → "
+                f"{1000 * after.cv_rms_mm:.2f} µm; {HELDOUT_Z:g} needed)"
             )
             out.notes.append(f"{lead.covariate.name}: " + lead.notes[-1])

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from hexcal.effects.base import Effect, EffectData, ParamSpec
-from hexcal.effects.covariates import covariate, covariate_values
+from hexcal.effects.covariates import covariate_values
 
 #: Each coefficient's plausible range and the resolution identifiability asks of it, µm.
 PLAUSIBLE_UM = (-1000.0, 1000.0)
@@ -220,9 +220,11 @@ class ExploredEffect(Effect):
         if shape is not None:
             self.shape = shape
 
-    @property
-    def uses_geometry(self) -> bool:  # type: ignore[override]
-        return covariate(self.covariate).uses_geometry if self.covariate in _fixed() else False
+    #: Evaluated at the geometry the data carry (the fit's linear seed, a calibrated model's
+    #: own), not refitted with it: a shape along a geometric quantity (a leg's inclination)
+    #: moves by far less than its knots' spacing between the two, and a basis that moves with
+    #: each step of the fit stalled it (18 spline columns along the inclination).
+    uses_geometry = False
 
     def params(self, robot) -> list[ParamSpec]:
         s = self.shape
