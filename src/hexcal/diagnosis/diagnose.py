@@ -46,10 +46,9 @@ from hexcal.diagnosis.outliers import (
     session_problem,
 )
 from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
+from hexcal.diagnosis.selection import BIC_STRONG, MOST
 from hexcal.diagnosis.verdict import (
-    BIC_STRONG,
     EXCESS_Z,
-    MOST,
     Judgement,
     judge,
     of_the_session,

@@ -128,29 +128,7 @@ def run(args: argparse.Namespace) -> int:
 
     figures = of_diagnosis(steps[-1])
     if args.json:
-        out = steps[-1].to_dict()
-        if len(steps) > 1:
-            out["steps"] = [
-                {
-                    "model": d.fit.model_name,
-                    "effects": list(d.effects),
-                    "cv_rms_mm": d.fit.cv_rms_mm,
-                    "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
-                    "noise_floor_mm": d.noise_floor_mm,
-                    "verdict": d.verdict,
-                    "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
-                }
-                for d in steps
-            ]
-        out["at_limits"] = limits_json
-        out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
-        out["metrology"] = figures.to_dict(per_pose=False)
-        if result is not None:
-            out["written"] = {"path": str(args.out), "model": result.name}
-        if args.effect_file:
-            out["effect_file"] = effect_written
-        if args.explore is not None:
-            out["explored_files"] = _explored_files(steps, args.explore)
+        out = _json_of(steps, args, limits_json, figures, result, effect_written)
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         from hexcal.app.plain import diagnosis_summary, opening
@@ -192,6 +170,42 @@ def run(args: argparse.Namespace) -> int:
                 f"{f['path']} and added; edit it, then --effects {f['path']} --add {f['effect']}"
             )
     return report_mismatch(mismatch, args)
+
+
+def _json_of(
+    steps: list[Diagnosis],
+    args: argparse.Namespace,
+    limits_json: dict,
+    figures,
+    result: ModelResult | None,
+    effect_written: dict | None,
+) -> dict:
+    """The ``--json`` object: the last step's diagnosis, the chain's steps, the poses at the
+    limits, the metrology figures and the files written."""
+    out = steps[-1].to_dict()
+    if len(steps) > 1:
+        out["steps"] = [
+            {
+                "model": d.fit.model_name,
+                "effects": list(d.effects),
+                "cv_rms_mm": d.fit.cv_rms_mm,
+                "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
+                "noise_floor_mm": d.noise_floor_mm,
+                "verdict": d.verdict,
+                "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
+            }
+            for d in steps
+        ]
+    out["at_limits"] = limits_json
+    out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
+    out["metrology"] = figures.to_dict(per_pose=False)
+    if result is not None:
+        out["written"] = {"path": str(args.out), "model": result.name}
+    if args.effect_file:
+        out["effect_file"] = effect_written
+    if args.explore is not None:
+        out["explored_files"] = _explored_files(steps, args.explore)
+    return out
 
 
 def _explored_files(steps: list[Diagnosis], directory: Path) -> list[dict]:
