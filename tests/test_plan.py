@@ -63,3 +63,27 @@ def test_planned_poses_separate_better_than_random_ones_and_geometry_counts_one_
 def test_a_hypothesis_already_in_the_model_is_refused():
     with pytest.raises(ValueError, match="already in the model"):
         plan_poses(_session(6), ("offset", "thermal"), 4, separate=("thermal", "drift"))
+
+
+def test_the_diagnosis_offers_plans_with_the_command_that_makes_them():
+    """A look-alike named with the verdict and a candidate the poses cannot resolve are each
+    offered a plan: how many poses would decide, and ``hexcal plan``'s arguments."""
+    from types import SimpleNamespace
+
+    from hexcal.diagnosis.plan import MAX_OFFER, offers
+    from hexcal.diagnosis.scoring import Candidate
+    from hexcal.diagnosis.text import plan_lines
+
+    problem = _session(5)
+    stuck = Candidate("ujoint", 50.0, identifiable=False, available=True)
+    tiny = Candidate("balljoint", 1.0, identifiable=False, available=True)  # not worth deciding
+    found = offers(problem, ("offset",), "thermal", ["drift"], [stuck, tiny])
+    assert [(o.kind, o.hypotheses) for o in found] == [
+        ("separate", ("thermal", "drift")),
+        ("resolve", ("ujoint",)),
+    ]
+    for o in found:
+        assert o.poses is None or 1 <= o.poses <= MAX_OFFER
+    assert found[0].args()[:3] == ["--separate", "thermal", "drift"]
+    text = plan_lines(SimpleNamespace(plans=found), "hexcal plan s.csv --robot r.json")  # type: ignore[arg-type]
+    assert "hexcal plan s.csv --robot r.json --separate thermal drift --poses" in text[1]

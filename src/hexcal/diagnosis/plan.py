@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 from hexcal.diagnosis import selection
 from hexcal.effects import EffectData, get_effect
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
-from hexcal.estimate.leg_rows import LegData, leg_terms
+from hexcal.estimate.leg_rows import pose_jacobian
 from hexcal.estimate.nbp import MAX_CONDITION
 from hexcal.estimate.predict import LegModel
 from hexcal.io.measurements import Measurements
@@ -370,21 +370,38 @@ class _Criterion:
     def directions(
         self, P: np.ndarray, R: np.ndarray, t: np.ndarray
     ) -> tuple[dict[str, float], dict[str, float]]:
-        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it — the
-        noncentrality of its fitted contribution, the other's columns projected out — and that
-        Δχ²'s standard deviation), keyed by the true one's name."""
-        x = [r.reshape(-1, r.shape[-1]) for r in self._rows_at(P, R, t)]
-        grams = [xi.T @ xi for xi in x]
+        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, and
+        that Δχ²'s standard deviation), keyed by the true one's name.
+
+        The noncentrality of the true one's contribution θᵀSθ (S: the information of its
+        parameters once the other's columns are projected out, over every pose) is estimated
+        from its fitted values θ̂, whose own spread C (the session's information, inverted)
+        inflates it by tr(SC) on average: that is taken off, and the spread it adds,
+        4 θ̂ᵀSCSθ̂, joins the Δχ²'s own (:func:`~hexcal.diagnosis.selection.delta_chi2_sd`)."""
+        rows = self._rows_at(P, R, t)
+        x = [r.reshape(-1, r.shape[-1]) for r in rows]
         cross = x[0][:, :-1].T @ x[1][:, :-1]
-        spread = selection.overlap(grams[0][:-1, :-1], grams[1][:-1, :-1], cross)
+        spread = selection.overlap(
+            x[0][:, :-1].T @ x[0][:, :-1], x[1][:, :-1].T @ x[1][:, :-1], cross
+        )
         lam, sd = {}, {}
         for i, h in enumerate(self.s.hypotheses):
-            # Model i's Gram ends with the other's contribution: the other taken as true.
-            true = _other(self.s, h)
+            true = _other(self.s, h)  # model i's last column: the other's contribution
             if true == GEOMETRY:  # the geometry alone has no contribution to show
                 continue
-            lam[true] = float(selection.schur_last(grams[i]))
-            sd[true] = float(selection.delta_chi2_sd(lam[true], spread))
+            q = len(get_effect(true).params(self.s.problem.design))
+            own = rows[1 - i][..., -1 - q : -1]
+            after = np.concatenate([rows[i][..., :-1], own], axis=-1).reshape(
+                -1, x[i].shape[-1] - 1 + q
+            )
+            info = selection.schur_block(after.T @ after, q)
+            before = rows[1 - i][: self.m, :, :-1].reshape(-1, x[1 - i].shape[-1] - 1)
+            cov = np.linalg.pinv(selection.schur_block(before.T @ before, q))
+            theta = _values(self.s, true)
+            raw = float(theta @ info @ theta)
+            lam[true] = max(raw - float(np.trace(info @ cov)), 0.0)
+            own_sd2 = 4.0 * float(theta @ info @ cov @ info @ theta)
+            sd[true] = float(np.sqrt(selection.delta_chi2_sd(lam[true], spread) ** 2 + own_sd2))
         return lam, sd
 
 
@@ -421,16 +438,10 @@ def _temp(d: EffectData, n: int) -> np.ndarray:
 
 
 def _geometry_rows(fit: ModelFit, data: EffectData) -> np.ndarray:
-    """(n, 6, 6·c) the leg lengths' derivatives by each leg's a_k, b_k (and offset_k when
-    fitted) at the fitted geometry (:func:`~hexcal.estimate.leg_rows.leg_terms`)."""
+    """(n, 6, 6·c) the leg lengths' derivatives by the geometry at the fitted one."""
     ref = fit.refinement
-    d = LegData.of(data.position, data.rotation, data.readings, data.robot.offsets)
-    _, jc = leg_terms(ref.x[None], d, ref.layout)  # (1, 6, c, n)
-    nc = jc.shape[2]
-    out = np.zeros((len(data), 6, 6 * nc))
-    for k in range(6):
-        out[:, k, k * nc : (k + 1) * nc] = jc[0, k].T
-    return out
+    args = (data.position, data.rotation, data.readings, data.robot.offsets)
+    return pose_jacobian(ref.x, ref.layout, *args)[1]
 
 
 def _contribution(s: _Setting, name: str, data: EffectData) -> np.ndarray:
@@ -438,6 +449,110 @@ def _contribution(s: _Setting, name: str, data: EffectData) -> np.ndarray:
     geometry alone)."""
     if name == GEOMETRY:
         return np.zeros((len(data), 6))
+    return get_effect(name).basis(data) @ _values(s, name)
+
+
+def _values(s: _Setting, name: str) -> np.ndarray:
+    """(q,) hypothesis ``name``'s fitted parameter values, in their spec units."""
     ref = s.fits[name].refinement
-    values = np.array([ref.value(p.name) for p in get_effect(name).params(s.problem.design)])
-    return get_effect(name).basis(data) @ values
+    return np.array([ref.value(p.name) for p in get_effect(name).params(s.problem.design)])
+
+
+#: Planned poses beyond which a plan is not offered (the issue's "a dozen or two").
+MAX_OFFER = 20
+#: Candidate poses an offer picks from (fewer than a plan's: the diagnosis waits for it).
+OFFER_CANDIDATES = 800
+#: Unresolved candidates offered a plan, the best-scoring first.
+MAX_RESOLVE_OFFERS = 2
+
+
+@dataclass
+class Offer:
+    """A plan the diagnosis offers: how many planned poses would decide (None: more than
+    :data:`MAX_OFFER`)."""
+
+    kind: str  #: "separate" or "resolve"
+    hypotheses: tuple[str, ...]
+    poses: int | None
+
+    def args(self) -> list[str]:
+        """``hexcal plan``'s own arguments for it (after the session's)."""
+        flag = "--separate" if self.kind == "separate" else "--resolve"
+        n = str(self.poses or MAX_OFFER)
+        return [flag, *self.hypotheses, "--poses", n, "--out", "plan.csv"]
+
+    def text(self) -> str:
+        what = (
+            f"tell {' from '.join(self.hypotheses)} apart"
+            if self.kind == "separate"
+            else f"resolve {self.hypotheses[0]}"
+        )
+        if self.poses is None:
+            return f"more than {MAX_OFFER} planned poses would be needed to {what}"
+        return f"{self.poses} planned poses would {what}"
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "hypotheses": list(self.hypotheses), "poses": self.poses}
+
+
+def poses_to_decide(
+    problem: Problem,
+    effects: tuple[str, ...],
+    separate: tuple[str, str] | None = None,
+    resolve: str | None = None,
+    rng: np.random.Generator | None = None,
+    n_candidates: int = OFFER_CANDIDATES,
+) -> int | None:
+    """The fewest planned poses (at most :data:`MAX_OFFER`; None beyond) after which the
+    question is decided: two hypotheses' expected separation, less two of its standard
+    deviations, beyond the look-alike margin (:data:`~hexcal.diagnosis.selection.ALIKE_DCHI2`);
+    an effect's every parameter resolved as the score test asks
+    (:func:`~hexcal.diagnosis.scoring.needed_resolution`)."""
+    from hexcal.diagnosis.scoring import needed_resolution
+
+    rng = np.random.default_rng(0) if rng is None else rng
+    hyps = tuple(separate) if separate is not None else (str(resolve),)
+    setting = _setting(problem, effects, hyps)
+    pool = _candidates(problem, setting.robot, n_candidates, rng)
+    crit = _Criterion(setting, resolve is not None)
+    n_max = min(MAX_OFFER, len(pool[0]))
+    t = _times(problem, setting.dt, n_max)
+    chosen = crit.greedy(pool, n_max, t[n_max // 2 :][:1])
+    P, R = pool[0][chosen], pool[1][chosen]
+    need = needed_resolution(get_effect(hyps[0]).params(problem.design)) if resolve else None
+    for n in range(1, n_max + 1):
+        if need is not None:
+            rows = crit._rows_at(P[:n], R[:n], t[:n])
+            info = selection.schur_block(crit._gram(rows[0]), len(need))
+            cov = np.linalg.pinv(info)
+            if np.all(np.sqrt(np.clip(np.diag(cov), 0, None)) < need):
+                return n
+            continue
+        lam, sd = crit.final(P[:n], R[:n], t[:n])
+        if lam - 2.0 * sd >= selection.ALIKE_DCHI2:
+            return n
+    return None
+
+
+def offers(
+    problem: Problem, effects: tuple[str, ...], verdict: str, alike: list[str], candidates
+) -> list[Offer]:
+    """The plans a diagnosis offers: to tell the verdict from each look-alike, and to resolve
+    the best-scoring candidates the poses cannot tell from the geometry (score beyond the
+    look-alike margin: worth deciding)."""
+    asked: list[tuple[str, tuple[str, ...]]] = [("separate", (verdict, e)) for e in alike]
+    stuck = [
+        c
+        for c in candidates
+        if c.available and not c.identifiable and c.score >= selection.ALIKE_DCHI2
+    ]
+    asked += [("resolve", (c.effect,)) for c in sorted(stuck, key=lambda c: -c.score)]
+    out = []
+    for kind, hyps in asked[: len(alike) + MAX_RESOLVE_OFFERS]:
+        pair = (hyps[0], hyps[1]) if kind == "separate" else None
+        what = None if pair else hyps[0]
+        try:
+            out.append(Offer(kind, hyps, poses_to_decide(problem, effects, pair, what)))
+        except (ValueError, np.linalg.LinAlgError):  # a fit these data cannot make: no offer
+            continue
+    return out

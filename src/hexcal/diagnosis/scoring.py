@@ -121,13 +121,7 @@ def score_candidate(
     test = score_columns(problem, fit, name)
     sines, se = test.sines, test.se
     half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
-    # What the data must resolve: the spec's own resolution, else a tenth of the half-width.
-    need = np.array(
-        [
-            r if (r := getattr(sp, "resolution", None)) is not None else RESOLVE * h
-            for sp, h in zip(specs, half, strict=True)
-        ]
-    )
+    need = needed_resolution(specs)
     unresolved = (sines < MIN_SINE) | ~(se < need)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
     cand = Candidate(
@@ -150,6 +144,19 @@ def score_candidate(
             f"record {eff.separating_motion}"
         )
     return cand
+
+
+def needed_resolution(specs) -> np.ndarray:
+    """(p,) the standard error each parameter must reach to count as separable, in its spec
+    unit: the spec's own ``resolution``, else :data:`RESOLVE` of its plausible half-width."""
+    return np.array(
+        [
+            r
+            if (r := getattr(sp, "resolution", None)) is not None
+            else RESOLVE * (sp.plausible[1] - sp.plausible[0]) / 2
+            for sp in specs
+        ]
+    )
 
 
 def _worst(ratios: np.ndarray) -> float:

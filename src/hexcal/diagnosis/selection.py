@@ -48,8 +48,14 @@ def bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
     n = base.refinement.dof + len(base.refinement.x)  # the residual rows
     dp = new.n_params - base.n_params
     if problem.sigmas is not None:
-        return (new.chi2 - base.chi2) + dp * np.log(n)
+        return bic_from_chi2(new.chi2 - base.chi2, dp, n)
     return n * np.log(new.chi2 / base.chi2) + dp * np.log(n)
+
+
+def bic_from_chi2(dchi2: float, dp: int, n: int) -> float:
+    """ΔBIC of a model ``dp`` parameters larger whose χ² (with the stated noise) changes by
+    ``dchi2``, over ``n`` residual rows."""
+    return float(dchi2 + dp * np.log(n))
 
 
 def wins(c: Candidate, excess: bool) -> bool:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -151,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
                 "falling, step by step, is below)\n"
             )
         for d in shown:
-            print(diagnosis_text(d, inp.label))
+            print(diagnosis_text(d, inp.label, plan_command(args)))
             print()
         print(before_after_text(steps))
         print()
@@ -205,7 +206,25 @@ def _json_of(
         out["effect_file"] = effect_written
     if args.explore is not None:
         out["explored_files"] = _explored_files(steps, args.explore)
+    for offer, row in zip(steps[-1].plans, out["plans"], strict=True):
+        row["command"] = f"{plan_command(args)} {shlex.join(offer.args())}"
     return out
+
+
+def plan_command(args: argparse.Namespace) -> str:
+    """``hexcal plan`` with the user's own session, robot, noise and model arguments."""
+    words = ["hexcal", "plan", str(args.measurements)]
+    if args.robot:
+        words += ["--robot", str(args.robot)]
+    if args.instruments:
+        words += ["--instruments", str(args.instruments)]
+    if args.model != 42:
+        words += ["--model", str(args.model)]
+    if args.add:
+        words += ["--add", *args.add]
+    if args.effects:
+        words += ["--effects", *map(str, args.effects)]
+    return shlex.join(words)
 
 
 def _explored_files(steps: list[Diagnosis], directory: Path) -> list[dict]:
