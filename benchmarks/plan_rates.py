@@ -37,7 +37,14 @@ import numpy as np
 
 from hexcal.diagnosis.plan import GEOMETRY, _candidates, plan_poses
 from hexcal.diagnosis.scoring import pose_whiteners
-from hexcal.diagnosis.selection import ALIKE_DCHI2, BIC_STRONG, HELDOUT_Z, bic_delta, vuong_z
+from hexcal.diagnosis.selection import (
+    ALIKE_DCHI2,
+    BIC_STRONG,
+    HELDOUT_Z,
+    MOST,
+    bic_delta,
+    vuong_z,
+)
 from hexcal.diagnosis.verdict import EXCESS_Z
 from hexcal.estimate.effect_fit import Problem, fit_model
 from hexcal.model.noise import NoiseSigmas
@@ -68,7 +75,11 @@ def _alike(fits, a: str, b: str) -> bool:
     their noise (Vuong)."""
     dof = fits["dof"]
     band = (1.0 + EXCESS_Z * np.sqrt(2.0 / dof)) * dof
-    closes = fits[GEOMETRY][1] > band and fits[a][1] <= band and fits[b][1] <= band
+    base = fits[GEOMETRY][1]
+    # Both close: each at the floor having explained most of the excess (the verdict's MOST).
+    closes = base > band and all(
+        fits[h][1] <= band and (base - fits[h][1]) >= MOST * (base - dof) for h in (a, b)
+    )
     return closes or abs(fits[a][1] - fits[b][1]) < ALIKE_DCHI2 or abs(fits["vuong"]) < HELDOUT_Z
 
 

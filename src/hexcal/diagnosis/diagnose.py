@@ -376,7 +376,7 @@ def diagnose(
         noise_factor=noise_factor,
         frame=j.frame,
         defaults=default_notes(work, fit, j.candidates),
-        plans=offers(work, effects, str(verdict), j.alike, j.candidates),
+        plans=offers(work, fit, str(verdict), j.alike, j.candidates),
     )
 
 

@@ -127,13 +127,29 @@ class LiveRanking:
         nxt = ranks[1].delta_bic if len(ranks) > 1 else 0.0
         return ranks[0], float(nxt - ranks[0].delta_bic)
 
+    def undo(self) -> None:
+        """Take the last pose back out (its rows subtracted: a rank-six downdate)."""
+        if not self._poses:
+            return
+        if self._gram is not None:
+            rows = self._rows(len(self._poses) - 1)
+            self._gram = self._gram - rows.T @ rows
+        self._poses.pop()
+        if not self._poses:
+            self._gram = None
+
+    def __len__(self) -> int:
+        return len(self._poses)
+
     # -- rows ---------------------------------------------------------------------------------
     def _rows(self, i: int) -> np.ndarray:
         """(6, p + 1) pose i's whitened rows: geometry, candidates' columns, residual."""
         P, R, rho, _, _ = self._poses[i]
         e, jac = pose_jacobian(self._x, self.lay, P[None], R[None], rho[None], self.robot.offsets)
         data = self._window(i)
-        cols = [jac[0]] + [get_effect(c).basis(data)[-1] for c in self.candidates]
+        cols = [jac[0]] + [
+            _basis(c, w, data)[-1] for c, w in zip(self.candidates, self._widths, strict=True)
+        ]
         a, b = self.lay.a(self._x), self.lay.b(self._x)
         w = leg_whiteners(a, b, P[None], R[None], self.sigmas or DEFAULT_SIGMAS)[0]
         # The residual's sign as the refinement's: reading − predicted = −e.
@@ -185,10 +201,21 @@ class LiveRanking:
             b,
             extras={T_MID: t[0]},
         )
-        cols = [jac] + [get_effect(c).basis(data) for c in self.candidates]
+        cols = [jac] + [
+            _basis(c, w, data) for c, w in zip(self.candidates, self._widths, strict=True)
+        ]
         w = leg_whiteners(a, b, P, R, self.sigmas or DEFAULT_SIGMAS)
         rows = (w @ np.concatenate([*cols, -e[..., None]], axis=-1)).reshape(-1, self._width)
         self._gram = rows.T @ rows
+
+
+def _basis(name: str, width: int, data: EffectData) -> np.ndarray:
+    """(n, 6, width) effect ``name``'s basis, zero where these poses cannot carry it (no
+    temperature for thermal, no pitch for leadscrew): it then removes nothing."""
+    try:
+        return get_effect(name).basis(data)
+    except ValueError:
+        return np.zeros((len(data), 6, width))
 
 
 def _step(g: np.ndarray, m: int) -> np.ndarray:

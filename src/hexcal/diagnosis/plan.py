@@ -462,6 +462,8 @@ def _values(s: _Setting, name: str) -> np.ndarray:
 MAX_OFFER = 20
 #: Candidate poses an offer picks from (fewer than a plan's: the diagnosis waits for it).
 OFFER_CANDIDATES = 800
+#: Planned poses offered to confirm what the recorded poses should already decide.
+CONFIRM_POSES = 4
 #: Unresolved candidates offered a plan, the best-scoring first.
 MAX_RESOLVE_OFFERS = 2
 
@@ -478,7 +480,7 @@ class Offer:
     def args(self) -> list[str]:
         """``hexcal plan``'s own arguments for it (after the session's)."""
         flag = "--separate" if self.kind == "separate" else "--resolve"
-        n = str(self.poses or MAX_OFFER)
+        n = str(self.poses or (CONFIRM_POSES if self.poses == 0 else MAX_OFFER))
         return [flag, *self.hypotheses, "--poses", n, "--out", "plan.csv"]
 
     def text(self) -> str:
@@ -489,6 +491,11 @@ class Offer:
         )
         if self.poses is None:
             return f"more than {MAX_OFFER} planned poses would be needed to {what}"
+        if self.poses == 0:
+            return (
+                f"the poses recorded should already {what} by their expected separation, though "
+                "their χ² spread wider than the noise: a few planned poses confirm it"
+            )
         return f"{self.poses} planned poses would {what}"
 
     def to_dict(self) -> dict:
@@ -520,7 +527,7 @@ def poses_to_decide(
     chosen = crit.greedy(pool, n_max, t[n_max // 2 :][:1])
     P, R = pool[0][chosen], pool[1][chosen]
     need = needed_resolution(get_effect(hyps[0]).params(problem.design)) if resolve else None
-    for n in range(1, n_max + 1):
+    for n in range(0, n_max + 1):
         if need is not None:
             rows = crit._rows_at(P[:n], R[:n], t[:n])
             info = selection.schur_block(crit._gram(rows[0]), len(need))
@@ -535,20 +542,39 @@ def poses_to_decide(
 
 
 def offers(
-    problem: Problem, effects: tuple[str, ...], verdict: str, alike: list[str], candidates
+    problem: Problem,
+    fit: ModelFit,
+    verdict: str,
+    alike: list[str],
+    candidates,
 ) -> list[Offer]:
-    """The plans a diagnosis offers: to tell the verdict from each look-alike, and to resolve
-    the best-scoring candidates the poses cannot tell from the geometry (score beyond the
-    look-alike margin: worth deciding)."""
-    asked: list[tuple[str, tuple[str, ...]]] = [("separate", (verdict, e)) for e in alike]
-    stuck = [
-        c
-        for c in candidates
-        if c.available and not c.identifiable and c.score >= selection.ALIKE_DCHI2
+    """The plans a diagnosis offers at ``fit``: to tell the verdict from each look-alike, and
+    to resolve the candidates the poses cannot tell from the geometry whose columns together
+    would remove more than the look-alike margin (their score counting every column, the
+    unresolved ones too: worth deciding), the best first."""
+    from hexcal.diagnosis.score import score_columns
+
+    effects = fit.effects
+    # Effects located by a search (a zero step's, a tracker move's time) have no basis to plan
+    # with beyond the session's end: their pairs are not planned.
+    named = (verdict, *alike) if alike else ()  # look-alikes come with an effect named
+    searched = {e for e in named if getattr(get_effect(e), "searched_params", 0)}
+    asked: list[tuple[str, tuple[str, ...]]] = [
+        ("separate", (verdict, e)) for e in alike if not searched & {verdict, e}
     ]
-    asked += [("resolve", (c.effect,)) for c in sorted(stuck, key=lambda c: -c.score)]
+    whole = {
+        c.effect: score_columns(problem, fit, c.effect).score(
+            np.ones(len(get_effect(c.effect).params(problem.design)), bool)
+        )
+        for c in candidates
+        if c.available and not c.identifiable
+    }
+    stuck = [
+        e for e, s in sorted(whole.items(), key=lambda kv: -kv[1]) if s >= selection.ALIKE_DCHI2
+    ]
+    asked += [("resolve", (e,)) for e in stuck]
     out = []
-    for kind, hyps in asked[: len(alike) + MAX_RESOLVE_OFFERS]:
+    for kind, hyps in asked[: len(asked) - len(stuck) + MAX_RESOLVE_OFFERS]:
         pair = (hyps[0], hyps[1]) if kind == "separate" else None
         what = None if pair else hyps[0]
         try:
