@@ -13,16 +13,16 @@ import pytest
 from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.scoring import Candidate
-from hexcal.diagnosis.text import diagnosis_text
-from hexcal.diagnosis.verdict import (
+from hexcal.diagnosis.selection import (
     ALIKE_DCHI2,
     BIC_STRONG,
     CLEAR,
     HELDOUT_Z,
     MOST,
-    _alike,
-    _wins,
 )
+from hexcal.diagnosis.selection import alike as _alike
+from hexcal.diagnosis.selection import wins as _wins
+from hexcal.diagnosis.text import diagnosis_text
 from hexcal.sim import verdict_cases as vc
 from hexcal.sim.session_sim import bump_poses
 

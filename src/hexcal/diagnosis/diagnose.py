@@ -45,11 +45,11 @@ from hexcal.diagnosis.outliers import (
     pose_residuals,
     session_problem,
 )
+from hexcal.diagnosis.plan import Offer, offers
 from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
+from hexcal.diagnosis.selection import BIC_STRONG, MOST
 from hexcal.diagnosis.verdict import (
-    BIC_STRONG,
     EXCESS_Z,
-    MOST,
     Judgement,
     judge,
     of_the_session,
@@ -138,6 +138,8 @@ class Diagnosis:
     noise_factor: float = float("nan")
     #: A rigid move of the tracker located by the search (``frame_step``'s time)
     frame: FrameChange | None = None
+    #: The plans offered where the poses cannot decide (:func:`hexcal.diagnosis.plan.offers`)
+    plans: list[Offer] = field(default_factory=list)
     #: Candidates whose score rests on a robot.json key left at its default
     defaults: list[DefaultNote] = field(default_factory=list)
 
@@ -234,6 +236,7 @@ class Diagnosis:
             "excess_significant": self.excess_significant,
             "verdict": self.verdict,
             "alike": list(self.alike),
+            "plans": [p.to_dict() for p in self.plans],
             "noise_factor": _nan_none(self.noise_factor),
             "changes": [c.to_dict() for c in self.changes],
             "frame_change": None if self.frame is None else self.frame.to_dict(),
@@ -391,6 +394,7 @@ def diagnose(
         noise_factor=noise_factor,
         frame=j.frame,
         defaults=default_notes(work, fit, j.candidates),
+        plans=offers(work, fit, str(verdict), j.alike, j.candidates),
     )
 
 

@@ -37,8 +37,8 @@ import numpy as np
 
 from hexcal.diagnosis.periodogram import periodogram
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
-from hexcal.diagnosis.scoring import heldout_gain, pose_whiteners
-from hexcal.diagnosis.verdict import HELDOUT_Z
+from hexcal.diagnosis.scoring import pose_whiteners
+from hexcal.diagnosis.selection import HELDOUT_Z, heldout_gain
 from hexcal.effects import CATALOGUE
 from hexcal.effects.covariates import Covariate, library
 from hexcal.effects.explored import ExploredEffect, Shape, line, periodic, sign, spline, step

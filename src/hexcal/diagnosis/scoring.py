@@ -122,13 +122,7 @@ def score_candidate(
     test = score_columns(problem, fit, name)
     sines, se = test.sines, test.se
     half = np.array([(sp.plausible[1] - sp.plausible[0]) / 2 for sp in specs])
-    # What the data must resolve: the spec's own resolution, else a tenth of the half-width.
-    need = np.array(
-        [
-            r if (r := getattr(sp, "resolution", None)) is not None else RESOLVE * h
-            for sp, h in zip(specs, half, strict=True)
-        ]
-    )
+    need = needed_resolution(specs)
     unresolved = (sines < MIN_SINE) | ~(se < need)
     absorbed = [names[i] for i in np.where(unresolved)[0]]
     cand = Candidate(
@@ -153,6 +147,19 @@ def score_candidate(
     return cand
 
 
+def needed_resolution(specs) -> np.ndarray:
+    """(p,) the standard error each parameter must reach to count as separable, in its spec
+    unit: the spec's own ``resolution``, else :data:`RESOLVE` of its plausible half-width."""
+    return np.array(
+        [
+            r
+            if (r := getattr(sp, "resolution", None)) is not None
+            else RESOLVE * (sp.plausible[1] - sp.plausible[0]) / 2
+            for sp in specs
+        ]
+    )
+
+
 def _worst(ratios: np.ndarray) -> float:
     """The largest of ``ratios`` (NaN left out), inf when none is a number (undetermined)."""
     known = ratios[~np.isnan(ratios)]
@@ -173,36 +180,3 @@ def pose_whiteners(problem: Problem, fit: ModelFit) -> np.ndarray:
     r = fit.refinement
     sig = problem.sigmas if problem.sigmas is not None else DEFAULT_SIGMAS
     return np.linalg.cholesky(leg_covariance(r.a, r.b, problem.meas.position, problem.R, sig))
-
-
-def vuong_z(a: ModelFit, b: ModelFit, chol: np.ndarray, s2: float = 1.0) -> float:
-    """Vuong's z of two fitted models on the same poses: the mean per-pose difference of their
-    χ² (``a``'s less ``b``'s, each pose's residuals whitened by its 6×6 covariance) over its
-    standard error. |z| < 2: the data do not prefer either (a difference of ΔBIC that size is
-    inside the noise of the poses, whatever the parameter counts)."""
-    d = _pose_chi2(a.residuals, chol, s2) - _pose_chi2(b.residuals, chol, s2)
-    sd = float(np.std(d, ddof=1))
-    return float(np.mean(d) / sd * np.sqrt(len(d))) if sd > 0 else 0.0
-
-
-def _pose_chi2(h: np.ndarray, chol: np.ndarray, s2: float) -> np.ndarray:
-    w = np.linalg.solve(chol, h[..., None])[..., 0]
-    return np.sum(w**2, axis=1) / s2
-
-
-def heldout_gain(
-    before: ModelFit, after: ModelFit, chol: np.ndarray, s2: float = 1.0
-) -> tuple[float, float]:
-    """(Δχ², z): how much better ``after`` predicts the poses it was not fitted to than
-    ``before`` does, each pose's held-out residuals (random folds) whitened by its 6×6
-    covariance (``chol``: :func:`pose_whiteners`) over the noise level ``s2``; z is the mean
-    per-pose gain over its standard error (a paired test over poses)."""
-
-    def chi(h: np.ndarray) -> np.ndarray:
-        w = np.linalg.solve(chol, h[..., None])[..., 0]
-        return np.sum(w**2, axis=1) / s2
-
-    d = chi(before.held_out_residuals) - chi(after.held_out_residuals)
-    sd = float(np.std(d, ddof=1))
-    z = float(np.mean(d) / sd * np.sqrt(len(d))) if sd > 0 else 0.0
-    return float(d.sum()), z

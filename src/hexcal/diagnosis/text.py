@@ -26,9 +26,12 @@ def _um(x: float) -> str:
     return f"{1000 * x:6.2f}"
 
 
-def diagnosis_text(d: Diagnosis, source: str, add: str = "--add {}") -> str:
+def diagnosis_text(
+    d: Diagnosis, source: str, add: str = "--add {}", plan_command: str = "hexcal plan SESSION"
+) -> str:
     """The diagnosis for a terminal; ``add``: how its reader adds an effect, ``{}`` the effect's
-    name (the command line's option, or the text UI's key)."""
+    name (the command line's option, or the text UI's key); ``plan_command``: ``hexcal plan``
+    with the user's own arguments, for the plans offered (:attr:`Diagnosis.plans`)."""
     f = d.fit
     lines = [
         f"hexcal diagnose: {f.model_name} on {source}",
@@ -86,6 +89,7 @@ def diagnosis_text(d: Diagnosis, source: str, add: str = "--add {}") -> str:
         )
     lines.append("")
     lines += verdict_lines(d, add)
+    lines += plan_lines(d, plan_command)
     bad = f.nonphysical()
     notes = d.notes + f.notes
     if notes:
@@ -153,6 +157,16 @@ def verdict_lines(d: Diagnosis, add: str = "--add {}") -> list[str]:
     if v == "frame_step" and d.frame is not None:
         out.append(f"  {d.frame.text()}")
     return out
+
+
+def plan_lines(d: Diagnosis, plan_command: str) -> list[str]:
+    """The plans offered where the poses cannot decide: how many planned poses would, and the
+    command that makes them."""
+    if not d.plans:
+        return []
+    return ["to decide, record planned poses:"] + [
+        f"  - {p.text()}: {plan_command} {' '.join(p.args())}" for p in d.plans
+    ]
 
 
 def pointer_lines(d: Diagnosis) -> list[str]:

@@ -6,7 +6,8 @@ catalogue effect explains.
 2. Score every catalogue effect not in the model (:func:`hexcal.diagnosis.scoring.score_candidate`)
    and refit the :data:`N_LEADERS` best identifiable ones for real: ΔBIC, the share of the excess
    they explain, and how much better they predict the poses they were not fitted to
-   (:func:`hexcal.diagnosis.scoring.heldout_gain`).
+   (:func:`hexcal.diagnosis.selection.heldout_gain`).
+   (The comparisons and their thresholds live in :mod:`hexcal.diagnosis.selection`.)
 3. An effect is named when its evidence is very strong (ΔBIC < :data:`BIC_STRONG`) and
 
    - when the excess is significant: it explains most of it (:data:`MOST`) and brings the
@@ -28,7 +29,6 @@ catalogue effect explains.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,43 +41,31 @@ from hexcal.diagnosis.score import Projection
 from hexcal.diagnosis.scoring import (
     Candidate,
     block_score,
-    heldout_gain,
     identifiable_candidates,
     pose_whiteners,
     score_candidate,
-    vuong_z,
     whitened_columns,
 )
+from hexcal.diagnosis.selection import (
+    BIC_STRONG,
+    HELDOUT_Z,
+    bic_delta,
+    heldout_gain,
+    wins,
+)
+from hexcal.diagnosis.selection import alike as alike_to
 from hexcal.effects import CATALOGUE, get_effect
 from hexcal.estimate.accuracy import floor_cap
 from hexcal.estimate.effect_fit import ModelFit, Problem, cross_validated, fit_model, noise_floor
 from hexcal.model.noise import DEFAULT_SIGMAS, NoiseSigmas, leg_covariance
 from hexcal.vocabulary import Outcome, Verdict
 
-#: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
-BIC_STRONG = -10.0
-#: An effect that brings the residual to the floor (alone or with one more) must explain at
-#: least this share of the excess over the noise floor.
-MOST = 0.5
-#: An effect that does not, while other catalogue effects explain the rest, must explain at
-#: least this share: with three effects hidden the first named explains 60–100 % of the excess,
-#: a look-alike of a structured residual outside the catalogue a few per cent.
-CLEAR = 0.25
 #: The residual exceeds the floor when χ²/dof is this many standard deviations of the χ²
 #: distribution above 1. Over clean simulated sessions the fitted χ²/dof spreads 15 % wider
 #: than theory (the whitening uses estimated geometry), hence 4 rather than 3.
 EXCESS_Z = 4.0
 #: How many leaders are refitted.
 N_LEADERS = 3
-#: An effect predicts held-out poses better when the mean per-pose gain in held-out χ² is this
-#: many standard errors above 0 (one-sided p 0.023 per candidate for a normal mean; stricter in
-#: fact: adding parameters costs held-out accuracy, so an effect that only fits noise scores
-#: below 0 on average). Thermal expansion hidden at its realistic size, at the floor, scores
-#: 2.5–6.4 over 40 simulated sessions; clean sessions' candidates stay below it.
-HELDOUT_Z = 2.0
-#: Two refitted effects fit alike when their χ² (over the noise level) differ by less than this:
-#: a likelihood ratio below e⁵ ≈ 150, short of "very strong" evidence for either.
-ALIKE_DCHI2 = 10.0
 
 
 @dataclass
@@ -108,16 +96,6 @@ def of_the_session(name: str) -> bool:
     """A property of the session (the tracker drifting), not of the robot: such an effect is
     fitted to calibrate from this session but not carried into the calibrated model."""
     return bool(getattr(get_effect(name), "of_the_session", False))
-
-
-def bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
-    """ΔBIC of ``new`` against ``base`` (χ² with the stated noise, else the Gaussian
-    likelihood with the level estimated)."""
-    n = base.refinement.dof + len(base.refinement.x)  # the residual rows
-    dp = new.n_params - base.n_params
-    if problem.sigmas is not None:
-        return (new.chi2 - base.chi2) + dp * np.log(n)
-    return n * np.log(new.chi2 / base.chi2) + dp * np.log(n)
 
 
 def scaled(sig: NoiseSigmas, s: float) -> NoiseSigmas:
@@ -157,7 +135,7 @@ def judge(
     band = 1.0 + EXCESS_Z * np.sqrt(2.0 / fit.dof)
     excess = bool(chi2_per_dof > band)
     _weigh(problem, fit, candidates, s2, excess, band)
-    winners = [c for c in candidates if _wins(c, excess)]
+    winners = [c for c in candidates if wins(c, excess)]
     best = min(winners, key=lambda c: c.delta_bic) if winners else None
     if best is not None and of_the_session(best.effect):
         best = _robot_before_session(best, candidates, winners, excess, notes)
@@ -165,7 +143,7 @@ def judge(
     alike: list[str] = []
     if best is not None:
         verdict = best.effect
-        alike = _alike(lambda: pose_whiteners(problem, fit), best, candidates, s2, excess)
+        alike = alike_to(lambda: pose_whiteners(problem, fit), best, candidates, s2, excess)
         notes.extend(_look_alike(problem, best))
         notes.extend(_named_notes(best, alike, fit, candidates, s2))
     elif excess:
@@ -301,17 +279,6 @@ def _weigh(
             c.chain = c.closes or _catalogue_closes(problem, c, candidates, s2, band)
 
 
-def _wins(c: Candidate, excess: bool) -> bool:
-    """Whether ``c`` may be named (the rules of the module docstring)."""
-    if c.refit is None or not c.delta_bic < BIC_STRONG:
-        return False
-    if not excess:
-        return c.heldout_z > HELDOUT_Z
-    if c.explained >= MOST and c.closes:
-        return True
-    return c.explained >= CLEAR and c.heldout_z > HELDOUT_Z and c.chain
-
-
 def _closes_excess(
     problem: Problem,
     c: Candidate,
@@ -357,37 +324,6 @@ def _catalogue_closes(
     removed = block_score(ref, cols)
     dof = ref.dof - cols.shape[1]
     return bool(dof > 0 and (ref.chi2 - removed) / (dof * s2) <= band)
-
-
-def _alike(
-    whiteners: Callable[[], np.ndarray],
-    best: Candidate,
-    candidates: list[Candidate],
-    s2: float,
-    excess: bool,
-) -> list[str]:
-    """The other refitted candidates with very strong evidence that the data cannot tell from
-    ``best``: they fit as well (χ² within :data:`ALIKE_DCHI2`), both bring the residual to
-    the floor, or their poses' χ² differ by less than :data:`HELDOUT_Z` standard errors
-    (Vuong's test, :func:`~hexcal.diagnosis.scoring.vuong_z`): a ΔBIC margin inside the noise
-    of the poses is no evidence, and the parameter count alone would pick. ``whiteners``
-    gives the poses' (M, 6, 6) whiteners when a Vuong test is needed."""
-    if best.refit is None:
-        return []
-    chol = None
-    out = []
-    for c in candidates:
-        if c is best or c.refit is None or not c.delta_bic < BIC_STRONG:
-            continue
-        same_fit = abs(c.refit.chi2 - best.refit.chi2) < ALIKE_DCHI2 * s2
-        both_close = excess and best.closes and c.closes and c.explained >= MOST
-        inside = False
-        if not (same_fit or both_close):
-            chol = whiteners() if chol is None else chol
-            inside = abs(vuong_z(c.refit, best.refit, chol, s2)) < HELDOUT_Z
-        if same_fit or both_close or inside:
-            out.append(c.effect)
-    return out
 
 
 def _look_alike(problem: Problem, named: Candidate) -> list[str]:

@@ -155,6 +155,22 @@ def leg_residuals(x: np.ndarray, d: LegData, lay: ParameterLayout) -> np.ndarray
     return out
 
 
+def pose_jacobian(
+    x: np.ndarray, lay: ParameterLayout, P, R, rho, fixed
+) -> tuple[np.ndarray, np.ndarray]:
+    """(e (n, 6) mm, J (n, 6, 6·nc)) at x (p,) for poses P (n, 3) mm, R (n, 3, 3), readings
+    rho (n, 6) mm: each leg's residual (:func:`leg_terms`, the effects left out) and its
+    derivatives by a_k, b_k (and offset_k when fitted), leg by leg (each leg's block of nc
+    columns; the layout's own order is :func:`compact_columns`)."""
+    d = LegData.of(P, R, rho, fixed)
+    e, jc = leg_terms(x[None], d, lay)  # (1, 6, n), (1, 6, nc, n)
+    nc = jc.shape[2]
+    out = np.zeros((d.n_poses, LEGS, LEGS * nc))
+    for k in range(LEGS):
+        out[:, k, k * nc : (k + 1) * nc] = jc[0, k].T
+    return e[0].T, out
+
+
 @dataclass
 class Normal:
     """Normal equations of a weighted least-squares problem at one point: ``A`` (B, p, p) =

@@ -34,8 +34,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.acquire.acquisition import LegSample, PoseRefused, RecordedPose, TrackerSample
+from hexcal.diagnosis.live_rank import LiveRanking
 from hexcal.errors import HexcalError
 from hexcal.estimate import nbp
+from hexcal.model.noise import NoiseSigmas
 from hexcal.model.robot import Robot
 from hexcal.procedure import patterns, step_fit
 from hexcal.procedure.recording import (
@@ -158,6 +160,11 @@ class GuidedSession:
         self._clamp_reading: float | None = None  # the clamped leg's encoder when clamped
         self.index = 0
         self.recorder = StepRecorder(self.steps[0], clamp_tolerance_mm) if self.steps else None
+        inst = getattr(sf.session, "instruments", None)
+        #: The candidate effects ranked as poses come (the recording screen shows the leader)
+        self.ranking = LiveRanking(
+            sf.session.robot, None if inst is None else NoiseSigmas.from_instruments(inst)
+        )
         self._restore()
 
     # -- where we are -----------------------------------------------------------------------
@@ -354,6 +361,8 @@ class GuidedSession:
             self._sink("refused", st, pose, str(exc))
             return False, self._say(str(exc))
         self._sink("pose", st, pose, "")
+        rot = Rotation.from_quat(pose.quaternion, scalar_first=True).as_matrix()
+        self.ranking.add(pose.position, rot, pose.readings, pose.t, pose.temperature)
         # The notes name each flagged sample in full in the session file; here, how many.
         left_out = "; ".join(n.split(":")[0] for n in pose.notes)
         return True, self._say(
@@ -364,6 +373,7 @@ class GuidedSession:
         """Set the current step's last pose aside (kept in the file, out of the calibration)."""
         self._refuse("undo")
         self._rec.poses.pop()
+        self.ranking.undo()
         if not self._rec.poses:
             self.recorder = StepRecorder(self.step, self.clamp_tolerance_mm)
         self.sf.undo_last_pose()

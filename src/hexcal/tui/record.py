@@ -60,6 +60,20 @@ def _status(text: str, width: int) -> list[str]:
     ) or [""]
 
 
+def leader_text(g: GuidedSession) -> str:
+    """The live ranking's leader over the session's poses so far, as one line (empty before
+    any pose): which candidate effect leads, and its ΔBIC margin over the next."""
+    if not len(g.ranking):
+        return ""
+    leader, margin = g.ranking.leader()
+    if leader is None:
+        return "\nlive ranking: no candidate effect stands out yet"
+    return (
+        f"\nlive ranking: [b]{leader.effect}[/b] leads (ΔBIC {leader.delta_bic:.0f}, "
+        f"{margin:.0f} ahead of the next) — diagnose at the end to name it"
+    )
+
+
 def live_text(lv: Live, structure: str, width: int) -> str:
     """The live panel at ``width`` columns: every row of numbers in fixed columns that fit —
     long labels from 40 columns, short ones below; the status lines wrapped, never cut."""
@@ -245,7 +259,7 @@ class RecordScreen(HexcalScreen):
                 text += " — [b]g[/b] goes there"
         else:
             text += f"most useful motion: {c.hint}"
-        self.query_one("#conditioning", Static).update(text)
+        self.query_one("#conditioning", Static).update(text + leader_text(g))
 
     def _show_steps(self) -> None:
         """One line per step, cut to the box (short names when narrow); the current step kept

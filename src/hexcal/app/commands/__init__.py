@@ -13,6 +13,7 @@ from hexcal.app.commands import (
     examples,
     export,
     import_log,
+    plan,
     predict,
     run,
     schema,
@@ -25,6 +26,7 @@ from hexcal.app.commands import (
 COMMANDS = (
     calibrate,
     diagnose,
+    plan,
     validate,
     import_log,
     predict,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -131,19 +132,8 @@ def run(args: argparse.Namespace) -> int:
     reboots = reboot_findings(inp, steps)
     figures = of_diagnosis(steps[-1])
     if args.json:
-        out = steps[-1].to_dict()
-        if len(steps) > 1:
-            out["steps"] = _step_rows(steps)
+        out = _json_of(steps, args, limits_json, figures, result, effect_written)
         out["encoder_reboots"] = [r.to_dict() for r in reboots]
-        out["at_limits"] = limits_json
-        out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
-        out["metrology"] = figures.to_dict(per_pose=False)
-        if result is not None:
-            out["written"] = {"path": str(args.out), "model": result.name}
-        if args.effect_file:
-            out["effect_file"] = effect_written
-        if args.explore is not None:
-            out["explored_files"] = _explored_files(steps, args.explore)
         print(json_out.dumps(out, why=json_out.accuracy_reason, indent=2))
     else:
         from hexcal.app.plain import diagnosis_summary, opening
@@ -165,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
                 "falling, step by step, is below)\n"
             )
         for d in shown:
-            print(diagnosis_text(d, inp.label))
+            print(diagnosis_text(d, inp.label, plan_command=plan_command(args)))
             print()
         print(before_after_text(steps))
         print()
@@ -200,6 +190,49 @@ def _step_rows(steps: list[Diagnosis]) -> list[dict]:
         }
         for d in steps
     ]
+
+
+def _json_of(
+    steps: list[Diagnosis],
+    args: argparse.Namespace,
+    limits_json: dict,
+    figures,
+    result: ModelResult | None,
+    effect_written: dict | None,
+) -> dict:
+    """The ``--json`` object: the last step's diagnosis, the chain's steps, the poses at the
+    limits, the metrology figures and the files written."""
+    out = steps[-1].to_dict()
+    if len(steps) > 1:
+        out["steps"] = _step_rows(steps)
+    out["at_limits"] = limits_json
+    out["at_limits"]["excluded"] = bool(args.exclude_at_limits)
+    out["metrology"] = figures.to_dict(per_pose=False)
+    if result is not None:
+        out["written"] = {"path": str(args.out), "model": result.name}
+    if args.effect_file:
+        out["effect_file"] = effect_written
+    if args.explore is not None:
+        out["explored_files"] = _explored_files(steps, args.explore)
+    for offer, row in zip(steps[-1].plans, out["plans"], strict=True):
+        row["command"] = f"{plan_command(args)} {shlex.join(offer.args())}"
+    return out
+
+
+def plan_command(args: argparse.Namespace) -> str:
+    """``hexcal plan`` with the user's own session, robot, noise and model arguments."""
+    words = ["hexcal", "plan", str(args.measurements)]
+    if args.robot:
+        words += ["--robot", str(args.robot)]
+    if args.instruments:
+        words += ["--instruments", str(args.instruments)]
+    if args.model != 42:
+        words += ["--model", str(args.model)]
+    if args.add:
+        words += ["--add", *args.add]
+    if args.effects:
+        words += ["--effects", *map(str, args.effects)]
+    return shlex.join(words)
 
 
 def _explored_files(steps: list[Diagnosis], directory: Path) -> list[dict]:

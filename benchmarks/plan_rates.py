@@ -1,0 +1,205 @@
+"""Experiments that decide: `hexcal plan` over simulated look-alike sessions.
+
+    python benchmarks/plan_rates.py [--sessions 50] [--poses 12] [--jobs 2] [--pairs ...]
+
+For each pair of :mod:`hexcal.sim.plan_cases` (gain vs compliance on the motion base, thermal
+vs drift, ujoint vs the geometry), sessions whose poses leave the pair ambiguous, one of the two
+hidden. The planner picks ``--poses`` poses to separate them (:func:`hexcal.diagnosis.plan.
+plan_poses`); the same robot records them (the simulator with the truth), and, as the control,
+as many random reachable poses. After each, both hypotheses are refitted on all the poses:
+
+- named right: the true hypothesis' ΔBIC against the model is very strong
+  (:data:`~hexcal.diagnosis.selection.BIC_STRONG`), it is the lower of the two, and the two are
+  not look-alikes by the verdict's rule (χ² within ALIKE_DCHI2, both at the floor, or Vuong's
+  |z| < 2); for the nested pair (the geometry alone against ujoint), ujoint's ΔBIC is very
+  strong. The sessions are drawn until their own poses leave the pair undecided that way
+  (:func:`ambiguous`);
+- the predicted separation against the realised: z = (Δχ² realised − (λ + p_true −
+  p_other)) / sd, with λ and sd the plan's for the true hypothesis (its fitted contribution
+  projected out of the other's columns, less the inflation its fitted values' spread gives;
+  sd = √(4λ + 2 tr(P_A − P_B)² + the fitted values' share)). If sd is right,
+  |z| ≤ 1 in 68 % of sessions and |z| ≤ 2 in 95 %.
+"""
+
+# ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
+from __future__ import annotations
+
+from hexcal.app.cli import single_thread_blas
+
+single_thread_blas()
+
+import argparse
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from hexcal.diagnosis.plan import GEOMETRY, _candidates, plan_poses
+from hexcal.diagnosis.scoring import pose_whiteners
+from hexcal.diagnosis.selection import (
+    ALIKE_DCHI2,
+    BIC_STRONG,
+    HELDOUT_Z,
+    MOST,
+    bic_delta,
+    vuong_z,
+)
+from hexcal.diagnosis.verdict import EXCESS_Z
+from hexcal.estimate.effect_fit import Problem, fit_model
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim.plan_cases import PAIRS, case
+
+
+def _fits(meas, c) -> dict:
+    """Each hypothesis' (ΔBIC against the model, χ², parameter count), and ``"vuong"``:
+    Vuong's z of the two (non-nested pairs)."""
+    problem = Problem.build(meas, c.design, NoiseSigmas.from_instruments(c.instruments))
+    base = fit_model(problem, ("offset",), cross_validate=False)
+    out: dict = {GEOMETRY: (0.0, base.chi2, base.n_params), "dof": base.dof}
+    made = {}
+    for h in c.pair:
+        if h == GEOMETRY:
+            continue
+        made[h] = fit_model(problem, ("offset", h), cross_validate=False, seed_fit=base)
+        out[h] = (bic_delta(problem, base, made[h]), made[h].chi2, made[h].n_params)
+    if len(made) == 2:
+        a, b = made.values()
+        out["vuong"] = vuong_z(a, b, pose_whiteners(problem, base))
+    return out
+
+
+def _alike(fits, a: str, b: str) -> bool:
+    """The verdict's look-alike rule (:func:`hexcal.diagnosis.selection.alike`): χ² within
+    ALIKE_DCHI2, both bringing a significant excess to the floor, or the poses' χ² inside
+    their noise (Vuong)."""
+    dof = fits["dof"]
+    band = (1.0 + EXCESS_Z * np.sqrt(2.0 / dof)) * dof
+    base = fits[GEOMETRY][1]
+    # Both close: each at the floor having explained most of the excess (the verdict's MOST).
+    closes = base > band and all(
+        fits[h][1] <= band and (base - fits[h][1]) >= MOST * (base - dof) for h in (a, b)
+    )
+    return closes or abs(fits[a][1] - fits[b][1]) < ALIKE_DCHI2 or abs(fits["vuong"]) < HELDOUT_Z
+
+
+def _right(fits, c) -> bool:
+    """The true hypothesis named, alone: very strong evidence, the lower ΔBIC, and not alike."""
+    true = c.hidden
+    other = next(h for h in c.pair if h != true)
+    if other == GEOMETRY:
+        return bool(fits[true][0] < BIC_STRONG)
+    dbic = fits[true][0]
+    return bool(dbic < BIC_STRONG and dbic < fits[other][0] and not _alike(fits, true, other))
+
+
+#: Tries per session at finding an ambiguous one (the effect's size drawn anew each time).
+TRIES = 20
+
+
+def ambiguous(pair: str, seed: int):
+    """(case, fits on its poses, tries): the first session, the hidden effect's size drawn
+    log-uniform over 0.5–10 × the case's, whose poses leave the pair undecided — both
+    hypotheses with very strong evidence and alike by the verdict's rule (the diagnosis names
+    them together), or, against the geometry, the hidden effect not named."""
+    rng = np.random.default_rng([seed, 2])
+    for k in range(TRIES):
+        c = case(pair, seed + 1000 * k, float(np.exp(rng.uniform(np.log(0.5), np.log(10.0)))))
+        fits = _fits(c.meas, c)
+        a, b = c.pair
+        if a == GEOMETRY:
+            undecided = not _right(fits, c)
+        else:
+            both = fits[a][0] < BIC_STRONG and fits[b][0] < BIC_STRONG
+            undecided = both and _alike(fits, a, b)
+        if undecided:
+            return c, fits, k + 1
+    return None, None, TRIES
+
+
+def run_session(args: tuple[str, int, int]) -> dict:
+    pair, seed, n = args
+    c, before, tries = ambiguous(pair, seed)
+    if c is None:
+        return {"pair": pair, "seed": seed, "ambiguous": False, "tries": tries}
+    problem = Problem.build(c.meas, c.design, NoiseSigmas.from_instruments(c.instruments))
+    t0 = time.perf_counter()
+    plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
+    seconds = time.perf_counter() - t0
+    P, R, t = plan.meas.position, plan.meas.rotations.as_matrix(), plan.meas.t
+    planned = _fits(c.record(P, R, t, seed), c)
+    rng = np.random.default_rng([seed, 1])
+    Pr, Rr = _candidates(problem, c.simulator.robot, 4 * n, rng)
+    random = _fits(c.record(Pr[:n], Rr[:n], t, seed), c)
+    true = c.hidden
+    other = next(h for h in c.pair if h != true)
+    lam, sd = plan.expected.get(true, (float("nan"), float("nan")))
+    realised = planned[other][1] - planned[true][1]
+    mean = lam + planned[true][2] - planned[other][2]
+    return {
+        "pair": pair,
+        "seed": seed,
+        "ambiguous": True,
+        "tries": tries,
+        "hidden": true,
+        "right_before": _right(before, c),
+        "right_planned": _right(planned, c),
+        "right_random": _right(random, c),
+        "predicted": lam,
+        "predicted_sd": sd,
+        "realised": realised,
+        "z": (realised - mean) / sd if sd > 0 else float("nan"),
+        "separation_before": plan.before,
+        "separation_planned": plan.planned,
+        "separation_random": plan.random,
+        "random_to_match": plan.match,
+        "plan_s": seconds,
+    }
+
+
+def summary(rows: list[dict]) -> dict:
+    out = {}
+    for pair in dict.fromkeys(r["pair"] for r in rows):
+        every = [r for r in rows if r["pair"] == pair]
+        rs = [r for r in every if r["ambiguous"]]
+        if not rs:
+            out[pair] = {"sessions": 0, "not_ambiguous_in_tries": len(every)}
+            continue
+        z = np.array([r["z"] for r in rs if np.isfinite(r["z"])])
+        out[pair] = {
+            "sessions": len(rs),
+            "no_ambiguous_session_found": len(every) - len(rs),
+            "right_before": float(np.mean([r["right_before"] for r in rs])),
+            "right_planned": float(np.mean([r["right_planned"] for r in rs])),
+            "right_random": float(np.mean([r["right_random"] for r in rs])),
+            "within_1sd": float(np.mean(np.abs(z) <= 1)) if len(z) else None,
+            "within_2sd": float(np.mean(np.abs(z) <= 2)) if len(z) else None,
+            "median_z": float(np.median(z)) if len(z) else None,
+            "median_plan_s": float(np.median([r["plan_s"] for r in rs])),
+            "median_random_to_match": float(
+                np.median([r["random_to_match"] or np.inf for r in rs])
+            ),
+        }
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sessions", type=int, default=50)
+    ap.add_argument("--poses", type=int, default=20)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--pairs", nargs="+", default=list(PAIRS))
+    ap.add_argument("--out", help="write every session's row and the summary here (JSON)")
+    args = ap.parse_args()
+    work = [(p, s, args.poses) for p in args.pairs for s in range(args.sessions)]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        rows = list(pool.map(run_session, work))
+    result = {"poses": args.poses, "summary": summary(rows), "sessions": rows}
+    print(json.dumps(result["summary"], indent=2))
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,584 @@
+"""Poses that decide: the reachable poses that best tell two hypotheses apart, or best resolve
+one effect, given the fit so far (``hexcal plan``).
+
+Effects are linear in their parameters, so what N more poses would show is known before they
+are recorded, to first order at the fitted geometry. Each hypothesis is a model — the geometry,
+the effects already in the model, and its own effect (:data:`GEOMETRY`: none) — fitted to the
+session; its fitted contribution is a column of whitened leg lengths over any poses.
+
+- To separate A from B: whichever is true, the other leaves χ² beyond the noise by the
+  noncentrality of the true one's contribution once the other's columns are projected out
+  (:func:`hexcal.diagnosis.selection.schur_after`); the poses maximise the smaller of the two
+  (the geometry alone has no contribution: against it, only the effect's counts).
+- To resolve one effect: D-optimal — the log-determinant of its parameters' information once
+  the geometry's and the model's other columns are projected out.
+
+Poses are picked greedily from a large random set of reachable free poses (the session's own
+box and tilt about home, the legs' stroke ``leg_range_mm``, the joints' limits
+``joint_limit_deg``, away from singularities as :mod:`hexcal.estimate.nbp` keeps them), each
+candidate's gain computed for all at once. Clamped poses are not planned: a plan is free poses.
+The new poses are taken to follow the session at its median pace, at its last temperature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hexcal.diagnosis import selection
+from hexcal.effects import EffectData, get_effect
+from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
+from hexcal.estimate.leg_rows import pose_jacobian
+from hexcal.estimate.nbp import MAX_CONDITION
+from hexcal.estimate.predict import LegModel
+from hexcal.io.measurements import Measurements
+from hexcal.model.kinematics import condition_number
+from hexcal.model.noise import DEFAULT_SIGMAS, leg_whiteners
+from hexcal.model.robot import Robot
+from hexcal.model.workspace import Limits, NoFeasiblePose, PoseRanges, Workspace
+
+#: The hypothesis "no further effect": the model as it is.
+GEOMETRY = "geometry"
+#: Random reachable poses the plan picks from.
+N_CANDIDATES = 2000
+#: Random draws averaged for the random poses' separation.
+N_RANDOM = 20
+#: At most this many times the plan's poses are tried as random ones to match its separation.
+MATCH_LIMIT = 64
+
+
+@dataclass
+class Plan:
+    """The planned poses and what they are expected to show.
+
+    ``meas``: the poses as a measurement table (free poses, step ``plan``, the readings the
+    fitted model predicts at each, mm); ``planned``, ``random``: the criterion with these N
+    poses added and with N random reachable ones (mean of :data:`N_RANDOM`) — to separate, the
+    expected Δχ² (noncentrality) between the hypotheses; to resolve, the geometric-mean
+    standard error of the effect's parameters (spec units); ``planned_sd``: the Δχ²'s standard
+    deviation (separation only); ``match``: random poses whose mean criterion reaches the
+    plan's (None: more than :data:`MATCH_LIMIT` × N); ``before``: the criterion on the
+    session's poses alone."""
+
+    meas: Measurements
+    kind: str  #: "separate" or "resolve"
+    hypotheses: tuple[str, ...]
+    before: float
+    planned: float
+    random: float
+    match: int | None
+    planned_sd: float = float("nan")
+    notes: list[str] = field(default_factory=list)
+    #: Separation, per hypothesis taken as true: (expected Δχ² the other leaves beyond it,
+    #: its standard deviation) after the planned poses
+    expected: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+
+@dataclass
+class _Setting:
+    """What the criterion needs: the fits, the robot they give, the noise level."""
+
+    problem: Problem
+    base: ModelFit
+    fits: dict[str, ModelFit]
+    robot: Robot
+    s2: float
+    dt: float  #: s between poses
+    hypotheses: tuple[str, ...]
+
+
+def plan_poses(
+    problem: Problem,
+    effects: tuple[str, ...],
+    n_poses: int,
+    separate: tuple[str, str] | None = None,
+    resolve: str | None = None,
+    rng: np.random.Generator | None = None,
+    n_candidates: int = N_CANDIDATES,
+) -> Plan:
+    """Plan ``n_poses`` poses for ``problem``'s session with ``effects`` in the model (see the
+    module docstring): ``separate`` two hypotheses (effect names, or :data:`GEOMETRY`), or
+    ``resolve`` one effect. Raises ValueError for an effect these data cannot carry or a
+    hypothesis already in the model."""
+    if (separate is None) == (resolve is None):
+        raise ValueError("plan: give two hypotheses to separate, or one effect to resolve")
+    if n_poses < 1:
+        raise ValueError(f"plan: --poses must be at least 1 (got {n_poses})")
+    rng = np.random.default_rng(0) if rng is None else rng
+    hyps = tuple(separate) if separate is not None else (str(resolve),)
+    setting = _setting(problem, effects, hyps)
+    pool = _candidates(problem, setting.robot, n_candidates, rng)
+    if len(pool[0]) < n_poses:
+        raise ValueError(
+            f"plan: only {len(pool[0])} of {n_candidates} random poses are reachable within the "
+            "session's range: check leg_range_mm and joint_limit_deg in robot.json"
+        )
+    crit = _Criterion(setting, resolve is not None)
+    t_mid = _times(problem, setting.dt, (n_poses + 1) // 2 + 1)[-1:]
+    chosen = crit.greedy(pool, n_poses, t_mid)
+    P, R = pool[0][chosen], pool[1][chosen]
+    t_new = np.round(_times(problem, setting.dt, n_poses), 3)
+    planned, sd = crit.final(P, R, t_new)
+    draws = [_draw(pool, n_poses, rng) for _ in range(N_RANDOM)]
+    random = float(np.mean([crit.final(d[0], d[1], t_new)[0] for d in draws]))
+    match = _match(crit, problem, setting.dt, planned, n_poses, rng, n_candidates)
+    meas = _table(problem, setting, P, R, t_new)
+    expected = {}
+    if resolve is None:
+        lam, sd_of = crit.directions(P, R, t_new)
+        expected = {h: (lam[h], sd_of[h]) for h in lam}
+    notes = [
+        "free poses only: a plan under a clamp is not made (record these with no leg clamped)",
+        f"the new poses are taken to follow the session every {setting.dt:.0f} s"
+        + (
+            f", at its last temperature ({problem.meas.temperature[-1]:.2f} °C)"
+            if problem.meas.temperature is not None
+            else ""
+        ),
+    ]
+    return Plan(
+        meas,
+        "resolve" if resolve is not None else "separate",
+        hyps,
+        crit.final(P[:0], R[:0], t_new[:0])[0],
+        planned,
+        random,
+        match,
+        sd,
+        notes,
+        expected,
+    )
+
+
+def _setting(problem: Problem, effects: tuple[str, ...], hyps: tuple[str, ...]) -> _Setting:
+    """Fit the model and each hypothesis to the session's poses."""
+    for h in hyps:
+        if h == GEOMETRY:
+            continue
+        get_effect(h)  # an unknown name is refused with the catalogue listed
+        if h in effects:
+            raise ValueError(f"plan: {h} is already in the model (--add): nothing to decide")
+        why = problem.missing(h)
+        if why:
+            raise ValueError(f"plan: effect {h!r} cannot be fitted to these data: {why}")
+    if len(set(hyps)) != len(hyps):
+        raise ValueError("plan: the two hypotheses to separate are the same")
+    base = fit_model(problem, effects, cross_validate=False)
+    fits = {
+        h: base if h == GEOMETRY else fit_model(problem, (*effects, h), False, seed_fit=base)
+        for h in hyps
+    }
+    s2 = 1.0
+    if problem.sigmas is None:  # the noise level of the best of the hypotheses
+        s2 = min(f.chi2 / f.dof for f in fits.values())
+    dt = float(np.median(np.diff(problem.meas.t))) if len(problem.meas) > 1 else 10.0
+    robot = fitted_robot(problem.design, base.refinement)
+    return _Setting(problem, base, fits, robot, s2, max(dt, 1.0), hyps)
+
+
+def _times(problem: Problem, dt: float, n: int) -> np.ndarray:
+    return float(problem.meas.t[-1]) + dt * np.arange(1, n + 1)
+
+
+def _candidates(
+    problem: Problem, robot: Robot, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reachable free poses (P (K, 3) mm, R (K, 3, 3)) within the session's box and tilt about
+    home (:func:`session_ranges`), the strokes and the joints' limits, away from singularities."""
+    limit = robot.joint_limit_deg or Limits().base_joint_deg
+    ranges = session_ranges(problem.meas, robot)
+    for _ in range(4):
+        try:
+            P, R = Workspace(robot, ranges, Limits(limit, limit)).free((n,), rng)
+            break
+        except NoFeasiblePose:  # limits tighter than the session's range: nearer home
+            box = tuple(0.5 * np.asarray(ranges.box_mm))
+            ranges = PoseRanges(box_mm=box, tilt_deg=0.5 * ranges.tilt_deg)
+    else:
+        raise ValueError(
+            "plan: no free pose within the session's range is reachable: check leg_range_mm and "
+            "joint_limit_deg in robot.json"
+        )
+    ok = reachable(robot, P, R)
+    return P[ok], R[ok]
+
+
+def session_ranges(meas: Measurements, robot: Robot) -> PoseRanges:
+    """The box (mm) and tilt (deg) about ``robot``'s home that the session's poses span."""
+    ws = Workspace(robot)
+    box = np.max(np.abs(meas.position - ws.home_position), axis=0)
+    rel = meas.rotations * Rotation.from_matrix(ws.home_rotation).inv()
+    tilt = float(np.max(np.abs(rel.as_rotvec(degrees=True))))
+    return PoseRanges(box_mm=tuple(np.maximum(box, 1.0).tolist()), tilt_deg=max(tilt, 0.1))
+
+
+def reachable(robot: Robot, P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(K,) poses within the strokes (``leg_range_mm`` on readings), the joints' limits
+    (``joint_limit_deg`` from each leg's direction at home, else 50° from the base's and
+    platform's normals), and away from singularities (:data:`~hexcal.estimate.nbp.MAX_CONDITION`)."""
+    limit = robot.joint_limit_deg
+    ws = Workspace(robot, limits=Limits(limit or 50.0, limit or 50.0))
+    ok = ws.feasible(P, R)
+    if limit is not None:
+        from hexcal.estimate.predict import Poses
+
+        base, plat = LegModel(robot).joint_angles(Poses(P, R))
+        ok &= np.maximum(base, plat).max(axis=1) <= limit
+    return ok & (condition_number(robot.a, robot.b, P, Rotation.from_matrix(R)) <= MAX_CONDITION)
+
+
+def _draw(pool: tuple[np.ndarray, np.ndarray], n: int, rng: np.random.Generator):
+    i = rng.choice(len(pool[0]), n, replace=False)
+    return pool[0][i], pool[1][i]
+
+
+def _match(crit, problem, dt, planned, n, rng, n_candidates) -> int | None:
+    """The fewest random reachable poses (doubling, then halving the gap) whose mean criterion
+    (over :data:`N_RANDOM` // 4 draws) reaches ``planned``; None beyond :data:`MATCH_LIMIT` × n."""
+
+    def reaches(k: int) -> bool:
+        vals = []
+        for _ in range(max(N_RANDOM // 4, 1)):
+            pool = _candidates(problem, crit.s.robot, max(k, 1), rng)
+            vals.append(crit.final(pool[0], pool[1], _times(problem, dt, len(pool[0])))[0])
+        return crit.better(float(np.mean(vals)), planned)
+
+    lo, hi = n, n
+    while not reaches(hi):
+        lo, hi = hi, 2 * hi
+        if hi > MATCH_LIMIT * n:
+            return None
+    while hi - lo > max(1, lo // 10):
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if reaches(mid) else (mid, hi)
+    return hi
+
+
+def _table(problem: Problem, s: _Setting, P: np.ndarray, R: np.ndarray, t: np.ndarray):
+    """The plan as a measurement table: the readings the fitted model predicts at each pose
+    (refused, :class:`~hexcal.estimate.predict.PredictionError`, were one beyond a stroke or a
+    joint's limit)."""
+    temp = _temperature(problem, len(P))
+    model = s.base.leg_model(problem.design)
+    rho = model.readings(P, R, t, temp, check_limits=True)
+    first = int(problem.meas.pose_id.max()) + 1
+    return Measurements.from_arrays(
+        P,
+        Rotation.from_matrix(R),
+        rho,
+        step="plan",
+        t=t,
+        pose_id=np.arange(first, first + len(P)),
+        temperature=temp,
+    )
+
+
+def _temperature(problem: Problem, n: int) -> np.ndarray | None:
+    temp = problem.meas.temperature
+    return None if temp is None else np.full(n, float(temp[-1]))
+
+
+class _Criterion:
+    """The plan's criterion on the session's poses plus new ones, from whitened rows."""
+
+    def __init__(self, s: _Setting, resolve: bool) -> None:
+        self.s, self.resolve = s, resolve
+        m = len(s.problem.meas)
+        self.old = [self._gram(x) for x in self._rows_at(np.zeros((0, 3)), np.zeros((0, 3, 3)))]
+        self.m = m
+
+    def better(self, value: float, target: float) -> bool:
+        return value <= target if self.resolve else value >= target
+
+    def _rows_at(self, P: np.ndarray, R: np.ndarray, t: np.ndarray | None = None):
+        """Per model: whitened rows (n, 6, p) of the session's poses followed by the new ones;
+        the model's columns first, the quantity of interest last (the other hypothesis'
+        fitted contribution, or the resolved effect's columns)."""
+        s = self.s
+        data = _data(s, P, R, np.zeros(0) if t is None else t)
+        w = leg_whiteners(
+            s.robot.a, s.robot.b, data.position, data.rotation, _sigmas(s.problem)
+        ) / np.sqrt(s.s2)
+        geo = _geometry_rows(s.base, data)
+        base = [get_effect(e).basis(data) for e in s.base.effects if e != "offset"]
+        out = []
+        for h in s.hypotheses:
+            own = [] if h == GEOMETRY else [get_effect(h).basis(data)]
+            if self.resolve:
+                cols = [geo, *base, *own]
+            else:
+                other = next(o for o in s.hypotheses if o != h)
+                cols = [geo, *base, *own, _contribution(s, other, data)[..., None]]
+            out.append(w @ np.concatenate(cols, axis=-1))
+        return out
+
+    @staticmethod
+    def _gram(x: np.ndarray) -> np.ndarray:
+        flat = x.reshape(-1, x.shape[-1])
+        return flat.T @ flat
+
+    def _q(self) -> int:
+        h = self.s.hypotheses[0]
+        return len(get_effect(h).params(self.s.problem.design)) if self.resolve else 1
+
+    def _value(self, info: np.ndarray) -> np.ndarray:
+        """Separation: each model's noncentrality (K, n_hyp) → the smaller that counts;
+        resolve: the geometric-mean standard error (spec units)."""
+        if self.resolve:
+            sign, logdet = np.linalg.slogdet(info[..., 0, :, :])
+            return np.where(sign > 0, np.exp(-logdet / (2 * info.shape[-1])), np.inf)
+        lam = info[..., 0, 0]
+        keep = [i for i, h in enumerate(self.s.hypotheses) if _other(self.s, h) != GEOMETRY]
+        return lam[..., keep].min(axis=-1)
+
+    def greedy(self, pool, n: int, t_mid: np.ndarray) -> np.ndarray:
+        """Indices of ``n`` poses of ``pool`` picked one by one, each the best given those
+        before it."""
+        P, R = pool
+        t = np.full(len(P), t_mid[0])
+        rows = [x[self.m :] for x in self._rows_at(P, R, t)]
+        grams = [g.copy() for g in self.old]
+        q = self._q()
+        free = np.ones(len(P), bool)
+        chosen = []
+        for _ in range(n):
+            idx = np.where(free)[0]
+            info = np.stack(
+                [selection.schur_after(g, x[idx], q) for g, x in zip(grams, rows, strict=True)],
+                axis=1,
+            )
+            vals = self._value(info)
+            best = int(idx[np.argmin(vals) if self.resolve else np.argmax(vals)])
+            chosen.append(best)
+            free[best] = False
+            for g, x in zip(grams, rows, strict=True):
+                g += x[best].T @ x[best]
+        return np.array(chosen)
+
+    def final(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[float, float]:
+        """(criterion, Δχ²'s standard deviation) with the session's poses and these."""
+        if self.resolve:
+            rows = self._rows_at(P, R, t)
+            info = selection.schur_block(self._gram(rows[0]), self._q())
+            return float(self._value(info[None, None])[0]), float("nan")
+        lam, sd = self.directions(P, R, t)
+        worst = min(lam, key=lambda h: lam[h])
+        return lam[worst], sd[worst]
+
+    def directions(
+        self, P: np.ndarray, R: np.ndarray, t: np.ndarray
+    ) -> tuple[dict[str, float], dict[str, float]]:
+        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, and
+        that Δχ²'s standard deviation), keyed by the true one's name.
+
+        The noncentrality of the true one's contribution θᵀSθ (S: the information of its
+        parameters once the other's columns are projected out, over every pose) is estimated
+        from its fitted values θ̂, whose own spread C (the session's information, inverted)
+        inflates it by tr(SC) on average: that is taken off, and the spread it adds,
+        4 θ̂ᵀSCSθ̂, joins the Δχ²'s own (:func:`~hexcal.diagnosis.selection.delta_chi2_sd`)."""
+        rows = self._rows_at(P, R, t)
+        x = [r.reshape(-1, r.shape[-1]) for r in rows]
+        cross = x[0][:, :-1].T @ x[1][:, :-1]
+        spread = selection.overlap(
+            x[0][:, :-1].T @ x[0][:, :-1], x[1][:, :-1].T @ x[1][:, :-1], cross
+        )
+        lam, sd = {}, {}
+        for i, h in enumerate(self.s.hypotheses):
+            true = _other(self.s, h)  # model i's last column: the other's contribution
+            if true == GEOMETRY:  # the geometry alone has no contribution to show
+                continue
+            q = len(get_effect(true).params(self.s.problem.design))
+            own = rows[1 - i][..., -1 - q : -1]
+            after = np.concatenate([rows[i][..., :-1], own], axis=-1).reshape(
+                -1, x[i].shape[-1] - 1 + q
+            )
+            info = selection.schur_block(after.T @ after, q)
+            before = rows[1 - i][: self.m, :, :-1].reshape(-1, x[1 - i].shape[-1] - 1)
+            cov = np.linalg.pinv(selection.schur_block(before.T @ before, q))
+            theta = _values(self.s, true)
+            raw = float(theta @ info @ theta)
+            lam[true] = max(raw - float(np.trace(info @ cov)), 0.0)
+            own_sd2 = 4.0 * float(theta @ info @ cov @ info @ theta)
+            sd[true] = float(np.sqrt(selection.delta_chi2_sd(lam[true], spread) ** 2 + own_sd2))
+        return lam, sd
+
+
+def _other(s: _Setting, h: str) -> str:
+    return next(o for o in s.hypotheses if o != h) if len(s.hypotheses) > 1 else GEOMETRY
+
+
+def _sigmas(problem: Problem):
+    return problem.sigmas if problem.sigmas is not None else DEFAULT_SIGMAS
+
+
+def _data(s: _Setting, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> EffectData:
+    """The effects' inputs over the session's poses followed by new ones (their readings as the
+    fitted model predicts them, the session's last temperature and extra columns)."""
+    d = s.problem.data
+    n = len(P)
+    rho = LegModel(s.robot).geometric(P, R) - s.robot.offsets
+    temp = None if d.temperature is None else np.concatenate([d.temperature, _temp(d, n)])
+    return EffectData(
+        np.concatenate([d.readings, rho]),
+        np.concatenate([d.position, P]),
+        np.concatenate([d.rotation, R]),
+        np.concatenate([np.asarray(d.t, float), t]),
+        temp,
+        d.robot,
+        d.a,
+        d.b,
+        columns={k: np.concatenate([v, np.full(n, v[-1])]) for k, v in d.columns.items()},
+    )
+
+
+def _temp(d: EffectData, n: int) -> np.ndarray:
+    return np.full(n, float(d.temperature[-1])) if d.temperature is not None else np.zeros(n)
+
+
+def _geometry_rows(fit: ModelFit, data: EffectData) -> np.ndarray:
+    """(n, 6, 6·c) the leg lengths' derivatives by the geometry at the fitted one."""
+    ref = fit.refinement
+    args = (data.position, data.rotation, data.readings, data.robot.offsets)
+    return pose_jacobian(ref.x, ref.layout, *args)[1]
+
+
+def _contribution(s: _Setting, name: str, data: EffectData) -> np.ndarray:
+    """(n, 6) mm hypothesis ``name``'s fitted contribution to the leg lengths (0: the
+    geometry alone)."""
+    if name == GEOMETRY:
+        return np.zeros((len(data), 6))
+    return get_effect(name).basis(data) @ _values(s, name)
+
+
+def _values(s: _Setting, name: str) -> np.ndarray:
+    """(q,) hypothesis ``name``'s fitted parameter values, in their spec units."""
+    ref = s.fits[name].refinement
+    return np.array([ref.value(p.name) for p in get_effect(name).params(s.problem.design)])
+
+
+#: Planned poses beyond which a plan is not offered (the issue's "a dozen or two").
+MAX_OFFER = 20
+#: Candidate poses an offer picks from (fewer than a plan's: the diagnosis waits for it).
+OFFER_CANDIDATES = 800
+#: Planned poses offered to confirm what the recorded poses should already decide.
+CONFIRM_POSES = 4
+#: Unresolved candidates offered a plan, the best-scoring first.
+MAX_RESOLVE_OFFERS = 2
+
+
+@dataclass
+class Offer:
+    """A plan the diagnosis offers: how many planned poses would decide (None: more than
+    :data:`MAX_OFFER`)."""
+
+    kind: str  #: "separate" or "resolve"
+    hypotheses: tuple[str, ...]
+    poses: int | None
+
+    def args(self) -> list[str]:
+        """``hexcal plan``'s own arguments for it (after the session's)."""
+        flag = "--separate" if self.kind == "separate" else "--resolve"
+        n = str(self.poses or (CONFIRM_POSES if self.poses == 0 else MAX_OFFER))
+        return [flag, *self.hypotheses, "--poses", n, "--out", "plan.csv"]
+
+    def text(self) -> str:
+        what = (
+            f"tell {' from '.join(self.hypotheses)} apart"
+            if self.kind == "separate"
+            else f"resolve {self.hypotheses[0]}"
+        )
+        if self.poses is None:
+            return f"more than {MAX_OFFER} planned poses would be needed to {what}"
+        if self.poses == 0:
+            return (
+                f"the poses recorded should already {what} by their expected separation, though "
+                "their χ² spread wider than the noise: a few planned poses confirm it"
+            )
+        return f"{self.poses} planned poses would {what}"
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "hypotheses": list(self.hypotheses), "poses": self.poses}
+
+
+def poses_to_decide(
+    problem: Problem,
+    effects: tuple[str, ...],
+    separate: tuple[str, str] | None = None,
+    resolve: str | None = None,
+    rng: np.random.Generator | None = None,
+    n_candidates: int = OFFER_CANDIDATES,
+) -> int | None:
+    """The fewest planned poses (at most :data:`MAX_OFFER`; None beyond) after which the
+    question is decided: two hypotheses' expected separation, less two of its standard
+    deviations, beyond the look-alike margin (:data:`~hexcal.diagnosis.selection.ALIKE_DCHI2`);
+    an effect's every parameter resolved as the score test asks
+    (:func:`~hexcal.diagnosis.scoring.needed_resolution`)."""
+    from hexcal.diagnosis.scoring import needed_resolution
+
+    rng = np.random.default_rng(0) if rng is None else rng
+    hyps = tuple(separate) if separate is not None else (str(resolve),)
+    setting = _setting(problem, effects, hyps)
+    pool = _candidates(problem, setting.robot, n_candidates, rng)
+    crit = _Criterion(setting, resolve is not None)
+    n_max = min(MAX_OFFER, len(pool[0]))
+    t = _times(problem, setting.dt, n_max)
+    chosen = crit.greedy(pool, n_max, t[n_max // 2 :][:1])
+    P, R = pool[0][chosen], pool[1][chosen]
+    need = needed_resolution(get_effect(hyps[0]).params(problem.design)) if resolve else None
+    for n in range(0, n_max + 1):
+        if need is not None:
+            rows = crit._rows_at(P[:n], R[:n], t[:n])
+            info = selection.schur_block(crit._gram(rows[0]), len(need))
+            cov = np.linalg.pinv(info)
+            if np.all(np.sqrt(np.clip(np.diag(cov), 0, None)) < need):
+                return n
+            continue
+        lam, sd = crit.final(P[:n], R[:n], t[:n])
+        if lam - 2.0 * sd >= selection.ALIKE_DCHI2:
+            return n
+    return None
+
+
+def offers(
+    problem: Problem,
+    fit: ModelFit,
+    verdict: str,
+    alike: list[str],
+    candidates,
+) -> list[Offer]:
+    """The plans a diagnosis offers at ``fit``: to tell the verdict from each look-alike, and
+    to resolve the candidates the poses cannot tell from the geometry whose columns together
+    would remove more than the look-alike margin (their score counting every column, the
+    unresolved ones too: worth deciding), the best first."""
+    from hexcal.diagnosis.score import score_columns
+
+    effects = fit.effects
+    # Effects located by a search (a zero step's, a tracker move's time) have no basis to plan
+    # with beyond the session's end: their pairs are not planned.
+    named = (verdict, *alike) if alike else ()  # look-alikes come with an effect named
+    searched = {e for e in named if getattr(get_effect(e), "searched_params", 0)}
+    asked: list[tuple[str, tuple[str, ...]]] = [
+        ("separate", (verdict, e)) for e in alike if not searched & {verdict, e}
+    ]
+    whole = {
+        c.effect: score_columns(problem, fit, c.effect).score(
+            np.ones(len(get_effect(c.effect).params(problem.design)), bool)
+        )
+        for c in candidates
+        if c.available and not c.identifiable
+    }
+    stuck = [
+        e for e, s in sorted(whole.items(), key=lambda kv: -kv[1]) if s >= selection.ALIKE_DCHI2
+    ]
+    asked += [("resolve", (e,)) for e in stuck]
+    out = []
+    for kind, hyps in asked[: len(asked) - len(stuck) + MAX_RESOLVE_OFFERS]:
+        pair = (hyps[0], hyps[1]) if kind == "separate" else None
+        what = None if pair else hyps[0]
+        try:
+            out.append(Offer(kind, hyps, poses_to_decide(problem, effects, pair, what)))
+        except (ValueError, np.linalg.LinAlgError):  # a fit these data cannot make: no offer
+            continue
+    return out

@@ -1,0 +1,209 @@
+"""Model selection in one place: how two or more fitted (or planned) hypotheses compare.
+
+The verdict (:mod:`hexcal.diagnosis.verdict`), the planner (:mod:`hexcal.diagnosis.plan`) and
+the live ranking (:mod:`hexcal.diagnosis.live_rank`) all weigh hypotheses here:
+
+- fitted models: ΔBIC (:func:`bic_delta`), the held-out gain (:func:`heldout_gain`), Vuong's
+  test of two non-nested fits on the same poses (:func:`vuong_z`), whether a candidate may be
+  named (:func:`wins`) and which others fit alike (:func:`alike`);
+- hypotheses on poses not yet recorded: the expected separation, the noncentrality of one
+  hypothesis' fitted contribution once the other's model is projected out, from normal
+  equations (Gram matrices: :func:`schur_last`, and after each candidate pose at once,
+  :func:`schur_after`), and the spread of the Δχ² it predicts (:func:`delta_chi2_sd`,
+  :func:`overlap`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from hexcal.diagnosis.scoring import Candidate
+from hexcal.estimate.effect_fit import ModelFit, Problem
+
+#: ΔBIC below which an effect's evidence is "very strong" (Kass & Raftery).
+BIC_STRONG = -10.0
+#: An effect that brings the residual to the floor (alone or with one more) must explain at
+#: least this share of the excess over the noise floor.
+MOST = 0.5
+#: An effect that does not, while other catalogue effects explain the rest, must explain at
+#: least this share: with three effects hidden the first named explains 60–100 % of the excess,
+#: a look-alike of a structured residual outside the catalogue a few per cent.
+CLEAR = 0.25
+#: An effect predicts held-out poses better when the mean per-pose gain in held-out χ² is this
+#: many standard errors above 0 (one-sided p 0.023 per candidate for a normal mean; stricter in
+#: fact: adding parameters costs held-out accuracy, so an effect that only fits noise scores
+#: below 0 on average). Thermal expansion hidden at its realistic size, at the floor, scores
+#: 2.5–6.4 over 40 simulated sessions; clean sessions' candidates stay below it.
+HELDOUT_Z = 2.0
+#: Two refitted effects fit alike when their χ² (over the noise level) differ by less than this:
+#: a likelihood ratio below e⁵ ≈ 150, short of "very strong" evidence for either.
+ALIKE_DCHI2 = 10.0
+
+
+def bic_delta(problem: Problem, base: ModelFit, new: ModelFit) -> float:
+    """ΔBIC of ``new`` against ``base`` (χ² with the stated noise, else the Gaussian
+    likelihood with the level estimated)."""
+    n = base.refinement.dof + len(base.refinement.x)  # the residual rows
+    dp = new.n_params - base.n_params
+    if problem.sigmas is not None:
+        return bic_from_chi2(new.chi2 - base.chi2, dp, n)
+    return n * np.log(new.chi2 / base.chi2) + dp * np.log(n)
+
+
+def bic_from_chi2(dchi2: float, dp: int, n: int) -> float:
+    """ΔBIC of a model ``dp`` parameters larger whose χ² (with the stated noise) changes by
+    ``dchi2``, over ``n`` residual rows."""
+    return float(dchi2 + dp * np.log(n))
+
+
+def wins(c: Candidate, excess: bool) -> bool:
+    """Whether ``c`` may be named (the rules of :mod:`hexcal.diagnosis.verdict`'s docstring)."""
+    if c.refit is None or not c.delta_bic < BIC_STRONG:
+        return False
+    if not excess:
+        return c.heldout_z > HELDOUT_Z
+    if c.explained >= MOST and c.closes:
+        return True
+    return c.explained >= CLEAR and c.heldout_z > HELDOUT_Z and c.chain
+
+
+def alike(
+    whiteners: Callable[[], np.ndarray],
+    best: Candidate,
+    candidates: list[Candidate],
+    s2: float,
+    excess: bool,
+) -> list[str]:
+    """The other refitted candidates with very strong evidence that the data cannot tell from
+    ``best``: they fit as well (χ² within :data:`ALIKE_DCHI2`), both bring the residual to
+    the floor, or their poses' χ² differ by less than :data:`HELDOUT_Z` standard errors
+    (Vuong's test, :func:`vuong_z`): a ΔBIC margin inside the noise
+    of the poses is no evidence, and the parameter count alone would pick. ``whiteners``
+    gives the poses' (M, 6, 6) whiteners when a Vuong test is needed."""
+    if best.refit is None:
+        return []
+    chol = None
+    out = []
+    for c in candidates:
+        if c is best or c.refit is None or not c.delta_bic < BIC_STRONG:
+            continue
+        same_fit = abs(c.refit.chi2 - best.refit.chi2) < ALIKE_DCHI2 * s2
+        both_close = excess and best.closes and c.closes and c.explained >= MOST
+        inside = False
+        if not (same_fit or both_close):
+            chol = whiteners() if chol is None else chol
+            inside = abs(vuong_z(c.refit, best.refit, chol, s2)) < HELDOUT_Z
+        if same_fit or both_close or inside:
+            out.append(c.effect)
+    return out
+
+
+def vuong_z(a: ModelFit, b: ModelFit, chol: np.ndarray, s2: float = 1.0) -> float:
+    """Vuong's z of two fitted models on the same poses: the mean per-pose difference of their
+    χ² (``a``'s less ``b``'s, each pose's residuals whitened by its 6×6 covariance) over its
+    standard error. |z| < 2: the data do not prefer either (a difference of ΔBIC that size is
+    inside the noise of the poses, whatever the parameter counts)."""
+    d = _pose_chi2(a.residuals, chol, s2) - _pose_chi2(b.residuals, chol, s2)
+    sd = float(np.std(d, ddof=1))
+    return float(np.mean(d) / sd * np.sqrt(len(d))) if sd > 0 else 0.0
+
+
+def _pose_chi2(h: np.ndarray, chol: np.ndarray, s2: float) -> np.ndarray:
+    w = np.linalg.solve(chol, h[..., None])[..., 0]
+    return np.sum(w**2, axis=1) / s2
+
+
+def heldout_gain(
+    before: ModelFit, after: ModelFit, chol: np.ndarray, s2: float = 1.0
+) -> tuple[float, float]:
+    """(Δχ², z): how much better ``after`` predicts the poses it was not fitted to than
+    ``before`` does, each pose's held-out residuals (random folds) whitened by its 6×6
+    covariance (``chol``: :func:`pose_whiteners`) over the noise level ``s2``; z is the mean
+    per-pose gain over its standard error (a paired test over poses)."""
+
+    def chi(h: np.ndarray) -> np.ndarray:
+        w = np.linalg.solve(chol, h[..., None])[..., 0]
+        return np.sum(w**2, axis=1) / s2
+
+    d = chi(before.held_out_residuals) - chi(after.held_out_residuals)
+    sd = float(np.std(d, ddof=1))
+    z = float(np.mean(d) / sd * np.sqrt(len(d))) if sd > 0 else 0.0
+    return float(d.sum()), z
+
+
+def schur_last(gram: np.ndarray) -> np.ndarray:
+    """(...,) the Schur complement of the last diagonal element of Gram matrices (..., p+1,
+    p+1) ``[[JᵀJ, Jᵀd], [dᵀJ, dᵀd]]``: ``|d⊥|²``, what is left of the column d once the
+    columns J are projected out (the pseudo-inverse on J's span: a column J does not
+    determine, the geometry's gauge, is not in it)."""
+    jj = gram[..., :-1, :-1]
+    jd = gram[..., :-1, -1]
+    dd = gram[..., -1, -1]
+    scale = np.sqrt(np.clip(np.einsum("...ii->...i", jj), 1e-300, None))
+    jj_s = jj / scale[..., :, None] / scale[..., None, :]
+    inv = np.linalg.pinv(jj_s, rcond=1e-12, hermitian=True)
+    jd_s = jd / scale
+    return np.clip(dd - np.einsum("...i,...ij,...j->...", jd_s, inv, jd_s), 0.0, None)
+
+
+def schur_block(gram: np.ndarray, q: int) -> np.ndarray:
+    """(..., q, q) the information of the last ``q`` columns of Gram matrices (..., p, p) once
+    the others are projected out (the Schur complement of the leading block)."""
+    aa, ab, bb = gram[..., :-q, :-q], gram[..., :-q, -q:], gram[..., -q:, -q:]
+    scale = np.sqrt(np.clip(np.einsum("...ii->...i", aa), 1e-300, None))
+    inv = np.linalg.pinv(
+        aa / scale[..., :, None] / scale[..., None, :], rcond=1e-12, hermitian=True
+    )
+    ab_s = ab / scale[..., :, None]
+    return bb - np.swapaxes(ab_s, -1, -2) @ inv @ ab_s
+
+
+def delta_chi2_sd(noncentrality: np.ndarray | float, overlap: float = 0.0) -> np.ndarray:
+    """The standard deviation of Δχ² = χ²_wrong − χ²_true about its mean (the noncentrality λ
+    plus the parameter counts' difference): ``√(4λ + 2·overlap)``. The cross term of the true
+    contribution with the noise gives 4λ; the noise's quadratic form between the two models'
+    projections gives 2·tr((P_A − P_B)²) (``overlap``: at most the two effects' columns, as
+    the geometry's are common)."""
+    return np.sqrt(4.0 * np.asarray(noncentrality, float) + 2.0 * overlap)
+
+
+def schur_after(gram: np.ndarray, rows: np.ndarray, q: int) -> np.ndarray:
+    """(K, q, q): the information of the last ``q`` columns, the others projected out, once
+    each of K candidate poses' rows (K, r, p) is added to the Gram matrix ``gram`` (p, p) —
+    every candidate at once, by the Woodbury identity (an r × r solve per candidate, no p × p
+    one). With q = 1 and a hypothesis' fitted contribution as the last column, the result is
+    the separation's noncentrality after that pose (:func:`schur_last`)."""
+    m = gram.shape[0] - q
+    s = np.sqrt(np.clip(np.diag(gram)[:m], 1e-300, None))
+    a_inv = np.linalg.pinv(gram[:m, :m] / np.outer(s, s), rcond=1e-12, hermitian=True)
+    c = gram[:m, m:] / s[:, None]
+    u = rows[..., :m] / s
+    v = rows[..., m:]
+    y = c + np.swapaxes(u, -1, -2) @ v  # (K, m, q)
+    z = a_inv @ y
+    ua = u @ a_inv  # (K, r, m)
+    inner = np.eye(u.shape[-2]) + ua @ np.swapaxes(u, -1, -2)
+    uz = u @ z  # (K, r, q)
+    out = gram[m:, m:] + np.swapaxes(v, -1, -2) @ v - np.swapaxes(y, -1, -2) @ z
+    return out + np.swapaxes(uz, -1, -2) @ np.linalg.solve(inner, uz)
+
+
+def overlap(gram_a: np.ndarray, gram_b: np.ndarray, cross: np.ndarray) -> float:
+    """tr((P_A − P_B)²) of two models' column spaces, for :func:`delta_chi2_sd`, from their
+    Gram matrices (pA, pA), (pB, pB) and ``cross`` = X_Aᵀ X_B (pA, pB): rank A + rank B −
+    2 tr(P_A P_B) (the geometry's columns, common to both, cancel)."""
+    ia, ra = _scaled_pinv(gram_a)
+    ib, rb = _scaled_pinv(gram_b)
+    shared = float(np.trace(ia @ cross @ ib @ cross.T))
+    return max(ra + rb - 2.0 * shared, 0.0)
+
+
+def _scaled_pinv(gram: np.ndarray) -> tuple[np.ndarray, int]:
+    """(pseudo-inverse, rank) of a Gram matrix, its columns scaled to unit norm first (the
+    geometry's and the effects' columns differ by orders of magnitude)."""
+    s = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
+    inv = np.linalg.pinv(gram / np.outer(s, s), rcond=1e-12, hermitian=True)
+    rank = int(np.linalg.matrix_rank(gram / np.outer(s, s), tol=1e-12, hermitian=True))
+    return inv / np.outer(s, s), rank

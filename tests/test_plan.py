@@ -1,0 +1,94 @@
+"""The planner (:mod:`hexcal.diagnosis.plan`): every planned pose reachable, and planned poses
+separating two look-alikes better than random ones. The rates over 50 sessions per pair are
+measured by benchmarks/plan_rates.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hexcal.diagnosis.plan import GEOMETRY, plan_poses, reachable
+from hexcal.estimate.effect_fit import Problem, fit_model, fitted_robot
+from hexcal.estimate.predict import LegModel, Poses
+from hexcal.model.noise import NoiseSigmas
+from hexcal.sim import verdict_cases as vc
+from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, perturbed_truth, simulate_session
+
+
+def _session(seed: int, leg_range=None, joint_limit=None):
+    design = left_hand()
+    rng = np.random.default_rng(seed)
+    plan = SessionPlan(temperature_rise_k=5.0, n_free=20)
+    truth = perturbed_truth(design, rng, plan)
+    hook = effect_hook("thermal", realistic_values("thermal", rng, truth), truth)
+    meas, _ = simulate_session(design, seed, plan, effects=[hook], truth=truth)
+    # The limits bind the plan, not the session recorded before them.
+    limited = design.model_copy(update={"leg_range_mm": leg_range, "joint_limit_deg": joint_limit})
+    return Problem.build(meas, limited, NoiseSigmas.from_instruments(vc.INSTRUMENTS))
+
+
+def test_every_planned_pose_is_reachable_by_the_inverse_kinematics_strokes_and_joints():
+    """Limits that bind: a stroke that cuts the session's readings at their 10th and 90th
+    percentiles and joints within 20°; each planned pose's readings (the inverse kinematics) are within the stroke,
+    its joints within their limit, and the readings give back the pose (forward kinematics)."""
+    rho0 = _session(3).meas.readings
+    stroke = [float(np.percentile(rho0, 10)), float(np.percentile(rho0, 90))]
+    problem = _session(3, leg_range=stroke, joint_limit=20.0)
+    plan = plan_poses(problem, ("offset",), 10, separate=("thermal", "drift"), n_candidates=600)
+    robot = fitted_robot(problem.design, fit_model(problem, ("offset",), False).refinement)
+    model = LegModel(robot)
+    P, R = plan.meas.position, plan.meas.rotations.as_matrix()
+    rho = model.readings(P, R, check_limits=True)  # raises beyond a stroke or a joint's limit
+    lo, hi = robot.leg_range_mm
+    assert np.all((rho >= lo) & (rho <= hi))
+    base, plat = model.joint_angles(Poses(P, R))
+    assert np.maximum(base, plat).max() <= 20.0
+    assert reachable(robot, P, R).all()
+    back = model.poses(rho, guess=Poses(P, R))
+    np.testing.assert_allclose(back.position, P, atol=1e-6)
+    np.testing.assert_allclose(plan.meas.readings, rho, atol=1e-3)  # the table's 4 decimals
+
+
+def test_planned_poses_separate_better_than_random_ones_and_geometry_counts_one_way():
+    problem = _session(5)
+    plan = plan_poses(problem, ("offset",), 8, separate=("thermal", "drift"), n_candidates=600)
+    assert plan.planned > plan.random > plan.before
+    assert plan.match is None or plan.match > 8
+    nested = plan_poses(problem, ("offset",), 4, separate=(GEOMETRY, "drift"), n_candidates=300)
+    assert set(nested.expected) == {"drift"}
+
+
+def test_a_hypothesis_already_in_the_model_is_refused():
+    with pytest.raises(ValueError, match="already in the model"):
+        plan_poses(_session(6), ("offset", "thermal"), 4, separate=("thermal", "drift"))
+
+
+def test_the_diagnosis_offers_plans_with_the_command_that_makes_them():
+    """A look-alike named with the verdict and a candidate the poses cannot resolve are each
+    offered a plan: how many poses would decide, and ``hexcal plan``'s arguments."""
+    from types import SimpleNamespace
+
+    from hexcal.diagnosis.plan import MAX_OFFER, offers
+    from hexcal.diagnosis.scoring import Candidate
+    from hexcal.diagnosis.text import plan_lines
+
+    problem = _session(5)
+    fit = fit_model(problem, ("offset",), False)
+    stuck = Candidate("ujoint", 0.0, identifiable=False, available=True)
+    found = offers(problem, fit, "thermal", ["drift"], [stuck])
+    # ujoint is offered only when its columns, the unresolved ones too, would remove more than
+    # the look-alike margin at this fit: whether they do is the score test's.
+    from hexcal.diagnosis.score import score_columns
+
+    whole = score_columns(problem, fit, "ujoint").score(np.ones(6, bool))
+    expected = [("separate", ("thermal", "drift"))] + (
+        [("resolve", ("ujoint",))] if whole >= 10 else []
+    )
+    assert [(o.kind, o.hypotheses) for o in found] == expected
+    for o in found:
+        assert o.poses is None or 1 <= o.poses <= MAX_OFFER
+    assert found[0].args()[:3] == ["--separate", "thermal", "drift"]
+    text = plan_lines(SimpleNamespace(plans=found), "hexcal plan s.csv --robot r.json")  # type: ignore[arg-type]
+    assert "hexcal plan s.csv --robot r.json --separate thermal drift --poses" in text[1]
