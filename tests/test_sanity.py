@@ -158,7 +158,7 @@ def test_errors_reach_the_user_as_words_and_an_exit_status():
     "argv, says",
     [
         (["demo", "--window-s", "inf"], "'inf' is not finite"),
-        (["demo", "--poses-per-step", "-1"], "-1 is outside [1, 100000]"),
+        (["demo", "--poses-per-step", "-1"], "-1 is outside [1, 10000]"),
         (["run", "--mock", "--window-s", "0"], "0 is outside (0, 60]"),
         (["simulate", "--out", "x", "--n-free", "1e9"], "'1e9' is not an integer"),
         (["simulate", "--out", "x", "--sigma-p-mm", "nan"], "'nan' is not finite"),

@@ -626,7 +626,8 @@ def test_the_diagnosis_screen_says_where_an_unexplained_residual_points(tmp_path
     """An unexplained verdict on the diagnosis screen names the covariate the residual
     follows, with its share of the excess and what it points at (the diagnosis is a simulated
     session's with joint play outside the catalogue, handed to the screen's worker); the key
-    to add an effect says there is none. A stated noise too low is said with its factor."""
+    to add an effect adds the lead, written beside the session as an effect file. A stated
+    noise too low is said with its factor."""
     from hexcal.app import workflow
     from hexcal.app.workflow import Inputs, diagnose_chain
     from hexcal.diagnosis import diagnose
@@ -650,13 +651,20 @@ def test_the_diagnosis_screen_says_where_an_unexplained_residual_points(tmp_path
             summary = _text(app.screen.query_one("#diag-summary"))
             assert "it follows the axial leg force" in summary, summary
             assert "% of the excess" in summary
-            await pilot.press("a")
-            await pilot.pause()
-            assert "there is none to add" in _text(app.screen.query_one("#status"))
-            _assert_fits(pilot)
-            app.screen._diagnose(())
+            assert "press a to add it as an effect" in " ".join(summary.split())
+            await pilot.press("a")  # the lead, written and added; the next diagnosis shown
             await _settle(pilot)
+            _assert_fits(pilot)
             summary = _text(app.screen.query_one("#diag-summary"))
             assert "the stated noise looks about 2.0× too low" in summary, summary
 
-    asyncio.run(run())
+    from hexcal.effects import CATALOGUE
+
+    before = set(CATALOGUE)
+    try:
+        asyncio.run(run())
+    finally:  # the written file's effect is this test's, not the next one's
+        for name in set(CATALOGUE) - before:
+            CATALOGUE.pop(name, None)
+    written = tmp_path / "session-effects" / "by_force.py"
+    assert written.exists() and "class ByForce(ExploredEffect)" in written.read_text()
