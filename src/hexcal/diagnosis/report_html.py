@@ -126,7 +126,11 @@ def _labelled(table: str) -> str:
 
         return f"<tr{attrs}>{_CELL.sub(cell, body)}</tr>"
 
-    return _ROW.sub(row, table.replace("<table", '<table class="cards"', 1))
+    if table.startswith('<table class="'):  # one class attribute, its classes joined
+        marked = table.replace('<table class="', '<table class="cards ', 1)
+    else:
+        marked = table.replace("<table", '<table class="cards"', 1)
+    return _ROW.sub(row, marked)
 
 
 def for_any_width(page: str) -> str:

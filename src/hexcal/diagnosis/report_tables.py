@@ -108,7 +108,7 @@ def candidate_table(d: Diagnosis, sid: str) -> str:
                 + "outside its plausible range: "
                 + ", ".join(p.name for p in c.refit.nonphysical())
             )
-        ident = "yes" if c.identifiable else ("no (data lack it)" if not c.available else "no")
+        ident = "yes" if c.identifiable else ("n/a" if not c.available else "no")
         rows.append(
             f'<tr class="{cls}"><td>{esc(c.effect)}</td><td class="num">{stat(d.score_shown(c))}</td>'
             f'<td class="num">{stat(c.delta_bic)}</td>'
@@ -120,9 +120,9 @@ def candidate_table(d: Diagnosis, sid: str) -> str:
             '<tr><td colspan="7" class="muted">every catalogue effect is already in the model</td></tr>'
         )
     return (
-        f'<div id="{sid}-candidates"><h3>What could be missing: the catalogue, ranked</h3><table>'
-        '<tr><th>effect</th><th class="num">score Δχ²</th><th class="num">ΔBIC</th>'
-        '<th class="num">explains</th><th class="num">held-out after µm</th><th>identifiable</th>'
+        f'<div id="{sid}-candidates"><h3>What could be missing: the catalogue, ranked</h3>'
+        '<table class="ranked"><tr><th>effect</th><th class="num">score Δχ²</th><th class="num">ΔBIC</th>'
+        '<th class="num">explains</th><th class="num"><span class="nowrap">held-out after</span> µm</th><th>identifiable</th>'
         "<th>reason / note</th></tr>" + "".join(rows) + "</table>"
         f'<p class="muted">{esc(RANKED_LEGEND)}.</p></div>'
     )

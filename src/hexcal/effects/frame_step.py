@@ -83,10 +83,7 @@ class FrameStepEffect(Effect):
     def missing(self, data: EffectData) -> str | None:
         steps = frame_steps_of(data.robot)
         if not steps:
-            return (
-                "no rigid move of the tracker was located (hexcal diagnose searches for every "
-                "leg changing at one pose; robot.json frame_steps states one)"
-            )
+            return "no move of the tracker located (or stated: frame_steps)"
         t = np.asarray(data.t, float)
         for s in steps:
             after = int((t >= s.t_s).sum())

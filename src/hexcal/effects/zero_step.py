@@ -67,10 +67,7 @@ class ZeroStepEffect(Effect):
     def missing(self, data: EffectData) -> str | None:
         steps = steps_of(data.robot)
         if not steps:
-            return (
-                "no change of a leg's zero was located (hexcal diagnose and calibrate search each "
-                "leg's residual in recording order; robot.json zero_steps states one)"
-            )
+            return "no change of a leg's zero located (or stated: zero_steps)"
         t = np.asarray(data.t, float)
         for s in steps:
             after = int((t >= s.t_s).sum())
