@@ -1,12 +1,18 @@
-"""Atomic writes: no temporary file left behind, a new file gets the umask's mode, an existing
-file keeps its own; the temporary files of an interrupted write are found by their naming."""
+"""Atomic writes, by behaviour: a writer killed at random instants leaves the old or the new
+file whole, and a reader beside a writer sees only whole files (no test patches the writer); a
+new file gets the umask's mode, an existing file keeps its own; the temporary files of an
+interrupted write are found by their naming."""
 
 from __future__ import annotations
 
 import os
+import random
+import signal
+import subprocess
+import sys
+import textwrap
+import time
 from pathlib import Path
-
-import pytest
 
 from hexcal.io.fileio import orphan_temp_files, remove_orphan_temp_files, write_text_atomic
 
@@ -29,28 +35,69 @@ def test_existing_mode_kept(tmp_path):
     assert p.read_text() == "new" and p.stat().st_mode & 0o777 == 0o600
 
 
-def test_a_killed_write_leaves_a_temp_file_that_orphan_temp_files_finds(tmp_path, monkeypatch):
-    """The naming the cleanup matches is the naming write_text_atomic uses: simulate a kill
-    between the write and the rename (the temporary file is neither renamed nor removed)."""
-    target = tmp_path / "session.json"
-    target.write_text("old")
+# -- behaviour: a killed writer, a reader beside a writer ----------------------------------------
+#: Two contents told apart at a glance, large enough (MB) that writing one takes a while: a write
+#: in place would be caught half done (truncated, or empty between the truncation and the data).
+A, B = "A" * 3_000_000 + "\n", "B" * 2_000_000 + "\n"
+WRITER = textwrap.dedent(
+    """
+    import sys
+    from hexcal.io.fileio import write_text_atomic
+    path, a, b = sys.argv[1], "A" * 3_000_000 + "\\n", "B" * 2_000_000 + "\\n"
+    write_text_atomic(path, a)
+    print("ready", flush=True)
+    while True:
+        write_text_atomic(path, b)
+        write_text_atomic(path, a)
+    """
+)
 
-    def killed(*args):
-        raise KeyboardInterrupt
 
-    monkeypatch.setattr(os, "replace", killed)
-    monkeypatch.setattr(Path, "unlink", lambda self, missing_ok=False: None)
-    with pytest.raises(KeyboardInterrupt):
-        write_text_atomic(target, "new" * 1000)
-    monkeypatch.undo()
-    (tmp_path / "other.json").write_text("x")
-    (tmp_path / ".other.json.abcdefgh.tmp").write_text("another file's")
-    orphans = orphan_temp_files(target)
-    assert len(orphans) == 1 and orphans[0].name.startswith(".session.json.")
-    assert remove_orphan_temp_files(target) == [(orphans[0], 3000)]
-    assert sorted(p.name for p in tmp_path.iterdir()) == [
-        ".other.json.abcdefgh.tmp",
-        "other.json",
-        "session.json",
-    ]
-    assert target.read_text() == "old"
+def _writer(path: Path) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == b"ready"
+    return proc
+
+
+def test_a_writer_killed_at_random_instants_leaves_the_old_or_the_new_file_whole(tmp_path):
+    """SIGKILL a process rewriting one file (3 MB and 2 MB contents in turn) at 12 random
+    instants: the file is always one of the two, complete — never truncated or empty, which a
+    write in place leaves whenever the kill lands in it. A kill inside a write leaves its one
+    temporary file, which orphan_temp_files finds by its naming (and no other file's)."""
+    rng = random.Random(40)
+    path = tmp_path / "out.txt"
+    (tmp_path / ".other.txt.abcdefgh.tmp").write_text("another file's")  # not out.txt's
+    seen, cut = set(), 0
+    for _ in range(12):
+        proc = _writer(path)
+        time.sleep(rng.uniform(0.0, 0.15))
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        text = path.read_text()
+        assert text in (A, B), f"a {len(text)}-character file, starting {text[:10]!r}"
+        seen.add(text[0])
+        orphans = orphan_temp_files(path)  # at most the one write the kill cut short
+        assert len(orphans) <= 1 and all(o.name.startswith(".out.txt.") for o in orphans)
+        sizes = [(o, o.stat().st_size) for o in orphans]
+        assert remove_orphan_temp_files(path) == sizes
+        cut += len(orphans)
+    assert seen == {"A", "B"}  # the kills landed while both were being written
+    assert cut  # and some in a write: its temporary file is found by its naming, and removed
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".other.txt.abcdefgh.tmp", "out.txt"]
+
+
+def test_a_reader_beside_a_writer_sees_only_whole_files(tmp_path):
+    """A process rewrites one file (3 MB and 2 MB contents in turn) while this one reads it 300
+    times: every read is one of the two, complete, and both are seen."""
+    path = tmp_path / "out.txt"
+    proc = _writer(path)
+    try:
+        seen = []
+        for _ in range(300):
+            text = path.read_text()
+            assert text in (A, B), f"read a {len(text)}-character file, starting {text[:10]!r}"
+            seen.append(text[0])
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert set(seen) == {"A", "B"}
