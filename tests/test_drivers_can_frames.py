@@ -108,12 +108,54 @@ def test_integer32_counts_keep_their_sign(counts):
     assert legs[0] == 2 and mm[0] == counts / CPM
 
 
+def test_each_leg_is_decoded_by_its_own_node_type():
+    """Odd legs UNSIGNED32, even legs INTEGER32: the same four bytes (2³¹ + 5 unsigned, −2³¹ + 5
+    signed) read as each leg's node says, whichever leg's frame comes first."""
+    dec = TpdoDecoder(_config([0.0] * 6))
+    dec.set_nodes([_info(k, "UNSIGNED32" if k % 2 else "INTEGER32") for k in range(1, 7)])
+    raw = (2**31 + 5).to_bytes(4, "little")
+    for leg in (6, 1, 4, 3, 5, 2):
+        want = (2**31 + 5) / CPM if leg % 2 else (-(2**31) + 5) / CPM
+        assert dec.decode(_frame(leg, raw)) == (leg, want)
+        legs, mm = dec.decode_batch(np.array([0x2A0 + leg]), np.frombuffer(raw, np.uint8)[None])
+        assert legs[0] == leg and mm[0] == want
+
+
+def test_each_leg_wraps_at_its_own_range():
+    """Legs 1–3 wrap at 2¹⁶ counts, legs 4–6 have no range: 65,000 then 500 counts is a step of
+    +1036 counts on the first, a fall of 64,500 on the others."""
+    dec = TpdoDecoder(_config([0.0] * 6))
+    dec.set_nodes([_info(k, "UNSIGNED32", 2**16 if k <= 3 else None) for k in range(1, 7)])
+    for leg in (4, 1, 6, 3, 5, 2):
+        dec.decode(_frame(leg, (65_000).to_bytes(4, "little")))
+        got = dec.decode(_frame(leg, (500).to_bytes(4, "little")))[1]
+        assert got == ((65_000 + 1036) / CPM if leg <= 3 else 500 / CPM), leg
+
+
+def test_the_batch_path_takes_ids_beyond_11_bits_as_no_position():
+    """Ids outside the 11-bit range (a 29-bit id from a log) are no position TPDO: leg 0, NaN."""
+    dec = _decoder("UNSIGNED32")
+    ids = np.array([0x800, 0x1FFFFFFF, 0x7FF, 0x2A1, 0])
+    payload = np.tile(np.frombuffer((1234).to_bytes(4, "little"), np.uint8), (5, 1))
+    legs, mm = dec.decode_batch(ids, payload)
+    assert legs.tolist() == [0, 0, 0, 1, 0]
+    assert np.isnan(mm[[0, 1, 2, 4]]).all() and mm[3] == 1.234
+
+
+@pytest.mark.parametrize("leg", range(1, 7))
+def test_a_short_tpdo_names_its_own_leg(leg):
+    dec = TpdoDecoder(_config([0.0] * 6, [1, -1, 1, -1, 1, -1]))
+    with pytest.raises(EncoderError, match=rf"leg {leg} encoder \(node 0x{0x20 + leg:02X}\)"):
+        dec.decode(_frame(leg, b"\x01\x02"))
+
+
 @pytest.mark.parametrize(
     ("position_type", "span", "start"),
     [
         ("UNSIGNED32", 2**16, 2**16 - 3_500),  # a 16-bit position range (0x6002 = 65536)
         ("UNSIGNED32", 2**32, 2**32 - 3_500),  # the type's own range
         ("INTEGER32", 2**32, 2**31 - 3_500),  # INTEGER32 through +2³¹ − 1 → −2³¹
+        ("UNSIGNED32", 36_001, 36_001 - 3_500),  # a range of an odd number of counts
     ],
 )
 def test_a_position_wrapping_at_its_range_continues(position_type, span, start):

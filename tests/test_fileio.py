@@ -5,6 +5,7 @@ interrupted write are found by their naming."""
 
 from __future__ import annotations
 
+import errno
 import os
 import random
 import signal
@@ -14,7 +15,15 @@ import textwrap
 import time
 from pathlib import Path
 
-from hexcal.io.fileio import orphan_temp_files, remove_orphan_temp_files, write_text_atomic
+import pytest
+
+from hexcal.io.fileio import (
+    orphan_temp_files,
+    remove_orphan_temp_files,
+    write_error,
+    write_files_atomic,
+    write_text_atomic,
+)
 
 
 def test_new_file_mode_follows_umask(tmp_path):
@@ -33,6 +42,61 @@ def test_existing_mode_kept(tmp_path):
     p.chmod(0o600)
     write_text_atomic(p, "new")
     assert p.read_text() == "new" and p.stat().st_mode & 0o777 == 0o600
+
+
+@pytest.mark.parametrize(
+    ("code", "words"),
+    [
+        (errno.ENOENT, "the folder {folder} does not exist; create it"),
+        (errno.EISDIR, "is a folder; give a file name inside it"),
+        (errno.ENOTDIR, "{folder} is not a folder; choose another path"),
+        (errno.EACCES, "no permission to write in {folder}"),
+        (errno.EPERM, "no permission to write in {folder}"),
+        (errno.EROFS, "{folder} is on a read-only file system"),
+        (errno.ENOSPC, "the disk is full; free some space"),
+        (errno.EDQUOT, "the disk quota is exceeded"),
+        (errno.EIO, "cannot be written ("),
+    ],
+)
+def test_each_os_error_is_said_in_the_users_terms(tmp_path, code, words):
+    """The error names the user's path and what to do, one sentence per cause."""
+    path = tmp_path / "missing" / "out.json" if code == errno.ENOENT else tmp_path / "out.json"
+    message = str(write_error(OSError(code, os.strerror(code)), path))
+    assert message.startswith(f"{path}: ") and words.format(folder=path.parent) in message
+    others = [w for c, w in WORDS.items() if c != code and w not in words]
+    assert not any(w in message for w in others), message
+
+
+WORDS = {
+    errno.ENOENT: "does not exist",
+    errno.EISDIR: "is a folder;",
+    errno.ENOSPC: "the disk is full",
+    errno.EDQUOT: "quota",
+    errno.EROFS: "read-only",
+}
+
+
+def test_a_failed_write_of_several_files_leaves_no_file_and_no_folder_it_made(tmp_path):
+    """A text that cannot be encoded (a lone surrogate) fails the second file before any
+    rename: neither file is there, nor the two folders the call made; the folder that was
+    there stays."""
+    (tmp_path / "kept.txt").write_text("x")
+    folder = tmp_path / "new" / "deeper"
+    with pytest.raises(UnicodeEncodeError):
+        write_files_atomic(folder, {"a.txt": "fine", "b.txt": "bad \ud800"})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.txt"]
+    write_files_atomic(folder, {"a.txt": "fine", "b.txt": "also"})
+    assert (folder / "a.txt").read_text() == "fine" and (folder / "b.txt").read_text() == "also"
+    assert sorted(p.name for p in folder.iterdir()) == ["a.txt", "b.txt"]
+
+
+def test_an_orphan_that_cannot_be_removed_is_left(tmp_path):
+    """A folder named like a temporary file of out.txt is not deleted (nor is anything raised)."""
+    path = tmp_path / "out.txt"
+    path.write_text("x")
+    (tmp_path / ".out.txt.abcdefgh.tmp").mkdir()
+    assert remove_orphan_temp_files(path) == []
+    assert (tmp_path / ".out.txt.abcdefgh.tmp").is_dir()
 
 
 # -- behaviour: a killed writer, a reader beside a writer ----------------------------------------
