@@ -112,7 +112,9 @@ def test_each_leg_is_decoded_by_its_own_node_type():
     """Odd legs UNSIGNED32, even legs INTEGER32: the same four bytes (2³¹ + 5 unsigned, −2³¹ + 5
     signed) read as each leg's node says, whichever leg's frame comes first."""
     dec = TpdoDecoder(_config([0.0] * 6))
-    dec.set_nodes([_info(k, "UNSIGNED32" if k % 2 else "INTEGER32") for k in range(1, 7)])
+    # The type names built at run time (as from a file), not the interned literals.
+    names = {1: "".join(["UNSIGNED", "32"]), 0: "".join(["INTEGER", "32"])}
+    dec.set_nodes([_info(k, names[k % 2]) for k in range(1, 7)])
     raw = (2**31 + 5).to_bytes(4, "little")
     for leg in (6, 1, 4, 3, 5, 2):
         want = (2**31 + 5) / CPM if leg % 2 else (-(2**31) + 5) / CPM

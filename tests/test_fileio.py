@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 
 from hexcal.io.fileio import (
+    OutputFileError,
+    check_output,
     orphan_temp_files,
     remove_orphan_temp_files,
     write_error,
@@ -76,6 +78,14 @@ WORDS = {
 }
 
 
+def test_only_a_missing_file_or_folder_is_said_to_be_missing(tmp_path):
+    """The folder's absence qualifies ENOENT alone: a permission error in a folder that is gone
+    meanwhile is still said as a permission error."""
+    path = tmp_path / "gone" / "out.json"
+    message = str(write_error(OSError(errno.EACCES, "Permission denied"), path))
+    assert "no permission to write in" in message and "does not exist" not in message
+
+
 def test_a_failed_write_of_several_files_leaves_no_file_and_no_folder_it_made(tmp_path):
     """A text that cannot be encoded (a lone surrogate) fails the second file before any
     rename: neither file is there, nor the two folders the call made; the folder that was
@@ -90,13 +100,39 @@ def test_a_failed_write_of_several_files_leaves_no_file_and_no_folder_it_made(tm
     assert sorted(p.name for p in folder.iterdir()) == ["a.txt", "b.txt"]
 
 
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may delete in any folder")
 def test_an_orphan_that_cannot_be_removed_is_left(tmp_path):
-    """A folder named like a temporary file of out.txt is not deleted (nor is anything raised)."""
+    """In a folder this process may not write in, the orphan stays and nothing is raised."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    (folder / "out.txt").write_text("x")
+    (folder / ".out.txt.abcdefgh.tmp").write_text("half")
+    folder.chmod(0o500)
+    try:
+        assert remove_orphan_temp_files(folder / "out.txt") == []
+        assert (folder / ".out.txt.abcdefgh.tmp").read_text() == "half"
+    finally:
+        folder.chmod(0o700)
+
+
+def test_a_write_that_fails_on_the_text_leaves_the_old_file_and_no_temporary_one(tmp_path):
     path = tmp_path / "out.txt"
-    path.write_text("x")
-    (tmp_path / ".out.txt.abcdefgh.tmp").mkdir()
-    assert remove_orphan_temp_files(path) == []
-    assert (tmp_path / ".out.txt.abcdefgh.tmp").is_dir()
+    path.write_text("old")
+    with pytest.raises(UnicodeEncodeError):
+        write_text_atomic(path, "bad \ud800")
+    assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write in any folder")
+def test_a_folder_without_write_permission_is_refused(tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        with pytest.raises(OutputFileError, match="no permission to write in"):
+            check_output(folder / "out.json")
+    finally:
+        folder.chmod(0o700)
 
 
 # -- behaviour: a killed writer, a reader beside a writer ----------------------------------------
