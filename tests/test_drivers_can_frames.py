@@ -144,6 +144,20 @@ def test_the_batch_path_takes_ids_beyond_11_bits_as_no_position():
     assert np.isnan(mm[[0, 1, 2, 4]]).all() and mm[3] == 1.234
 
 
+def test_a_remote_frame_on_a_position_id_is_no_position():
+    """A remote request (RTR) with a TPDO's id carries no data: not a position, not an error."""
+    dec = _decoder("UNSIGNED32")
+    rtr = can.Message(arbitration_id=0x2A1, is_remote_frame=True, dlc=4, is_extended_id=False)
+    assert dec.decode(rtr) is None
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3])
+def test_a_tpdo_shorter_than_four_bytes_is_refused(n):
+    dec = _decoder("UNSIGNED32")
+    with pytest.raises(EncoderError, match=f"sent a {n}-byte TPDO2"):
+        dec.decode(_frame(1, bytes(range(1, n + 1))))
+
+
 @pytest.mark.parametrize("leg", range(1, 7))
 def test_a_short_tpdo_names_its_own_leg(leg):
     dec = TpdoDecoder(_config([0.0] * 6, [1, -1, 1, -1, 1, -1]))
