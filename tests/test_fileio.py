@@ -38,12 +38,13 @@ def test_new_file_mode_follows_umask(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
 
 
-def test_existing_mode_kept(tmp_path):
+@pytest.mark.parametrize("mode", [0o600, 0o755, 0o641])
+def test_existing_mode_kept(tmp_path, mode):
     p = tmp_path / "b.txt"
     p.write_text("old")
-    p.chmod(0o600)
+    p.chmod(mode)
     write_text_atomic(p, "new")
-    assert p.read_text() == "new" and p.stat().st_mode & 0o777 == 0o600
+    assert p.read_text() == "new" and p.stat().st_mode & 0o777 == mode
 
 
 @pytest.mark.parametrize(
@@ -57,14 +58,16 @@ def test_existing_mode_kept(tmp_path):
         (errno.EROFS, "{folder} is on a read-only file system"),
         (errno.ENOSPC, "the disk is full; free some space"),
         (errno.EDQUOT, "the disk quota is exceeded"),
-        (errno.EIO, "cannot be written ("),
+        (errno.EIO, "cannot be written ({why}); check the path and its folder"),
     ],
 )
 def test_each_os_error_is_said_in_the_users_terms(tmp_path, code, words):
     """The error names the user's path and what to do, one sentence per cause."""
     path = tmp_path / "missing" / "out.json" if code == errno.ENOENT else tmp_path / "out.json"
-    message = str(write_error(OSError(code, os.strerror(code)), path))
-    assert message.startswith(f"{path}: ") and words.format(folder=path.parent) in message
+    error = write_error(OSError(code, os.strerror(code)), path)
+    message = str(error)
+    assert error.path == path and message.startswith(f"{path}: ")
+    assert words.format(folder=path.parent, why=os.strerror(code)) in message
     others = [w for c, w in WORDS.items() if c != code and w not in words]
     assert not any(w in message for w in others), message
 
@@ -86,6 +89,17 @@ def test_only_a_missing_file_or_folder_is_said_to_be_missing(tmp_path):
     assert "no permission to write in" in message and "does not exist" not in message
 
 
+def test_check_output_takes_a_file_to_replace_and_a_folder_to_make(tmp_path):
+    """A file that exists may be replaced (the caller's rule, not check_output's); an output
+    folder that does not exist yet is made later, in a parent that does."""
+    existing = tmp_path / "out.json"
+    existing.write_text("{}")
+    check_output(existing)
+    check_output(tmp_path / "new-folder", folder=True)
+    with pytest.raises(OutputFileError, match="is a file, but a folder is wanted"):
+        check_output(existing, folder=True)
+
+
 def test_a_failed_write_of_several_files_leaves_no_file_and_no_folder_it_made(tmp_path):
     """A text that cannot be encoded (a lone surrogate) fails the second file before any
     rename: neither file is there, nor the two folders the call made; the folder that was
@@ -98,6 +112,8 @@ def test_a_failed_write_of_several_files_leaves_no_file_and_no_folder_it_made(tm
     write_files_atomic(folder, {"a.txt": "fine", "b.txt": "also"})
     assert (folder / "a.txt").read_text() == "fine" and (folder / "b.txt").read_text() == "also"
     assert sorted(p.name for p in folder.iterdir()) == ["a.txt", "b.txt"]
+    write_files_atomic(folder, {"a.txt": "again"})  # into a folder that exists
+    assert (folder / "a.txt").read_text() == "again"
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root may delete in any folder")
