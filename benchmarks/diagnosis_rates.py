@@ -334,6 +334,17 @@ def summarise(rows: list[dict]) -> dict:
     return summary
 
 
+def run_key(key: str, seeds: range) -> list[dict]:
+    """The rows of one case of the summary (``key`` as :func:`summarise` names it) over
+    ``seeds``, in this process: for a check at a count CI affords (tests/test_rates.py)."""
+    case, _, size = key.partition(" (")
+    if case in JOINT_SIZES:
+        scale = float(size.removesuffix(" mm)"))
+    else:
+        scale = 0.3 if size == "0.3× size)" else 1.0
+    return [run_one((case, seed, scale)) for seed in seeds]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sessions", type=int, default=50)

@@ -52,7 +52,13 @@ from pathlib import Path
 from typing import Any
 
 import canopen
-from canopen.objectdictionary import SIGNED_TYPES, ObjectDictionaryError, ODVariable
+from canopen.objectdictionary import (
+    INTEGER32,
+    UNSIGNED32,
+    ObjectDictionaryError,
+    ODVariable,
+    datatypes,
+)
 
 from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig, tpdo_cob_id
 from hexcal.drivers.can_sdo import ABORT_READ_ONLY, EncoderConfigError, SdoAccess, where
@@ -83,6 +89,12 @@ OPERATING_PARAMETERS, TOTAL_RANGE, PRESET, POSITION, LINEAR_STEP = (
 )
 #: A TPDO COB-ID's bits: 31 PDO invalid, 30 no RTR allowed.
 PDO_INVALID, RTR_NOT_ALLOWED = 0x80000000, 0x40000000
+#: CiA 301 data type codes → their names, for messages.
+_TYPE_NAMES = {
+    getattr(datatypes, n): n
+    for n in dir(datatypes)
+    if n.isupper() and isinstance(getattr(datatypes, n), int) and not n.endswith("TYPES")
+}
 #: 0x6004 (32 bits, sub-index 0) as a PDO mapping entry.
 POSITION_ENTRY = 0x60040020
 #: The SYNC counter overflow values CiA 301 allows: 0 (no counter) or 2..240.
@@ -371,7 +383,20 @@ def _position_type(node: Any, sdo: SdoAccess) -> str:
             sdo.leg.leg,
             sdo.leg.node_id,
         )
-    return "INTEGER32" if od is None or od.data_type in SIGNED_TYPES else "UNSIGNED32"
+    if od is None or od.data_type == INTEGER32:
+        return "INTEGER32"
+    if od.data_type == UNSIGNED32:
+        return "UNSIGNED32"
+    # Mapped as 32 bits and read as one of the two: any other type would be decoded as
+    # something it is not (a 16-bit position's neighbour bytes, a REAL32's bit pattern).
+    raise EncoderConfigError(
+        f"{sdo.leg.name}: 0x{POSITION:04X} (position value) is "
+        f"{_TYPE_NAMES.get(od.data_type, f'data type 0x{od.data_type:04X}')} in its EDS; hexcal "
+        "reads a 32-bit position (INTEGER32 or UNSIGNED32, as CiA 406 types it) — give the "
+        "vendor's EDS (can.eds in the rig file), or set the device to a 32-bit position",
+        sdo.leg.leg,
+        sdo.leg.node_id,
+    )
 
 
 def configure_node(

@@ -439,15 +439,23 @@ class MockEncoderNodes(Device):
                     )
                 )
 
-    def _counts(self, enc: Encoder, reading_mm: float) -> int:
-        """A reading as the node's 0x6004 value: counts, clipped or wrapped as its type is."""
+    def _counts(self, enc: Encoder, reading_mm: float) -> int | float:
+        """A reading as the node's 0x6004 value: counts, clipped or wrapped as its type is
+        (INTEGER32 clips; an unsigned type wraps at 0x6002 or its own range; a shorter signed
+        type wraps at its own; a REAL type carries the counts as a number)."""
         cfg = self.config.leg(enc.leg)
         counts = cfg.mm_to_counts(reading_mm)
         od = _position_variable(enc.node)
-        if od.data_type == canopen.objectdictionary.UNSIGNED32:
-            span = enc.value(0x6002, default=0)
-            return counts % (span or 2**32)
-        return min(max(counts, -(2**31)), 2**31 - 1)
+        kind = od.data_type
+        if kind in canopen.objectdictionary.FLOAT_TYPES:
+            return float(counts)
+        bits = len(od)
+        if kind == canopen.objectdictionary.INTEGER32:
+            return min(max(counts, -(2**31)), 2**31 - 1)
+        if kind in canopen.objectdictionary.SIGNED_TYPES:
+            return (counts + 2 ** (bits - 1)) % 2**bits - 2 ** (bits - 1)
+        span = enc.value(0x6002, default=0) if bits == 32 else 0
+        return counts % (span or 2**bits)
 
     def _pdo_data(self, enc: Encoder, n: int, reading_mm: float) -> bytes:
         """TPDO ``n``'s payload: its mapped objects, 0x6004 from ``reading_mm``."""

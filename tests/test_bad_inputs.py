@@ -1,11 +1,11 @@
 """Regression corpus: the nested, huge, non-finite and undecodable inputs a fuzzing campaign
 found, as small files in tests/data/bad_inputs/ (the large ones are generated here). Each is
-refused by its reader's own error, in bounded time, with a message that names the file and the
-field or line and says what to do."""
+refused by its reader's own error with a message that names the file and the field or line and
+says what to do. How long each refusal takes (milliseconds; a quadratic or runaway parse would
+show) is measured by benchmarks/bad_input_refusal.py, not asserted here."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
@@ -21,8 +21,6 @@ from hexcal.procedure.session import SessionFileError, load_session
 from hexcal.procedure.steps import ProcedureError, load_procedure
 
 BAD = Path(__file__).parent / "data" / "bad_inputs"
-#: Every refusal below takes milliseconds; the bound catches a quadratic or runaway parse.
-BOUND_S = 5.0
 
 
 def read_predict_table(path: Path) -> None:
@@ -110,12 +108,9 @@ CASES = {
 
 def _refused(path: Path, kind: str) -> str:
     read, error = READERS[kind]
-    start = time.perf_counter()
     with pytest.raises(error) as info:
         read(path)
-    elapsed = time.perf_counter() - start
     message = str(info.value)
-    assert elapsed < BOUND_S, f"{path.name}: {elapsed:.1f} s"
     assert str(path) in message, message
     assert "errors.pydantic.dev" not in message and "np.float64" not in message, message
     return message

@@ -28,8 +28,11 @@ def _record(pauses: list[float]) -> list:
             time.sleep(pause)
             try:
                 pose = live.acquisition.record()
-            except PoseRefused as exc:  # a host too busy for the devices' threads
-                pytest.skip(f"the host was too busy for the simulated devices: {exc}")
+            except PoseRefused as exc:
+                # No refusal is expected here: the platform is still and the devices are
+                # mocks. A refusal is a failure, whatever its reason (a timing fault the
+                # drivers flag on a loaded host included: re-run alone to tell the two apart).
+                pytest.fail(f"pose {len(out) + 1} refused on the still mock rig: {exc}")
             out.append(
                 (
                     pose.position,
