@@ -1,7 +1,7 @@
 """by_force: the unexplained residual of measurements.csv (184 poses) follows the axial leg
 force holding the platform's weight. Written by hexcal diagnose: along it, a step at its
-sign change on every leg explains 100 % of the excess over the noise floor on held-out
-poses (held-out RMS 13.51 → 10.27 µm once added); the shape's constant is left to the
+sign change on every leg explains 94 % of the excess over the noise floor on held-out
+poses (held-out RMS 13.51 → 10.49 µm once added); the shape's constant is left to the
 leg offsets. Loaded as it is, it is that shape; edit it to the physics you suspect (a
 formula in place of the shape, fewer parameters, a plausible range), then pass the file
 back and add the effect:
