@@ -780,25 +780,3 @@ def export(session: Any, out: Path | str) -> list[str]:
     from hexcal.procedure.session import export_session
 
     return export_session(session, out)
-
-
-def plan_session(
-    inp: Inputs,
-    model: ModelKind,
-    added: Sequence[str],
-    n_poses: int,
-    separate: tuple[str, str] | None = None,
-    resolve: str | None = None,
-    seed: int = 0,
-) -> Any:
-    """The poses that decide (:func:`hexcal.diagnosis.plan.plan_poses`) for a session with
-    ``added`` effects in the model (and a calibrated model's own), as ``hexcal plan`` and the
-    text UI ask for them."""
-    from hexcal.diagnosis.plan import plan_poses
-    from hexcal.estimate.effect_fit import Problem
-
-    base = ("offset",) if model == ModelKind.M42 else ()
-    effects = tuple(dict.fromkeys((*base, *inp.model_effects, *added)))
-    problem = Problem.build(inp.meas, inp.design, inp.sigmas)
-    rng = np.random.default_rng(seed)
-    return plan_poses(problem, effects, n_poses, separate, resolve, rng)

@@ -307,9 +307,10 @@ def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tup
 @contextlib.contextmanager
 def lead_effect(problem: Problem, lead: Lead) -> Iterator[str]:
     """The lead registered as an effect (its name) for as long as the block runs."""
-    name = lead.effect_name
-    while name in CATALOGUE:
-        name = name[:37] + "_" + str(int(name.rsplit("_", 1)[-1]) + 1 if name[-1].isdigit() else 2)
+    name, n = lead.effect_name, 1
+    while name in CATALOGUE:  # a file of the same name is loaded already
+        n += 1
+        name = f"{lead.effect_name[:36]}_{n}"
     eff = ExploredEffect(name, lead.covariate.name, lead.shape)
     eff.physics = f"a shape along the {lead.covariate.label}"
     eff.separating_motion = f"poses spreading the {lead.covariate.label} over its range"
@@ -453,6 +454,8 @@ def _scoped(
                 variants.append((shape.with_legs(tuple(legs), shared=True), full.map(summed)))
     out = []
     for s, st in variants:
+        if cov.name.startswith("stroke_leg") and s.legs == (int(cov.name[-1]),):
+            continue  # leg J along its own reading: the stroke's shape, tried there already
         score = st.score()
         threshold = float(chi2_isf(EXPLORE_ALPHA / tests, s.n_params))
         lead = Lead(cov, values, s, score, threshold, float("nan"), float("nan"))

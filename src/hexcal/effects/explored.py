@@ -163,17 +163,19 @@ def line(values: np.ndarray, shared: bool = False) -> Shape:
 
 
 def spline(values: np.ndarray, n_knots: int, shared: bool = False) -> Shape:
-    """A cubic B-spline with ``n_knots`` interior knots per leg, halfway between the quantiles
-    of the leg's values (M, 6) and even spacing over their range: dense where the poses are,
-    never on top of each other (a clamped leg repeats one reading over a whole step)."""
+    """A cubic B-spline with ``n_knots`` interior knots per leg, at the quantiles of the leg's
+    distinct values (M, 6): dense where the poses are, so that every basis function holds
+    poses on either side of a fold (a knot where few poses are left a column held-out folds
+    could not fit), and never on top of each other (a clamped leg repeats one reading over a
+    whole step: its repeats count once)."""
     lo, hi = _ranges(values, shared)
     grid = np.linspace(0.0, 1.0, n_knots + 2)[1:-1]
-    pooled = values.reshape(-1, 1) if shared else values
-    quant = np.quantile(pooled, grid, axis=0).T if n_knots else np.zeros((pooled.shape[1], 0))
+    columns = [values.reshape(-1)] if shared else [values[:, k] for k in range(6)]
+    knots = np.array(
+        [np.quantile(np.unique(u), grid) if n_knots else np.zeros(0) for u in columns]
+    ).reshape(len(columns), n_knots)
     if shared:
-        quant = np.repeat(quant, 6, axis=0)
-    even = lo[:, None] + grid[None, :] * (hi - lo)[:, None]
-    knots = 0.5 * (quant + even)
+        knots = np.repeat(knots, 6, axis=0)
     return Shape("spline", shared=shared, lo=_t(lo), hi=_t(hi), knots=tuple(_t(r) for r in knots))
 
 

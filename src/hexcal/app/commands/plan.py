@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from hexcal.app.commands.common import (
     POSITIVE_COUNT,
@@ -53,7 +55,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hexcal.app.workflow import plan_session, refuse_overwrite
+    from hexcal.app.workflow import refuse_overwrite
     from hexcal.io import json_out
     from hexcal.io.measurements import write_measurements
     from hexcal.vocabulary import ModelKind
@@ -115,3 +117,27 @@ def plan_lines(plan) -> list[str]:
             f"  random reachable poses needed to match the plan: {more}",
         ]
     return lines + [f"note: {t}" for t in plan.notes]
+
+
+def plan_session(
+    inp: Any,
+    model: Any,
+    added: Sequence[str],
+    n_poses: int,
+    separate: tuple[str, str] | None = None,
+    resolve: str | None = None,
+    seed: int = 0,
+) -> Any:
+    """The poses that decide (:func:`hexcal.diagnosis.plan.plan_poses`) for a session with
+    ``added`` effects in the model (and a calibrated model's own)."""
+    import numpy as np
+
+    from hexcal.diagnosis.plan import plan_poses
+    from hexcal.estimate.effect_fit import Problem
+    from hexcal.vocabulary import ModelKind
+
+    base = ("offset",) if model == ModelKind.M42 else ()
+    effects = tuple(dict.fromkeys((*base, *inp.model_effects, *added)))
+    problem = Problem.build(inp.meas, inp.design, inp.sigmas)
+    rng = np.random.default_rng(seed)
+    return plan_poses(problem, effects, n_poses, separate, resolve, rng)
