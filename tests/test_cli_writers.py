@@ -85,7 +85,9 @@ def _writers(d: Path, inp: Path) -> dict[str, tuple[list[str], str]]:
             "p.csv",
         ),
         "export linuxcnc": (
-            ["export", "linuxcnc", str(inp / "cal.json"), "--out", f"{d}/lx"],
+            # The homing said and the drawing's home carried over (the export asks for both).
+            ["export", "linuxcnc", str(inp / "cal.json"), "--out", f"{d}/lx"]
+            + ["--encoders", "absolute", "--drawing", R],
             "lx/",
         ),
         "export table": (["export", "table", str(inp / "cal.json"), "--out", f"{d}/tab"], "tab/"),
