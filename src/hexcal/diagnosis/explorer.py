@@ -86,6 +86,8 @@ class Lead:
     fitted: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
     heldout_se: float = 0.0  #: the held-out figure's standard error (the folds' spread)
+    #: (K,) the χ² it removes from each held-out fold, over the noise level
+    folds: np.ndarray | None = None
 
     @property
     def columns(self) -> int:
@@ -362,10 +364,10 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
         rows.sort(key=lambda row: -row[0])
         for _, lead, st in rows[:N_CV]:
             folds = st.heldout_folds()
-            lead.heldout = float(folds.sum())
+            lead.heldout, lead.folds = float(folds.sum()), folds
             lead.heldout_se = float(np.std(folds, ddof=1) * np.sqrt(len(folds)))
             lead.share = float(lead.heldout * level / excess) if excess > 0 else float("nan")
-        best[name] = max((lead for _, lead, _ in rows[:N_CV]), key=lambda t: t.ranked_by)
+        best[name] = _plainest([lead for _, lead, _ in rows[:N_CV]])
     tested = _ranked(list(best.values()), problem, fit)
     out = Exploration(tested, level)
     _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
@@ -377,6 +379,34 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
     for t in out.leads:
         t.notes += _default_notes(problem, t.covariate)
     return out
+
+
+def _plainest(leads: list[Lead]) -> Lead:
+    """One covariate's shape by the one-standard-error rule of cross-validation (Breiman et
+    al., *Classification and Regression Trees*, 1984, §3.4.3; Hastie, Tibshirani & Friedman,
+    *The Elements of Statistical Learning*, §7.10), on the paired folds: of the shapes whose
+    held-out χ² falls short of the best's by at most the standard error of that difference
+    (fold by fold, the same poses held out), the one with the fewest effective parameters — a
+    step's split and a period, searched, count as one more each — the better held-out χ² among
+    equals. A step on four legs at their own places (8) then leads an 11-knot spline (56) that
+    predicts held-out poses no better, and a load's sign (1 a leg) a step at its zero (2)."""
+    top = max(leads, key=lambda t: t.heldout)
+
+    def near(t: Lead) -> bool:
+        if t is top or t.folds is None or top.folds is None:
+            return t is top
+        diff = top.folds - t.folds
+        return bool(diff.sum() <= np.std(diff, ddof=1) * np.sqrt(len(diff)))
+
+    return min((t for t in leads if near(t)), key=lambda t: (_effective(t), -t.heldout))
+
+
+def _effective(lead: Lead) -> int:
+    """The lead's parameters, with each searched split or period counted as one."""
+    s = lead.shape
+    if s.kind == "step":
+        return s.n_params + len(s.legs)
+    return s.n_params + (s.kind == "periodic")
 
 
 def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
@@ -434,19 +464,24 @@ def _scoped(
     """``shape`` on every leg, and on the legs whose own score exceeds the per-leg threshold
     (a dent or a binding joint is one leg's: a shape on six legs would spend five legs'
     parameters on noise), with their own coefficients and sharing one set; each judged
-    against the family-wise threshold. A shared shape is scored on every leg only."""
+    against the family-wise threshold. A shared shape is scored on every leg only. Leg J's
+    stroke (``stroke_legJ``) is tried on the five other legs only."""
     per = shape.per_leg
     full = scorer.stats(_own_columns(shape, values))
     eye = np.eye(6 * per)
     blocks = [eye[:, k * per : (k + 1) * per] for k in range(6)]
-    total = np.sum(blocks, axis=0)  # (6 per, per): one coefficient set shared by the six legs
+    # Leg J's error along its own reading is the stroke's shape, tried there: another leg's
+    # stroke is tried on the five others (cross-talk), so that one quantity has one place.
+    allowed = tuple(k for k in range(1, 7) if cov.name != f"stroke_leg{k}")
+    whole = shape if len(allowed) == 6 else shape.with_legs(allowed)
     if shape.shared:
-        variants = [(shape, full.map(total))]
+        variants = [(whole, full.map(np.sum([blocks[k - 1] for k in allowed], axis=0)))]
     else:
-        variants = [(shape, full)]
+        sel = np.concatenate([blocks[k - 1] for k in allowed], axis=1)
+        variants = [(whole, full if len(allowed) == 6 else full.map(sel))]
         leg_threshold = float(chi2_isf(EXPLORE_ALPHA / (6 * tests), per))
-        legs = [k + 1 for k in range(6) if full.map(blocks[k]).score() > leg_threshold]
-        if 0 < len(legs) < 6:
+        legs = [k for k in allowed if full.map(blocks[k - 1]).score() > leg_threshold]
+        if 0 < len(legs) < len(allowed):
             sel = np.concatenate([blocks[leg - 1] for leg in legs], axis=1)
             variants.append((shape.with_legs(tuple(legs)), full.map(sel)))
             if len(legs) > 1:
@@ -454,8 +489,6 @@ def _scoped(
                 variants.append((shape.with_legs(tuple(legs), shared=True), full.map(summed)))
     out = []
     for s, st in variants:
-        if cov.name.startswith("stroke_leg") and s.legs == (int(cov.name[-1]),):
-            continue  # leg J along its own reading: the stroke's shape, tried there already
         score = st.score()
         threshold = float(chi2_isf(EXPLORE_ALPHA / tests, s.n_params))
         lead = Lead(cov, values, s, score, threshold, float("nan"), float("nan"))
