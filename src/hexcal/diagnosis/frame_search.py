@@ -9,7 +9,8 @@ projected out) says how much χ² the move would remove; the best split is a fra
 score exceeds the Bonferroni-corrected χ²(6) threshold over the splits (:data:`FRAME_ALPHA`).
 One leg's step alone is not a move: the move's five more parameters must explain what the best
 single leg's step at the same split does not. What the move removes beyond the same move
-drifting smoothly in time (:func:`_move_beyond_smooth`) is reported with it; whether the step,
+drifting smoothly in time (:func:`_move_beyond_smooth`) must pass the same threshold, or the
+move is a curve, not a step (a stand settling, uneven warm-up); whether the step,
 a steady drift (the catalogue's ``drift``) or one leg's zero step tells the story is then
 the verdict's (each is scored, refitted and compared as an effect): a knocked tracker moves
 six legs with six parameters, where six zero steps need twelve.
@@ -157,6 +158,10 @@ def search_frame(
         return None
     i = int(splits[j])
     smooth = _move_beyond_smooth(pp, problem, j6, i)
+    # A step is named only where it beats a smooth curve of the same series: a stand settling
+    # or a tracker warming up (a drift already in the model leaving its curvature) is a curve.
+    if not smooth > threshold:
+        return None
     c = -coef[j, :, 0]
     return FrameChange(
         i,
