@@ -4,6 +4,7 @@ no less precise than the direct forms they start from."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.optimize import least_squares
 from test_solvers_paper import K
 
@@ -41,6 +42,58 @@ def test_type_i_matches_least_squares(truth, rng):
     # Weights frozen at the solution, as the Gauss-Newton loop has them at convergence.
     sol = least_squares(fun, np.concatenate([b0, a0, u0]), xtol=1e-14, ftol=1e-14)
     assert_same_optimum(sol, np.concatenate([b, a]), slice(0, 6))
+
+
+def test_type_i_nested_is_each_counts_optimum_at_the_pilots_weights(truth, rng):
+    """Each count's fit is the minimum of its first poses' cost on |u| = 1 with the weights
+    held at the pilot (scipy's least_squares on the same cost, u normalised inside)."""
+    sim = _sim(truth)
+    P, R, rho = sim.measure(rng, *sim.type_i(K, (9,), rng))
+    length = rho[:, K] + truth.offsets[K]
+    counts = [5, 9]
+    b0, a0, u0 = direct.type_i_direct(P[:5], R[:5], length[:5])
+    b, a, _u = weighted.refine_type_i_nested(P, R, length, counts, b0, u0, SIG)
+    pilot_u = u0 / np.linalg.norm(u0)
+    cov = _point_cov(R, b0, SIG) + SIG.reading_mm**2 * np.outer(pilot_u, pilot_u)
+    whiten = np.linalg.inv(np.linalg.cholesky(cov))
+    for c, n in enumerate(counts):
+
+        def fun(x, n=n):
+            res = (
+                P[:n] + R[:n] @ x[:3] - x[3:6] - length[:n, None] * x[6:9] / np.linalg.norm(x[6:9])
+            )
+            return np.einsum("nij,nj->ni", whiten[:n], res).ravel()
+
+        sol = least_squares(fun, np.concatenate([b0, a0, u0]), xtol=1e-14, ftol=1e-14)
+        assert_same_optimum(sol, np.concatenate([b[c], a[c]]), slice(0, 6))
+
+
+def test_type_i_nested_agrees_with_the_reweighted_fit(truth, rng):
+    """Weights held at the first count's direct estimate instead of re-evaluated at each
+    count's own (the reweighted fit run to convergence), over 2000 trials at the study's noise:
+    a coordinate of b or a moves by 0.02–0.16 % of its spread in the median trial and at most
+    3.6 % in the 99th percentile (measured), the mean squared errors by 0.1 % (2 % at N = 4,
+    where a reweighted fit stops at a higher cost than the nested one finds). The bounds
+    below are three times those; a fit one Gauss–Newton step short of its optimum moves by
+    tens of per cent, a wrong root of the secular equation by hundreds."""
+    noise = NoiseModel(0.1, 0.01, 0.1)
+    sim = Simulator(truth, noise=noise)
+    sig = NoiseSigmas(noise.sigma_position_mm, noise.sigma_orientation_rad, noise.sigma_reading_mm)
+    P, R, rho = sim.measure(rng, *sim.type_i(K, (2000, 12), rng))
+    length = rho[..., K] + truth.offsets[K]
+    counts = np.array([4, 5, 8, 12])
+    b0, a0, u0 = direct.type_i_direct(P, R, length, counts)
+    b, a, _u = weighted.refine_type_i_nested(P, R, length, counts, b0[:, 0], u0[:, 0], sig)
+    for c, n in enumerate(counts):
+        fit = weighted.refine_type_i(
+            P[:, :n], R[:, :n], length[:, :n], b0[:, c], a0[:, c], u0[:, c], sig, iterations=6
+        )
+        for mine, theirs, true in ((b[:, c], fit[0], truth.b[K]), (a[:, c], fit[1], truth.a[K])):
+            moved = np.abs(mine - theirs) / np.std(theirs - true, axis=0)
+            assert np.median(moved, axis=0).max() < 0.005, n
+            assert np.quantile(moved, 0.99, axis=0).max() < 0.1, n
+            mse = np.mean(np.sum((mine - true) ** 2, axis=-1))
+            assert mse == pytest.approx(np.mean(np.sum((theirs - true) ** 2, axis=-1)), rel=0.06)
 
 
 def test_type_iii_matches_least_squares(truth, rng):

@@ -7,8 +7,10 @@ Two designs (``StudyConfig.nested``):
 * **nested** (the default): each trial draws one pose set of the largest N, and the set of N
   poses is its first N — common random numbers across N. The linear methods and the bounds
   are sums over the poses, so every N is solved from running sums of one set
-  (``counts`` in :mod:`hexcal.estimate.solvers`, :mod:`hexcal.estimate.bound`); the
-  refinements run N by N on the leading poses (views, nothing copied). §3.3's Type II set of
+  (``counts`` in :mod:`hexcal.estimate.solvers`, :mod:`hexcal.estimate.bound`), and so is
+  the Type I refinement, its weights held at the first N's estimate
+  (:func:`~hexcal.estimate.solvers.weighted.refine_type_i_nested`); the other refinements
+  run N by N on the leading poses (views, nothing copied). §3.3's Type II set of
   N1 poses is drawn once per trial and serves every N of its Type III set.
 * **independent** (the paper's own): a new pose set for every N and trial, as drawn before the
   nested design (the same draws for the same seed).
@@ -218,16 +220,17 @@ def sweep_type_i(config: StudyConfig, robot: Robot, rng: np.random.Generator) ->
                 "bound_a": _trace_mean(cov, slice(3, 6)),
                 "bound_b": _trace_mean(cov, slice(0, 3)),
             }
+        b_r, a_r = b_d, a_d
+        if sw.noisy:
+            # Every count's fit from one running sum, weighted at the first count's estimate.
+            b_r, a_r, _ = weighted.refine_type_i_nested(
+                P, R, length, counts, b_d[:, 0], u_d[:, 0], sw.sig
+            )
         for i, n in enumerate(counts):
-            b_r, a_r = b_d[:, i], a_d[:, i]
-            if sw.noisy:
-                b_r, a_r, _ = weighted.refine_type_i(
-                    P[:, :n], R[:, :n], length[:, :n], b_r, a_r, u_d[:, i], sw.sig
-                )
             at = {key: float(v[i]) for key, v in bounds.items()}
             sw.add("type_i", n, "paper", a_p[:, i], b_p[:, i], **at)
             sw.add("type_i", n, "direct", a_d[:, i], b_d[:, i], **at)
-            sw.add("type_i", n, "refined", a_r, b_r, **at)
+            sw.add("type_i", n, "refined", a_r[:, i], b_r[:, i], **at)
     return sw.rows
 
 

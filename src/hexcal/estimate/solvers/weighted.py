@@ -122,6 +122,79 @@ def refine_type_i(P, R, length, b0, a0, u0, sig: NoiseSigmas, iterations: int = 
     return b, a, u
 
 
+def refine_type_i_nested(P, R, length, counts, b0, u0, sig: NoiseSigmas):
+    """The weighted Type I fit of the first counts[c] poses of each set at once: (b, a, u)
+    each (..., C, 3). P (..., n, 3) mm, R (..., n, 3, 3), length (..., n) mm, counts (C,)
+    increasing; the weights are each pose's covariance at a pilot (b0, u0) (..., 3) that the
+    caller takes from the first counts[0] poses, so that no count's fit sees a later pose.
+
+    The residual ``P_i + R_i b − a − ρ_i u`` is linear in x = (b, a, u), so with the weights
+    held the cost ``Σ rᵢᵀ Wᵢ rᵢ`` is a quadratic form whose sums over the poses cumulate: every
+    count's form is read off one running sum, and minimised exactly on |u| = 1 (b and a
+    eliminated, then the trust-region secular equation of the 3×3 form in u, solved by Newton
+    on 1/|u(μ)|; Moré & Sorensen 1983). It is the fixed point of
+    :func:`refine_type_i` but for the weights' point; a weight moves by about σ_u (mrad) from
+    one to the other, which changes the estimate by less than a hundredth of its spread
+    (tests/test_solvers_weighted.py)."""
+    from hexcal.estimate.solvers.direct import type_i_system
+
+    counts = np.asarray(counts, int)
+    n = int(counts[-1])
+    P, R, length = P[..., :n, :], R[..., :n, :, :], length[..., :n]
+    u0 = u0 / np.linalg.norm(u0, axis=-1, keepdims=True)
+    w = _inv3_sym(_point_cov(R, b0, sig) + sig.reading_mm**2 * _outer(u0)[..., None, :, :])
+    m, y = type_i_system(P, R, length)  # (..., 3n, 9), (..., 3n)
+    m = m.reshape(*P.shape[:-1], 3, 9)
+    wm = w @ m  # (..., n, 3, 9)
+    mt = np.swapaxes(m, -1, -2)
+    at = counts - 1
+    A = (mt @ wm).cumsum(axis=-3)[..., at, :, :]  # (..., C, 9, 9)
+    g = (np.swapaxes(wm, -1, -2) @ y.reshape(*P.shape, 1))[..., 0].cumsum(axis=-2)[..., at, :]
+    # b and a eliminated: the form in u alone, uᵀ Q u − 2 qᵀ u.
+    zz, zu, uu = A[..., :6, :6], A[..., :6, 6:], A[..., 6:, 6:]
+    sol = np.linalg.solve(zz, np.concatenate([zu, g[..., :6, None]], axis=-1))
+    Q = uu - np.swapaxes(zu, -1, -2) @ sol[..., :3]
+    q = g[..., 6:] - (np.swapaxes(zu, -1, -2) @ sol[..., 3:])[..., 0]
+    u = _on_unit_sphere(Q, q)
+    z = sol[..., 3] - np.einsum("...ij,...j->...i", sol[..., :3], u)
+    return z[..., :3], z[..., 3:6], u
+
+
+#: Newton steps of :func:`_on_unit_sphere` at most (five to rounding on the study's sets).
+NEWTON_STEPS = 40
+
+
+def _positive_definite(m: np.ndarray) -> np.ndarray:
+    """Whether each symmetric 3×3 matrix of m (..., 3, 3) is positive definite (its leading
+    minors, elementwise)."""
+    a, b, d = m[..., 0, 0], m[..., 0, 1], m[..., 1, 1]
+    return (a > 0) & (a * d - b * b > 0) & (np.linalg.det(m) > 0)
+
+
+def _on_unit_sphere(Q: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The minimiser u (..., 3) of ``uᵀ Q u − 2 qᵀ u`` on |u| = 1, Q (..., 3, 3) positive
+    definite: ``(Q + μ I) u = q`` with Q + μ I positive definite (Moré & Sorensen 1983).
+    Newton on ψ(μ) = 1/|u(μ)|, concave and increasing, converges from below the root without
+    passing it; a step from above that would leave Q + μ I indefinite is halved back."""
+    eye = np.eye(3)
+    mu = np.zeros(Q.shape[:-2])
+    for _ in range(NEWTON_STEPS):
+        inv = _inv3_sym(Q + mu[..., None, None] * eye)
+        u = np.einsum("...ij,...j->...i", inv, q)
+        un = np.sqrt(np.sum(u * u, axis=-1))
+        if np.all(np.abs(un - 1.0) < 1e-14):
+            break
+        dun = -np.einsum("...i,...ij,...j->...", u, inv, u) / un  # d|u|/dμ
+        step = -(un - 1.0) * un / dun  # Newton on ψ(μ) − 1
+        for _half in range(60):
+            bad = ~_positive_definite(Q + (mu + step)[..., None, None] * eye)
+            if not bad.any():
+                break
+            step[bad] *= 0.5
+        mu = mu + step
+    return np.einsum("...ij,...j->...i", _inv3_sym(Q + mu[..., None, None] * eye), q)
+
+
 def refine_type_ii(P, R, b0, c0, sig: NoiseSigmas, iterations: int = 1):
     """Weighted Type II fit: (b, C) each (..., 3). Linear once the weights are set from b."""
     b, c = b0.copy(), c0.copy()
