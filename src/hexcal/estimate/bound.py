@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hexcal.estimate.solvers.linalg import running_sums
 from hexcal.estimate.solvers.paper import Counts
 from hexcal.estimate.solvers.weighted import (
     _inv3_sym,
@@ -48,7 +49,7 @@ def _information(jac: np.ndarray, w: np.ndarray, counts: Counts = None) -> np.nd
     if counts is None:
         return _normal(jac, w, np.zeros(jac.shape[:-1]))[0]
     per_pose = np.einsum("...nqi,...nqj->...nij", jac, w @ jac)
-    return np.cumsum(per_pose, axis=-3)[..., np.asarray(counts) - 1, :, :]
+    return running_sums(per_pose, counts, axis=-3)
 
 
 def information_type_i(P, R, length, b, a, u, sig: NoiseSigmas, counts: Counts = None):

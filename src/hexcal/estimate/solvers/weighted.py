@@ -137,6 +137,7 @@ def refine_type_i_nested(P, R, length, counts, b0, u0, sig: NoiseSigmas):
     one to the other, which changes the estimate by less than a hundredth of its spread
     (tests/test_solvers_weighted.py)."""
     from hexcal.estimate.solvers.direct import type_i_system
+    from hexcal.estimate.solvers.linalg import running_sums
 
     counts = np.asarray(counts, int)
     n = int(counts[-1])
@@ -147,9 +148,8 @@ def refine_type_i_nested(P, R, length, counts, b0, u0, sig: NoiseSigmas):
     m = m.reshape(*P.shape[:-1], 3, 9)
     wm = w @ m  # (..., n, 3, 9)
     mt = np.swapaxes(m, -1, -2)
-    at = counts - 1
-    A = (mt @ wm).cumsum(axis=-3)[..., at, :, :]  # (..., C, 9, 9)
-    g = (np.swapaxes(wm, -1, -2) @ y.reshape(*P.shape, 1))[..., 0].cumsum(axis=-2)[..., at, :]
+    A = running_sums(mt @ wm, counts, axis=-3)  # (..., C, 9, 9)
+    g = running_sums((np.swapaxes(wm, -1, -2) @ y.reshape(*P.shape, 1))[..., 0], counts, axis=-2)
     # b and a eliminated: the form in u alone, uᵀ Q u − 2 qᵀ u.
     zz, zu, uu = A[..., :6, :6], A[..., :6, 6:], A[..., 6:, 6:]
     sol = np.linalg.solve(zz, np.concatenate([zu, g[..., :6, None]], axis=-1))
