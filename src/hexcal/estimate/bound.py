@@ -111,7 +111,7 @@ def bound(information: np.ndarray) -> np.ndarray:
 
     The inverse of the well-posed ones is taken on the information scaled to a unit diagonal
     (their Cholesky factor tells them apart); the pseudo-inverse, an eigendecomposition, is
-    eight times slower and kept for the others (:data:`WELL_POSED_PIVOT`)."""
+    eight times slower and taken for the others only (:data:`WELL_POSED_PIVOT`)."""
     info = np.asarray(information, float)
     d = np.sqrt(np.abs(np.diagonal(info, axis1=-2, axis2=-1)))
     s = 1.0 / np.where(d > 0, d, 1.0)
@@ -123,7 +123,8 @@ def bound(information: np.ndarray) -> np.ndarray:
         well = np.zeros(info.shape[:-2], bool)
     if np.all(well):
         return np.linalg.inv(scaled) * (s[..., :, None] * s[..., None, :])
-    out = np.linalg.pinv(info, hermitian=True)
+    out = np.empty_like(info)
+    out[~well] = np.linalg.pinv(info[~well], hermitian=True)
     if np.any(well):
         out[well] = np.linalg.inv(scaled[well]) * (s[well][..., :, None] * s[well][..., None, :])
     return out

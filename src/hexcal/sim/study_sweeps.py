@@ -273,14 +273,17 @@ def sweep_type_iii(config: StudyConfig, robot: Robot, rng: np.random.Generator) 
                 "bound_b": _trace_mean(cov, slice(0, 3)),
                 "bound_off": (cov[..., 9, 9] + sw.sig.reading_mm**2 / counts).mean(axis=0),
             }
+        joint = None  # the joint fit of the N before: the next N's start (nested sets)
         for i, n in enumerate(counts):
             p, r, rk = P[:, :n], R[:, :n], r_k[:, :n]
             b_r, a_r, rad_r = bs["refined"], a_s[:, i], rad_s[:, i]
             if sw.noisy:
-                a_r, rad_r = weighted.refine_type_iii(p, r, b_r, a_r, rad_r, sw.sig)
-                b_r, _, a_r, rad_r = weighted.refine_type_ii_iii(
-                    P2, R2, p, r, b_r, c_r, a_r, rad_r, sw.sig
-                )
+                if joint is None:
+                    a_r, rad_r = weighted.refine_type_iii(p, r, b_r, a_r, rad_r, sw.sig)
+                    joint = (b_r, c_r, a_r, rad_r)
+                # Run to its optimum, the fit does not depend on its start but for rounding.
+                joint = weighted.refine_type_ii_iii(P2, R2, p, r, *joint, sw.sig)
+                b_r, _, a_r, rad_r = joint
             at = {key: float(v[i]) for key, v in bounds.items()}
             b_p, b_d = bs["paper"], bs["direct"]
             for method, a, b, off in (

@@ -56,10 +56,13 @@ def _point_cov(
     return cov
 
 
-def _point_var(R: np.ndarray, b: np.ndarray, n: np.ndarray, sig: NoiseSigmas) -> np.ndarray:
+def _point_var(
+    R: np.ndarray, b: np.ndarray, n: np.ndarray, sig: NoiseSigmas, rb: np.ndarray | None = None
+) -> np.ndarray:
     """nᵀ Σ n (..., N) mm² for unit vectors n (..., N, 3), Σ the covariance of B_i
-    (:func:`_point_cov`), without forming Σ: ``σp² + σθ² (|b|² − (n·R b)²)``."""
-    nrb = np.einsum("...i,...i->...", n, _rotated(R, b))
+    (:func:`_point_cov`), without forming Σ: ``σp² + σθ² (|b|² − (n·R b)²)`` (``rb``: R_i b
+    when the caller has it)."""
+    nrb = np.einsum("...i,...i->...", n, _rotated(R, b) if rb is None else rb)
     b2 = np.sum(b * b, axis=-1)[..., None]
     return sig.position_mm**2 + sig.orientation_rad**2 * (b2 - nrb**2)
 
@@ -226,11 +229,11 @@ def type_iii_rows(P, R, b, a, sig: NoiseSigmas):
     """Per-pose Type III pieces at (b, a): distance |v − a| (..., N), unit leg direction n
     (..., N, 3), the constraint's Jacobian on (b, a, r) (..., N, 1, 7) and its weight
     1 / var (..., N, 1, 1), with v = P + R b and var = nᵀ Σ_B n."""
-    v = P + _rotated(R, b)
-    d = v - a[..., None, :]
-    dist = np.linalg.norm(d, axis=-1)
+    rb = _rotated(R, b)
+    d = P + rb - a[..., None, :]
+    dist = np.sqrt(np.einsum("...i,...i->...", d, d))
     n = d / dist[..., None]
-    var = _point_var(R, b, n, sig)
+    var = _point_var(R, b, n, sig, rb)
     jac = np.concatenate(
         [np.einsum("...ni,...nij->...nj", n, R), -n, -np.ones((*dist.shape, 1))], axis=-1
     )[..., None, :]
@@ -242,6 +245,10 @@ def type_iii_rows(P, R, b, a, sig: NoiseSigmas):
 CONVERGED = 1e-12
 
 
+#: The columns of θ = (b, C, a, r) a Type III pose's row has: b, a and r.
+_TYPE_III = np.array([0, 1, 2, 6, 7, 8, 9])
+
+
 def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterations: int = 4):
     """The paper's §3.3 pose sets fitted together: a Type II set (``P2`` (..., N1, 3), ``R2``)
     and a Type III set (``P3`` (..., N, 3), ``R3``) of the same leg share its platform point b,
@@ -251,8 +258,7 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
     (..., 3), r (...,) from the Type III set. Returns (b, C, a, r)."""
     x = np.concatenate([b0, c0, a0, np.asarray(r0, float)[..., None]], axis=-1)
     eye = np.broadcast_to(np.eye(3), R2.shape)
-    zero2 = np.zeros((*R2.shape[:-1], 4))
-    j2 = np.concatenate([R2, -eye, zero2], axis=-1)  # (b, C, a, r) for Type II
+    j2 = np.concatenate([R2, -eye], axis=-1)  # Type II's rows on (b, C), the first 6 of θ
 
     def terms(x, at=slice(None)):
         """The residuals, weights, Type III Jacobian and cost at x (the batch members ``at``)."""
@@ -276,14 +282,19 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
     active = np.arange(len(x))
     for _ in range(iterations):
         res2, w2, j3, w3, res3, cost = (v[active] for v in now)
-        j3 = np.concatenate([j3[..., :3], np.zeros((*j3.shape[:-1], 3)), j3[..., 3:]], axis=-1)
-        jtj, jtr = _normal(j2[active], w2, res2)
-        jtj3, jtr3 = _normal(j3, w3, res3)
-        step = _solve_step(jtj + jtj3, jtr + jtr3)
+        # Each set's normal equations on its own unknowns, added into θ's: Type III's one row
+        # a pose is weighted by a product, not a 1×1 matrix product per pose.
+        jtj = np.zeros((len(active), 10, 10))
+        jtr = np.zeros((len(active), 10, 1))
+        jtj[:, :6, :6], jtr[:, :6] = _normal(j2[active], w2, res2)
+        jw3 = np.swapaxes(j3[..., 0, :] * w3[..., 0, :], -1, -2)  # (A, 7, N)
+        jtj[:, _TYPE_III[:, None], _TYPE_III] += jw3 @ j3[..., 0, :]
+        jtr[:, _TYPE_III] += jw3 @ res3
+        step = _solve_step(jtj, jtr)
         # A member whose step promises to lower its cost by less than CONVERGED of it is at
         # its minimum: its trial steps would only compare rounding errors (and be halved in
         # vain). It is left where it is, and no longer stepped.
-        gain = -np.einsum("bi,bi->b", (jtr + jtr3)[..., 0], step)
+        gain = -np.einsum("bi,bi->b", jtr[..., 0], step)
         moving = gain > CONVERGED * cost
         active, step = active[moving], step[moving]
         if not len(active):
