@@ -163,8 +163,11 @@ def refine_type_i_nested(P, R, length, counts, b0, u0, sig: NoiseSigmas):
     return z[..., :3], z[..., 3:6], u
 
 
-#: Newton steps of :func:`_on_unit_sphere` at most (five to rounding on the study's sets).
+#: Newton steps of :func:`_on_unit_sphere` at most (three or four on the study's sets).
 NEWTON_STEPS = 40
+#: How close to 1 :func:`_on_unit_sphere` brings |u|: rounding (the form's entries are
+#: ρ² / σ², 1e7–1e9, so that u's last digits are noise at 1e-14).
+UNIT = 1e-13
 
 
 def _positive_definite(m: np.ndarray) -> np.ndarray:
@@ -178,24 +181,32 @@ def _on_unit_sphere(Q: np.ndarray, q: np.ndarray) -> np.ndarray:
     """The minimiser u (..., 3) of ``uᵀ Q u − 2 qᵀ u`` on |u| = 1, Q (..., 3, 3) positive
     definite: ``(Q + μ I) u = q`` with Q + μ I positive definite (Moré & Sorensen 1983).
     Newton on ψ(μ) = 1/|u(μ)|, concave and increasing, converges from below the root without
-    passing it; a step from above that would leave Q + μ I indefinite is halved back."""
+    passing it; a step from above that would leave Q + μ I indefinite is halved back. Only the
+    members not yet at |u| = 1 (to :data:`UNIT`) are stepped."""
+    shape = q.shape
+    Q, q = Q.reshape(-1, 3, 3), q.reshape(-1, 3)
     eye = np.eye(3)
-    mu = np.zeros(Q.shape[:-2])
+    mu = np.zeros(len(q))
+    u = np.empty_like(q)
+    todo = np.arange(len(q))
     for _ in range(NEWTON_STEPS):
-        inv = _inv3_sym(Q + mu[..., None, None] * eye)
-        u = np.einsum("...ij,...j->...i", inv, q)
-        un = np.sqrt(np.sum(u * u, axis=-1))
-        if np.all(np.abs(un - 1.0) < 1e-14):
+        m, qt = Q[todo] + mu[todo, None, None] * eye, q[todo]
+        inv = _inv3_sym(m)
+        u[todo] = ut = np.einsum("...ij,...j->...i", inv, qt)
+        un = np.sqrt(np.sum(ut * ut, axis=-1))
+        going = np.abs(un - 1.0) > UNIT
+        todo, ut, un, inv, m = todo[going], ut[going], un[going], inv[going], m[going]
+        if not len(todo):
             break
-        dun = -np.einsum("...i,...ij,...j->...", u, inv, u) / un  # d|u|/dμ
+        dun = -np.einsum("...i,...ij,...j->...", ut, inv, ut) / un  # d|u|/dμ
         step = -(un - 1.0) * un / dun  # Newton on ψ(μ) − 1
         for _half in range(60):
-            bad = ~_positive_definite(Q + (mu + step)[..., None, None] * eye)
+            bad = ~_positive_definite(m + step[..., None, None] * eye)
             if not bad.any():
                 break
             step[bad] *= 0.5
-        mu = mu + step
-    return np.einsum("...ij,...j->...i", _inv3_sym(Q + mu[..., None, None] * eye), q)
+        mu[todo] += step
+    return u.reshape(shape)
 
 
 def refine_type_ii(P, R, b0, c0, sig: NoiseSigmas, iterations: int = 1):
