@@ -20,10 +20,11 @@ def _sim(truth):
     return Simulator(truth, noise=NoiseModel(0.01, 0.002, 0.002))
 
 
-def assert_same_optimum(sol, x, sl):
-    """Same estimate to 1 % of each parameter's standard deviation (pinv: u has a gauge)."""
+def assert_same_optimum(sol, x, sl, tol=0.01):
+    """Same estimate to ``tol`` (1 %) of each parameter's standard deviation (pinv: u has a
+    gauge)."""
     sigma = np.sqrt(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)))[sl]
-    assert np.all(np.abs(sol.x[sl] - x) < 0.01 * sigma), (sol.x[sl] - x) / sigma
+    assert np.all(np.abs(sol.x[sl] - x) < tol * sigma), (sol.x[sl] - x) / sigma
 
 
 def test_type_i_matches_least_squares(truth, rng):
@@ -113,6 +114,34 @@ def test_type_iii_matches_least_squares(truth, rng):
 
     sol = least_squares(fun, np.concatenate([a0, [r0]]), xtol=1e-14, ftol=1e-14)
     assert_same_optimum(sol, np.concatenate([a, [r]]), slice(0, 4))
+
+
+def test_type_ii_iii_matches_least_squares(truth, rng):
+    """The joint fit of a Type II and a Type III set stops at the optimum least_squares finds
+    (its last step taken untried once it promises less than FINAL of the cost), at the
+    study's noise: to 1e-5 σ (measured; the weights are frozen at the solution here), where one
+    step from the seeds leaves 2e-3 σ. The bound, 2e-4 σ, lies between."""
+    noise = NoiseModel(0.1, 0.01, 0.1)
+    sim = Simulator(truth, noise=noise)
+    sig = NoiseSigmas(noise.sigma_position_mm, noise.sigma_orientation_rad, noise.sigma_reading_mm)
+    P2, R2, _ = sim.measure(rng, *sim.type_ii(K, (7,), rng))
+    P3, R3, _ = sim.measure(rng, *sim.type_iii(K, (9,), rng))
+    b0, c0 = direct.type_ii_direct(P2, R2)
+    a0, r0 = direct.type_iii_direct(P3, R3, b0)
+    b, c, a, r = weighted.refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig, iterations=8)
+    # Weights frozen at the solution, as the Gauss-Newton loop has them at convergence.
+    whiten = np.linalg.inv(np.linalg.cholesky(_point_cov(R2, b, sig)))
+    n = P3 + R3 @ b - a
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    sd3 = np.sqrt(np.einsum("ni,nij,nj->n", n, _point_cov(R3, b, sig), n))
+
+    def fun(x):
+        res2 = np.einsum("nij,nj->ni", whiten, P2 + R2 @ x[:3] - x[3:6]).ravel()
+        res3 = (np.linalg.norm(P3 + R3 @ x[:3] - x[6:9], axis=-1) - x[9]) / sd3
+        return np.concatenate([res2, res3])
+
+    sol = least_squares(fun, np.concatenate([b0, c0, a0, [r0]]), xtol=1e-14, ftol=1e-14)
+    assert_same_optimum(sol, np.concatenate([b, c, a, [r]]), slice(0, 10), tol=2e-4)
 
 
 def test_inverse_by_cofactors(rng):

@@ -254,6 +254,9 @@ def type_iii_rows(P, R, b, a, sig: NoiseSigmas):
 #: The relative decrease of the weighted cost below which :func:`refine_type_ii_iii` counts a
 #: member as converged (its step is then a few nanometres, a millionth of the noise).
 CONVERGED = 1e-12
+#: The relative decrease of the weighted cost below which :func:`refine_type_ii_iii` takes a
+#: member's step as its last.
+FINAL = 1e-6
 
 
 #: The columns of θ = (b, C, a, r) a Type III pose's row has: b, a and r.
@@ -307,6 +310,13 @@ def refine_type_ii_iii(P2, R2, P3, R3, b0, c0, a0, r0, sig: NoiseSigmas, iterati
         # vain). It is left where it is, and no longer stepped.
         gain = -np.einsum("bi,bi->b", jtr[..., 0], step)
         moving = gain > CONVERGED * cost
+        # A step that promises less than FINAL of the cost is the last: Gauss–Newton's next
+        # would promise some 1e-8 of this one's (its rate is the residuals' curvature, noise
+        # over a leg's length), below CONVERGED. So small a step cannot run away: it is taken
+        # without trying it.
+        last = moving & (gain <= FINAL * cost)
+        x[active[last]] += step[last]
+        moving &= ~last
         active, step = active[moving], step[moving]
         if not len(active):
             break
