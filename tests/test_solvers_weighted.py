@@ -97,6 +97,20 @@ def test_type_i_nested_agrees_with_the_reweighted_fit(truth, rng):
             assert mse == pytest.approx(np.mean(np.sum((theirs - true) ** 2, axis=-1)), rel=0.06)
 
 
+def test_type_ii_nested_is_the_weighted_fit_from_the_pilot(truth, rng):
+    """Each count's fit is refine_type_ii's on its first poses started at the pilot (the same
+    weights; the constraint is linear, so one step is the optimum), to rounding."""
+    sim = _sim(truth)
+    P, R, _ = sim.measure(rng, *sim.type_ii(K, (20, 12), rng))
+    counts = [4, 5, 12]
+    b0, c0 = direct.type_ii_direct(P[:, :4], R[:, :4])
+    b, c = weighted.refine_type_ii_nested(P, R, counts, b0, SIG)
+    for i, n in enumerate(counts):
+        want_b, want_c = weighted.refine_type_ii(P[:, :n], R[:, :n], b0, c0, SIG)
+        assert np.allclose(b[:, i], want_b, rtol=0, atol=1e-9)
+        assert np.allclose(c[:, i], want_c, rtol=0, atol=1e-9)
+
+
 def test_type_iii_matches_least_squares(truth, rng):
     sim = _sim(truth)
     P, R, _ = sim.measure(rng, *sim.type_iii(K, (8,), rng))

@@ -221,6 +221,29 @@ def refine_type_ii(P, R, b0, c0, sig: NoiseSigmas, iterations: int = 1):
     return b, c
 
 
+def refine_type_ii_nested(P, R, counts, b0, sig: NoiseSigmas):
+    """The weighted Type II fit of the first counts[c] poses of each set at once: (b, C) each
+    (..., C, 3). P (..., n, 3) mm, R (..., n, 3, 3), counts (C,) increasing; the weights are
+    each pose's covariance at a pilot b0 (..., 3) that the caller takes from the first
+    counts[0] poses. The residual ``P_i + R_i b − C`` is linear, so this is
+    :func:`refine_type_ii` from the pilot for every count, its normal equations read off one
+    running sum (as :func:`refine_type_i_nested`'s)."""
+    from hexcal.estimate.solvers.direct import type_ii_system
+    from hexcal.estimate.solvers.linalg import running_sums
+
+    counts = np.asarray(counts, int)
+    n = int(counts[-1])
+    P, R = P[..., :n, :], R[..., :n, :, :]
+    w = _inv3_sym(_point_cov(R, b0, sig))
+    m, y = type_ii_system(P, R)  # (..., 3n, 6), (..., 3n)
+    m = m.reshape(*P.shape[:-1], 3, 6)
+    wm = w @ m  # (..., n, 3, 6)
+    A = running_sums(np.swapaxes(m, -1, -2) @ wm, counts, axis=-3)  # (..., C, 6, 6)
+    g = running_sums((np.swapaxes(wm, -1, -2) @ y.reshape(*P.shape, 1))[..., 0], counts, axis=-2)
+    x = np.linalg.solve(A, g[..., None])[..., 0]
+    return x[..., :3], x[..., 3:]
+
+
 def refine_type_iii(P, R, b, a0, r0, sig: NoiseSigmas, iterations: int = 3):
     """Weighted Type III fit (sphere of unknown radius): (a (..., 3), r (...,)) given b."""
     a, r = a0.copy(), np.asarray(r0, float).copy()
