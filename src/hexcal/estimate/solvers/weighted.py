@@ -70,7 +70,8 @@ def _point_var(
 def _normal(jac: np.ndarray, w: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normal equations (JᵀWJ (..., p, p), JᵀWr (..., p, 1)) summed over per-pose blocks: jac
     (..., N, q, p), weights w (..., N, q, q) = Σ⁻¹, residual res (..., N, q)."""
-    wj = w @ jac
+    # One row a pose (Type III): its weight is a scalar, a product not a 1×1 matrix product.
+    wj = w * jac if w.shape[-1] == 1 else w @ jac
     shape = np.broadcast_shapes(jac.shape, wj.shape)
     jac, wj = np.broadcast_to(jac, shape), np.broadcast_to(wj, shape)
     # The poses' rows stacked, (..., N q, p): the sum over the poses is then one matrix product
