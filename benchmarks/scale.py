@@ -49,9 +49,10 @@ def hexcal() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "hexcal.app.cli"]
 
 
-def run(args: list[str], command: list[str] | None = None) -> tuple[float, float]:
-    """(wall s, peak RSS MB) of one ``hexcal`` process (or of ``command``); its output is
-    discarded, a failure stops the benchmark with the command's own message."""
+def run(args: list[str], command: list[str] | None = None) -> tuple[float, float, float]:
+    """(wall s, peak RSS MB, CPU s: user + system) of one ``hexcal`` process (or of
+    ``command``); its output is discarded, a failure stops the benchmark with the command's own
+    message. The CPU time is the one figure a busy machine barely moves."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     t0 = time.perf_counter()
     proc = subprocess.Popen(
@@ -62,7 +63,7 @@ def run(args: list[str], command: list[str] | None = None) -> tuple[float, float
     err = proc.stderr.read().decode() if proc.stderr else ""
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"hexcal {' '.join(args)} failed:\n{err}")
-    return wall, usage.ru_maxrss / 1024.0  # KiB on Linux
+    return wall, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime  # KiB on Linux
 
 
 def paired(args: list[str], ref: list[str], runs: int, ref_cmd: list[str] | None = None) -> dict:
@@ -75,6 +76,8 @@ def paired(args: list[str], ref: list[str], runs: int, ref_cmd: list[str] | None
         "min_wall_s": min(a[0] for a, _ in pairs),
         "rss_mb": max(a[1] for a, _ in pairs),
         "ref_wall_s": statistics.median(b[0] for _, b in pairs),
+        "cpu_s": statistics.median(a[2] for a, _ in pairs),
+        "ref_cpu_s": statistics.median(b[2] for _, b in pairs),
         "ratio_median": statistics.median(ratios),
         "ratio_min": min(ratios),
         "runs": [round(a[0], 3) for a, _ in pairs],
@@ -85,9 +88,10 @@ def paired(args: list[str], ref: list[str], runs: int, ref_cmd: list[str] | None
 def median_of(args: list[str], runs: int) -> dict:
     got = [run(args) for _ in range(runs)]
     return {
-        "wall_s": statistics.median(w for w, _ in got),
-        "rss_mb": max(r for _, r in got),
-        "runs": [round(w, 3) for w, _ in got],
+        "wall_s": statistics.median(w for w, _, _ in got),
+        "rss_mb": max(r for _, r, _ in got),
+        "cpu_s": statistics.median(c for _, _, c in got),
+        "runs": [round(w, 3) for w, _, _ in got],
     }
 
 
@@ -182,7 +186,7 @@ def study(runs: int, tmp: Path) -> dict:
         print(
             f"study, {name.replace('_', ' ')}: {got['wall_s']:.2f} s (min {got['min_wall_s']:.2f}"
             f" s), {got['ratio_median']:.1f}× the bare imports (min {got['ratio_min']:.1f}×; "
-            f"bare {got['ref_wall_s']:.3f} s)",
+            f"bare {got['ref_wall_s']:.3f} s); CPU {got['cpu_s']:.2f} s (bare {got['ref_cpu_s']:.2f} s)",
             file=sys.stderr,
         )
     return out

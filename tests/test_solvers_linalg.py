@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexcal.estimate.solvers.linalg import lstsq
+from hexcal.estimate.solvers.linalg import lstsq, running_sums
 
 
 def test_rows_solve_each_leading_system_as_qr_does():
@@ -27,3 +27,12 @@ def test_rows_must_increase_within_the_system():
         lstsq(a, y, rows=[4, 3])
     with pytest.raises(ValueError, match="at most 6"):
         lstsq(a, y, rows=[7])
+
+
+def test_running_sums_are_the_cumulative_sums_at_the_counts(rng):
+    x = rng.normal(size=(5, 12, 3, 2))
+    counts = [1, 2, 5, 11, 12]
+    got = running_sums(x, counts, axis=1)
+    assert got.shape == (5, 5, 3, 2)
+    assert np.allclose(got, np.cumsum(x, axis=1)[:, np.asarray(counts) - 1], rtol=1e-13)
+    assert np.allclose(running_sums(x, [3, 4], axis=-3), np.cumsum(x, axis=-3)[:, [2, 3]])

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hexcal.estimate.solvers.linalg import running_sums
 from hexcal.estimate.solvers.paper import Counts
 from hexcal.estimate.solvers.weighted import (
     _inv3_sym,
@@ -48,7 +49,7 @@ def _information(jac: np.ndarray, w: np.ndarray, counts: Counts = None) -> np.nd
     if counts is None:
         return _normal(jac, w, np.zeros(jac.shape[:-1]))[0]
     per_pose = np.einsum("...nqi,...nqj->...nij", jac, w @ jac)
-    return np.cumsum(per_pose, axis=-3)[..., np.asarray(counts) - 1, :, :]
+    return running_sums(per_pose, counts, axis=-3)
 
 
 def information_type_i(P, R, length, b, a, u, sig: NoiseSigmas, counts: Counts = None):
@@ -110,7 +111,7 @@ def bound(information: np.ndarray) -> np.ndarray:
 
     The inverse of the well-posed ones is taken on the information scaled to a unit diagonal
     (their Cholesky factor tells them apart); the pseudo-inverse, an eigendecomposition, is
-    eight times slower and kept for the others (:data:`WELL_POSED_PIVOT`)."""
+    eight times slower and taken for the others only (:data:`WELL_POSED_PIVOT`)."""
     info = np.asarray(information, float)
     d = np.sqrt(np.abs(np.diagonal(info, axis1=-2, axis2=-1)))
     s = 1.0 / np.where(d > 0, d, 1.0)
@@ -122,7 +123,8 @@ def bound(information: np.ndarray) -> np.ndarray:
         well = np.zeros(info.shape[:-2], bool)
     if np.all(well):
         return np.linalg.inv(scaled) * (s[..., :, None] * s[..., None, :])
-    out = np.linalg.pinv(info, hermitian=True)
+    out = np.empty_like(info)
+    out[~well] = np.linalg.pinv(info[~well], hermitian=True)
     if np.any(well):
         out[well] = np.linalg.inv(scaled[well]) * (s[well][..., :, None] * s[well][..., None, :])
     return out

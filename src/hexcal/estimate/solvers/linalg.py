@@ -43,6 +43,24 @@ def lstsq(
     return x / scale[..., 0, :]
 
 
+def running_sums(x: np.ndarray, counts: Sequence[int] | np.ndarray, axis: int) -> np.ndarray:
+    """The sums of x over its first counts[c] entries along ``axis``, that axis replaced by
+    one of length C (counts increasing). The sum between two counts is added to the one
+    before, one whole-array addition per count: 3–7× faster than ``cumsum`` along an inner
+    axis, which numpy runs as one short loop per element of the other axes."""
+    xs = np.moveaxis(x, axis, 0)
+    out = np.empty((len(counts), *xs.shape[1:]), dtype=np.result_type(x, float))
+    lo = 0
+    for c, hi in enumerate(np.asarray(counts, int)):
+        part = xs[lo] if hi == lo + 1 else xs[lo:hi].sum(axis=0)
+        if c:
+            np.add(out[c - 1], part, out=out[c])
+        else:
+            out[0] = part
+        lo = hi
+    return np.moveaxis(out, 0, axis)
+
+
 def _lstsq_nested(a: np.ndarray, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """:func:`lstsq` with ``rows``: AᵀA and Aᵀy summed over blocks of g rows (g the greatest
     common divisor of the counts: a pose's rows, or the poses between two counts), cumulated
@@ -55,9 +73,9 @@ def _lstsq_nested(a: np.ndarray, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
     m, n = rows[-1], a.shape[-1]
     # (..., blocks, g, n): one small product per block, all blocks in one matmul call.
     blocks = a[..., :m, :].reshape(*a.shape[:-2], m // g, g, n)
-    ata = (np.swapaxes(blocks, -1, -2) @ blocks).cumsum(axis=-3)[..., rows // g - 1, :, :]
+    ata = running_sums(np.swapaxes(blocks, -1, -2) @ blocks, rows // g, axis=-3)
     yb = y[..., :m].reshape(*y.shape[:-1], m // g, g, 1)
-    aty = (np.swapaxes(blocks, -1, -2) @ yb)[..., 0].cumsum(axis=-2)[..., rows // g - 1, :]
+    aty = running_sums((np.swapaxes(blocks, -1, -2) @ yb)[..., 0], rows // g, axis=-2)
     scale = np.sqrt(np.diagonal(ata, axis1=-2, axis2=-1))
     scale = np.where(scale == 0.0, 1.0, scale)
     scaled = ata / (scale[..., :, None] * scale[..., None, :])
