@@ -224,3 +224,17 @@ def test_the_command_streams_and_every_reader_reads_the_session(tmp_path, capsys
     from hexcal.app.workflow import read_inputs
 
     assert read_inputs(out).meas == read_measurements(src)
+
+
+def test_a_repeated_pose_id_is_refused_by_line_and_nothing_is_written(tmp_path):
+    """The streamed import checks the ids of the rows it has written: a repeat found at the end
+    names both lines, and the block written so far is removed."""
+    src = _table(tmp_path / "m.csv", 2 * _BLOCK_ROWS, ";")
+    text = src.read_text().splitlines()
+    text[-1] = "7;" + text[-1].split(";", 1)[1]  # the last row takes row 7's id (line 8)
+    src.write_text("\n".join(text) + "\n")
+    out = tmp_path / "out" / "s.json"
+    out.parent.mkdir()
+    with pytest.raises(ValueError, match=rf"line {2 * _BLOCK_ROWS + 1}.*already used on line 8"):
+        import_table(src, load_robot(ROBOT), out)
+    assert list(out.parent.iterdir()) == []

@@ -387,8 +387,14 @@ class _TableReader:
         """Every row's pose id, (N,), once no row breaks a rule and no id repeats; else the
         :class:`MeasurementError` naming the first problems."""
         ids = np.concatenate(self.ids) if self.ids else np.zeros(0, np.int64)
-        lines = np.concatenate(self.lines) if self.lines else np.zeros(0, np.int64)
-        duplicates, repeated = _repeated_ids(ids, lines)
+        self.ids = [ids]
+        duplicates: list[Issue] = []
+        repeated = 0
+        # Sorted ids tell at 9 bytes a row whether any repeats; only then are the rows found
+        # and named (np.unique's index arrays take five times that: a streamed table's peak).
+        if self.problems or _any_repeat(ids):
+            lines = np.concatenate(self.lines) if self.lines else np.zeros(0, np.int64)
+            duplicates, repeated = _repeated_ids(ids, lines)
         if self.problems or repeated:
             # Both lists are in line order and hold the first MAX_MESSAGES of their kind, so
             # the first MAX_MESSAGES of the merge are the file's first problems.
@@ -423,6 +429,11 @@ class _TableReader:
             columns=tuple(self.header),
             source=str(self.path),
         )
+
+
+def _any_repeat(ids: np.ndarray) -> bool:
+    ordered = np.sort(ids)
+    return bool(np.any(ordered[1:] == ordered[:-1]))
 
 
 def _repeated_ids(ids: np.ndarray, lines: np.ndarray) -> tuple[list[Issue], int]:

@@ -1,4 +1,6 @@
-"""The session file: everything a calibration session recorded and computed, in one JSON file.
+"""The session file: everything a calibration session recorded and computed, in one JSON file
+(and, for a session imported from a table, the table's poses in a pose block beside it:
+:mod:`hexcal.procedure.session_block`, which :func:`import_table` streams the table into).
 
 A :class:`Session` (pydantic v2, in :mod:`hexcal.procedure.session_model` and importable from
 here) holds the robot description, the device configuration, the procedure, every recorded pose

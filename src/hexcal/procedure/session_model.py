@@ -302,13 +302,6 @@ class Session(BaseModel):
             self._table = self._table_source()
         return self._table
 
-    def pose_count(self) -> int:
-        """Every pose of the session: the imported table's and the recorded ones."""
-        n = self.pose_block.poses if self.pose_block is not None else 0
-        if self._table is not None and self._block_path is None:
-            n = len(self._table)  # a table not yet written
-        return n + len(self.poses)
-
     # -- the interchange table ----------------------------------------------------------------
     def measurements(self) -> Measurements:
         """The session's poses as the measurement table (every pose, in order: the imported
