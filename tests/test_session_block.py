@@ -75,8 +75,9 @@ def test_import_round_trips_bit_for_bit_through_the_pose_block(tmp_path):
 
 
 def test_import_streams_the_table_a_block_of_rows_at_a_time(tmp_path, monkeypatch):
-    """The writer is handed the rows as they are read, never the whole table: both from the
-    column reader (hexcal's own dialect) and from the row-by-row one (semicolons here)."""
+    """The writer is handed the rows as they are read, never the whole table, in hexcal's own
+    dialect (which a read of the whole table takes in at once, up to 64 MB) as in another
+    (semicolons here)."""
     sizes: list[int] = []
     add = PoseBlockWriter.add
 

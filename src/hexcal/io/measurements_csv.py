@@ -516,9 +516,10 @@ def _read(
         except DialectError as exc:
             raise MeasurementError.single(path, 2, None, str(exc)) from None
         # A plain, valid table in hexcal's own dialect goes straight into column arrays (in
-        # memory a few times its size, so only up to FAST_MAX_BYTES); any other file is
-        # streamed row by row below, every problem named, memory about its size.
-        if dialect.standard and size <= FAST_MAX_BYTES:
+        # memory a few times its size, so only up to FAST_MAX_BYTES: 640 MB at the edge); any
+        # other file, and every file streamed into a sink, is read row by row below, every
+        # problem named, memory about its size (a sink's: a block of rows).
+        if sink is None and dialect.standard and size <= FAST_MAX_BYTES:
             try:
                 raw = fh.read()
                 fh.seek(0)
@@ -527,7 +528,7 @@ def _read(
             plain = read_plain(raw, path)
             del raw
             if plain is not None:
-                return plain if sink is None else _sink_table(plain, sink)
+                return plain
         # newline="" keeps line ends as they are, as the csv module wants; utf-8-sig drops a
         # leading byte-order mark (spreadsheet exports).
         stream = io.TextIOWrapper(fh, encoding=dialect.encoding, newline="")
@@ -543,30 +544,6 @@ def _read(
     if not dialect.standard and notices is not None:
         notices.append(f"{path}: read as a table {dialect.describe()}")
     return out
-
-
-def _sink_table(m: Measurements, sink: Callable[[list[str], RowBlock], None]) -> np.ndarray:
-    """A table read whole (up to FAST_MAX_BYTES) handed to ``sink`` a block at a time."""
-    header = list(m.columns)
-    for a in range(0, len(m), _BLOCK_ROWS):
-        r = slice(a, a + _BLOCK_ROWS)
-        sink(
-            header,
-            RowBlock(
-                line=np.zeros(0, np.int64),
-                pose_id=m.pose_id[r],
-                t=m.t[r],
-                step=m.step[r].tolist(),
-                leg=m.leg[r],
-                constraint=m.constraint[r].tolist(),
-                position=m.position[r],
-                quaternion=m.quaternion[r],
-                readings=m.readings[r],
-                temperature=None if m.temperature is None else m.temperature[r],
-                extra=[v[r].tolist() for v in m.extra.values()],
-            ),
-        )
-    return m.pose_id
 
 
 def _bound(
