@@ -281,3 +281,21 @@ def test_several_files_in_subfolders_are_all_or_nothing(tmp_path, monkeypatch):
     with pytest.raises(OutputFileError, match=r"new/a/d.txt: the disk is full"):
         write_files_atomic(tmp_path / "new", files)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ex"]
+
+
+def test_a_streamed_file_is_renamed_whole_or_leaves_nothing(tmp_path):
+    from hexcal.io.fileio import StreamedFile, orphan_temp_files
+
+    owner = tmp_path / "s.json"
+    f = StreamedFile(owner)
+    f.fh.write(b"part one, ")
+    assert orphan_temp_files(owner) == [f.tmp]  # an interrupted write is the owner's orphan
+    f.fh.write(b"part two")
+    f.publish(tmp_path / "s.json.abc.poses.npy")
+    assert (tmp_path / "s.json.abc.poses.npy").read_bytes() == b"part one, part two"
+    g = StreamedFile(owner)
+    g.fh.write(b"never kept")
+    err = g.error(OSError(28, "No space left on device"))
+    assert str(owner) in str(err) and list(tmp_path.iterdir()) == [
+        tmp_path / "s.json.abc.poses.npy"
+    ]

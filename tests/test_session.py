@@ -98,7 +98,7 @@ def test_create_never_replaces_an_existing_file(tmp_path, design):
             r"line 1, column \d+: not valid JSON .* left untouched",
         ),
         ("[1, 2]", "not a hexcal session file"),
-        ('{"schema_version": 99}', r"newer hexcal \(session schema 99; .* reads schema 2\)"),
+        ('{"schema_version": 99}', r"newer hexcal \(session schema 99; .* reads schema 3\)"),
         ('{"schema_version": 1, "robot": {}}', r"field robot\.\w+: Field required"),
     ],
 )
@@ -114,8 +114,9 @@ def test_damaged_or_newer_files_are_refused_and_left_untouched(tmp_path, text, m
 def test_schema_is_printed_and_versioned():
     schema = json.loads(session_json_schema())
     version = schema["properties"]["schema_version"]
-    # Schema 2 reads schema 1 files (it only adds fields) and writes 2.
-    assert version["enum"] == [1, SCHEMA_VERSION] and version["default"] == SCHEMA_VERSION
+    # Schema 3 reads schema 1 and 2 files (each only adds fields) and writes 3.
+    assert version["enum"] == [1, 2, SCHEMA_VERSION] and version["default"] == SCHEMA_VERSION
+    assert SCHEMA_VERSION == 3 and "pose_block" in schema["properties"]
     assert "calibrated" in schema["$defs"]["ResultRecord"]["properties"]
     assert "poses" in schema["properties"]
 
@@ -339,5 +340,8 @@ def test_import_refuses_a_table_beyond_what_a_session_holds_before_writing(
     ]
     assert main([*args, "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "184 poses; a session file holds at most 100 imported poses (its 512 MB limit" in err
+    # Refused as the rows stream in, the moment they pass the limit: no session file, no
+    # pose block, no temporary file and no lock are left.
+    assert "more than 100 poses; a session holds at most 100 imported poses" in err
+    assert "hexcal.io.capacity.MAX_IMPORTED_POSES" in err
     assert f"{out} was not written" in err and list(tmp_path.iterdir()) == []

@@ -61,3 +61,14 @@ def test_sessions_are_listed_newest_first_with_robot_poses_and_last_step(tmp_pat
 
 def test_an_absent_directory_has_no_sessions(tmp_path):
     assert list_sessions(tmp_path / "nowhere") == []
+
+
+def test_an_imported_session_is_listed_with_its_pose_blocks_poses(tmp_path):
+    """The pose block beside it is not a session, and its poses are counted (from the file's
+    own count: the list reads no block)."""
+    from hexcal.procedure.session import import_table
+
+    example = Path(__file__).parents[1] / "examples/left-hand-sim"
+    import_table(example / "measurements.csv", left_hand(), tmp_path / "imported.json")
+    [entry] = list_sessions(tmp_path)
+    assert entry.path.name == "imported.json" and entry.poses == 184 and not entry.problem

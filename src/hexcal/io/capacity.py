@@ -23,12 +23,12 @@ RECORDED_POSE_BYTES = 13 * KB
 #: repeats for: what a session file holds recorded (40,329 poses; at the mock rig's 3 poses a
 #: second, under four hours of recording).
 MAX_PROCEDURE_POSES = MAX_SESSION_BYTES // RECORDED_POSE_BYTES
-#: An imported pose's bytes in the session file at the least (no raw samples: its table row as
-#: JSON; the example session of 184 poses took 93,607 bytes with its robot, 509 a pose).
-IMPORTED_POSE_BYTES = 480
-#: The most poses an imported table may bring: more cannot fit in a session file, and are
-#: refused before anything is built or written (1,118,481 poses).
-MAX_IMPORTED_POSES = MAX_SESSION_BYTES // IMPORTED_POSE_BYTES
+#: The most poses an imported table may bring, and a session's pose block may hold (its
+#: binary columns beside the session file, :mod:`hexcal.io.pose_block`, 137 bytes a pose with
+#: no extra column: 411 MB at the limit). ``session import`` refuses a larger table before
+#: the session is written, and every reader refuses a larger block: 3 million poses, a CSV of
+#: about 540 MB, read by every command in well under 2 GB (docs/performance.md).
+MAX_IMPORTED_POSES = 3_000_000
 #: The most poses one step may ask for (the procedure file's ``recommended_poses`` and
 #: ``min_poses``, and ``--poses-per-step``).
 MAX_POSES_PER_STEP = 10_000

@@ -4,7 +4,8 @@ where a good one was, nor a new file or folder cut short.
 Every error names the user's path (never the hidden temporary file) and says what to do;
 :func:`check_output` checks an output path before any work is done. Text goes through
 :func:`write_text_atomic`, several files as one step through :func:`write_files_atomic`, and
-what a library writes itself (a figure's PNG) through :func:`write_atomic_with`;
+what a library writes itself (a figure's PNG) through :func:`write_atomic_with`, a large file
+written piece by piece (a session's pose block) through :class:`StreamedFile`;
 :func:`new_folder` removes a folder it made when what was to fill it failed.
 """
 
@@ -14,10 +15,10 @@ import errno
 import os
 import re
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from hexcal.errors import HexcalError
 
@@ -174,6 +175,52 @@ def write_atomic_with(path: str | Path, write: Callable[[Path], Any]) -> None:
     _fsync_directory(path.parent)
 
 
+class StreamedFile:
+    """A large file written piece by piece (:attr:`fh`, binary) to a temporary file named as
+    :func:`write_text_atomic` names ``owner``'s (so an interrupted write is one of
+    :func:`orphan_temp_files` of ``owner``, removed when it is next opened), then fsynced and
+    renamed by :meth:`publish` to a name known only at the end (a checksum in it), or removed
+    by :meth:`discard`. An OS error becomes :class:`OutputFileError` naming ``owner``, the
+    user's path, and the temporary file is removed."""
+
+    def __init__(self, owner: str | Path):
+        self.owner = Path(owner)
+        try:
+            fd, tmp = tempfile.mkstemp(
+                prefix=_temp_prefix(self.owner), suffix=TEMP_SUFFIX, dir=self.owner.parent or "."
+            )
+        except OSError as exc:
+            raise write_error(exc, self.owner) from None
+        self.tmp = Path(tmp)
+        self.fh: IO[bytes] = os.fdopen(fd, "w+b")
+
+    def error(self, exc: OSError) -> OutputFileError:
+        """``exc`` in the user's terms (naming ``owner``), the temporary file removed."""
+        self.discard()
+        return write_error(exc, self.owner)
+
+    def publish(self, path: str | Path) -> None:
+        """Flush, fsync and rename the file to ``path`` (in ``owner``'s folder)."""
+        path = Path(path)
+        try:
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
+            self.fh.close()
+            os.chmod(self.tmp, _new_mode(path))
+            os.replace(self.tmp, path)
+        except OSError as exc:
+            raise self.error(exc) from None
+        _fsync_directory(path.parent)
+
+    def discard(self) -> None:
+        """Close and remove the temporary file (nothing is left)."""
+        try:
+            self.fh.close()
+        except OSError:
+            pass
+        self.tmp.unlink(missing_ok=True)
+
+
 @contextmanager
 def new_folder(folder: str | Path) -> Iterator[Path]:
     """``folder``, made with its parents when missing, for the ``with`` block to fill: when the
@@ -193,9 +240,10 @@ def new_folder(folder: str | Path) -> Iterator[Path]:
         raise
 
 
-def write_files_atomic(folder: str | Path, files: dict[str, str]) -> None:
+def write_files_atomic(folder: str | Path, files: Mapping[str, str | Iterable[str]]) -> None:
     """Write several files into ``folder`` (made if needed, with its parents) as one step: each
-    text goes to a temporary file first, and only when all are on disk are they renamed into
+    text (a str, or pieces of text written as they come: a large table) goes to a temporary
+    file first, and only when all are on disk are they renamed into
     place. A name may hold ``/`` (a file in a subfolder, made as needed). A failure before the
     renames leaves nothing behind — no file, and no folder this call made — and is raised as
     :class:`OutputFileError` naming the user's path."""
@@ -219,7 +267,8 @@ def write_files_atomic(folder: str | Path, files: dict[str, str]) -> None:
             )
             staged.append((name, Path(temp)))
             with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-                fh.write(text)
+                for piece in [text] if isinstance(text, str) else text:
+                    fh.write(piece)
                 fh.flush()
                 os.fsync(fh.fileno())
             os.chmod(temp, _new_mode(target))

@@ -21,7 +21,7 @@ import csv
 import io
 import math
 import operator
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -559,11 +559,24 @@ def _column_texts(m: Measurements, name: str) -> list[str]:
 
 def measurements_to_csv_text(m: Measurements) -> str:
     """The CSV text of ``m``: header ``m.columns``, one row per pose, '\\n' line ends."""
+    return "".join(measurements_csv_pieces(m))
+
+
+def measurements_csv_pieces(m: Measurements, rows: int = 8192) -> Iterator[str]:
+    """The CSV text of ``m`` (as :func:`measurements_to_csv_text`) ``rows`` rows at a time, so
+    that a table of millions of poses is written without its whole text in memory (a row's
+    fields as Python strings take about ten times the row's bytes)."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(m.columns)
-    writer.writerows(zip(*(_column_texts(m, c) for c in m.columns), strict=True))
-    return buf.getvalue()
+    for a in range(0, len(m), rows):
+        part = m.subset(slice(a, a + rows)) if len(m) > rows else m
+        writer.writerows(zip(*(_column_texts(part, c) for c in m.columns), strict=True))
+        yield buf.getvalue()
+        buf.seek(0)
+        buf.truncate()
+    if not len(m):
+        yield buf.getvalue()
 
 
 def write_measurements(m: Measurements, path: str | Path) -> None:

@@ -20,7 +20,7 @@ import codecs
 import csv
 import io
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +30,7 @@ from pydantic import ValidationError
 from hexcal.io.csv_dialect import HEAD_BYTES, Dialect, DialectError, sniff, to_point
 
 # MeasurementRow: the row rules, importable from here too.
+from hexcal.io.fileio import OutputFileError
 from hexcal.io.measurement_rows import MeasurementRow, row_issues
 from hexcal.io.measurements import (
     _KNOWN_COLUMNS,
@@ -188,8 +189,9 @@ def _count_issue(fields: list[str], header: list[str], line: int) -> Issue:
 
 
 @dataclass
-class _Block:
-    """Consecutive valid rows of the file, typed (units as in :class:`Measurements`)."""
+class RowBlock:
+    """Consecutive valid rows of the file, typed (units as in :class:`Measurements`): what
+    :func:`stream_measurements` hands its sink."""
 
     line: np.ndarray  #: (k,) the line each row starts on
     pose_id: np.ndarray
@@ -213,14 +215,17 @@ class _TableReader:
     are no longer kept (the read will fail), only the ids and lines that duplicates are checked
     against."""
 
-    def __init__(self, header: list[str], path: Path):
+    def __init__(
+        self, header: list[str], path: Path, sink: Callable[[RowBlock], None] | None = None
+    ):
         self.header = header
+        self.sink = sink
         self.path = path
         self.at = {c: k for k, c in enumerate(header)}
         self.fields = [c for c in header if c in _KNOWN_COLUMNS]
         self.extra_names = [c for c in header if c not in _KNOWN_COLUMNS]
         self.has_temperature = "temperature" in self.at
-        self.blocks: list[_Block] = []
+        self.blocks: list[RowBlock] = []
         self.ids: list[np.ndarray] = []
         self.lines: list[np.ndarray] = []
         self.issues: list[Issue] = []  # the first MAX_MESSAGES row problems
@@ -241,6 +246,8 @@ class _TableReader:
         self.lines.append(block.line)
         if self.problems:
             self.blocks.clear()
+        elif self.sink is not None:  # streamed: the block goes on, only its ids stay
+            self.sink(block)
         else:
             self.blocks.append(block)
 
@@ -285,7 +292,7 @@ class _TableReader:
             return col
         return [cache.setdefault(v, v) for v in col]
 
-    def _fast(self, rows: list[tuple[int, list[str]]]) -> _Block:
+    def _fast(self, rows: list[tuple[int, list[str]]]) -> RowBlock:
         ncol = len(self.header)
         if any(len(fields) != ncol for _, fields in rows):
             raise _Slow
@@ -317,7 +324,7 @@ class _TableReader:
         free = np.array([c == free_ for c in constraint], dtype=bool)
         if np.any(free != (leg == 0)):
             raise _Slow
-        return _Block(
+        return RowBlock(
             line=np.array([line for line, _ in rows], dtype=np.int64),
             pose_id=pose_id,
             t=t,
@@ -338,7 +345,7 @@ class _TableReader:
         if len(self.issues) < MAX_MESSAGES:
             self.issues.append(issue)
 
-    def _slow(self, rows: list[tuple[int, list[str]]]) -> _Block:
+    def _slow(self, rows: list[tuple[int, list[str]]]) -> RowBlock:
         header, order = self.header, self.at
         valid: list[tuple[int, MeasurementRow, list[str]]] = []
         for line, fields in rows:
@@ -356,7 +363,7 @@ class _TableReader:
                 continue
             valid.append((line, row, [by_name[c] for c in self.extra_names]))
         rs = [r for _, r, _ in valid]
-        return _Block(
+        return RowBlock(
             line=np.array([line for line, _, _ in valid], dtype=np.int64),
             pose_id=np.array([r.pose_id for r in rs], dtype=np.int64),
             t=np.array([r.t for r in rs], dtype=float),
@@ -376,16 +383,28 @@ class _TableReader:
 
     # -- the table ------------------------------------------------------------------------------
 
-    def finish(self) -> Measurements:
+    def checked_ids(self) -> np.ndarray:
+        """Every row's pose id, (N,), once no row breaks a rule and no id repeats; else the
+        :class:`MeasurementError` naming the first problems."""
         ids = np.concatenate(self.ids) if self.ids else np.zeros(0, np.int64)
-        lines = np.concatenate(self.lines) if self.lines else np.zeros(0, np.int64)
-        duplicates, repeated = _repeated_ids(ids, lines)
+        self.ids = [ids]
+        duplicates: list[Issue] = []
+        repeated = 0
+        # Sorted ids tell at 9 bytes a row whether any repeats; only then are the rows found
+        # and named (np.unique's index arrays take five times that: a streamed table's peak).
+        if self.problems or _any_repeat(ids):
+            lines = np.concatenate(self.lines) if self.lines else np.zeros(0, np.int64)
+            duplicates, repeated = _repeated_ids(ids, lines)
         if self.problems or repeated:
             # Both lists are in line order and hold the first MAX_MESSAGES of their kind, so
             # the first MAX_MESSAGES of the merge are the file's first problems.
             issues = sorted(self.issues + duplicates, key=lambda i: i.line or 0)[:MAX_MESSAGES]
             total = self.problems + repeated
             raise MeasurementError(issues, self.path, omitted=total - len(issues))
+        return ids
+
+    def finish(self) -> Measurements:
+        ids = self.checked_ids()
         b = self.blocks
 
         def cat(name: str) -> np.ndarray:
@@ -410,6 +429,11 @@ class _TableReader:
             columns=tuple(self.header),
             source=str(self.path),
         )
+
+
+def _any_repeat(ids: np.ndarray) -> bool:
+    ordered = np.sort(ids)
+    return bool(np.any(ordered[1:] == ordered[:-1]))
 
 
 def _repeated_ids(ids: np.ndarray, lines: np.ndarray) -> tuple[list[Issue], int]:
@@ -449,7 +473,33 @@ def read_measurements(path: str | Path, notices: list[str] | None = None) -> Mea
     semicolons or tabs, decimal commas, a byte-order mark, UTF-16, Excel's ``sep=`` line and
     empty padding columns are read as they are, and said in ``notices`` when given.
     """
-    path = Path(path)
+    table = _read(Path(path), notices, None)
+    assert isinstance(table, Measurements)
+    return table
+
+
+def stream_measurements(
+    path: str | Path,
+    sink: Callable[[list[str], RowBlock], None],
+    notices: list[str] | None = None,
+) -> int:
+    """Read measurements.csv as :func:`read_measurements` does, but hand each block of valid
+    rows to ``sink(header, block)`` as it is read instead of keeping it: memory stays a block
+    of rows (and 16 bytes a row for the check of repeated pose ids), whatever the file's size.
+    The number of rows; a file with a bad row raises :class:`MeasurementError` as
+    :func:`read_measurements` does, after ``sink`` may have had the rows before it (the caller
+    throws those away). An error ``sink`` raises goes through unchanged."""
+    ids = _read(Path(path), notices, sink)
+    assert isinstance(ids, np.ndarray)
+    return len(ids)
+
+
+def _read(
+    path: Path,
+    notices: list[str] | None,
+    sink: Callable[[list[str], RowBlock], None] | None,
+) -> Measurements | np.ndarray:
+    """The table (``sink`` None) or, streamed into ``sink``, its pose ids."""
 
     def error(message: str) -> MeasurementError:
         return MeasurementError.single(path, None, None, message.removeprefix(f"{path}: "))
@@ -466,9 +516,10 @@ def read_measurements(path: str | Path, notices: list[str] | None = None) -> Mea
         except DialectError as exc:
             raise MeasurementError.single(path, 2, None, str(exc)) from None
         # A plain, valid table in hexcal's own dialect goes straight into column arrays (in
-        # memory a few times its size, so only up to FAST_MAX_BYTES); any other file is
-        # streamed row by row below, every problem named, memory about its size.
-        if dialect.standard and size <= FAST_MAX_BYTES:
+        # memory a few times its size, so only up to FAST_MAX_BYTES: 640 MB at the edge); any
+        # other file, and every file streamed into a sink, is read row by row below, every
+        # problem named, memory about its size (a sink's: a block of rows).
+        if sink is None and dialect.standard and size <= FAST_MAX_BYTES:
             try:
                 raw = fh.read()
                 fh.seek(0)
@@ -482,17 +533,33 @@ def read_measurements(path: str | Path, notices: list[str] | None = None) -> Mea
         # leading byte-order mark (spreadsheet exports).
         stream = io.TextIOWrapper(fh, encoding=dialect.encoding, newline="")
         try:
-            table = _read_table(stream, path, dialect)
+            table = _read_table(stream, path, dialect, sink)
+            out = table.finish() if sink is None else table.checked_ids()
         except UnicodeDecodeError:
             raise _undecodable(path) from None
+        except OutputFileError:
+            raise  # the sink's own write failed: it names its file
         except OSError as exc:
             raise error(f"cannot be read ({exc.strerror or exc})") from None
     if not dialect.standard and notices is not None:
         notices.append(f"{path}: read as a table {dialect.describe()}")
-    return table
+    return out
 
 
-def _read_table(stream: io.TextIOWrapper, path: Path, dialect: Dialect) -> Measurements:
+def _bound(
+    sink: Callable[[list[str], RowBlock], None] | None, header: list[str]
+) -> Callable[[RowBlock], None] | None:
+    if sink is None:
+        return None
+    return lambda block: sink(header, block)
+
+
+def _read_table(
+    stream: io.TextIOWrapper,
+    path: Path,
+    dialect: Dialect,
+    sink: Callable[[list[str], RowBlock], None] | None,
+) -> _TableReader:
     reader = dialect.reader(stream)
     skip = dialect.skip
     table: _TableReader | None = None
@@ -524,7 +591,7 @@ def _read_table(stream: io.TextIOWrapper, path: Path, dialect: Dialect) -> Measu
             header = [f.strip() for f in fields]
             header = header[: len(header) - dialect.padding]
             _raise_issues(_header_issues(header, line), path)
-            table = _TableReader(header, path)
+            table = _TableReader(header, path, _bound(sink, header))
             width = len(header)
             if dialect.decimal == ",":
                 numeric = [k for k, c in enumerate(header) if c in NUMERIC_COLUMNS]
@@ -541,4 +608,4 @@ def _read_table(stream: io.TextIOWrapper, path: Path, dialect: Dialect) -> Measu
         raise MeasurementError.single(
             path, header_line + 1, None, "no data rows after the header; record at least one pose"
         )
-    return table.finish()
+    return table

@@ -1,4 +1,6 @@
-"""The session file: everything a calibration session recorded and computed, in one JSON file.
+"""The session file: everything a calibration session recorded and computed, in one JSON file
+(and, for a session imported from a table, the table's poses in a pose block beside it:
+:mod:`hexcal.procedure.session_block`, which :func:`import_table` streams the table into).
 
 A :class:`Session` (pydantic v2, in :mod:`hexcal.procedure.session_model` and importable from
 here) holds the robot description, the device configuration, the procedure, every recorded pose
@@ -33,7 +35,7 @@ import hashlib
 import json
 import logging
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,7 +56,9 @@ from hexcal.io.fileio import (
 from hexcal.io.measurements import REQUIRED_COLUMNS
 from hexcal.io.safe_read import KINDS, decode, parse_json, read_bytes
 from hexcal.io.validation import format_validation_error, shown_value
+from hexcal.model.robot import Robot
 from hexcal.procedure import looks_like_session as looks_like_session
+from hexcal.procedure.session_block import attach, stream_table, write_block
 from hexcal.procedure.session_check import (
     duplicate_id_problems,
     pose_problems,
@@ -125,6 +129,9 @@ def _load(path: Path, notices: list[str] | None = None) -> tuple[Session, bytes]
             format_validation_error(exc, str(path), data)
             + "\nthe file is left untouched; fix the field or start a new session"
         ) from None
+    if session.pose_block is not None:  # read and checked now: a damaged block is refused
+        attach(session, path.with_name(session.pose_block.file))
+        session.imported()
     problems = session_problems(session)
     if problems:
         raise SessionFileError(
@@ -264,18 +271,29 @@ class SessionFile:
         self._finalizer = weakref.finalize(self, _release, lock)
 
     @classmethod
-    def create(cls, path: str | Path, session: Session) -> SessionFile:
+    def create(
+        cls, path: str | Path, session: Session, fill: Callable[[Path], object] | None = None
+    ) -> SessionFile:
+        """A new session file at ``path``. ``fill(path)``, when given, runs once the lock is
+        held and before the first save (``session import`` streams its table into the pose
+        block there); whatever it or the save wrote is removed when either fails."""
         path = Path(path)
         lock = _acquire(path, creating=True)
+        before = session._block_path
         try:
             if path.exists():
                 raise SessionFileError(
                     f"{path}: already exists — resume it, or choose another name; it is not "
                     "overwritten"
                 )
+            if fill is not None:
+                fill(path)
             sf = cls(path, session, lock=lock)
             sf.save(creating=True)
         except BaseException:
+            new = session._block_path
+            if new is not None and new != before:
+                new.unlink(missing_ok=True)
             lock.release()
             raise
         return sf
@@ -359,8 +377,23 @@ class SessionFile:
             raise SessionFileError(
                 f"{self.path}: opened read-only (or closed): nothing is saved; resume it to record"
             )
-        # A schema 1 file is upgraded when hexcal writes it (schema 2 only adds fields).
+        # A schema 1 or 2 file is upgraded when hexcal writes it (later schemas only add fields).
         self.session.schema_version = SCHEMA_VERSION
+        old = (self.session.pose_block, self.session._block_path)
+        try:
+            # The pose block first (a new file, named by its checksum), then the file naming it.
+            new_block = write_block(self.session, self.path)
+        except OutputFileError as exc:
+            raise SessionFileError(str(exc) + _unsaved(creating)) from None
+        try:
+            self._write(creating)
+        except BaseException:
+            if new_block is not None:
+                new_block.unlink(missing_ok=True)
+                self.session.pose_block, self.session._block_path = old
+            raise
+
+    def _write(self, creating: bool) -> None:
         text = session_to_text(self.session)
         _check_size(self.path, text, creating)
         if not creating:
@@ -407,6 +440,11 @@ class SessionFile:
             ) from None
         i = len(self.session.poses)
         problems = duplicate_id_problems([*self.session.poses, checked])
+        table = self.session.imported()
+        if table is not None and checked.pose_id in table.pose_id:
+            problems.append(
+                f"pose {checked.pose_id}: the id is an imported pose's; give it an unused id"
+            )
         problems += pose_problems(checked, i, self.session.columns)
         if problems:
             raise SessionFileError(problems_text(where, problems, "the session is unchanged"))
@@ -508,6 +546,30 @@ class SessionFile:
         self.save()
 
 
+def import_table(
+    source: str | Path, robot: Robot, out: str | Path, notices: list[str] | None = None
+) -> tuple[Path, int]:
+    """``session import``: a new session file ``out`` holding the table ``source`` in a pose
+    block, streamed (memory does not grow with the table). The session file's path and the
+    number of poses; refused, with nothing written, when ``out`` exists, the table is bad or
+    beyond :data:`~hexcal.io.capacity.MAX_IMPORTED_POSES`."""
+    source, out = Path(source), Path(out)
+    session = Session(robot=robot)
+    count: list[int] = []
+
+    def fill(path: Path) -> None:
+        count.append(stream_table(source, session, path, notices))
+
+    with SessionFile.create(out, session, fill=fill) as sf:
+        return sf.path, count[0]
+
+
+def _unsaved(creating: bool) -> str:
+    if creating:
+        return "; the session file was not created"
+    return "\nthe last saved state is still on disk; fix the cause, then do it again"
+
+
 def latest_model(session: Session) -> ResultRecord | None:
     """The session's latest result that holds a model (a calibration or a diagnosis step)."""
     with_model = [r for r in session.results if r.calibrated is not None or r.robot is not None]
@@ -525,15 +587,17 @@ def export_session(session: Session, out: str | Path) -> list[str]:
     naming the session's poses and fields), then all are written in one step
     (:func:`~hexcal.io.fileio.write_files_atomic`): a refused or failed export leaves nothing
     behind."""
-    from hexcal.io.measurements import measurements_to_csv_text
+    from hexcal.io.measurements import measurements_csv_pieces
 
     problems = session_problems(session)
     if problems:
         raise SessionFileError(
             problems_text("the session", problems, "nothing was exported; fix the session file")
         )
-    files = {
-        "measurements.csv": measurements_to_csv_text(session.measurements()),
+    # The table is written a part at a time: a session of millions of poses exports without
+    # its whole text in memory.
+    files: dict[str, str | Iterable[str]] = {
+        "measurements.csv": measurements_csv_pieces(session.measurements()),
         "robot.json": session.robot.to_json(),
     }
     written = ["measurements.csv", "robot.json"]

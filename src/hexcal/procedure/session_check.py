@@ -19,6 +19,8 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+import numpy as np
+
 from hexcal.io.measurements import (
     OPTIONAL_COLUMNS,
     QUATERNION_TOLERANCE,
@@ -108,6 +110,14 @@ def session_problems(session: Any) -> list[str]:
     exporting its table, one line each (pose and field named)."""
     out = columns_problems(session.columns)
     out += duplicate_id_problems(session.poses)
+    table = session.imported()
+    if table is not None and session.poses:
+        ids = np.array([int(r.pose_id) for r in session.poses], np.int64)
+        for k in np.flatnonzero(np.isin(ids, table.pose_id)).tolist():
+            out.append(
+                f"pose {ids[k]} (field poses.{k}.pose_id): the id is an imported pose's (the "
+                "pose block's); pose ids must be unique, as in the table: give it an unused id"
+            )
     for i, record in enumerate(session.poses):
         out += pose_problems(record, i, session.columns)
     return out

@@ -34,6 +34,12 @@ def merge_sessions(theirs: Session, mine: Session) -> tuple[Session, list[str]]:
             "the two files are not versions of one session (their robot or procedure differ); "
             "they are not merged"
         )
+    a, b = theirs.pose_block, mine.pose_block
+    if (a is None) != (b is None) or (a is not None and b is not None and a.sha256 != b.sha256):
+        raise SessionFileError(
+            "the two files hold different imported tables (their pose blocks differ), so they "
+            "are not versions of one session; they are not merged"
+        )
     merged = theirs.model_copy(deep=True)
     said: list[str] = []
     for c in mine.columns:  # a column mine's poses brought (a temperature, an extra cell)
@@ -41,7 +47,7 @@ def merge_sessions(theirs: Session, mine: Session) -> tuple[Session, list[str]]:
             merged.columns.append(c)
     used = {p.pose_id for p in merged.poses}
     used |= {s.pose.pose_id for s in merged.set_aside if s.pose is not None}
-    next_id = max(used, default=0) + 1
+    next_id = max(merged.next_pose_id(), max(used, default=0) + 1)
     renumbered: dict[int, int] = {}
     new_poses = []
     for p in _added(merged.poses, mine.poses, _pose_key):

@@ -15,12 +15,20 @@ only differences within one run are meaningful; ``recorded_at`` is wall-clock UT
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any, Final, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+)
 
 from hexcal import __version__
 from hexcal.acquire.acquisition import LegSample, RecordedPose, TrackerSample
@@ -44,7 +52,8 @@ from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot
 from hexcal.vocabulary import Constraint, ConstraintField, ModelKindField
 
-SCHEMA_VERSION: Final = 2
+#: 3: an imported table's poses may sit in a pose block beside the file (``pose_block``).
+SCHEMA_VERSION: Final = 3
 #: The columns of the interchange table that are not extra columns.
 _TABLE_COLUMNS = frozenset((*REQUIRED_COLUMNS, "temperature"))
 
@@ -226,11 +235,29 @@ class EncoderReboot(BaseModel):
     beyond: bool = False
 
 
-class Session(BaseModel):
-    """A calibration session (see the module docstring)."""
+class PoseBlock(BaseModel):
+    """Where a session keeps an imported table's poses: the pose block ``file`` beside the
+    session file (:mod:`hexcal.io.pose_block`), its ``poses`` (at most
+    :data:`hexcal.io.capacity.MAX_IMPORTED_POSES`, checked on load), the SHA-256 of its
+    records, and each text column's distinct values in code order (``step``, ``constraint``,
+    then the session's extra columns in ``columns`` order)."""
 
     model_config = ConfigDict(extra="forbid")
-    schema_version: Literal[1, 2] = SCHEMA_VERSION
+    file: str = Field(pattern=r"^[^/\\]+\.poses\.npy$", description="a name beside the session")
+    poses: int = Field(ge=1)
+    sha256: str = Field(pattern="^[0-9a-f]{64}$")
+    texts: dict[str, list[str]]
+
+
+class Session(BaseModel):
+    """A calibration session (see the module docstring).
+
+    The poses are ``poses`` (recorded, with their raw samples) after, when the session was
+    imported from a table, that table's rows, kept in a pose block beside the file
+    (``pose_block``; :mod:`hexcal.procedure.session_block` reads and writes it)."""
+
+    model_config = ConfigDict(extra="forbid")
+    schema_version: Literal[1, 2, 3] = SCHEMA_VERSION
     hexcal_version: str = __version__
     created: datetime = Field(default_factory=_now)
     robot: Robot
@@ -256,12 +283,40 @@ class Session(BaseModel):
         default_factory=list,
         description="the legs whose encoder rebooted while recording, and the first pose after",
     )
+    pose_block: PoseBlock | None = Field(
+        None, description="an imported table's poses, in a binary file beside this one"
+    )
+    #: The imported table (the pose block's rows), once read or before it is first written.
+    _table: Measurements | None = PrivateAttr(None)
+    #: The pose block file ``_table`` was read from or written to (None: not yet written).
+    _block_path: Path | None = PrivateAttr(None)
+    #: Reads ``_table`` from the pose block (set with ``_block_path``).
+    _table_source: Callable[[], Measurements] | None = PrivateAttr(None)
+
+    # -- the imported table ---------------------------------------------------------------------
+    def imported(self) -> Measurements | None:
+        """The imported table's rows (read from the pose block the first time), or None."""
+        if self._table is None and self.pose_block is not None:
+            if self._table_source is None:
+                raise SessionFileError("the session's pose block has no file to be read from")
+            self._table = self._table_source()
+        return self._table
 
     # -- the interchange table ----------------------------------------------------------------
     def measurements(self) -> Measurements:
-        """The recorded poses as the measurement table (every pose, in order)."""
+        """The session's poses as the measurement table (every pose, in order: the imported
+        table's, then the recorded ones)."""
+        table = self.imported()
         if not self.poses:
-            raise SessionFileError("the session has no recorded pose yet")
+            if table is None:
+                raise SessionFileError("the session has no recorded pose yet")
+            return table
+        recorded = self._recorded()
+        if table is None:
+            return recorded
+        return _joined(table, recorded)
+
+    def _recorded(self) -> Measurements:
         p = self.poses
         temps = [r.temperature for r in p]
         # The interchange table has no empty temperature cell: the column goes out with every
@@ -305,13 +360,26 @@ class Session(BaseModel):
         ]
         return cls(robot=robot, devices=devices, columns=list(meas.columns), poses=poses)
 
+    @classmethod
+    def with_table(
+        cls, meas: Measurements, robot: Robot, devices: DevicesConfig | None = None
+    ) -> Session:
+        """A session holding an imported table as its pose block (written beside the session
+        file when it is first saved): export gives it back."""
+        session = cls(robot=robot, devices=devices, columns=list(meas.columns))
+        session._table = meas
+        return session
+
     # -- recording ------------------------------------------------------------------------------
     def next_pose_id(self) -> int:
+        table = self.imported()
         used = [r.pose_id for r in self.poses] + [
             s.pose.pose_id for s in self.set_aside if s.pose is not None
         ]
         unreadable = [_unreadable_id(s.unreadable_pose) for s in self.set_aside]
         used += [u for u in unreadable if u is not None]
+        if table is not None and len(table):
+            used.append(int(table.pose_id.max()))
         return max(used, default=0) + 1
 
     def pose_record(
@@ -350,6 +418,26 @@ class Session(BaseModel):
                 + "\na pose must hold finite numbers in range: check the devices (a fault "
                 "their drivers did not flag), then record the pose again"
             ) from None
+
+
+def _joined(table: Measurements, recorded: Measurements) -> Measurements:
+    """The imported ``table``'s rows then the ``recorded`` poses' as one table (the header of
+    both; a temperature column only when both have one)."""
+    both_t = table.temperature is not None and recorded.temperature is not None
+    columns = tuple(c for c in table.columns if both_t or c != "temperature")
+    return Measurements(
+        pose_id=np.concatenate([table.pose_id, recorded.pose_id]),
+        t=np.concatenate([table.t, recorded.t]),
+        step=np.concatenate([table.step, recorded.step]),
+        leg=np.concatenate([table.leg, recorded.leg]),
+        constraint=np.concatenate([table.constraint, recorded.constraint]),
+        position=np.concatenate([table.position, recorded.position]),
+        quaternion=np.concatenate([table.quaternion, recorded.quaternion]),
+        readings=np.concatenate([table.readings, recorded.readings]),
+        temperature=(np.concatenate([table.temperature, recorded.temperature]) if both_t else None),
+        extra={k: np.concatenate([v, recorded.extra[k]]) for k, v in table.extra.items()},
+        columns=columns,
+    )
 
 
 def _finite(v: float) -> float | None:

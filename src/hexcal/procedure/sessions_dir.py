@@ -99,9 +99,15 @@ def _entry(path: Path) -> SessionEntry:
         modified,
         robot=str(robot.get("name", "robot")) if isinstance(robot, dict) else "?",
         created=str(data.get("created", "")),
-        poses=len(poses) if isinstance(poses, list) else 0,
+        poses=(len(poses) if isinstance(poses, list) else 0) + _imported(data.get("pose_block")),
         last_step=last,
     )
+
+
+def _imported(block: Any) -> int:
+    """The poses of a session's pose block (an imported table), as its file says."""
+    n = block.get("poses") if isinstance(block, dict) else None
+    return n if isinstance(n, int) and not isinstance(n, bool) and n > 0 else 0
 
 
 def list_sessions(directory: Path, limit: int = 50) -> list[SessionEntry]:

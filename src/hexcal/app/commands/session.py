@@ -38,10 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hexcal.estimate.model_file import load_robot
-    from hexcal.io.capacity import IMPORTED_POSE_BYTES, MAX_IMPORTED_POSES, MAX_SESSION_BYTES, MB
     from hexcal.io.fileio import check_output
-    from hexcal.io.measurements_csv import read_measurements
-    from hexcal.procedure.session import Session, SessionFile, export_session, load_session
+    from hexcal.procedure.session import SessionFile, export_session, import_table, load_session
     from hexcal.vocabulary import counted
 
     if args.session_command == "export":
@@ -68,18 +66,8 @@ def run(args: argparse.Namespace) -> int:
             added = ", ".join(said) if said else "nothing: mine adds nothing to theirs"
             print(f"session {sf.path} created from {args.theirs}, with from {args.mine}: {added}")
         return 0
-    meas = read_measurements(args.measurements)
-    if len(meas) > MAX_IMPORTED_POSES:  # refused before the session is built or written
-        raise ValueError(
-            f"{args.measurements}: {len(meas):,} poses; a session file holds at most "
-            f"{MAX_IMPORTED_POSES:,} imported poses (its {MAX_SESSION_BYTES // MB} MB limit, "
-            f"{IMPORTED_POSE_BYTES} bytes a pose at the least), so {args.out} was not written: "
-            "import a part of the table (a step, a stretch of time) per session, or calibrate "
-            "and diagnose straight from the table"
-        )
-    robot = load_robot(args.robot)
-    with SessionFile.create(args.out, Session.from_measurements(meas, robot)) as sf:
-        print(
-            f"session {sf.path} created with {counted(len(meas), 'pose')} from {args.measurements}"
-        )
+    # Streamed into the session's pose block: memory does not grow with the table, and a
+    # table beyond what a session holds is refused with nothing written.
+    path, n = import_table(args.measurements, load_robot(args.robot), args.out)
+    print(f"session {path} created with {counted(n, 'pose')} from {args.measurements}")
     return 0

@@ -1,0 +1,194 @@
+"""A session's imported table in its pose block (:mod:`hexcal.io.pose_block`): streamed in from
+a CSV by ``session import``, read back as the measurement table, written beside a session
+file that does not have it yet (docs/formats.md, "The pose block").
+
+The block is named after the session file and its checksum (``s.json.<sha>.poses.npy``) and is
+never changed once written: a session saved again keeps referring to it, so a crash during a
+save leaves the previous session file with its block, or the new one with it. Its size is
+held to :data:`hexcal.io.capacity.MAX_IMPORTED_POSES` by the writer, which refuses a larger
+table as it streams in (nothing is left), and by the reader.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from hexcal.io import capacity
+from hexcal.io.measurements import MeasurementError, Measurements
+from hexcal.io.measurements_csv import RowBlock, stream_measurements
+from hexcal.io.pose_block import PoseBlockError, PoseBlockWriter, decode_texts, read_block
+from hexcal.procedure.session_model import (
+    _TABLE_COLUMNS,
+    PoseBlock,
+    Session,
+    SessionFileError,
+)
+
+#: Rows written to a block at a time from a table in memory.
+_CHUNK_ROWS = 65_536
+
+
+def text_columns(columns: list[str]) -> list[str]:
+    """The block's text columns for a session whose table has header ``columns``."""
+    return ["step", "constraint", *(c for c in columns if c not in _TABLE_COLUMNS)]
+
+
+def _limit_text() -> str:
+    return (
+        f"a session holds at most {capacity.MAX_IMPORTED_POSES:,} imported poses "
+        "(hexcal.io.capacity.MAX_IMPORTED_POSES, what every hexcal command reads)"
+    )
+
+
+def read_table(path: Path, block: PoseBlock, columns: list[str]) -> Measurements:
+    """The imported table held in the pose block at ``path`` (described by ``block``, the
+    session's header ``columns``), every row checked as a table read from a CSV is; a block
+    beyond the limit, damaged, or whose rows break the table's rules is refused naming it."""
+    if block.poses > capacity.MAX_IMPORTED_POSES:
+        raise SessionFileError(
+            f"{path}: {block.poses:,} poses; {_limit_text()}. It is left untouched: import a "
+            "part of the table per session, or calibrate straight from the table"
+        )
+    names = text_columns(columns)
+    if list(block.texts) != names:
+        raise SessionFileError(
+            f"{path}: the session file lists the text columns {list(block.texts)} for its pose "
+            f"block where its columns give {names}; the file is left untouched"
+        )
+    try:
+        rec = read_block(path, block.poses, block.sha256, len(names))
+        codes = rec["texts"]
+        texts = [decode_texts(path, codes[:, j], block.texts[c], c) for j, c in enumerate(names)]
+    except PoseBlockError as exc:
+        raise SessionFileError(str(exc)) from None
+    del codes
+    try:
+        table = Measurements(
+            pose_id=rec["pose_id"],
+            t=rec["t"],
+            step=texts[0],
+            leg=rec["leg"],
+            constraint=texts[1],
+            position=rec["position"],
+            quaternion=rec["quaternion"],
+            readings=rec["readings"],
+            temperature=rec["temperature"] if "temperature" in columns else None,
+            extra=dict(zip(names[2:], texts[2:], strict=True)),
+            columns=tuple(columns),
+            source=str(path),
+        )
+    except (MeasurementError, ValueError) as exc:
+        raise SessionFileError(
+            f"{path}: its poses break the table's rules ({exc}); the file is left untouched"
+        ) from None
+    if len(np.unique(table.pose_id)) != len(table):
+        raise SessionFileError(
+            f"{path}: a pose id repeats in the pose block; pose ids must be unique, as in the "
+            "table; the file is left untouched"
+        )
+    return table
+
+
+def _too_many(source: Path, out: Path) -> Callable[[], Exception]:
+    def refusal() -> Exception:
+        return SessionFileError(
+            f"{source}: more than {capacity.MAX_IMPORTED_POSES:,} poses; {_limit_text()}, so "
+            f"{out} was not written: import a part of the table (a step, a stretch of time) "
+            "per session, or calibrate and diagnose straight from the table"
+        )
+
+    return refusal
+
+
+def _attach(session: Session, writer: PoseBlockWriter, out: Path) -> None:
+    info = writer.finish()
+    session.pose_block = PoseBlock(
+        file=info.name, poses=info.poses, sha256=info.sha256, texts=info.texts
+    )
+    attach(session, out.with_name(info.name))
+
+
+def attach(session: Session, path: Path) -> None:
+    """Make the pose block at ``path`` (as ``session.pose_block`` describes it) the session's
+    table: read when first asked for (:meth:`Session.imported`)."""
+    block = session.pose_block
+    assert block is not None
+    session._block_path = path
+    session._table_source = lambda: read_table(path, block, session.columns)
+
+
+def stream_table(source: Path, session: Session, out: Path, notices: list[str] | None) -> int:
+    """Stream the table ``source`` (measurements.csv) into a new pose block beside the session
+    file ``out``, a block of rows at a time, and make it ``session``'s table (its header
+    becomes the session's ``columns``). The number of poses. A bad row, a table beyond the
+    limit or a failed write leaves nothing behind."""
+    writer: PoseBlockWriter | None = None
+
+    def sink(header: list[str], rows: RowBlock) -> None:
+        nonlocal writer
+        if writer is None:
+            session.columns = list(header)
+            writer = PoseBlockWriter(
+                out, text_columns(session.columns), capacity.MAX_IMPORTED_POSES,
+                _too_many(source, out),
+            )  # fmt: skip
+        writer.add(
+            rows.pose_id,
+            rows.t,
+            rows.leg,
+            rows.position,
+            rows.quaternion,
+            rows.readings,
+            rows.temperature,
+            [rows.step, rows.constraint, *rows.extra],
+        )
+
+    try:
+        n = stream_measurements(source, sink, notices)
+        if writer is None:  # the reader refuses a table without rows; kept for the types
+            raise SessionFileError(f"{source}: no data rows; {out} was not written")
+        _attach(session, writer, out)
+    except BaseException:
+        if writer is not None:
+            writer.discard()
+        raise
+    return n
+
+
+def write_block(session: Session, out: Path) -> Path | None:
+    """Write ``session``'s imported table as a pose block beside the session file ``out``
+    unless its block is there already: the new block's path, or None when nothing was
+    written. ``session.pose_block`` then names it."""
+    if session.pose_block is None and session._table is None:
+        return None
+    at = session._block_path
+    if at is not None and at.parent.resolve() == out.parent.resolve() and at.exists():
+        return None
+    table = session.imported()
+    assert table is not None
+    names = text_columns(session.columns)
+    writer = PoseBlockWriter(
+        out, names, capacity.MAX_IMPORTED_POSES, _too_many(Path("the table"), out)
+    )
+    try:
+        for a in range(0, len(table), _CHUNK_ROWS):
+            r = slice(a, a + _CHUNK_ROWS)
+            writer.add(
+                table.pose_id[r],
+                table.t[r],
+                table.leg[r],
+                table.position[r],
+                table.quaternion[r],
+                table.readings[r],
+                None if table.temperature is None else table.temperature[r],
+                [table.step[r].tolist(), table.constraint[r].tolist()]
+                + [table.extra[c][r].tolist() for c in names[2:]],
+            )
+        _attach(session, writer, out)
+    except BaseException:
+        writer.discard()
+        raise
+    return session._block_path
