@@ -1,0 +1,101 @@
+"""The text UI's decide step (:mod:`hexcal.tui.decide`), driven by Textual's Pilot at 80×24: a
+look-alike session (:mod:`hexcal.sim.plan_cases`) on the mock rig, through the real drivers,
+from the diagnosis that offers a plan to the verdict that decides it."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+from test_tui import _settle, _until
+
+from hexcal.procedure.session import load_session
+from hexcal.tui.app import HexcalApp
+from hexcal.tui.backend import look_alike_backend
+from hexcal.tui.decide import PLAN_STEP, DecideScreen
+from hexcal.tui.record import RecordScreen
+from hexcal.tui.results import DiagnosisScreen, ResultScreen
+
+SMALL = (80, 24)
+
+
+def _text(screen, *ids: str) -> str:
+    return "\n".join(str(screen.query_one(i).render()) for i in ids)
+
+
+@pytest.mark.slow
+def test_a_look_alike_session_is_decided_by_its_planned_poses(tmp_path, quick_pilot):
+    """Thermal expansion hidden, the temperature rising over the session (the worked example's
+    pair, docs/diagnosis.md): the diagnosis names drift and cannot resolve thermal, and offers a
+    plan; p plans it, g drives the mock platform to the first pose and r records it, a the
+    rest; after each the diagnosis runs again. It ends decided — thermal resolved and named, the
+    effect the mock robot hides — within the planned poses, each recorded where it was planned,
+    and the diagnosis screen shows the new verdict."""
+    backend = look_alike_backend("thermal vs drift", seed=2, scale=4.0)
+    path = tmp_path / "session.json"
+    backend.write_session(path)
+    n_session = len(load_session(path).poses)
+    app = HexcalApp(backend, session_path=path)
+
+    async def run():
+        async with app.run_test(size=SMALL) as pilot:
+            await pilot.press("ctrl+r")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 30)
+            assert app.guided.finished
+            await pilot.press("k")
+            await _until(pilot, lambda: isinstance(app.screen, ResultScreen), 5)
+            await _settle(pilot)
+            await pilot.press("d")
+            await _until(pilot, lambda: isinstance(app.screen, DiagnosisScreen), 5)
+            diag = app.screen
+            await _until(pilot, lambda: len(diag.history) == 1 and not diag.busy, 60)
+            first = diag.history[0]
+            assert "press p to record them and decide" in _text(diag, "#diag-summary")
+            await pilot.press("p")
+            await _until(pilot, lambda: isinstance(app.screen, DecideScreen), 5)
+            screen = app.screen
+            await _until(pilot, lambda: screen.plan is not None, 60)
+            planned = screen.plan.meas
+            # The first pose by hand: go there, record; the diagnosis runs again.
+            await pilot.press("g")
+            await pilot.press("r")
+            await _until(pilot, lambda: len(screen.rows) == 2 and not screen.busy, 60)
+            assert screen.recorded == 1
+            # The rest with the mock operator, until decided or the plan is spent.
+            await pilot.press("a")
+            await _until(pilot, lambda: screen.ended is not None and not screen.busy, 180)
+            said = _text(screen, "#decide-table", "#decide-next")
+            await pilot.press("r")  # the step has ended: r says so
+            refused = _text(screen, "#status")
+            poses = [r for r in app.guided.sf.session.poses if r.step == PLAN_STEP]
+            await pilot.press("escape")
+            await _until(pilot, lambda: app.screen is diag, 5)
+            await _until(pilot, lambda: len(diag.history) == 1 and not diag.busy, 60)
+            return first, screen, planned, said, refused, poses, diag.history[0]
+
+    first, screen, planned, said, refused, poses, after = asyncio.run(run())
+    offer = first.plans[0]
+    assert (str(first.verdict), offer.kind, offer.hypotheses) == ("drift", "resolve", ("thermal",))
+    assert screen.rows[0][1].hypotheses == ("thermal", "drift")
+    assert not screen.rows[0][1].decided
+    # Decided, not spent: thermal, what the mock robot hides, within the plan's poses.
+    assert screen.ended == "decided"
+    last = screen.rows[-1][1]
+    assert last.decided and last.winner == "thermal" == app.rig.hidden["name"]
+    n = screen.recorded
+    assert 1 <= n <= len(planned) == offer.n_planned
+    assert [k for k, _, _ in screen.rows] == list(range(n + 1))  # one diagnosis per pose
+    assert f"Decided after {n} planned pose" in said and f"of {len(planned)}" in said
+    assert "decided: thermal is resolved and named" in said
+    assert "has ended (decided)" in refused
+    # Every planned pose recorded once, through the drivers, where it was planned: the tracker
+    # reads the pose the platform was driven to (its noise 0.01 mm, so 0.1 mm is 10σ).
+    assert len(poses) == n
+    got = np.array([r.position for r in poses])
+    assert np.abs(got - planned.position[:n]).max() < 0.1
+    saved = load_session(tmp_path / "session.json")
+    assert len(saved.poses) == n_session + n
+    assert [r.step for r in saved.poses[-n:]] == [PLAN_STEP] * n
+    # Back on the diagnosis screen: diagnosed again on every pose, thermal named.
+    assert str(after.verdict) == "thermal"
