@@ -35,13 +35,17 @@ class Standing:
     """The question after the poses so far: the two ``hypotheses``, their ``chi2`` (over the
     noise level, on the diagnosis' poses), whether it is ``decided``, the ``winner`` (the
     hypothesis named, or for a resolved effect not named, the geometry's side: None when
-    undecided), and one sentence for the operator."""
+    undecided), and why, in ``words`` (:attr:`said`: with "decided" or "undecided" before)."""
 
     hypotheses: tuple[str, str]
     chi2: tuple[float, float]
     decided: bool
     winner: str | None
     words: str
+
+    @property
+    def said(self) -> str:
+        return f"{'decided' if self.decided else 'undecided'}: {self.words}"
 
     @property
     def delta_chi2(self) -> float:
@@ -72,28 +76,26 @@ def standing(d: Any, offer: Offer, pair: tuple[str, str] | None = None) -> Stand
         if named in pair:
             other = b if named == a else a
             if other not in alike:
-                return Standing(
-                    pair, chi2, True, named, f"decided: {named} — {other} no longer fits alike"
-                )
+                return Standing(pair, chi2, True, named, f"{named} — {other} no longer fits alike")
             why = f"{named} is named, {other} still fits alike"
         else:
             why = f"the diagnosis names {_said(named)}, neither of the two"
-        return Standing(pair, chi2, False, None, f"undecided: {why}")
+        return Standing(pair, chi2, False, None, why)
     (e,) = offer.hypotheses
     c = next((c for c in d.candidates if c.effect == e), None)
     if e in d.effects or named == e:
         more = f" ({', '.join(sorted(alike))} fit alike)" if alike else ""
-        return Standing(pair, chi2, True, e, f"decided: {e} is resolved and named{more}")
+        return Standing(pair, chi2, True, e, f"{e} is resolved and named{more}")
     if c is not None and c.identifiable:
         return Standing(
             pair,
             chi2,
             True,
             pair[1],
-            f"decided: {e} is resolved, and it is not what is missing ({_said(named)})",
+            f"{e} is resolved, and it is not what is missing ({_said(named)})",
         )
     reason = c.reason if c is not None and c.reason else f"{e} is not resolved yet"
-    return Standing(pair, chi2, False, None, f"undecided: {reason}")
+    return Standing(pair, chi2, False, None, reason)
 
 
 def _said(verdict: str) -> str:

@@ -185,6 +185,7 @@ class LookAlikeBackend(Backend):
                 ],
             }
         )
+        path.parent.mkdir(parents=True, exist_ok=True)
         SessionFile.create(path, session).close()
 
 

@@ -69,16 +69,17 @@ class DecideScreen(HexcalScreen):
         yield Header()
         yield Foot()
         yield Working(id="working")
+        # What to do now first, then the χ² pose by pose, then the plan's figures: at 80×24
+        # the action and the table are seen, the figures below them scroll.
         with VerticalScroll(id="decide-scroll"):
-            yield Static("", id="decide-head")
-            yield Static("", id="decide-table")
             yield Static("", id="decide-next")
+            yield Static("", id="decide-table")
+            yield Static("", id="decide-head")
 
     def on_mount(self) -> None:
         from hexcal.diagnosis.decide import standing
 
         self.query_one("#decide-scroll").focus()
-        self.query_one("#decide-head").border_title = "Decide"
         self.rows.append((0, standing(self.first, self.offer), str(self.first.verdict)))
         self._working = self.query_one(Working)
         self._working.start(f"planning {counted(self.offer.n_planned, 'pose')}")
@@ -137,10 +138,11 @@ class DecideScreen(HexcalScreen):
         self._working.stop()
         self.plan = plan
         self.busy = False
-        what = self.offer.text()
+        a, b = self.rows[0][1].hypotheses
         self._head = (
-            f"[b]{escape(what[0].upper() + what[1:])}[/b]: {counted(len(plan.meas), 'pose')} "
-            "planned, free (no leg clamped); the diagnosis runs again after each.\n"
+            f"[b]The plan[/b] ({escape(self.offer.text())}): {counted(len(plan.meas), 'pose')}, "
+            f"free (no leg clamped); the diagnosis runs again after each. Δχ²: χ² {escape(b)} "
+            f"less χ² {escape(a)} (> 0: {escape(a)} fits better).\n"
             + escape("\n".join(plan_lines(plan)))
         )
         self._show()
@@ -163,7 +165,7 @@ class DecideScreen(HexcalScreen):
             lines.append(f"{n:>5} {ca:>{wa}.1f} {cb:>{wb}.1f} {st.delta_chi2:>+8.1f}  {verdict}")
         last = self.rows[-1][1]
         style = "green" if last.decided else "yellow"
-        lines.append(f"[{style}]{escape(last.words)}[/{style}]")
+        lines.append(f"[{style}]{escape(last.said)}[/{style}]")
         self._table = "\n".join(escape(line) for line in lines[:-1]) + "\n" + lines[-1]
         self._next = self._next_text()
         self._fit()
@@ -175,13 +177,13 @@ class DecideScreen(HexcalScreen):
             return (
                 f"[green b]Decided[/green b] after {counted(self.recorded, 'planned pose')} "
                 f"of {len(plan.meas)}: {escape(self.rows[-1][1].words)}. Escape: back to the "
-                "diagnosis, which shows it."
+                "diagnosis, on every pose."
             )
         if self.ended == "spent":
             return (
                 f"[yellow b]Plan spent[/yellow b]: all {len(plan.meas)} planned poses recorded, "
-                f"and the question is still open ({escape(self.rows[-1][1].words)}). Escape: "
-                "back to the diagnosis."
+                "and the question is still open (below). Escape: back to the diagnosis, on "
+                "every pose."
             )
         if plan is None:
             return ""
@@ -227,6 +229,9 @@ class DecideScreen(HexcalScreen):
         return None
 
     def hidden(self, action: str) -> bool:
+        """Out of the key bar: the step's keys once it has ended, the mock's without one."""
+        if action in ("go", "record", "auto") and self.ended is not None:
+            return True
         return action in ("go", "auto") and self._guided.mover is None
 
     def action_go(self) -> None:
