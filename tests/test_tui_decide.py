@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from test_tui import _settle, _until
 
+from hexcal.app.cli import main
 from hexcal.procedure.session import load_session
 from hexcal.tui.app import HexcalApp
-from hexcal.tui.backend import look_alike_backend
 from hexcal.tui.decide import PLAN_STEP, DecideScreen
 from hexcal.tui.record import RecordScreen
 from hexcal.tui.results import DiagnosisScreen, ResultScreen
@@ -25,18 +25,20 @@ def _text(screen, *ids: str) -> str:
 
 
 @pytest.mark.slow
-def test_a_look_alike_session_is_decided_by_its_planned_poses(tmp_path, quick_pilot):
+def test_a_look_alike_session_is_decided_by_its_planned_poses(tmp_path, quick_pilot, monkeypatch):
     """Thermal expansion hidden, the temperature rising over the session (the worked example's
     pair, docs/diagnosis.md): the diagnosis names drift and cannot resolve thermal, and offers a
     plan; p plans it, g drives the mock platform to the first pose and r records it, a the
     rest; after each the diagnosis runs again. It ends decided — thermal resolved and named, the
     effect the mock robot hides — within the planned poses, each recorded where it was planned,
     and the diagnosis screen shows the new verdict."""
-    backend = look_alike_backend("thermal vs drift", seed=2, scale=4.0)
     path = tmp_path / "session.json"
-    backend.write_session(path)
+    made: list[HexcalApp] = []
+    monkeypatch.setattr(HexcalApp, "run", lambda self, *a, **k: made.append(self))
+    argv = ["run", "--mock", "--look-alike", "thermal-drift", "--seed", "2", "--session"]
+    assert main([*argv, str(path), "--sessions", str(tmp_path)]) == 0
+    (app,) = made  # as `hexcal run` made it, the look-alike session written to resume
     n_session = len(load_session(path).poses)
-    app = HexcalApp(backend, session_path=path)
 
     async def run():
         async with app.run_test(size=SMALL) as pilot:
@@ -65,7 +67,7 @@ def test_a_look_alike_session_is_decided_by_its_planned_poses(tmp_path, quick_pi
             # The rest with the mock operator, until decided or the plan is spent.
             await pilot.press("a")
             await _until(pilot, lambda: screen.ended is not None and not screen.busy, 180)
-            said = _text(screen, "#decide-table", "#decide-next")
+            said = _text(screen, "#decide-table", "#decide-said", "#decide-next")
             await pilot.press("r")  # the step has ended: r says so
             refused = _text(screen, "#status")
             poses = [r for r in app.guided.sf.session.poses if r.step == PLAN_STEP]
@@ -99,3 +101,9 @@ def test_a_look_alike_session_is_decided_by_its_planned_poses(tmp_path, quick_pi
     assert [r.step for r in saved.poses[-n:]] == [PLAN_STEP] * n
     # Back on the diagnosis screen: diagnosed again on every pose, thermal named.
     assert str(after.verdict) == "thermal"
+
+
+def test_a_look_alike_session_is_for_the_mock_rig(tmp_path):
+    with pytest.raises(SystemExit, match="--look-alike goes with --mock"):
+        main(["run", "--look-alike", "thermal-drift", "--session", str(tmp_path / "s.json")])
+    assert not (tmp_path / "s.json").exists()

@@ -16,11 +16,11 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from rich.markup import escape
 from scipy.spatial.transform import Rotation
 from textual import work
 from textual.binding import Binding
 from textual.containers import VerticalScroll
+from textual.content import Content
 from textual.widgets import Header, Static
 
 from hexcal.diagnosis.plan import Offer
@@ -34,6 +34,8 @@ from hexcal.vocabulary import counted
 
 #: The step name the planned poses are recorded under.
 PLAN_STEP = "plan"
+#: Rows of the χ² table on a short screen (the session's, a gap, the latest).
+SHORT_ROWS = 6
 #: Refused recordings of one pose after which the mock operator stops.
 MAX_REFUSED = 5
 
@@ -62,7 +64,8 @@ class DecideScreen(HexcalScreen):
         #: (poses recorded, Standing, the diagnosis' verdict) after each diagnosis
         self.rows: list[tuple[int, Any, str]] = []
         self.ended: str | None = None  # "decided" or "spent"
-        self._head = self._next = self._table = ""
+        #: What each box shows: plain text (wrapped to the width by reflow), and its style
+        self._texts: dict[str, tuple[str, str]] = {}
 
     # -- layout ---------------------------------------------------------------------------------
     def compose(self):
@@ -74,6 +77,7 @@ class DecideScreen(HexcalScreen):
         with VerticalScroll(id="decide-scroll"):
             yield Static("", id="decide-next")
             yield Static("", id="decide-table")
+            yield Static("", id="decide-said")
             yield Static("", id="decide-head")
 
     def on_mount(self) -> None:
@@ -86,16 +90,13 @@ class DecideScreen(HexcalScreen):
         self._plan()
 
     def on_resize(self) -> None:
-        self.call_after_refresh(self._fit)
+        # The table's rows depend on the height, the wrapping on the width.
+        self.call_after_refresh(self._show if self.rows else self._fit)
 
     def _fit(self) -> None:
         width = max(20, self.query_one("#decide-scroll").size.width - 4)
-        for box, text in (
-            ("#decide-head", self._head),
-            ("#decide-table", self._table),
-            ("#decide-next", self._next),
-        ):
-            self.query_one(box, Static).update(reflow(text, width))
+        for box, (text, style) in self._texts.items():
+            self.query_one(box, Static).update(Content.styled(reflow(text, width), style))
 
     # -- planning -------------------------------------------------------------------------------
     @property
@@ -139,12 +140,12 @@ class DecideScreen(HexcalScreen):
         self.plan = plan
         self.busy = False
         a, b = self.rows[0][1].hypotheses
-        self._head = (
-            f"[b]The plan[/b] ({escape(self.offer.text())}): {counted(len(plan.meas), 'pose')}, "
-            f"free (no leg clamped); the diagnosis runs again after each. Δχ²: χ² {escape(b)} "
-            f"less χ² {escape(a)} (> 0: {escape(a)} fits better).\n"
-            + escape("\n".join(plan_lines(plan)))
+        head = (
+            f"The plan ({self.offer.text()}): {counted(len(plan.meas), 'pose')}, free (no leg "
+            f"clamped); the diagnosis runs again after each. Δχ²: χ² {b} less χ² {a} (> 0: "
+            f"{a} fits better)."
         )
+        self._texts["#decide-head"] = ("\n".join([head, *plan_lines(plan)]), "")
         self._show()
 
     def _failed(self, msg: str) -> None:
@@ -160,33 +161,39 @@ class DecideScreen(HexcalScreen):
         lines = [
             f"{'poses':>5} {'χ² ' + a:>{wa}} {'χ² ' + b:>{wb}} {'Δχ²':>8}  diagnosis",
         ]
-        for n, st, verdict in self.rows:
+        rows = self.rows
+        if self.has_class("-short") and len(rows) > SHORT_ROWS:
+            # 80×24: the session's row and the latest, so the last stays above the fold.
+            rows = [rows[0], *rows[-(SHORT_ROWS - 2) :]]
+        for i, (n, st, verdict) in enumerate(rows):
+            if i == 1 and n > 1:
+                lines.append(f"{'⋮':>5}")
             ca, cb = st.chi2
             lines.append(f"{n:>5} {ca:>{wa}.1f} {cb:>{wb}.1f} {st.delta_chi2:>+8.1f}  {verdict}")
         last = self.rows[-1][1]
-        style = "green" if last.decided else "yellow"
-        lines.append(f"[{style}]{escape(last.said)}[/{style}]")
-        self._table = "\n".join(escape(line) for line in lines[:-1]) + "\n" + lines[-1]
-        self._next = self._next_text()
+        self._texts["#decide-table"] = ("\n".join(lines), "")
+        self._texts["#decide-said"] = (last.said, "green" if last.decided else "yellow")
+        self._texts["#decide-next"] = self._next_text()
         self._fit()
         self.refresh_bindings()
 
-    def _next_text(self) -> str:
+    def _next_text(self) -> tuple[str, str]:
+        """What to do now, and its style: the next planned pose, or how the step ended."""
         plan = self.plan
         if self.ended == "decided":
             return (
-                f"[green b]Decided[/green b] after {counted(self.recorded, 'planned pose')} "
-                f"of {len(plan.meas)}: {escape(self.rows[-1][1].words)}. Escape: back to the "
-                "diagnosis, on every pose."
+                f"Decided after {counted(self.recorded, 'planned pose')} of {len(plan.meas)}: "
+                f"{self.rows[-1][1].words}. Escape: back to the diagnosis, on every pose.",
+                "bold green",
             )
         if self.ended == "spent":
             return (
-                f"[yellow b]Plan spent[/yellow b]: all {len(plan.meas)} planned poses recorded, "
-                "and the question is still open (below). Escape: back to the diagnosis, on "
-                "every pose."
+                f"Plan spent: all {len(plan.meas)} planned poses recorded, and the question is "
+                "still open (below). Escape: back to the diagnosis, on every pose.",
+                "bold yellow",
             )
         if plan is None:
-            return ""
+            return "", ""
         k = self.recorded
         P, R = plan.meas.position[k], plan.meas.rotations.as_matrix()[k]
         last = self._guided.sf.session.poses[-1]
@@ -194,14 +201,11 @@ class DecideScreen(HexcalScreen):
         move = motion_text(np.asarray(last.position), R_last, P, R)
         legs = " ".join(f"{x:.3f}" for x in plan.meas.readings[k])
         mover = self._guided.mover is not None
-        keys = (
-            "[b]g[/b] goes there, [b]r[/b] records, [b]a[/b] does every pose"
-            if mover
-            else ("move there, then [b]r[/b] records")
-        )
+        keys = "g goes there, r records, a does every pose" if mover else "r records there"
         return (
-            f"[b]planned pose {k + 1} of {len(plan.meas)}[/b]: {move}; the legs should read "
-            f"{legs} mm — {keys}"
+            f"Planned pose {k + 1} of {len(plan.meas)}: {move}; the legs should read {legs} mm "
+            f"— {keys}",
+            "bold",
         )
 
     # -- actions --------------------------------------------------------------------------------
