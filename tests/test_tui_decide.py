@@ -107,3 +107,61 @@ def test_a_look_alike_session_is_for_the_mock_rig(tmp_path):
     with pytest.raises(SystemExit, match="--look-alike goes with --mock"):
         main(["run", "--look-alike", "thermal-drift", "--session", str(tmp_path / "s.json")])
     assert not (tmp_path / "s.json").exists()
+
+
+@pytest.mark.slow
+def test_a_plan_spent_undecided_says_so_and_keeps_the_latest_rows_in_view(
+    tmp_path, quick_pilot, monkeypatch
+):
+    """The screen's other ending (the rules that decide are tests/test_decide.py's; here they
+    are held undecided): eight planned poses, every one recorded by the mock operator and
+    diagnosed, then 'Plan spent'; at 80×24 the table keeps the session's row and the latest
+    four, the gap marked."""
+    from dataclasses import replace
+
+    import hexcal.diagnosis.decide as decide
+    from hexcal.diagnosis.plan import Offer
+
+    real = decide.standing
+    monkeypatch.setattr(
+        decide,
+        "standing",
+        lambda *a, **k: replace(real(*a, **k), decided=False, winner=None, words="held open"),
+    )
+    path = tmp_path / "session.json"
+    made: list[HexcalApp] = []
+    monkeypatch.setattr(HexcalApp, "run", lambda self, *a, **k: made.append(self))
+    argv = ["run", "--mock", "--look-alike", "thermal-drift", "--seed", "2", "--session"]
+    assert main([*argv, str(path), "--sessions", str(tmp_path)]) == 0
+    (app,) = made
+
+    async def run():
+        async with app.run_test(size=SMALL) as pilot:
+            await pilot.press("ctrl+r")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 30)
+            await pilot.press("k")
+            await _until(pilot, lambda: isinstance(app.screen, ResultScreen), 5)
+            await _settle(pilot)
+            await pilot.press("d")
+            await _until(pilot, lambda: isinstance(app.screen, DiagnosisScreen), 5)
+            diag = app.screen
+            await _until(pilot, lambda: len(diag.history) == 1 and not diag.busy, 60)
+            d = diag.history[0]
+            app.push_screen(DecideScreen(Offer("resolve", ("thermal",), 8), d, ()))
+            await _until(pilot, lambda: isinstance(app.screen, DecideScreen), 5)
+            screen = app.screen
+            await _until(pilot, lambda: screen.plan is not None, 60)
+            await pilot.press("a")
+            await _until(pilot, lambda: screen.ended is not None and not screen.busy, 240)
+            return screen, _text(screen, "#decide-next", "#decide-table", "#decide-said")
+
+    screen, said = asyncio.run(run())
+    assert screen.ended == "spent" and screen.recorded == 8 == len(screen.plan.meas)
+    assert [k for k, _, _ in screen.rows] == list(range(9))
+    assert "Plan spent: all 8 planned poses recorded" in said
+    assert "undecided: held open" in said
+    table = said.split("\n")
+    shown = [line.split()[0] for line in table if line.strip()[:1].isdigit() or "⋮" in line]
+    assert shown == ["0", "⋮", "5", "6", "7", "8"]
+    plan_poses = [r for r in app.guided.sf.session.poses if r.step == PLAN_STEP]
+    assert len(plan_poses) == 8
