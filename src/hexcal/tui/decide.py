@@ -195,6 +195,8 @@ class DecideScreen(HexcalScreen):
         if plan is None:
             return "", ""
         k = self.recorded
+        if k >= len(plan.meas):  # the last diagnosis failed (the status line says why)
+            return "Every planned pose is recorded. Escape: back to the diagnosis.", "bold"
         P, R = plan.meas.position[k], plan.meas.rotations.as_matrix()[k]
         last = self._guided.sf.session.poses[-1]
         R_last = Rotation.from_quat(last.quaternion, scalar_first=True).as_matrix()
@@ -216,6 +218,8 @@ class DecideScreen(HexcalScreen):
             return "planning the poses: wait for the plan"
         if self.ended is not None:
             return f"the decide step has ended ({self.ended}): Escape, back to the diagnosis"
+        if self.recorded >= len(self.plan.meas):
+            return "every planned pose is recorded: Escape, back to the diagnosis"
         if action == "auto":
             if self._guided.mover is None:
                 return "no motion controller: the mock operator needs one — go and record by hand"
@@ -258,9 +262,10 @@ class DecideScreen(HexcalScreen):
         self._record_one()
         self.hexcal.post(self._done_busy)
 
-    def _record_one(self) -> bool:
-        """Record the next planned pose where the platform stands, diagnose again: whether it
-        was recorded (in a worker)."""
+    def _record_one(self) -> str:
+        """Record the next planned pose where the platform stands and diagnose again (in a
+        worker): ``refused`` (record it again), ``compared``, or ``failed`` (recorded, the
+        diagnosis failed: said in the status line)."""
         g = self._guided
         try:
             ok, msg = g.record_extra(PLAN_STEP)
@@ -268,13 +273,12 @@ class DecideScreen(HexcalScreen):
             ok, msg = False, str(exc)
         self.hexcal.post(self.status, msg, "" if ok else "red")
         if not ok:
-            return False
+            return "refused"
         self.recorded += 1
         self.hexcal.post(self._working.start, "diagnosing again with the new pose")
-        self._compare()
-        return True
+        return "compared" if self._compare() else "failed"
 
-    def _compare(self) -> None:
+    def _compare(self) -> bool:
         from hexcal.app.workflow import diagnose_chain
         from hexcal.diagnosis.decide import standing
 
@@ -283,9 +287,11 @@ class DecideScreen(HexcalScreen):
             (d,) = diagnose_chain(inp, self.hexcal.procedure.model, add=self.held)  # type: ignore[union-attr]
             st = standing(d, self.offer, self.rows[0][1].hypotheses)
         except (ValueError, np.linalg.LinAlgError) as exc:
+            self.hexcal.post(self._working.stop)
             self.hexcal.post(self.status, f"cannot diagnose: {exc}", "red")
-            return
+            return False
         self.hexcal.post(self._compared, self.recorded, st, str(d.verdict))
+        return True
 
     def _compared(self, n: int, st: Any, verdict: str) -> None:
         self._working.stop()
@@ -323,7 +329,10 @@ class DecideScreen(HexcalScreen):
             except (GuidedError, MotionError) as exc:
                 self.hexcal.post(self.status, str(exc), "red")
                 break
-            if self._record_one():
+            done = self._record_one()
+            if done == "failed":
+                break
+            if done == "compared":
                 refused = 0
                 self._wait_shown(before)
                 continue
