@@ -409,3 +409,24 @@ def test_a_fresh_clamp_that_allows_no_pose_is_set_again_at_home(
         g.move()
     monkeypatch.undo()
     _run_step(g)  # the rest of the step, at the clamp set at home
+
+
+def test_poses_beyond_the_procedure_are_driven_to_and_recorded_free_under_their_name(tmp_path):
+    """A plan's poses (record_extra): refused while a step is under way; once every step is
+    done, driven to (move_to_pose), recorded free under step 'plan', saved, and ranked live."""
+    g, _, robot, _ = _setup(tmp_path, procedure="free-validation")
+    with pytest.raises(GuidedError, match="finish or skip the procedure's steps first"):
+        g.record_extra("plan")
+    while not g.finished:
+        g.skip_step()
+    before, ranked = len(g.sf.session.poses), len(g.ranking)
+    target = robot.true_pose()[0] + np.array([3.0, -2.0, 4.0])
+    R = Rotation.from_euler("x", 2.0, degrees=True).as_matrix()
+    g.move_to_pose(target, R)
+    ok, msg = g.record_extra("plan")
+    assert ok and msg == "plan: pose 1 recorded"
+    rec = g.sf.session.poses[-1]
+    assert (rec.step, rec.leg, str(rec.constraint)) == ("plan", 0, "free")
+    assert np.allclose(rec.position, target, atol=0.1)  # the tracker's noise: 0.01 mm
+    assert len(load_session(tmp_path / "s.json").poses) == before + 1
+    assert len(g.ranking) == ranked + 1

@@ -477,11 +477,16 @@ class Offer:
     hypotheses: tuple[str, ...]
     poses: int | None
 
+    @property
+    def n_planned(self) -> int:
+        """How many poses to plan for it: its count, a few to confirm (0), at most
+        :data:`MAX_OFFER` (None)."""
+        return self.poses or (CONFIRM_POSES if self.poses == 0 else MAX_OFFER)
+
     def args(self) -> list[str]:
         """``hexcal plan``'s own arguments for it (after the session's)."""
         flag = "--separate" if self.kind == "separate" else "--resolve"
-        n = str(self.poses or (CONFIRM_POSES if self.poses == 0 else MAX_OFFER))
-        return [flag, *self.hypotheses, "--poses", n, "--out", "plan.csv"]
+        return [flag, *self.hypotheses, "--poses", str(self.n_planned), "--out", "plan.csv"]
 
     def text(self) -> str:
         what = (

@@ -23,6 +23,10 @@ A resumed session starts at the first step not marked done or skipped in the fil
 poses already recorded for it — under the operator's clamp, which is still on. With a motion
 controller (a simulated rig restarted) the clamp is gone, so a partly recorded clamped step is
 set aside and starts again.
+
+Once the procedure is done, :meth:`record_extra` records free poses beyond it — the poses a plan
+asks for (:mod:`hexcal.diagnosis.plan`), which :meth:`move_to_pose` drives to on a motion
+controller.
 """
 
 from __future__ import annotations
@@ -117,6 +121,15 @@ def pose_from_record(rec: PoseRecord) -> RecordedPose:
         ls,
         notes=tuple(rec.notes),
     )
+
+
+@dataclass(frozen=True)
+class ExtraStep:
+    """A step beyond the procedure (:meth:`GuidedSession.record_extra`): free poses, named."""
+
+    name: str
+    leg: int = 0
+    constraint: Constraint = Constraint.FREE
 
 
 class GuidedSession:
@@ -565,10 +578,39 @@ class GuidedSession:
 
     def move_to_suggestion(self, s: nbp.Suggestion) -> str:
         """Follow a suggestion with the motion controller (the mock's: it holds the clamp)."""
-        if self.mover is None or not hasattr(self.mover, "move_near"):
-            raise GuidedError("no motion controller that can follow a suggestion")
-        self.mover.move_near(s.position, s.rotation)
+        self.move_to_pose(s.position, s.rotation)
         return "moved to the suggested pose"
+
+    def move_to_pose(self, position: np.ndarray, rotation: np.ndarray) -> str:
+        """Drive the platform to a pose (``position`` (3,) mm, ``rotation`` (3, 3)) with the
+        motion controller, as an operator follows one: a next best pose, a planned pose (the
+        position the nearest a clamp allows). MotionError outside the limits."""
+        if self.mover is None or not hasattr(self.mover, "move_near"):
+            raise GuidedError("no motion controller that can follow a given pose: move by hand")
+        self.mover.move_near(position, rotation)
+        return "moved to the pose"
+
+    def record_extra(self, name: str) -> tuple[bool, str]:
+        """Record one free pose beyond the procedure, once it is finished, under the step
+        ``name`` (a plan's poses: ``plan``): (recorded, operator message). Blocks for the still
+        window; a refused pose is kept in the file with its reason, as :meth:`record` does."""
+        if not self.finished:
+            raise GuidedError(
+                f"{self.step.name} is under way: finish or skip the procedure's steps first"
+            )
+        if self.clamped:
+            raise GuidedError("a leg is clamped: poses beyond the procedure are free ones")
+        step = ExtraStep(name)
+        try:
+            pose = replace(self.acquisition.record(), temperature=self.temperature())
+        except PoseRefused as exc:
+            self._sink("refused", step, None, str(exc))
+            return False, self._say(f"pose refused: {exc}")
+        self._sink("pose", step, pose, "")
+        rot = Rotation.from_quat(pose.quaternion, scalar_first=True).as_matrix()
+        self.ranking.add(pose.position, rot, pose.readings, pose.t, pose.temperature)
+        n = sum(r.step == name for r in self.sf.session.poses)
+        return True, self._say(f"{name}: pose {n} recorded")
 
     # -- what was recorded ------------------------------------------------------------------------
     def set_aside_count(self) -> int:

@@ -127,6 +127,101 @@ class InstantBackend(Backend):
         )
 
 
+@dataclass
+class LookAlikeBackend(Backend):
+    """The mock rig serving a look-alike session's robot (:mod:`hexcal.sim.plan_cases`): a
+    session whose poses leave two hypotheses undecided (:meth:`write_session` writes it, its
+    procedure done, to resume), and the same robot behind the real drivers to record more poses
+    of — its hidden effect over the whole recording, the clock running on from the session's last
+    pose, at its last temperature (as the planner takes the new poses)."""
+
+    look_alike: Any = field(kw_only=True, repr=False)  #: a plan_cases.LookAlike
+    seed: int = 1
+    window_s: float = 0.25
+
+    def open(self) -> Rig:
+        from hexcal.acquire.live import open_rig
+        from hexcal.mock_hw.rig import mock_rig
+
+        c = self.look_alike
+        temps = c.meas.temperature
+        last = None if temps is None else float(temps[-1])
+        hook = _Later(c.history, float(c.meas.t.max()) + 1.0)
+        sim = c.simulator
+        rig = self._stack.enter_context(
+            mock_rig(sim.robot, seed=self.seed, noise=sim.noise, effects=[hook], ranges=sim.ranges)
+        )
+        if last is not None:
+            rig.robot.temperature = lambda t: last
+        live = self._stack.enter_context(
+            open_rig(rig.config, StillWindow(duration_s=self.window_s))
+        )
+        rig.reproducible(live.acquisition)
+        return Rig(
+            live.acquisition,
+            live.encoders,
+            rig.motion,
+            rig.config,
+            sim.robot,
+            {"name": c.hidden},
+            thermometer=None if last is None else (lambda: last),
+        )
+
+    def write_session(self, path: Path, procedure: str = "model42-direction-length") -> None:
+        """The look-alike session as a session file at ``path``, every step of ``procedure``
+        marked done (its poses are the look-alike's own), with the instruments' noise."""
+        from hexcal.procedure.session import Session, SessionFile, StepProgress
+        from hexcal.procedure.steps import load_procedure
+
+        c = self.look_alike
+        proc = load_procedure(procedure)
+        session = Session.from_measurements(c.meas, c.design).model_copy(
+            update={
+                "instruments": c.instruments,
+                "procedure": proc.model_dump(by_alias=True),
+                "progress": [
+                    StepProgress(step=s.name, status="done", poses=0, check="look-alike session")
+                    for s in proc.expand()
+                ],
+            }
+        )
+        path.parent.mkdir(parents=True, exist_ok=True)
+        SessionFile.create(path, session).close()
+
+
+class _Later:
+    """A hidden effect seen ``shift_s`` seconds later than the mock robot's clock says (its
+    clock starts at 0; the session it continues ended before)."""
+
+    def __init__(self, hook: Callable[..., Any], shift_s: float) -> None:
+        self.hook, self.shift_s = hook, shift_s
+        self.__name__ = getattr(hook, "__name__", "hidden")
+
+    def __call__(self, readings: Any, ctx: Any) -> Any:
+        from dataclasses import replace
+
+        return self.hook(readings, replace(ctx, t=ctx.t + self.shift_s))
+
+
+def look_alike_backend(
+    pair: str, seed: int = 2, scale: float = 1.0, window_s: float = 0.25
+) -> LookAlikeBackend:
+    """The mock rig behind a look-alike session of ``pair`` (a key of
+    :data:`hexcal.sim.plan_cases.PAIRS`), drawn from ``seed``."""
+    from hexcal.sim.plan_cases import case
+
+    c = case(pair, seed, scale)
+    return LookAlikeBackend(
+        c.design,
+        f"mock rig behind a look-alike session ({pair}, seed {seed}; hidden: {c.hidden})",
+        simulated=True,
+        title=f"mock rig, {pair}, seed {seed}",
+        look_alike=c,
+        seed=seed,
+        window_s=window_s,
+    )
+
+
 def mock_backend(seed: int = 1, effect: str | None = None, window_s: float = 0.25) -> MockBackend:
     from hexcal.sim.robots import left_hand
 

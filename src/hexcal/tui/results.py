@@ -201,6 +201,7 @@ class DiagnosisScreen(HexcalScreen):
 
     BINDINGS = [
         Binding("a", "add", "add the named effect"),
+        Binding("p", "decide", "plan, decide"),
         Binding("e", "export", "export"),
         Binding("escape", "back", "back"),
         Binding("q", "app.quit", "quit"),
@@ -211,6 +212,7 @@ class DiagnosisScreen(HexcalScreen):
         self.history: list[Any] = []
         self.busy = False
         self._plot_rows: int | None = None  # the chart's height set by _size_plot
+        self._poses = 0  # the session's poses when last diagnosed
 
     def compose(self):
         yield Header()
@@ -262,11 +264,13 @@ class DiagnosisScreen(HexcalScreen):
                 self.call_after_refresh(self._plot)  # its y range depends on its rows
 
     def why_not(self, action: str) -> str | None:
-        if action != "add":
+        if action not in ("add", "decide"):
             return None
         if self.busy or not self.history:
             return "diagnosing: wait for the verdict"
         d = self.history[-1]
+        if action == "decide":
+            return None if d.plans else "the poses decide already: the diagnosis offers no plan"
         if d.verdict == Outcome.NONE:
             return "the residual is at the noise floor: there is no effect to add"
         if d.verdict == Outcome.UNEXPLAINED and _lead(d) is None:
@@ -318,6 +322,7 @@ class DiagnosisScreen(HexcalScreen):
         self.history.append(d)
         self.busy = False
         guided, _, rig = _app_state(self)
+        self._poses = len(guided.sf.session.poses)
         self._details = (
             before_after_text(self.history)
             + "\n\n"
@@ -357,6 +362,11 @@ class DiagnosisScreen(HexcalScreen):
             )
         else:
             lines.append(f"press [b]a[/b] to add [b]{d.verdict}[/b] and refit")
+        if d.plans:
+            lines.append(
+                f"[yellow]{escape(d.plans[0].text())}[/yellow]: press [b]p[/b] to record them "
+                "and decide"
+            )
         if rig is not None and rig.hidden is not None:
             lines.append(f"(the mock robot hides: {rig.hidden['name']})")
             if d.fit.refinement is not None:
@@ -419,6 +429,30 @@ class DiagnosisScreen(HexcalScreen):
 
     def action_export(self) -> None:
         self.status(*export_text(self))
+
+    def action_decide(self) -> None:
+        """The decide step for the first plan offered (:mod:`hexcal.tui.decide`)."""
+        from hexcal.tui.decide import DecideScreen
+
+        d = self.history[-1]
+        held = tuple(e for e in d.effects if e != "offset")
+        self.app.push_screen(DecideScreen(d.plans[0], d, held))
+
+    def hidden(self, action: str) -> bool:
+        return action == "decide" and not (self.history and self.history[-1].plans)
+
+    def on_screen_resume(self) -> None:
+        """Back from the decide step with more poses: the chain is diagnosed again on them."""
+        guided, _, _ = _app_state(self)
+        n = len(guided.sf.session.poses)
+        if self.busy or not self.history or n == self._poses:
+            return
+        held = tuple(e for e in self.history[-1].effects if e != "offset")
+        self.history = []
+        self.busy = True
+        self.refresh_bindings()
+        self._working.start(f"diagnosing again on {n} poses")
+        self._diagnose(held)
 
     def action_back(self) -> None:
         self.app.pop_screen()

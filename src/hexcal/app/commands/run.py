@@ -13,7 +13,16 @@ from hexcal.app.commands.common import (
     SEED,
     add_effects_option,
     load_effects,
+    number,
 )
+
+#: ``--look-alike``'s pairs: hexcal.sim.plan_cases.PAIRS (named here so that --help imports no
+#: simulator).
+LOOK_ALIKES = {
+    "thermal-drift": "thermal vs drift",
+    "gain-compliance": "gain vs compliance",
+    "ujoint-geometry": "ujoint vs geometry",
+}
 
 #: The command's name on the command line.
 NAME = "run"
@@ -59,6 +68,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=["gain", "backlash", "leadscrew"],
         help="--mock: the effect the robot hides (default: drawn by the seed)",
     )
+    rn.add_argument(
+        "--look-alike",
+        choices=list(LOOK_ALIKES),
+        help="--mock: a finished session whose poses cannot tell the pair apart, written to the "
+        "proposed session file to resume (ctrl+r) and decide with the diagnosis' plan (p); the "
+        "mock rig serves the same robot (--seed draws it)",
+    )
+    rn.add_argument(
+        "--scale",
+        type=number(float, 0.0, 100.0, lo_open=True),
+        default=4.0,
+        help="--look-alike: the hidden effect's size, times the look-alike's own (default 4: "
+        "--seed 2's thermal-drift session is the worked example's, docs/diagnosis.md)",
+    )
     rn.add_argument("--window-s", type=SECONDS, default=0.25, help="--mock: still window, s")
     add_effects_option(rn)
     rn.set_defaults(func=run)
@@ -66,16 +89,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hexcal.tui.app import HexcalApp
-    from hexcal.tui.backend import MockBackend, RealBackend, mock_backend
+    from hexcal.tui.backend import LookAlikeBackend, MockBackend, RealBackend, mock_backend
 
-    backend: MockBackend | RealBackend
+    backend: MockBackend | RealBackend | LookAlikeBackend
     load_effects(args)
     # The pose counts beyond what a session holds are refused before anything starts.
     from hexcal.app.workflow import procedure_steps
     from hexcal.procedure.steps import load_procedure
 
     procedure_steps(load_procedure(args.procedure), args.poses_per_step, args.free_poses)
-    if args.mock:
+    session = args.session
+    if args.look_alike and not args.mock:
+        raise SystemExit("hexcal run: --look-alike goes with --mock (a simulated rig)")
+    if args.look_alike:
+        from hexcal.procedure.sessions_dir import new_session_path, sessions_dir
+        from hexcal.tui.backend import look_alike_backend
+
+        backend = look_alike_backend(
+            LOOK_ALIKES[args.look_alike], args.seed, args.scale, args.window_s
+        )
+        session = session or new_session_path(sessions_dir(args.sessions))
+        backend.write_session(Path(session), args.procedure)
+    elif args.mock:
         backend = mock_backend(args.seed, args.effect, args.window_s)
         if args.robot:
             raise SystemExit("hexcal run: --robot goes with --config (the mock rig has its own)")
@@ -107,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         backend = RealBackend(design, f"rig from {args.config}", config_path=args.config)
     app = HexcalApp(
         backend,
-        session_path=args.session,
+        session_path=session,
         procedure=args.procedure,
         poses_per_step=args.poses_per_step,
         free_poses=args.free_poses,
