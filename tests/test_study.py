@@ -142,3 +142,28 @@ def test_cli_independent_draws_a_set_per_n(tmp_path, monkeypatch):
         assert main(args) == 0
         data = json.loads((out / "study.json").read_text())
         assert data["config"]["nested"] is nested
+
+
+def test_log_axis_labels_in_plain_text_read_as_matplotlibs():
+    """The figures' log axes label their ticks in plain text (no mathtext): each label reads
+    as matplotlib's own mathtext label, its exponent in superscript digits."""
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import LogFormatterSciNotation
+
+    from hexcal.sim.study import _plain_log_labels
+
+    ax = Figure().subplots()
+    ax.semilogy([1, 2], [0.15, 0.5])  # half a decade: matplotlib labels 2, 3, 4 and 6 × 10ⁿ
+    ax.set_ylim(0.15, 0.5)
+    _plain_log_labels(ax)
+    major, minor = ax.yaxis.get_major_formatter(), ax.yaxis.get_minor_formatter()
+    assert [major(x) for x in (0.01, 0.1, 1.0)] == ["10⁻²", "10⁻¹", "10⁰"]
+    mathtext = LogFormatterSciNotation(10, labelOnlyBase=False)
+    mathtext.set_axis(ax.yaxis)
+    locs = [0.2, 0.3, 0.4, 0.5, 0.6]
+    minor.set_locs(locs)
+    mathtext.set_locs(locs)
+    assert [minor(x) for x in locs] == ["2×10⁻¹", "3×10⁻¹", "4×10⁻¹", "", "6×10⁻¹"]
+    assert [mathtext(x) for x in locs] == [
+        rf"$\mathdefault{{{k}\times10^{{-1}}}}$" if k else "" for k in ("2", "3", "4", "", "6")
+    ]
