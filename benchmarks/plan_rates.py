@@ -10,8 +10,8 @@ as many random reachable poses. After each, both hypotheses are refitted on all 
 
 - named right: the true hypothesis' ΔBIC against the model is very strong
   (:data:`~hexcal.diagnosis.selection.BIC_STRONG`), it is the lower of the two, and the two are
-  not look-alikes by the verdict's rule (χ² within ALIKE_DCHI2, both at the floor, or Vuong's
-  |z| < 2); for the nested pair (the geometry alone against ujoint), ujoint's ΔBIC is very
+  not look-alikes by the verdict's rule (the other fits worse by χ² 10 and by Vuong's z ≥ 2,
+  whether or not both bring the residual to the floor); for the nested pair (the geometry alone against ujoint), ujoint's ΔBIC is very
   strong. The sessions are drawn until their own poses leave the pair undecided that way
   (:func:`ambiguous`);
 - the predicted separation against the realised: z = (Δχ² realised − (λ + p_true −
@@ -37,15 +37,7 @@ import numpy as np
 
 from hexcal.diagnosis.plan import GEOMETRY, _candidates, plan_poses
 from hexcal.diagnosis.scoring import pose_whiteners
-from hexcal.diagnosis.selection import (
-    ALIKE_DCHI2,
-    BIC_STRONG,
-    HELDOUT_Z,
-    MOST,
-    bic_delta,
-    vuong_z,
-)
-from hexcal.diagnosis.verdict import EXCESS_Z
+from hexcal.diagnosis.selection import BIC_STRONG, bic_delta, indistinct, vuong_z
 from hexcal.estimate.effect_fit import Problem, fit_model
 from hexcal.model.noise import NoiseSigmas
 from hexcal.sim.plan_cases import PAIRS, case
@@ -64,23 +56,17 @@ def _fits(meas, c) -> dict:
         made[h] = fit_model(problem, ("offset", h), cross_validate=False, seed_fit=base)
         out[h] = (bic_delta(problem, base, made[h]), made[h].chi2, made[h].n_params)
     if len(made) == 2:
-        a, b = made.values()
-        out["vuong"] = vuong_z(a, b, pose_whiteners(problem, base))
+        (na, a), (nb, b) = made.items()
+        z = vuong_z(a, b, pose_whiteners(problem, base))
+        out["vuong"] = {(na, nb): z, (nb, na): -z}
     return out
 
 
-def _alike(fits, a: str, b: str) -> bool:
-    """The verdict's look-alike rule (:func:`hexcal.diagnosis.selection.alike`): χ² within
-    ALIKE_DCHI2, both bringing a significant excess to the floor, or the poses' χ² inside
-    their noise (Vuong)."""
-    dof = fits["dof"]
-    band = (1.0 + EXCESS_Z * np.sqrt(2.0 / dof)) * dof
-    base = fits[GEOMETRY][1]
-    # Both close: each at the floor having explained most of the excess (the verdict's MOST).
-    closes = base > band and all(
-        fits[h][1] <= band and (base - fits[h][1]) >= MOST * (base - dof) for h in (a, b)
-    )
-    return closes or abs(fits[a][1] - fits[b][1]) < ALIKE_DCHI2 or abs(fits["vuong"]) < HELDOUT_Z
+def _alike(fits, best: str, other: str) -> bool:
+    """The verdict's look-alike rule (:func:`hexcal.diagnosis.selection.indistinct`): ``other``
+    does not fit worse than ``best`` by both χ² (ALIKE_DCHI2) and the poses' χ² beyond their
+    noise (Vuong)."""
+    return indistinct(fits[other][1] - fits[best][1], fits["vuong"][(other, best)])
 
 
 def _right(fits, c) -> bool:
@@ -111,7 +97,8 @@ def ambiguous(pair: str, seed: int):
             undecided = not _right(fits, c)
         else:
             both = fits[a][0] < BIC_STRONG and fits[b][0] < BIC_STRONG
-            undecided = both and _alike(fits, a, b)
+            best, other = (a, b) if fits[a][0] <= fits[b][0] else (b, a)
+            undecided = both and _alike(fits, best, other)
         if undecided:
             return c, fits, k + 1
     return None, None, TRIES
