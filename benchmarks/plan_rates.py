@@ -4,15 +4,17 @@
 
 For each pair of :mod:`hexcal.sim.plan_cases` (gain vs compliance on the motion base, thermal
 vs drift, ujoint vs the geometry), sessions whose poses leave the pair ambiguous, one of the two
-hidden. The planner picks ``--poses`` poses to separate them (:func:`hexcal.diagnosis.plan.
-plan_poses`); the same robot records them (the simulator with the truth), and, as the control,
-as many random reachable poses. After each, both hypotheses are refitted on all the poses:
+hidden. The planner picks at most ``--poses`` poses to separate them (:func:`hexcal.diagnosis.
+plan.plan_poses`): the fewest of them after which it expects the question decided (``Plan.
+decide``, what the diagnosis offers), else all; the same robot records them (the simulator with
+the truth), and, as the control, as many random reachable poses from the same set. After each,
+both hypotheses are refitted on all the poses:
 
 - named right: the true hypothesis' ΔBIC against the model is very strong
   (:data:`~hexcal.diagnosis.selection.BIC_STRONG`), it is the lower of the two, and the two are
   not look-alikes by the verdict's rule (the other fits worse by χ² 10 and by Vuong's z ≥ 2,
-  whether or not both bring the residual to the floor); for the nested pair (the geometry alone against ujoint), ujoint's ΔBIC is very
-  strong. The sessions are drawn until their own poses leave the pair undecided that way
+  whether or not both bring the residual to the floor); for the nested pair (the geometry
+  alone against ujoint), ujoint's ΔBIC is very strong. The sessions are drawn until their own poses leave the pair undecided that way
   (:func:`ambiguous`);
 - the predicted separation against the realised: z = (Δχ² realised − (λ + p_true −
   p_other)) / sd, with λ and sd the plan's for the true hypothesis (its fitted contribution
@@ -40,7 +42,7 @@ from hexcal.diagnosis.scoring import pose_whiteners
 from hexcal.diagnosis.selection import BIC_STRONG, bic_delta, indistinct, vuong_z
 from hexcal.estimate.effect_fit import Problem, fit_model
 from hexcal.model.noise import NoiseSigmas
-from hexcal.sim.plan_cases import PAIRS, case
+from hexcal.sim.plan_cases import PAIRS, SIZES, case
 
 
 def _fits(meas, c) -> dict:
@@ -80,17 +82,19 @@ def _right(fits, c) -> bool:
 
 
 #: Tries per session at finding an ambiguous one (the effect's size drawn anew each time).
-TRIES = 20
+TRIES = 40
 
 
 def ambiguous(pair: str, seed: int):
     """(case, fits on its poses, tries): the first session, the hidden effect's size drawn
-    log-uniform over 0.5–10 × the case's, whose poses leave the pair undecided — both
+    log-uniform over the pair's range (:data:`~hexcal.sim.plan_cases.SIZES`) × the case's,
+    whose poses leave the pair undecided — both
     hypotheses with very strong evidence and alike by the verdict's rule (the diagnosis names
     them together), or, against the geometry, the hidden effect not named."""
     rng = np.random.default_rng([seed, 2])
+    lo, hi = np.log(SIZES[pair])
     for k in range(TRIES):
-        c = case(pair, seed + 1000 * k, float(np.exp(rng.uniform(np.log(0.5), np.log(10.0)))))
+        c = case(pair, seed + 1000 * k, float(np.exp(rng.uniform(lo, hi))))
         fits = _fits(c.meas, c)
         a, b = c.pair
         if a == GEOMETRY:
@@ -113,6 +117,9 @@ def run_session(args: tuple[str, int, int]) -> dict:
     t0 = time.perf_counter()
     plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
     seconds = time.perf_counter() - t0
+    if plan.decide is not None and 0 < plan.decide < n:  # the fewest that decide, as offered
+        n = plan.decide
+        plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
     P, R, t = plan.meas.position, plan.meas.rotations.as_matrix(), plan.meas.t
     planned = _fits(c.record(P, R, t, seed), c)
     rng = np.random.default_rng([seed, 1])
@@ -129,6 +136,7 @@ def run_session(args: tuple[str, int, int]) -> dict:
         "ambiguous": True,
         "tries": tries,
         "hidden": true,
+        "poses": n,
         "right_before": _right(before, c),
         "right_planned": _right(planned, c),
         "right_random": _right(random, c),
@@ -163,6 +171,7 @@ def summary(rows: list[dict]) -> dict:
             "within_2sd": float(np.mean(np.abs(z) <= 2)) if len(z) else None,
             "median_z": float(np.median(z)) if len(z) else None,
             "median_plan_s": float(np.median([r["plan_s"] for r in rs])),
+            "median_poses": float(np.median([r["poses"] for r in rs])),
             "median_random_to_match": float(
                 np.median([r["random_to_match"] or np.inf for r in rs])
             ),

@@ -109,6 +109,19 @@ def indistinct(dchi2: float, z: float) -> bool:
     return dchi2 < ALIKE_DCHI2 or z < HELDOUT_Z
 
 
+def separates(lam: float, sd: float, dp: int, n: int, nested: bool) -> bool:
+    """Whether an expected separation decides for the true hypothesis by the verdict's rules,
+    two standard deviations short of its mean: the Δχ² the other leaves beyond it — mean
+    noncentrality ``lam`` plus ``dp``, the true one's parameters less the other's (those fit
+    noise too), standard deviation ``sd`` — must pay for ``dp`` in ΔBIC over ``n`` residual
+    rows and pass the look-alike margin (:data:`ALIKE_DCHI2`; Vuong's z ≥ 2 asks about the
+    same of a Δχ² whose spread is ``sd``); against the model alone (``nested``) the effect's
+    ΔBIC must be very strong (:data:`BIC_STRONG`)."""
+    cost = dp * float(np.log(n))
+    margin = cost - BIC_STRONG if nested else max(ALIKE_DCHI2, cost)
+    return bool(lam + dp - 2.0 * sd >= margin)
+
+
 def vuong_z(a: ModelFit, b: ModelFit, chol: np.ndarray, s2: float = 1.0) -> float:
     """Vuong's z of two fitted models on the same poses: the mean per-pose difference of their
     χ² (``a``'s less ``b``'s, each pose's residuals whitened by its 6×6 covariance) over its
