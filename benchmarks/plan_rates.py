@@ -179,6 +179,38 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
+#: The pairs' rows in docs/diagnosis.md: (label, pair).
+LABELS = {
+    "ujoint vs geometry": "ujoint vs geometry (Left Hand)",
+    "thermal vs drift": "thermal vs drift (Left Hand, 5 K rise)",
+    "gain vs compliance": "gain vs compliance (motion base, gain hidden)",
+}
+
+
+def markdown(summary: dict, total: int) -> str:
+    """docs/diagnosis.md's table of a run of ``total`` sessions per pair."""
+
+    def pct(x: float, n: int) -> str:
+        return f"{100 * x:.0f} %" if n >= 20 else f"{round(x * n)} of {n}"
+
+    rows = [
+        "| pair | ambiguous sessions | planned poses (median) | right after the planned | "
+        "after as many random | \\|z\\| ≤ 1 | \\|z\\| ≤ 2 | random poses to match (median) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for pair, label in LABELS.items():
+        s = summary.get(pair)
+        if not s or not s.get("sessions"):
+            continue
+        n = s["sessions"]
+        rows.append(
+            f"| {label} | {n} of {total} | {s['median_poses']:.0f} | {pct(s['right_planned'], n)} "
+            f"| {pct(s['right_random'], n)} | {pct(s['within_1sd'], n)} | "
+            f"{pct(s['within_2sd'], n)} | {s['median_random_to_match']:.0f} |"
+        )
+    return "\n".join(rows)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sessions", type=int, default=50)
@@ -192,6 +224,7 @@ def main() -> None:
         rows = list(pool.map(run_session, work))
     result = {"poses": args.poses, "summary": summary(rows), "sessions": rows}
     print(json.dumps(result["summary"], indent=2))
+    print(markdown(result["summary"], args.sessions))
     if args.out:
         with open(args.out, "w") as f:
             json.dump(result, f, indent=1)
