@@ -4,15 +4,17 @@
 
 For each pair of :mod:`hexcal.sim.plan_cases` (gain vs compliance on the motion base, thermal
 vs drift, ujoint vs the geometry), sessions whose poses leave the pair ambiguous, one of the two
-hidden. The planner picks ``--poses`` poses to separate them (:func:`hexcal.diagnosis.plan.
-plan_poses`); the same robot records them (the simulator with the truth), and, as the control,
-as many random reachable poses. After each, both hypotheses are refitted on all the poses:
+hidden. The planner picks at most ``--poses`` poses to separate them (:func:`hexcal.diagnosis.
+plan.plan_poses`): the fewest of them after which it expects the question decided (``Plan.
+decide``, what the diagnosis offers), else all; the same robot records them (the simulator with
+the truth), and, as the control, as many random reachable poses from the same set. After each,
+both hypotheses are refitted on all the poses:
 
 - named right: the true hypothesis' ΔBIC against the model is very strong
   (:data:`~hexcal.diagnosis.selection.BIC_STRONG`), it is the lower of the two, and the two are
-  not look-alikes by the verdict's rule (χ² within ALIKE_DCHI2, both at the floor, or Vuong's
-  |z| < 2); for the nested pair (the geometry alone against ujoint), ujoint's ΔBIC is very
-  strong. The sessions are drawn until their own poses leave the pair undecided that way
+  not look-alikes by the verdict's rule (the other fits worse by χ² 10 and by Vuong's z ≥ 2,
+  whether or not both bring the residual to the floor); for the nested pair (the geometry
+  alone against ujoint), ujoint's ΔBIC is very strong. The sessions are drawn until their own poses leave the pair undecided that way
   (:func:`ambiguous`);
 - the predicted separation against the realised: z = (Δχ² realised − (λ + p_true −
   p_other)) / sd, with λ and sd the plan's for the true hypothesis (its fitted contribution
@@ -37,18 +39,10 @@ import numpy as np
 
 from hexcal.diagnosis.plan import GEOMETRY, _candidates, plan_poses
 from hexcal.diagnosis.scoring import pose_whiteners
-from hexcal.diagnosis.selection import (
-    ALIKE_DCHI2,
-    BIC_STRONG,
-    HELDOUT_Z,
-    MOST,
-    bic_delta,
-    vuong_z,
-)
-from hexcal.diagnosis.verdict import EXCESS_Z
+from hexcal.diagnosis.selection import BIC_STRONG, bic_delta, indistinct, vuong_z
 from hexcal.estimate.effect_fit import Problem, fit_model
 from hexcal.model.noise import NoiseSigmas
-from hexcal.sim.plan_cases import PAIRS, case
+from hexcal.sim.plan_cases import PAIRS, SIZES, case
 
 
 def _fits(meas, c) -> dict:
@@ -64,23 +58,17 @@ def _fits(meas, c) -> dict:
         made[h] = fit_model(problem, ("offset", h), cross_validate=False, seed_fit=base)
         out[h] = (bic_delta(problem, base, made[h]), made[h].chi2, made[h].n_params)
     if len(made) == 2:
-        a, b = made.values()
-        out["vuong"] = vuong_z(a, b, pose_whiteners(problem, base))
+        (na, a), (nb, b) = made.items()
+        z = vuong_z(a, b, pose_whiteners(problem, base))
+        out["vuong"] = {(na, nb): z, (nb, na): -z}
     return out
 
 
-def _alike(fits, a: str, b: str) -> bool:
-    """The verdict's look-alike rule (:func:`hexcal.diagnosis.selection.alike`): χ² within
-    ALIKE_DCHI2, both bringing a significant excess to the floor, or the poses' χ² inside
-    their noise (Vuong)."""
-    dof = fits["dof"]
-    band = (1.0 + EXCESS_Z * np.sqrt(2.0 / dof)) * dof
-    base = fits[GEOMETRY][1]
-    # Both close: each at the floor having explained most of the excess (the verdict's MOST).
-    closes = base > band and all(
-        fits[h][1] <= band and (base - fits[h][1]) >= MOST * (base - dof) for h in (a, b)
-    )
-    return closes or abs(fits[a][1] - fits[b][1]) < ALIKE_DCHI2 or abs(fits["vuong"]) < HELDOUT_Z
+def _alike(fits, best: str, other: str) -> bool:
+    """The verdict's look-alike rule (:func:`hexcal.diagnosis.selection.indistinct`): ``other``
+    does not fit worse than ``best`` by both χ² (ALIKE_DCHI2) and the poses' χ² beyond their
+    noise (Vuong)."""
+    return indistinct(fits[other][1] - fits[best][1], fits["vuong"][(other, best)])
 
 
 def _right(fits, c) -> bool:
@@ -94,24 +82,27 @@ def _right(fits, c) -> bool:
 
 
 #: Tries per session at finding an ambiguous one (the effect's size drawn anew each time).
-TRIES = 20
+TRIES = 40
 
 
 def ambiguous(pair: str, seed: int):
     """(case, fits on its poses, tries): the first session, the hidden effect's size drawn
-    log-uniform over 0.5–10 × the case's, whose poses leave the pair undecided — both
+    log-uniform over the pair's range (:data:`~hexcal.sim.plan_cases.SIZES`) × the case's,
+    whose poses leave the pair undecided — both
     hypotheses with very strong evidence and alike by the verdict's rule (the diagnosis names
     them together), or, against the geometry, the hidden effect not named."""
     rng = np.random.default_rng([seed, 2])
+    lo, hi = np.log(SIZES[pair])
     for k in range(TRIES):
-        c = case(pair, seed + 1000 * k, float(np.exp(rng.uniform(np.log(0.5), np.log(10.0)))))
+        c = case(pair, seed + 1000 * k, float(np.exp(rng.uniform(lo, hi))))
         fits = _fits(c.meas, c)
         a, b = c.pair
         if a == GEOMETRY:
             undecided = not _right(fits, c)
         else:
             both = fits[a][0] < BIC_STRONG and fits[b][0] < BIC_STRONG
-            undecided = both and _alike(fits, a, b)
+            best, other = (a, b) if fits[a][0] <= fits[b][0] else (b, a)
+            undecided = both and _alike(fits, best, other)
         if undecided:
             return c, fits, k + 1
     return None, None, TRIES
@@ -126,6 +117,9 @@ def run_session(args: tuple[str, int, int]) -> dict:
     t0 = time.perf_counter()
     plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
     seconds = time.perf_counter() - t0
+    if plan.decide is not None and 0 < plan.decide < n:  # the fewest that decide, as offered
+        n = plan.decide
+        plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
     P, R, t = plan.meas.position, plan.meas.rotations.as_matrix(), plan.meas.t
     planned = _fits(c.record(P, R, t, seed), c)
     rng = np.random.default_rng([seed, 1])
@@ -142,6 +136,7 @@ def run_session(args: tuple[str, int, int]) -> dict:
         "ambiguous": True,
         "tries": tries,
         "hidden": true,
+        "poses": n,
         "right_before": _right(before, c),
         "right_planned": _right(planned, c),
         "right_random": _right(random, c),
@@ -176,11 +171,44 @@ def summary(rows: list[dict]) -> dict:
             "within_2sd": float(np.mean(np.abs(z) <= 2)) if len(z) else None,
             "median_z": float(np.median(z)) if len(z) else None,
             "median_plan_s": float(np.median([r["plan_s"] for r in rs])),
+            "median_poses": float(np.median([r["poses"] for r in rs])),
             "median_random_to_match": float(
                 np.median([r["random_to_match"] or np.inf for r in rs])
             ),
         }
     return out
+
+
+#: The pairs' rows in docs/diagnosis.md: (label, pair).
+LABELS = {
+    "ujoint vs geometry": "ujoint vs geometry (Left Hand)",
+    "thermal vs drift": "thermal vs drift (Left Hand, 5 K rise)",
+    "gain vs compliance": "gain vs compliance (motion base, gain hidden)",
+}
+
+
+def markdown(summary: dict, total: int) -> str:
+    """docs/diagnosis.md's table of a run of ``total`` sessions per pair."""
+
+    def pct(x: float, n: int) -> str:
+        return f"{100 * x:.0f} %" if n >= 20 else f"{round(x * n)} of {n}"
+
+    rows = [
+        "| pair | ambiguous sessions | planned poses (median) | right after the planned | "
+        "after as many random | \\|z\\| ≤ 1 | \\|z\\| ≤ 2 | random poses to match (median) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for pair, label in LABELS.items():
+        s = summary.get(pair)
+        if not s or not s.get("sessions"):
+            continue
+        n = s["sessions"]
+        rows.append(
+            f"| {label} | {n} of {total} | {s['median_poses']:.0f} | {pct(s['right_planned'], n)} "
+            f"| {pct(s['right_random'], n)} | {pct(s['within_1sd'], n)} | "
+            f"{pct(s['within_2sd'], n)} | {s['median_random_to_match']:.0f} |"
+        )
+    return "\n".join(rows)
 
 
 def main() -> None:
@@ -196,6 +224,7 @@ def main() -> None:
         rows = list(pool.map(run_session, work))
     result = {"poses": args.poses, "summary": summary(rows), "sessions": rows}
     print(json.dumps(result["summary"], indent=2))
+    print(markdown(result["summary"], args.sessions))
     if args.out:
         with open(args.out, "w") as f:
             json.dump(result, f, indent=1)

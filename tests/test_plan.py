@@ -92,3 +92,21 @@ def test_the_diagnosis_offers_plans_with_the_command_that_makes_them():
     assert found[0].args()[:3] == ["--separate", "thermal", "drift"]
     text = plan_lines(SimpleNamespace(plans=found), "hexcal plan s.csv --robot r.json")  # type: ignore[arg-type]
     assert "hexcal plan s.csv --robot r.json --separate thermal drift --poses" in text[1]
+
+
+def test_a_separation_decides_when_two_sd_short_of_its_mean_it_pays_its_parameters_and_margin():
+    """The expected Δχ² (λ plus the parameters' difference dp), less 2 sd, against what the
+    verdict asks: dp·ln n in ΔBIC and the look-alike margin; against the model alone, very
+    strong evidence (dp·ln n + 10)."""
+    from hexcal.diagnosis.selection import ALIKE_DCHI2, BIC_STRONG, separates
+
+    n, sd = 1000, 10.0
+    cost = 5 * np.log(n)  # gain's six parameters against compliance's one
+    assert separates(cost - 5 + 2 * sd + 0.1, sd, 5, n, nested=False)
+    assert not separates(cost - 5 + 2 * sd - 0.1, sd, 5, n, nested=False)
+    # Fewer parameters than the other: the look-alike margin is what counts.
+    assert separates(ALIKE_DCHI2 + 2 + 2 * sd + 0.1, sd, -2, n, nested=False)
+    assert not separates(ALIKE_DCHI2 + 2 + 2 * sd - 0.1, sd, -2, n, nested=False)
+    strong = 6 * np.log(n) - BIC_STRONG
+    assert separates(strong - 6 + 2 * sd + 0.1, sd, 6, n, nested=True)
+    assert not separates(strong - 6 + 2 * sd - 0.1, sd, 6, n, nested=True)

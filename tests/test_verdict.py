@@ -21,6 +21,7 @@ from hexcal.diagnosis.selection import (
     MOST,
 )
 from hexcal.diagnosis.selection import alike as _alike
+from hexcal.diagnosis.selection import indistinct as _indistinct
 from hexcal.diagnosis.selection import wins as _wins
 from hexcal.diagnosis.text import diagnosis_text
 from hexcal.sim import verdict_cases as vc
@@ -61,9 +62,11 @@ def test_above_the_floor_an_effect_closes_the_excess_or_leads_a_chain_the_catalo
 
 
 def test_effects_that_fit_alike_are_named_together_whatever_their_parameter_count():
-    """Alike: χ² within ALIKE_DCHI2; both closing the excess; or poses' χ² whose difference is
-    inside its own noise (Vuong's |z| < HELDOUT_Z) — here built from residuals whose per-pose
-    χ² differ by a known mean and spread, so that z is known (z = mean/sd·√M)."""
+    """Alike: χ² within ALIKE_DCHI2, or poses' χ² whose difference is inside its own noise
+    (Vuong's z < HELDOUT_Z), or fitting better than the best while its parameter count ranks it
+    behind — here built from residuals whose per-pose χ² differ by a known mean and spread, so
+    that z is known (z = mean/sd·√M). Two that both close the excess are alike only when the
+    poses do not decide between them by the same test."""
     rng = np.random.default_rng(0)
     m = 400
     base = 3.0 * rng.normal(size=(m, 6))  # χ² per pose ≈ 54: a shift of ±3 keeps it positive
@@ -82,14 +85,24 @@ def test_effects_that_fit_alike_are_named_together_whatever_their_parameter_coun
     inside = _cand(
         "backlash", dbic=-45, chi2=1000.0 + 3 * ALIKE_DCHI2, residuals=with_pose_chi2_shift(1)
     )
+    # Fits decisively better, ranked behind by its parameters' cost only: not beaten.
+    better = _cand(
+        "ujoint", dbic=-50, chi2=1000.0 - 3 * ALIKE_DCHI2, residuals=with_pose_chi2_shift(-6)
+    )
     weak = _cand("leadscrew", dbic=BIC_STRONG + 1, chi2=1000.0)
-    unrefitted = Candidate("ujoint", 5.0, True, True)
-    found = _alike(eye, best, [best, near, far, inside, weak, unrefitted], 1.0, excess=False)
-    assert found == ["gain", "backlash"]
-    # Above the floor, two effects that each bring the residual to it are named together.
+    unrefitted = Candidate("balljoint", 5.0, True, True)
+    found = _alike(eye, best, [best, near, far, inside, better, weak, unrefitted], 1.0)
+    assert found == ["gain", "backlash", "ujoint"]
+    # Above the floor, two effects that each bring the residual to it: named together when
+    # the poses cannot tell them apart, not when Vuong's test decides (z 6 against 1).
     best.closes = True
-    closes = _cand("compliance", dbic=-20, chi2=1100.0, explained=MOST + 0.1, closes=True)
-    assert _alike(eye, best, [best, closes], 1.0, excess=True) == ["compliance"]
+    kw = dict(chi2=1000.0 + 3 * ALIKE_DCHI2, explained=MOST + 0.1, closes=True)
+    close_inside = _cand("compliance", dbic=-20, residuals=with_pose_chi2_shift(1), **kw)
+    close_decided = _cand("drift", dbic=-20, residuals=with_pose_chi2_shift(6), **kw)
+    assert _alike(eye, best, [best, close_inside, close_decided], 1.0) == ["compliance"]
+    assert _indistinct(ALIKE_DCHI2 - 1, 5.0) and _indistinct(3 * ALIKE_DCHI2, HELDOUT_Z - 0.1)
+    assert _indistinct(-3 * ALIKE_DCHI2, -5.0)
+    assert not _indistinct(3 * ALIKE_DCHI2, HELDOUT_Z + 0.1)
 
 
 @pytest.mark.parametrize("seed", [31, 32])

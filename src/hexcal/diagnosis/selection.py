@@ -74,14 +74,15 @@ def alike(
     best: Candidate,
     candidates: list[Candidate],
     s2: float,
-    excess: bool,
 ) -> list[str]:
     """The other refitted candidates with very strong evidence that the data cannot tell from
-    ``best``: they fit as well (χ² within :data:`ALIKE_DCHI2`), both bring the residual to
-    the floor, or their poses' χ² differ by less than :data:`HELDOUT_Z` standard errors
-    (Vuong's test, :func:`vuong_z`): a ΔBIC margin inside the noise
-    of the poses is no evidence, and the parameter count alone would pick. ``whiteners``
-    gives the poses' (M, 6, 6) whiteners when a Vuong test is needed."""
+    ``best`` (:func:`indistinct`): unless each fits worse than ``best`` by both χ² (over the
+    noise level, :data:`ALIKE_DCHI2`) and the poses' χ² beyond their noise (Vuong's test,
+    :func:`vuong_z`, :data:`HELDOUT_Z`) — a ΔBIC margin inside the noise of the poses is no
+    evidence, and one that fits better while the parameter count alone ranks it behind is
+    not beaten. Two that both bring the residual to the floor are named together unless the
+    poses decide between them that way. ``whiteners`` gives the poses' (M, 6, 6) whiteners
+    when a Vuong test is needed."""
     if best.refit is None:
         return []
     chol = None
@@ -89,15 +90,36 @@ def alike(
     for c in candidates:
         if c is best or c.refit is None or not c.delta_bic < BIC_STRONG:
             continue
-        same_fit = abs(c.refit.chi2 - best.refit.chi2) < ALIKE_DCHI2 * s2
-        both_close = excess and best.closes and c.closes and c.explained >= MOST
-        inside = False
-        if not (same_fit or both_close):
+        dchi2 = (c.refit.chi2 - best.refit.chi2) / s2
+        z = 0.0
+        if dchi2 >= ALIKE_DCHI2:  # a Vuong test only where χ² alone does not say alike
             chol = whiteners() if chol is None else chol
-            inside = abs(vuong_z(c.refit, best.refit, chol, s2)) < HELDOUT_Z
-        if same_fit or both_close or inside:
+            z = vuong_z(c.refit, best.refit, chol, s2)
+        if indistinct(dchi2, z):
             out.append(c.effect)
     return out
+
+
+def indistinct(dchi2: float, z: float) -> bool:
+    """Whether a fit ranked behind the best one (by ΔBIC) is its look-alike, from the excess of
+    its χ² over the best's (over the noise level) ``dchi2`` and Vuong's z of the two (its
+    poses' χ² less the best's, :func:`vuong_z`): unless it fits worse by at least
+    :data:`ALIKE_DCHI2` and by :data:`HELDOUT_Z` standard errors of the poses' χ². The rule
+    :func:`alike` applies and the planner's benchmark judges its sessions by."""
+    return dchi2 < ALIKE_DCHI2 or z < HELDOUT_Z
+
+
+def separates(lam: float, sd: float, dp: int, n: int, nested: bool) -> bool:
+    """Whether an expected separation decides for the true hypothesis by the verdict's rules,
+    two standard deviations short of its mean: the Δχ² the other leaves beyond it — mean
+    noncentrality ``lam`` plus ``dp``, the true one's parameters less the other's (those fit
+    noise too), standard deviation ``sd`` — must pay for ``dp`` in ΔBIC over ``n`` residual
+    rows and pass the look-alike margin (:data:`ALIKE_DCHI2`; Vuong's z ≥ 2 asks about the
+    same of a Δχ² whose spread is ``sd``); against the model alone (``nested``) the effect's
+    ΔBIC must be very strong (:data:`BIC_STRONG`)."""
+    cost = dp * float(np.log(n))
+    margin = cost - BIC_STRONG if nested else max(ALIKE_DCHI2, cost)
+    return bool(lam + dp - 2.0 * sd >= margin)
 
 
 def vuong_z(a: ModelFit, b: ModelFit, chol: np.ndarray, s2: float = 1.0) -> float:

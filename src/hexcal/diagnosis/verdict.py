@@ -21,8 +21,9 @@ catalogue effect explains.
      fitting noise and what the geometry almost absorbs.
 
    Among the effects named, the lowest ΔBIC is the verdict; every refitted effect that fits
-   alike (χ² within :data:`ALIKE_DCHI2`) is named with it, so the parameter count alone does
-   not pick one of two explanations the data cannot tell apart.
+   alike (χ² within :data:`ALIKE_DCHI2`, or the poses' χ² inside their noise by Vuong's
+   test: :func:`hexcal.diagnosis.selection.alike`) is named with it, so the parameter count
+   alone does not pick one of two explanations the data cannot tell apart.
 4. Otherwise ``unexplained`` when the excess is significant (the diagnosis then says where it
    points, or that the stated noise looks too low), else ``none``.
 """
@@ -143,7 +144,7 @@ def judge(
     alike: list[str] = []
     if best is not None:
         verdict = best.effect
-        alike = alike_to(lambda: pose_whiteners(problem, fit), best, candidates, s2, excess)
+        alike = alike_to(lambda: pose_whiteners(problem, fit), best, candidates, s2)
         notes.extend(_look_alike(problem, best))
         notes.extend(_named_notes(best, alike, fit, candidates, s2))
     elif excess:

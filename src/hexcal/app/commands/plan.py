@@ -88,6 +88,7 @@ def plan_dict(plan, out: Path) -> dict:
         "planned_sd": plan.planned_sd if plan.kind == "separate" else None,
         "random": plan.random,
         "random_poses_to_match": plan.match,
+        "decided_after": plan.decide if plan.kind == "separate" else None,
         "out": str(out),
         "notes": plan.notes,
     }
@@ -105,6 +106,12 @@ def plan_lines(plan) -> list[str]:
             f"  with these {n} planned poses: {plan.planned:.1f} ± {plan.planned_sd:.1f}",
             f"  with {n} random reachable poses: {plan.random:.1f}",
             f"  random reachable poses needed to match the plan: {more}",
+            "  decided (ΔBIC and the look-alike margin, 2 standard deviations short): "
+            + (
+                f"after the first {plan.decide} of them"
+                if plan.decide is not None
+                else f"not within these {n}"
+            ),
         ]
     else:
         (e,) = plan.hypotheses
