@@ -190,3 +190,19 @@ def test_bound_is_the_pseudo_inverse_well_posed_or_not():
     info[1, 3, :] = info[1, :, 3] = 0.0  # one direction left undetermined in one set
     want = np.linalg.pinv(info, hermitian=True)
     np.testing.assert_allclose(bound.bound(info), want, rtol=1e-8, atol=1e-12 * np.abs(want).max())
+
+
+def test_the_mse_bounds_are_traces_of_the_inverse_information_one_or_a_batch():
+    """The bounds on E‖b̂ − b‖² and E‖â − a‖² are the traces of the inverse information's
+    blocks (numpy's inverse, not the function's scaled one), for one information matrix and
+    for a batch of three."""
+    rng = np.random.default_rng(5)
+    m = rng.normal(size=(3, 20, 9))
+    info = np.einsum("bni,bnj->bij", m, m)
+    inv = np.linalg.inv(info)
+    want_b = np.trace(inv[:, :3, :3], axis1=-2, axis2=-1)
+    assert np.allclose(bound.platform_point_mse_bound(info), want_b, rtol=1e-9)
+    assert bound.platform_point_mse_bound(info[0]) == pytest.approx(want_b[0], rel=1e-9)
+    for pose_type, block in (("type_i", slice(3, 6)), ("type_ii_iii", slice(6, 9))):
+        want = np.trace(inv[:, block, block], axis1=-2, axis2=-1)
+        assert np.allclose(bound.base_point_mse_bound(info, pose_type), want, rtol=1e-9), pose_type
