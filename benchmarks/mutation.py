@@ -6,8 +6,9 @@ not fail on survives; the score is the share killed.
     python benchmarks/mutation.py [--target NAME ...] [--list] [--keep DIR]
         [--sample N [--seed S]] [--marks "not slow"]
 
-Targets (``--list`` prints them with their tests): the drivers' frame decoding, io/fileio, the
-session file, estimate/ module by module, and the diagnosis' verdict, scoring and covariates.
+Targets (``--list`` prints them with their tests): the drivers' frame decoding and receive path,
+io/fileio, the session file, estimate/ module by module, the diagnosis' verdict and scoring, and
+the effects' covariates.
 Each runs under ``nice -n 10`` on one core, outside CI's time: a mutant costs one pytest start
 and its tests (2–30 s), a module a few hundred mutants. Printed: per target the mutants, killed,
 survived and incompetent (a mutant that does not run: not counted), the score with its 95 %
