@@ -4,12 +4,15 @@ file itself, the tests of that module are run, and the file is restored. A mutan
 not fail on survives; the score is the share killed.
 
     python benchmarks/mutation.py [--target NAME ...] [--list] [--keep DIR]
+        [--sample N [--seed S]] [--marks "not slow"]
 
-Targets (``--list`` prints them with their tests): the drivers' frame decoding, io/fileio, the
-session file, estimate/ module by module, and the diagnosis' verdict, scoring and covariates.
+Targets (``--list`` prints them with their tests): the drivers' frame decoding and receive path,
+io/fileio, the session file, estimate/ module by module, the diagnosis' verdict and scoring, and
+the effects' covariates.
 Each runs under ``nice -n 10`` on one core, outside CI's time: a mutant costs one pytest start
 and its tests (2–30 s), a module a few hundred mutants. Printed: per target the mutants, killed,
-survived and incompetent (a mutant that does not run: not counted), the score, and every
+survived and incompetent (a mutant that does not run: not counted), the score with its 95 %
+Clopper–Pearson interval (a ``--sample`` of a target's mutants estimates its score), and every
 survivor with its line — each is then killed by a new test or shown equivalent in
 docs/testing.md. Needs ``pip install cosmic-ray`` (not a dependency of hexcal's).
 
@@ -30,8 +33,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+from scipy.stats import binomtest
+
 ROOT = Path(__file__).resolve().parents[1]
-PYTEST = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", ""]
+PYTEST = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m"]
 #: The decoding tests of the contract file, by name (its bus tests are not about decoding).
 FRAME_TESTS = [
     "tests/test_drivers_can_frames.py",
@@ -53,7 +58,16 @@ ESTIMATE = (
     "consistency",
     "quantiles",
     "layout",
+    "lm",
+    "nbp",
+    "leg_rows",
 )
+#: The estimate modules without a test file of their own name: the tests that call them.
+ESTIMATE_TESTS = {
+    "lm": ["tests/test_refine_solver.py"],
+    "leg_rows": ["tests/test_refine_solver.py", "tests/test_folds.py"],
+    "calibrate": ["tests/test_calibrate.py", "tests/test_refine.py"],
+}
 #: name → (files to mutate, tests to run); the tests run quick and slow (-m "").
 TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "frames": (["drivers/can_frames.py"], FRAME_TESTS),
@@ -63,7 +77,11 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
         ["tests/test_session.py", "tests/test_session_lock.py", "tests/test_fuzz_sessions.py"],
     ),
     **{
-        f"estimate.{m}": ([f"src/hexcal/estimate/{m}.py"], [f"tests/test_{m}.py"]) for m in ESTIMATE
+        f"estimate.{m}": (
+            [f"src/hexcal/estimate/{m}.py"],
+            ESTIMATE_TESTS.get(m, [f"tests/test_{m}.py"]),
+        )
+        for m in ESTIMATE
     },
     "verdict": (
         ["src/hexcal/diagnosis/verdict.py"],
@@ -73,7 +91,15 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
         ["src/hexcal/diagnosis/scoring.py"],
         ["tests/test_diagnosis.py", "tests/test_verdict.py"],
     ),
-    "covariates": (["src/hexcal/diagnosis/covariates.py"], ["tests/test_covariates.py"]),
+    "covariates": (
+        ["src/hexcal/effects/covariates.py"],
+        ["tests/test_effect_file.py", "tests/test_explorer.py"],
+    ),
+    #: The drivers' frame handling: the contract's tests on python-can's virtual bus.
+    "receive": (
+        ["drivers/can_receive.py"],
+        ["tests/test_drivers_can_frames.py", "tests/test_drivers_can_encoders.py", "-k", "virtual"],
+    ),
 }
 
 
@@ -81,8 +107,8 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
 FUNCTIONS = {"frames": ("set_nodes", "counts", "decode", "decode_batch", "decode_tpdo")}
 
 
-def _config(files: list[str], tests: list[str], timeout_s: float) -> str:
-    command = shlex.join(["nice", "-n", "10", *PYTEST, *tests])
+def _config(files: list[str], tests: list[str], timeout_s: float, marks: str) -> str:
+    command = shlex.join(["nice", "-n", "10", *PYTEST, marks, *tests])
     return (
         "[cosmic-ray]\n"
         f"module-path = {json.dumps(files)}\n"
@@ -172,6 +198,7 @@ def run_target(
     sample: int | None = None,
     seed: int = 0,
     resume: bool = False,
+    marks: str = "",
 ) -> dict:
     """Mutate ``name``'s files one mutant at a time, run its tests; the tally and survivors."""
     from cosmic_ray.work_db import WorkDB, use_db
@@ -179,7 +206,7 @@ def run_target(
 
     files, tests = TARGETS[name]
     cfg, db = work / f"{name}.toml", work / f"{name}.sqlite"
-    cfg.write_text(_config(files, tests, timeout_s))
+    cfg.write_text(_config(files, tests, timeout_s, marks))
     cosmic_ray = str(Path(sys.executable).parent / "cosmic-ray")
     if not (resume and db.exists()):  # else go on with the mutants it has not run yet
         subprocess.run([cosmic_ray, "init", str(cfg), str(db)], cwd=ROOT, check=True)
@@ -208,10 +235,22 @@ def run_target(
     return {
         "target": name,
         "sampled": sample,
+        "marks": marks,
         **tally,
         "score": tally["killed"] / counted if counted else float("nan"),
+        "ci95": score_interval(tally["killed"], counted),
         "survivors": sorted(survivors),
     }
+
+
+def score_interval(killed: int, counted: int) -> tuple[float, float]:
+    """The 95 % Clopper–Pearson interval of the share of a target's mutants the tests kill,
+    from ``killed`` of ``counted`` drawn at random (``--sample``); a full run's share is exact,
+    and its interval says how far another draw of the same size could fall."""
+    if counted == 0:
+        return (float("nan"), float("nan"))
+    ci = binomtest(killed, counted).proportion_ci(0.95, method="exact")
+    return (float(ci.low), float(ci.high))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -223,6 +262,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", metavar="FILE", help="write the results here too")
     ap.add_argument("--sample", type=int, help="run this many mutants per target, drawn at random")
     ap.add_argument("--seed", type=int, default=0, help="of the --sample draw")
+    ap.add_argument(
+        "--marks",
+        default="",
+        help='pytest -m: "" (default) the quick and slow tests, "not slow" the quick ones only',
+    )
     ap.add_argument(
         "--resume", action="store_true", help="with --keep: go on with an interrupted run"
     )
@@ -236,12 +280,15 @@ def main(argv: list[str] | None = None) -> int:
         work.mkdir(parents=True, exist_ok=True)
         results = []
         for name in args.target:
-            r = run_target(name, work, args.timeout, args.sample, args.seed, args.resume)
+            r = run_target(
+                name, work, args.timeout, args.sample, args.seed, args.resume, args.marks
+            )
             results.append(r)
+            lo, hi = r["ci95"]
             print(
                 f"{name}: {r['killed'] + r['survived']} mutants, {r['killed']} killed, "
                 f"{r['survived']} survived ({r['incompetent']} incompetent, not counted): "
-                f"score {100 * r['score']:.1f} %"
+                f"score {100 * r['score']:.1f} % (95 % interval {100 * lo:.0f}–{100 * hi:.0f} %)"
             )
             for s in r["survivors"]:
                 print("  survived:", s)

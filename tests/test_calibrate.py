@@ -52,7 +52,10 @@ def test_a_failed_fit_is_tried_again_from_the_design_and_says_so():
     )
     ref = refine_from_seeds(P, R, rho, a0, b0, off0, design, True, SIG)
     assert ref.chi2 / ref.dof < 2.0
-    assert any("started from the design's geometry" in n for n in ref.notes), ref.notes
+    (note,) = [n for n in ref.notes if "started from the design's geometry" in n]
+    # the figures it states are the two fits' (the trapped one's and the kept one's χ²/dof)
+    assert f"stopped at χ²/dof {alone.chi2 / alone.dof:.1f};" in note, note
+    assert f"it reached {ref.chi2 / ref.dof:.2f}:" in note, note
 
 
 def test_a_good_fit_is_not_tried_again():

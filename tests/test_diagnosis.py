@@ -11,6 +11,7 @@ import re
 import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLE, instruments
+from statcheck import floor_limit
 
 from hexcal.app.cli import main
 from hexcal.diagnosis import diagnose
@@ -44,7 +45,7 @@ def test_hidden_effect_is_named_and_adding_it_brings_the_error_to_the_floor(desi
     after = diagnose(meas, design, 42, add=[name], instruments=INST, problem=before.problem)
     assert after.verdict == "none"
     assert after.fit.cv_rms_mm < before.fit.cv_rms_mm
-    assert after.fit.cv_rms_mm <= 1.15 * after.noise_floor_mm
+    assert after.fit.cv_rms_mm <= floor_limit(after)
 
 
 def test_clean_session_says_none(design):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import instruments
+from statcheck import floor_limit
 
 from hexcal.diagnosis import diagnose
 from hexcal.effects import EffectData, get_effect
@@ -117,7 +118,7 @@ def test_a_drifting_tracker_is_drift_not_thermal(design, seed):
     assert next(c for c in d.to_dict()["candidates"] if c["effect"] == "drift")["of_the_session"]
     after = diagnose(meas, design, 42, add=["drift"], instruments=INST, problem=d.problem)
     assert after.verdict == "none"
-    assert after.fit.cv_rms_mm <= 1.15 * after.noise_floor_mm
+    assert after.fit.cv_rms_mm <= floor_limit(after)
     fitted = np.array([after.fit.refinement.value(f"drift.v{a}") for a in "xyz"])  # µm/h
     assert np.linalg.norm(fitted - v) < 0.1 * np.linalg.norm(v)
 

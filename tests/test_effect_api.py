@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from statcheck import floor_limit_of
 
 import hexcal.effects as effects
 from hexcal.app.cli import main
@@ -230,7 +231,7 @@ def test_from_a_file_the_effect_is_named_added_written_and_read_back(bowed, tmp_
     assert main(["diagnose", *_inputs(bowed), *fx, "--add", "scalebow", "--json"]) == 0
     after = json.loads(capsys.readouterr().out)
     assert after["verdict"] == "none"
-    assert after["cv_rms_mm"] <= 1.15 * after["noise_floor_mm"]
+    assert after["cv_rms_mm"] <= floor_limit_of(after)
 
     cal = tmp_path / "calibrated.json"
     assert (

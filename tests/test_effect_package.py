@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from statcheck import floor_limit_of
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "examples" / "hexcal-scalebow"
@@ -137,7 +138,7 @@ def test_diagnose_names_it_and_adding_it_reaches_the_floor(site, session):
         hexcal("diagnose", *inputs(session), "--add", "scalebow", "--json", site=site).stdout
     )
     assert after["verdict"] == "none"
-    assert after["cv_rms_mm"] <= 1.15 * after["noise_floor_mm"]
+    assert after["cv_rms_mm"] <= floor_limit_of(after)
     # Without the package the same session is "unexplained": the effect is what the data need.
     plain = json.loads(hexcal("diagnose", *inputs(session), "--json").stdout)
     assert plain["verdict"] == "unexplained"

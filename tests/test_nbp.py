@@ -96,3 +96,29 @@ def test_candidates_keep_away_from_singularities(monkeypatch):
     Pc, Rc = nbp.candidates(sim, "direction+length", geo, 400, np.random.default_rng(1))
     assert len(Pc) == 400
     assert condition_number(ROBOT.a, ROBOT.b, Pc, Rotation.from_matrix(Rc)).max() <= limit
+
+
+@pytest.mark.parametrize("constraint", ["direction", "direction+length", "length"])
+def test_the_sigma_predicted_after_a_suggestion_is_the_bounds_with_that_pose_added(constraint):
+    """For each clamp type: the 1σ the suggestion predicts after its pose (a rank-one update
+    over 200 candidates at once) is the one the information of hexcal.estimate.bound gives
+    with that pose added to the step's four (a separate computation of the same information),
+    and the 1σ before it is that of the four alone."""
+    sim = Simulator(ROBOT)
+    rng = np.random.default_rng(7)
+    k = 3
+    draw = {"direction": sim.type_i, "direction+length": sim.type_ii, "length": sim.type_iii}
+    P, R = draw[constraint](k, (4,), rng)
+    geo = nbp._clamp_geometry(ROBOT, k, P[0], R[0])
+    prior = np.eye({"direction": 8, "direction+length": 6, "length": 4}[constraint]) / 1e3**2
+    s = nbp.suggest(constraint, geo, P, R, SIG, sim, rng, n_candidates=200)
+
+    def sigma(P_, R_) -> float:
+        return nbp.predicted_sigma_mm(
+            constraint, prior + nbp.information(constraint, geo, P_, R_, SIG)
+        )
+
+    assert s.sigma_before_mm == pytest.approx(sigma(P, R), rel=1e-9)
+    after = sigma(np.vstack([P, s.position[None]]), np.concatenate([R, s.rotation[None]]))
+    assert s.sigma_after_mm == pytest.approx(after, rel=1e-6)
+    assert s.sigma_after_mm < s.sigma_before_mm

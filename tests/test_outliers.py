@@ -12,6 +12,7 @@ import io
 import numpy as np
 import pytest
 from conftest import instruments
+from statcheck import floor_limit
 
 from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
@@ -51,7 +52,7 @@ def test_outliers_and_backlash_are_named_and_the_chain_ends_at_the_floor(design,
     """Backlash hidden and three 0.5 mm outliers: the first verdict is ``backlash`` with the
     three outliers listed (set aside); ``diagnose --auto`` then reads ``outliers`` (backlash
     added, the rest at the floor) and, the outliers acknowledged, ``none`` — with the held-out
-    RMS within 15 % of the floor once both are handled."""
+    RMS at the floor once both are handled (3σ of a correct model's: statcheck.floor_limit)."""
     meas, rows, design = _session(design, seed, "backlash")
     ids = sorted(int(i) for i in meas.pose_id[rows])
     chain = diagnose_chain(_inputs(meas, design), 42, auto=True)
@@ -65,8 +66,8 @@ def test_outliers_and_backlash_are_named_and_the_chain_ends_at_the_floor(design,
     first, last = chain[0], chain[-1]
     assert any("poses are outliers" in n and "backlash" in n for n in first.notes)
     assert last.effects == ("offset", "backlash") and last.outliers_acknowledged
-    assert last.fit.cv_rms_mm <= 1.15 * last.noise_floor_mm
-    assert chain[1].fit.cv_rms_mm <= 1.15 * chain[1].noise_floor_mm
+    assert last.fit.cv_rms_mm <= floor_limit(last)
+    assert chain[1].fit.cv_rms_mm <= floor_limit(chain[1])
     out = first.to_dict()["outliers"]
     assert [o["pose_id"] for o in out] == ids
     assert all({"index", "step", "t", "chi2"} <= set(o) for o in out)
@@ -83,7 +84,7 @@ def test_outliers_alone_are_the_whole_story(design, seed):
     d = chain[0]
     assert sorted(d.outlier_ids) == sorted(int(i) for i in meas.pose_id[rows])
     assert d.effects == ("offset",)
-    assert d.fit.cv_rms_mm <= 1.15 * d.noise_floor_mm
+    assert d.fit.cv_rms_mm <= floor_limit(d)
     assert any("whole story" in n for n in d.notes)
     # Nothing deleted: the residual table has every pose, the outliers marked and off by far
     # more than the floor; the residuals of the kept poses are the fit's own.

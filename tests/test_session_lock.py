@@ -345,3 +345,19 @@ def test_a_lock_that_cannot_be_written_leaves_no_lock_file(tmp_path, monkeypatch
     monkeypatch.undo()
     assert not lock_path(session).exists() and list(tmp_path.iterdir()) == []
     SessionLock.acquire(session).release()  # and the next one takes it
+
+
+@pytest.mark.parametrize("name", ["session.json", "session"])
+def test_the_refused_version_is_written_beside_as_mine_json(tmp_path, name):
+    """The version a refused save writes beside the file is ``<stem>.mine.json`` — with the
+    file's own suffix, or ``.json`` for a file named without one — and loads as a session."""
+    path = small_session(tmp_path).rename(tmp_path / name)
+    sf = SessionFile.resume(path)
+    sf.add_note("first")
+    other = load_session(path)
+    other.notes.append(other.notes[0].model_copy(update={"text": "theirs"}))
+    path.write_text(session_to_text(other), encoding="utf-8")
+    with pytest.raises(SessionConflict) as info:
+        sf.add_note("mine")
+    assert info.value.mine == tmp_path / "session.mine.json"
+    assert [n.text for n in load_session(info.value.mine).notes][-1] == "mine"
