@@ -58,7 +58,7 @@ from hexcal.io.safe_read import KINDS, decode, parse_json, read_bytes
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.robot import Robot
 from hexcal.procedure import looks_like_session as looks_like_session
-from hexcal.procedure.session_block import attach, stream_table, write_block
+from hexcal.procedure.session_block import attach, check_table_size, stream_table, write_block
 from hexcal.procedure.session_check import (
     duplicate_id_problems,
     pose_problems,
@@ -552,8 +552,10 @@ def import_table(
     """``session import``: a new session file ``out`` holding the table ``source`` in a pose
     block, streamed (memory does not grow with the table). The session file's path and the
     number of poses; refused, with nothing written, when ``out`` exists, the table is bad or
-    beyond :data:`~hexcal.io.capacity.MAX_IMPORTED_POSES`."""
+    beyond :data:`~hexcal.io.capacity.MAX_IMPORTED_POSES` (that before anything is written,
+    even the lock)."""
     source, out = Path(source), Path(out)
+    check_table_size(source, out)  # before the lock, the block or the session file
     session = Session(robot=robot)
     count: list[int] = []
 

@@ -5,8 +5,9 @@ file that does not have it yet (docs/formats.md, "The pose block").
 The block is named after the session file and its checksum (``s.json.<sha>.poses.npy``) and is
 never changed once written: a session saved again keeps referring to it, so a crash during a
 save leaves the previous session file with its block, or the new one with it. Its size is
-held to :data:`hexcal.io.capacity.MAX_IMPORTED_POSES` by the writer, which refuses a larger
-table as it streams in (nothing is left), and by the reader.
+held to :data:`hexcal.io.capacity.MAX_IMPORTED_POSES`: ``session import`` refuses a larger
+table before anything is written (:func:`check_table_size`), the writer as it streams in
+(nothing is left), and the reader.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 
 from hexcal.io import capacity
 from hexcal.io.measurements import MeasurementError, Measurements
-from hexcal.io.measurements_csv import RowBlock, stream_measurements
+from hexcal.io.measurements_csv import RowBlock, count_rows, line_ends, stream_measurements
 from hexcal.io.pose_block import PoseBlockError, PoseBlockWriter, decode_texts, read_block
 from hexcal.procedure.session_model import (
     _TABLE_COLUMNS,
@@ -92,15 +93,31 @@ def read_table(path: Path, block: PoseBlock, columns: list[str]) -> Measurements
     return table
 
 
-def _too_many(source: Path, out: Path) -> Callable[[], Exception]:
-    def refusal() -> Exception:
-        return SessionFileError(
-            f"{source}: more than {capacity.MAX_IMPORTED_POSES:,} poses; {_limit_text()}, so "
-            f"{out} was not written: import a part of the table (a step, a stretch of time) "
-            "per session, or calibrate and diagnose straight from the table"
-        )
+def _refusal(source: Path, out: Path, count: str) -> SessionFileError:
+    return SessionFileError(
+        f"{source}: {count} poses; {_limit_text()}, so {out} was not written: import a part of "
+        "the table (a step, a stretch of time) per session, or calibrate and diagnose straight "
+        "from the table"
+    )
 
-    return refusal
+
+def _too_many(source: Path, out: Path) -> Callable[[], Exception]:
+    return lambda: _refusal(source, out, f"more than {capacity.MAX_IMPORTED_POSES:,}")
+
+
+def check_table_size(source: Path, out: Path) -> None:
+    """Refuse the table ``source`` when it holds more poses than a session does, before
+    anything is written (``out``, the session file, is only named). Its line ends bound its
+    rows from above (:func:`~hexcal.io.measurements_csv.line_ends`, the file's bytes read
+    once); only a table whose bound passes the limit is parsed to count its rows exactly
+    (:func:`~hexcal.io.measurements_csv.count_rows`, nothing checked, nothing written). A
+    table that passes is checked row by row as it streams in, and held to the limit there too
+    (a file that grew in between)."""
+    if line_ends(source) <= capacity.MAX_IMPORTED_POSES:
+        return
+    rows = count_rows(source)
+    if rows > capacity.MAX_IMPORTED_POSES:
+        raise _refusal(source, out, f"{rows:,}")
 
 
 def _attach(session: Session, writer: PoseBlockWriter, out: Path) -> None:
