@@ -188,8 +188,9 @@ def test_the_reader_refuses_a_block_beyond_the_limit_the_writer_keeps(tmp_path, 
         (lambda b: b[:-7] + bytes([b[-7] ^ 1]) + b[-6:], "do not match the checksum"),
         (lambda b: b"not numpy" + b[9:], "not a pose block"),
         (lambda b: b.replace(b"'<f8'", b"'<f4'", 1), "not the pose record"),
+        (lambda b: b[:8] + b"\x00\x01" + b[10:], "does not give its length as 1014 bytes"),
     ],
-    ids=["truncated", "longer", "flipped-bit", "not-npy", "other-layout"],
+    ids=["truncated", "longer", "flipped-bit", "not-npy", "other-layout", "header-length"],
 )
 def test_a_damaged_block_is_refused_naming_it_and_left_untouched(tmp_path, damage, said):
     out = tmp_path / "s.json"
