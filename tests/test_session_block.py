@@ -300,3 +300,35 @@ def test_a_repeated_pose_id_is_refused_by_line_and_nothing_is_written(tmp_path):
     with pytest.raises(ValueError, match=rf"line {2 * _BLOCK_ROWS + 1}.*already used on line 8"):
         import_table(src, load_robot(ROBOT), out)
     assert list(out.parent.iterdir()) == []
+
+
+def test_a_block_no_session_names_is_removed_when_its_name_is_used_again(tmp_path, caplog):
+    """A session file deleted and another table imported under its name: its old block goes
+    (said), unless another file beside it names it (a session saved from it under another
+    name); blocks of other names, and files not named as blocks are, are left alone."""
+    robot = load_robot(ROBOT)
+    out = tmp_path / "s.json"
+    import_table(_table(tmp_path / "a.csv", 30), robot, out)
+    [first] = _blocks(tmp_path)
+    keep = [tmp_path / "s.json.notes.poses.npy", tmp_path / "t.json.0123456789ab.poses.npy"]
+    for p in keep:
+        p.write_bytes(b"not mine")
+    out.unlink()
+    import_table(_table(tmp_path / "b.csv", 31), robot, out)
+    assert not first.exists() and f"{first}: removed, a pose block of s.json" in caplog.text
+    assert all(p.read_bytes() == b"not mine" for p in keep)
+    [second] = [b for b in _blocks(tmp_path) if b not in keep]
+    assert len(load_session(out).measurements()) == 31
+
+    # The same again, while a copy saved beside it under another name still names the block.
+    copy = tmp_path / "copy.json"
+    copy.write_text(out.read_text())
+    out.unlink()
+    import_table(_table(tmp_path / "a.csv", 30), robot, out)
+    assert second.exists() and len(load_session(copy).measurements()) == 31
+    # Resuming tidies too (a save interrupted between its block and its file leaves one).
+    orphan = tmp_path / "s.json.abcdefabcdef.poses.npy"
+    orphan.write_bytes(b"an interrupted save's block")
+    with SessionFile.resume(out) as sf:
+        assert any(n.startswith(f"{orphan}: removed") for n in sf.notices)
+    assert not orphan.exists() and second.exists() and len(load_session(out).measurements()) == 30
