@@ -395,6 +395,8 @@ def _work(job: tuple[list[int], int, bool]) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         files = valid_inputs(folder)
+        # First: a case's files are removed by its number, which the block's name may hold.
+        results += block_cases(seed, files, folder) if blocks else []
         for i in indices:
             kind, args, wants_json = make_case(i, seed, files, folder)
             r = run_case(args, wants_json)
@@ -402,8 +404,6 @@ def _work(job: tuple[list[int], int, bool]) -> list[dict]:
             for p in folder.glob(f"*{i}*"):  # the case's own files
                 if p.is_file():
                     p.unlink()
-        if blocks:
-            results += block_cases(seed, files, folder)
     return results
 
 
