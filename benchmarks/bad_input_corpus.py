@@ -13,7 +13,11 @@ for robot.json, a stroke the readings may lie beyond) and runs the command that 
 in-process through ``hexcal.app.cli.main`` as the console script does: ``calibrate --json``
 (table, robot, instruments, session), ``validate --json`` (a mutated calibrated.json),
 ``session export`` (session), ``import`` (log, mapping). Case ``i`` is drawn from
-``random.Random(seed * 1_000_003 + i)``: any case reruns alone with ``--only i``.
+``random.Random(seed * 1_000_003 + i)``: any case reruns alone with ``--only i``. Besides, an
+imported session's pose block is damaged each way of :data:`BLOCK_DAMAGES` (cut short, a bit
+of its records flipped, a wrong header, missing, counted beyond the session's limit, longer)
+and read by ``calibrate --json`` and ``session export``: each must be refused with exit 2
+and a message naming the block file.
 
 A case fails when: the exit status is 1 (hexcal's "internal error": an exception no message
 was written for) or the command raised; stderr holds a traceback; the run took over 30 s of
@@ -92,6 +96,9 @@ def valid_inputs(folder: Path) -> dict[str, Path]:
         files["session"], Session.from_measurements(meas, load_robot(files["robot"]))
     ):
         pass
+    # The same table imported: its poses in a pose block beside the session file.
+    files["imported"] = folder / "imported.json"
+    SessionFile.create(files["imported"], Session.with_table(meas, load_robot(files["robot"])))
     return files
 
 
@@ -287,7 +294,67 @@ def make_case(
     return kind, [*args, "--json"], True
 
 
-def run_case(args: list[str], wants_json: bool) -> dict:
+# -- a damaged pose block -------------------------------------------------------------------------
+def damage_block(damage: str, rng: random.Random, imported: Path, folder: Path) -> Path:
+    """A copy of the ``imported`` session whose pose block is damaged as ``damage`` says: cut
+    short, a bit of its records flipped, its header wrong, missing, counted beyond the
+    session's limit by the session file, or longer. The block's path (the session file is
+    ``<block>.json``)."""
+    from hexcal.io import capacity
+    from hexcal.io.pose_block import HEADER_BYTES
+
+    doc = json.loads(imported.read_text(encoding="utf-8"))
+    data = imported.with_name(doc["pose_block"]["file"]).read_bytes()
+    block = folder / f"block-{damage}.poses.npy"
+    doc["pose_block"]["file"] = block.name
+    if damage == "truncated":
+        data = data[: rng.randrange(len(data))]
+    elif damage == "bit-flipped":  # in the records, which the session file's checksum covers
+        at = rng.randrange(HEADER_BYTES, len(data))
+        data = data[:at] + bytes([data[at] ^ (1 << rng.randrange(8))]) + data[at + 1 :]
+    elif damage == "wrong-header":
+        head = data[:HEADER_BYTES]
+        wrong = rng.choice([
+            b"\x93NUMPY\x02\x00" + head[8:],  # another .npy version
+            head[:8] + b"\x00\x01" + head[10:],  # another header length
+            head.replace(b"'<f8'", b"'<f4'", 1),  # another record
+            head.replace(b"'shape': (", b"'shape': (1", 1),  # another count
+            head.replace(b"False", b"True", 1),  # Fortran order
+            bytes(HEADER_BYTES),  # zeros
+        ])  # fmt: skip
+        data = wrong + data[HEADER_BYTES:]
+    elif damage == "over-the-limit":
+        doc["pose_block"]["poses"] = capacity.MAX_IMPORTED_POSES + 1
+    elif damage == "longer":
+        data += bytes(rng.randrange(1, 300))
+    if damage != "missing":
+        block.write_bytes(data)
+    block.with_suffix(".json").write_text(json.dumps(doc), encoding="utf-8")
+    return block
+
+
+#: The ways a session's pose block is damaged, each run through every command of a session.
+BLOCK_DAMAGES = ("truncated", "bit-flipped", "wrong-header", "missing", "over-the-limit", "longer")
+
+
+def block_cases(seed: int, files: dict[str, Path], folder: Path) -> list[dict]:
+    """Every damage of :data:`BLOCK_DAMAGES` through ``calibrate --json`` and ``session
+    export``: each must be refused (exit 2) naming the block file, besides the corpus's rules."""
+    results = []
+    for k, damage in enumerate(BLOCK_DAMAGES):
+        rng = random.Random(seed * 1_000_003 + k)
+        block = damage_block(damage, rng, files["imported"], folder)
+        session = str(block.with_suffix(".json"))
+        for args, wants_json in (
+            (["calibrate", session, "--json"], True),
+            (["session", "export", session, "--out", str(folder / f"out-{damage}")], False),
+        ):
+            r = run_case(args, wants_json, names=str(block))
+            results.append({"case": f"block {damage}", "kind": "block", "args": args[0], **r})
+    return results
+
+
+def run_case(args: list[str], wants_json: bool, names: str = "") -> dict:
     """Run one command in-process; what a user would see judged."""
     from hexcal.app.cli import main
     from hexcal.io.json_out import loads_strict
@@ -308,6 +375,8 @@ def run_case(args: list[str], wants_json: bool) -> dict:
     stderr = err.getvalue()
     if code == 1:
         problem = problem or "exit 1 (internal error): " + stderr.strip()[:300]
+    elif names and (code != 2 or names not in stderr):
+        problem = f"exit {code}, not refused naming {names}: " + stderr.strip()[:300]
     elif "Traceback" in stderr:
         problem = "a traceback on stderr"
     elif cpu > LIMIT_S:
@@ -320,12 +389,14 @@ def run_case(args: list[str], wants_json: bool) -> dict:
     return {"code": code, "s": elapsed, "cpu_s": cpu, "problem": problem}
 
 
-def _work(job: tuple[list[int], int]) -> list[dict]:
-    indices, seed = job
+def _work(job: tuple[list[int], int, bool]) -> list[dict]:
+    indices, seed, blocks = job
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         files = valid_inputs(folder)
+        # First: a case's files are removed by its number, which the block's name may hold.
+        results += block_cases(seed, files, folder) if blocks else []
         for i in indices:
             kind, args, wants_json = make_case(i, seed, files, folder)
             r = run_case(args, wants_json)
@@ -353,7 +424,9 @@ def main() -> int:
 
             return hexcal_main(args)
     t0 = time.perf_counter()
-    chunks = [(list(range(w, opts.cases, opts.workers)), opts.seed) for w in range(opts.workers)]
+    chunks = [
+        (list(range(w, opts.cases, opts.workers)), opts.seed, w == 0) for w in range(opts.workers)
+    ]
     if opts.workers > 1:
         with mp.get_context("spawn").Pool(opts.workers) as pool:
             results = [r for part in pool.map(_work, chunks) for r in part]

@@ -9,6 +9,7 @@ opener, who is told."""
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
 import signal
@@ -156,3 +157,57 @@ def test_two_writers_never_lose_a_saved_change(tmp_path_factory, base_session, a
             assert taken == []
         if taken:
             assert any(f"process {procs[t].pid} " in taken[0] for t in killed)
+
+
+@pytest.fixture(scope="module")
+def imported_session(tmp_path_factory) -> tuple[bytes, bytes]:
+    """An imported session's file and its pose block (20 poses: 1,024 + 20 × 141 bytes)."""
+    meas = read_measurements(EXAMPLE / "measurements.csv").subset(slice(0, 20))
+    path = tmp_path_factory.mktemp("imported") / "s.json"
+    SessionFile.create(path, Session.with_table(meas, load_robot(EXAMPLE / "robot.json"))).close()
+    [block] = path.parent.glob("*.poses.npy")
+    return path.read_bytes(), block.read_bytes()
+
+
+#: A damage to a pose block: cut to a length, a bit flipped in its records, bytes appended.
+DAMAGE = st.one_of(
+    st.tuples(st.just("cut"), st.floats(0, 1, exclude_max=True)),
+    st.tuples(st.just("flip"), st.floats(0, 1, exclude_max=True), st.integers(0, 7)),
+    st.tuples(st.just("append"), st.binary(min_size=1, max_size=300)),
+)
+
+
+@settings(
+    max_examples=EXAMPLES * 4,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(damage=DAMAGE)
+def test_a_damaged_pose_block_is_refused_naming_it_and_left_as_it_is(
+    tmp_path_factory, imported_session, damage
+):
+    """However a block is cut, flipped (in the records, which the session file's checksum
+    covers) or lengthened, loading and resuming the session refuse it naming the block, and
+    neither the block nor the session file is changed."""
+    from hexcal.io.pose_block import HEADER_BYTES
+    from hexcal.procedure.session import SessionFileError
+
+    text, data = imported_session
+    folder = tmp_path_factory.mktemp("damaged")
+    path = folder / "s.json"
+    path.write_bytes(text)
+    block = folder / json.loads(text)["pose_block"]["file"]
+    if damage[0] == "cut":
+        data = data[: int(damage[1] * len(data))]
+    elif damage[0] == "flip":
+        at = HEADER_BYTES + int(damage[1] * (len(data) - HEADER_BYTES))
+        data = data[:at] + bytes([data[at] ^ (1 << damage[2])]) + data[at + 1 :]
+    else:
+        data = data + damage[1]
+    block.write_bytes(data)
+    for opening in (load_session, SessionFile.resume):
+        with pytest.raises(SessionFileError) as err:
+            opening(path)
+        assert str(err.value).startswith(f"{block}: "), err.value
+    assert block.read_bytes() == data and path.read_bytes() == text
+    assert sorted(p.name for p in folder.iterdir()) == sorted([path.name, block.name])

@@ -586,3 +586,36 @@ def test_a_200_mb_table_reads_in_under_1_gb(tmp_path: Path) -> None:
     rows, peak, took = out.stdout.split()
     assert int(rows) == k
     assert int(peak) < 1_000_000_000, f"peak RSS {int(peak) / 1e6:.0f} MB, read in {took} s"
+
+
+@pytest.mark.parametrize("block", [3, 1 << 22])
+def test_line_ends_bound_the_rows_and_count_rows_counts_them_exactly(tmp_path, monkeypatch, block):
+    """The line ends (\\n, \\r\\n, a lone \\r; a \\r\\n split between two blocks once) are at
+    least the rows the reader finds; the exact count leaves out blank and all-comma rows and
+    the header, and counts a row whose quoted cell breaks across lines once, in every dialect
+    the reader takes (Excel's sep= line, UTF-16)."""
+    import hexcal.io.measurements_csv as measurements_csv
+    from hexcal.io.measurements_csv import count_rows, line_ends
+
+    monkeypatch.setattr(measurements_csv, "_COUNT_BLOCK", block)
+    src = Path(__file__).resolve().parents[1] / "examples" / "left-hand-sim" / "measurements.csv"
+    lines = src.read_text().splitlines()[:6]  # the header and 5 rows
+    cases = {
+        "lf.csv": ("\n".join(lines) + "\n").encode(),
+        "crlf.csv": ("\r\n".join(lines) + "\r\n").encode(),
+        "cr.csv": ("\r".join(lines)).encode(),
+        "blank.csv": ("\n\n".join(lines) + "\n,,,,\n\n").encode(),
+        "sep.csv": ("sep=;\r\n" + "\r\n".join(x.replace(",", ";") for x in lines)).encode(),
+        "utf16.csv": ("\ufeff" + "\r\n".join(lines) + "\r\n").encode("utf-16-le"),
+    }
+    quoted = [lines[0] + ",note"] + [
+        x + (',"two\nlines"' if i == 2 else ",") for i, x in enumerate(lines[1:], 1)
+    ]
+    cases["quoted.csv"] = "\n".join(quoted).encode()
+    for name, data in cases.items():
+        path = tmp_path / name
+        path.write_bytes(data)
+        assert count_rows(path) == 5 == len(read_measurements(path)), name
+        assert line_ends(path) >= 5, name
+    assert line_ends(tmp_path / "crlf.csv") == 6 and line_ends(tmp_path / "cr.csv") == 5
+    assert line_ends(tmp_path / "blank.csv") == 13 and line_ends(tmp_path / "quoted.csv") == 6

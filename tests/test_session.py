@@ -340,8 +340,8 @@ def test_import_refuses_a_table_beyond_what_a_session_holds_before_writing(
     ]
     assert main([*args, "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    # Refused as the rows stream in, the moment they pass the limit: no session file, no
-    # pose block, no temporary file and no lock are left.
-    assert "more than 100 poses; a session holds at most 100 imported poses" in err
+    # Refused before anything is written, naming the count: no session file, no pose block,
+    # no temporary file and no lock are left.
+    assert "184 poses; a session holds at most 100 imported poses" in err
     assert "hexcal.io.capacity.MAX_IMPORTED_POSES" in err
     assert f"{out} was not written" in err and list(tmp_path.iterdir()) == []

@@ -1,7 +1,7 @@
 """A session's imported table in its pose block: streamed in by ``session import`` (a block of
-rows at a time, the limit checked as they come, nothing left on refusal), read back bit for bit,
-refused when damaged (naming the file, never overwritten), and older session files (poses as
-JSON) still read."""
+rows at a time; a table beyond the limit refused before anything is written), read back bit for
+bit, refused when damaged (naming the file, never overwritten), and older session files (poses
+as JSON) still read."""
 
 from __future__ import annotations
 
@@ -94,14 +94,74 @@ def test_import_streams_the_table_a_block_of_rows_at_a_time(tmp_path, monkeypatc
         assert load_session(tmp_path / f"{name}.json").measurements() == read_measurements(src)
 
 
-def test_a_table_beyond_the_limit_is_refused_as_it_streams_and_nothing_is_left(
-    tmp_path, monkeypatch
-):
-    """The limit is checked on the rows as they arrive (here 5,000 rows against a limit of
-    4,100, so the second block of rows passes it): no session file, no block, no temporary
-    file and no lock remain; the message names the limit."""
+def _nothing_may_be_written(monkeypatch) -> None:
+    """Make taking the session's lock and opening any file hexcal streams into (the pose
+    block's temporary file) fail the test."""
+    import hexcal.io.pose_block as pose_block
+    import hexcal.procedure.session as session_module
+
+    def written(*args, **kwargs):
+        raise AssertionError("something was written before the refusal")
+
+    monkeypatch.setattr(pose_block, "StreamedFile", written)
+    monkeypatch.setattr(session_module, "_acquire", written)
+
+
+def test_a_table_beyond_the_limit_is_refused_before_anything_is_written(tmp_path, monkeypatch):
+    """5,000 rows against a limit of 4,100: the rows are counted before the lock is taken or
+    the block's temporary file opened (either fails the test here), and the message names
+    the count and the limit; the folder stays empty."""
     src = _table(tmp_path / "m.csv", 5000)
     monkeypatch.setattr(capacity, "MAX_IMPORTED_POSES", 4100)
+    _nothing_may_be_written(monkeypatch)
+    out = tmp_path / "out" / "s.json"
+    out.parent.mkdir()
+    with pytest.raises(SessionFileError) as err:
+        import_table(src, load_robot(ROBOT), out)
+    assert str(err.value).startswith(f"{src}: 5,000 poses; a session holds at most 4,100")
+    assert "MAX_IMPORTED_POSES" in str(err.value) and f"{out} was not written" in str(err.value)
+    assert list(out.parent.iterdir()) == []
+
+
+def test_blank_lines_and_line_breaks_in_cells_are_not_counted_as_poses(tmp_path, monkeypatch):
+    """The line ends only bound the rows: a table at the limit whose blank lines and quoted
+    line breaks take its line ends past it is counted exactly, and imported."""
+    src = _table(tmp_path / "m.csv", 100)
+    lines = src.read_text().splitlines()
+    lines[1] = lines[1].replace("take 0 ö,0", "take 0\n\nsecond line")  # a quoted cell
+    src.write_text("\n\n".join(lines) + "\n\n\n")
+    monkeypatch.setattr(capacity, "MAX_IMPORTED_POSES", 100)
+    out = tmp_path / "s.json"
+    assert import_table(src, load_robot(ROBOT), out) == (out, 100)
+    assert load_session(out).measurements().extra["note"][0] == "take 0\n\nsecond line"
+    monkeypatch.setattr(capacity, "MAX_IMPORTED_POSES", 99)
+    _nothing_may_be_written(monkeypatch)
+    with pytest.raises(SessionFileError, match="100 poses; a session holds at most 99"):
+        import_table(src, load_robot(ROBOT), tmp_path / "t.json")
+
+
+def test_a_table_within_the_bound_is_not_parsed_twice(tmp_path, monkeypatch):
+    import hexcal.procedure.session_block as session_block
+
+    def parsed(path):
+        raise AssertionError("counted by parsing although its line ends are within the limit")
+
+    monkeypatch.setattr(session_block, "count_rows", parsed)
+    monkeypatch.setattr(capacity, "MAX_IMPORTED_POSES", 101)  # 100 rows and the header's end
+    out = tmp_path / "s.json"
+    assert import_table(_table(tmp_path / "m.csv", 100), load_robot(ROBOT), out) == (out, 100)
+
+
+def test_a_table_that_grew_after_it_was_counted_is_refused_as_it_streams(tmp_path, monkeypatch):
+    """The writer holds the limit too (here the count before the import is made to miss
+    the rows: 5,000 rows against a limit of 4,100, so the second block of rows passes it): no
+    session file, no block, no temporary file and no lock remain; the message names the
+    limit."""
+    import hexcal.procedure.session_block as session_block
+
+    src = _table(tmp_path / "m.csv", 5000)
+    monkeypatch.setattr(capacity, "MAX_IMPORTED_POSES", 4100)
+    monkeypatch.setattr(session_block, "line_ends", lambda path: 0)
     out = tmp_path / "out" / "s.json"
     out.parent.mkdir()
     with pytest.raises(SessionFileError) as err:
@@ -128,8 +188,9 @@ def test_the_reader_refuses_a_block_beyond_the_limit_the_writer_keeps(tmp_path, 
         (lambda b: b[:-7] + bytes([b[-7] ^ 1]) + b[-6:], "do not match the checksum"),
         (lambda b: b"not numpy" + b[9:], "not a pose block"),
         (lambda b: b.replace(b"'<f8'", b"'<f4'", 1), "not the pose record"),
+        (lambda b: b[:8] + b"\x00\x01" + b[10:], "does not give its length as 1014 bytes"),
     ],
-    ids=["truncated", "longer", "flipped-bit", "not-npy", "other-layout"],
+    ids=["truncated", "longer", "flipped-bit", "not-npy", "other-layout", "header-length"],
 )
 def test_a_damaged_block_is_refused_naming_it_and_left_untouched(tmp_path, damage, said):
     out = tmp_path / "s.json"
@@ -239,3 +300,35 @@ def test_a_repeated_pose_id_is_refused_by_line_and_nothing_is_written(tmp_path):
     with pytest.raises(ValueError, match=rf"line {2 * _BLOCK_ROWS + 1}.*already used on line 8"):
         import_table(src, load_robot(ROBOT), out)
     assert list(out.parent.iterdir()) == []
+
+
+def test_a_block_no_session_names_is_removed_when_its_name_is_used_again(tmp_path, caplog):
+    """A session file deleted and another table imported under its name: its old block goes
+    (said), unless another file beside it names it (a session saved from it under another
+    name); blocks of other names, and files not named as blocks are, are left alone."""
+    robot = load_robot(ROBOT)
+    out = tmp_path / "s.json"
+    import_table(_table(tmp_path / "a.csv", 30), robot, out)
+    [first] = _blocks(tmp_path)
+    keep = [tmp_path / "s.json.notes.poses.npy", tmp_path / "t.json.0123456789ab.poses.npy"]
+    for p in keep:
+        p.write_bytes(b"not mine")
+    out.unlink()
+    import_table(_table(tmp_path / "b.csv", 31), robot, out)
+    assert not first.exists() and f"{first}: removed, a pose block of s.json" in caplog.text
+    assert all(p.read_bytes() == b"not mine" for p in keep)
+    [second] = [b for b in _blocks(tmp_path) if b not in keep]
+    assert len(load_session(out).measurements()) == 31
+
+    # The same again, while a copy saved beside it under another name still names the block.
+    copy = tmp_path / "copy.json"
+    copy.write_text(out.read_text())
+    out.unlink()
+    import_table(_table(tmp_path / "a.csv", 30), robot, out)
+    assert second.exists() and len(load_session(copy).measurements()) == 31
+    # Resuming tidies too (a save interrupted between its block and its file leaves one).
+    orphan = tmp_path / "s.json.abcdefabcdef.poses.npy"
+    orphan.write_bytes(b"an interrupted save's block")
+    with SessionFile.resume(out) as sf:
+        assert any(n.startswith(f"{orphan}: removed") for n in sf.notices)
+    assert not orphan.exists() and second.exists() and len(load_session(out).measurements()) == 30

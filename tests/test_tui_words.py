@@ -101,3 +101,40 @@ def test_the_diagnosis_screens_statistics_name_the_key_that_adds():
     assert "Add it: --add backlash" in diagnosis_text(first, "cli")
     screen = diagnosis_text(first, "session.json", add="key a")
     assert "Add it: key a" in screen and "--add" not in screen
+
+
+def test_an_imported_tables_poses_are_counted_with_the_recorded_ones(tmp_path: Path):
+    """A session whose table sits in its pose block (imported, then given a procedure) holds
+    the table's poses: resuming says so, as the sessions list does (it counted 0: only the
+    poses recorded in the session file were counted)."""
+    from test_tui_session_lock import EXAMPLE
+
+    from hexcal.estimate.model_file import load_robot
+    from hexcal.io.measurements_csv import read_measurements
+    from hexcal.procedure.session import Session, SessionFile
+    from hexcal.procedure.sessions_dir import list_sessions
+    from hexcal.procedure.steps import load_procedure
+
+    path = tmp_path / "s.json"
+    meas = read_measurements(EXAMPLE / "measurements.csv").subset(slice(0, 5))
+    session = Session.with_table(meas, load_robot(EXAMPLE / "robot.json"))
+    session.procedure = load_procedure("model42-direction-length").model_dump(by_alias=True)
+    assert session.pose_count() == 5  # the table not written yet
+    SessionFile.create(path, session).close()
+    loaded = load_session(path)
+    assert loaded.pose_block is not None and loaded.poses == []
+    assert loaded.pose_count() == 5
+    [entry] = list_sessions(tmp_path)
+    assert entry.poses == 5
+    app = instant_app(path)
+
+    async def run() -> None:
+        async with app.run_test(size=(130, 42)) as pilot:
+            await pilot.click("#resume")
+            await _until(pilot, lambda: isinstance(app.screen, RecordScreen), 20)
+            await pilot.pause(0.3)
+            log = " ".join(_log_text(app).split())
+            assert "5 poses so far" in log, log
+            assert app.screen.why_not("calibrate") is None
+
+    asyncio.run(run())

@@ -206,6 +206,9 @@ def read_block(path: Path, poses: int, sha256: str, texts: int) -> np.ndarray:
 def _check_header(path: Path, head: bytes, dtype: np.dtype, poses: int) -> None:
     if len(head) < HEADER_BYTES or not head.startswith(_MAGIC):
         raise _damaged(path, "not a pose block (no NumPy 1.0 header)")
+    # The records start after HEADER_BYTES here; NumPy starts them where the header says.
+    if int.from_bytes(head[8:10], "little") != HEADER_BYTES - 10:
+        raise _damaged(path, f"its header does not give its length as {HEADER_BYTES - 10} bytes")
     try:
         meta = ast.literal_eval(head[10:].decode("latin1").strip())
         found = np.dtype(np.lib.format.descr_to_dtype(meta["descr"]))

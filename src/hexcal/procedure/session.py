@@ -58,7 +58,13 @@ from hexcal.io.safe_read import KINDS, decode, parse_json, read_bytes
 from hexcal.io.validation import format_validation_error, shown_value
 from hexcal.model.robot import Robot
 from hexcal.procedure import looks_like_session as looks_like_session
-from hexcal.procedure.session_block import attach, stream_table, write_block
+from hexcal.procedure.session_block import (
+    attach,
+    check_table_size,
+    remove_stale_blocks,
+    stream_table,
+    write_block,
+)
 from hexcal.procedure.session_check import (
     duplicate_id_problems,
     pose_problems,
@@ -296,6 +302,7 @@ class SessionFile:
                 new.unlink(missing_ok=True)
             lock.release()
             raise
+        sf._tidy_blocks()
         return sf
 
     @classmethod
@@ -325,7 +332,22 @@ class SessionFile:
                 )
                 log.warning("%s", text)
                 notices.append(text)
-        return cls(path, session, notices, lock=lock, read_only=read_only, seen=_Seen.of(path, raw))
+        sf = cls(path, session, notices, lock=lock, read_only=read_only, seen=_Seen.of(path, raw))
+        if lock is not None:
+            sf._tidy_blocks()
+        return sf
+
+    def _tidy_blocks(self) -> None:
+        """Remove the pose blocks of this file's name that no session names (holding the lock):
+        said in :attr:`notices` and logged."""
+        keep = self.session.pose_block.file if self.session.pose_block is not None else None
+        for block in remove_stale_blocks(self.path, keep):
+            text = (
+                f"{block}: removed, a pose block of {self.path.name} that neither it nor any "
+                "other file beside it names (its session file was deleted or replaced)"
+            )
+            log.warning("%s", text)
+            self.notices.append(text)
 
     def close(self) -> None:
         """Give up the session's lock (saving stays possible only for a read-only look: no)."""
@@ -552,8 +574,10 @@ def import_table(
     """``session import``: a new session file ``out`` holding the table ``source`` in a pose
     block, streamed (memory does not grow with the table). The session file's path and the
     number of poses; refused, with nothing written, when ``out`` exists, the table is bad or
-    beyond :data:`~hexcal.io.capacity.MAX_IMPORTED_POSES`."""
+    beyond :data:`~hexcal.io.capacity.MAX_IMPORTED_POSES` (that before anything is written,
+    even the lock)."""
     source, out = Path(source), Path(out)
+    check_table_size(source, out)  # before the lock, the block or the session file
     session = Session(robot=robot)
     count: list[int] = []
 

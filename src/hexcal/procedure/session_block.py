@@ -5,12 +5,15 @@ file that does not have it yet (docs/formats.md, "The pose block").
 The block is named after the session file and its checksum (``s.json.<sha>.poses.npy``) and is
 never changed once written: a session saved again keeps referring to it, so a crash during a
 save leaves the previous session file with its block, or the new one with it. Its size is
-held to :data:`hexcal.io.capacity.MAX_IMPORTED_POSES` by the writer, which refuses a larger
-table as it streams in (nothing is left), and by the reader.
+held to :data:`hexcal.io.capacity.MAX_IMPORTED_POSES`: ``session import`` refuses a larger
+table before anything is written (:func:`check_table_size`), the writer as it streams in
+(nothing is left), and the reader.
 """
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,8 +21,14 @@ import numpy as np
 
 from hexcal.io import capacity
 from hexcal.io.measurements import MeasurementError, Measurements
-from hexcal.io.measurements_csv import RowBlock, stream_measurements
-from hexcal.io.pose_block import PoseBlockError, PoseBlockWriter, decode_texts, read_block
+from hexcal.io.measurements_csv import RowBlock, count_rows, line_ends, stream_measurements
+from hexcal.io.pose_block import (
+    SUFFIX,
+    PoseBlockError,
+    PoseBlockWriter,
+    decode_texts,
+    read_block,
+)
 from hexcal.procedure.session_model import (
     _TABLE_COLUMNS,
     PoseBlock,
@@ -29,6 +38,8 @@ from hexcal.procedure.session_model import (
 
 #: Rows written to a block at a time from a table in memory.
 _CHUNK_ROWS = 65_536
+#: Bytes read at a time when looking for a block's name in the folder's other files.
+_SCAN_BYTES = 1 << 22
 
 
 def text_columns(columns: list[str]) -> list[str]:
@@ -92,15 +103,31 @@ def read_table(path: Path, block: PoseBlock, columns: list[str]) -> Measurements
     return table
 
 
-def _too_many(source: Path, out: Path) -> Callable[[], Exception]:
-    def refusal() -> Exception:
-        return SessionFileError(
-            f"{source}: more than {capacity.MAX_IMPORTED_POSES:,} poses; {_limit_text()}, so "
-            f"{out} was not written: import a part of the table (a step, a stretch of time) "
-            "per session, or calibrate and diagnose straight from the table"
-        )
+def _refusal(source: Path, out: Path, count: str) -> SessionFileError:
+    return SessionFileError(
+        f"{source}: {count} poses; {_limit_text()}, so {out} was not written: import a part of "
+        "the table (a step, a stretch of time) per session, or calibrate and diagnose straight "
+        "from the table"
+    )
 
-    return refusal
+
+def _too_many(source: Path, out: Path) -> Callable[[], Exception]:
+    return lambda: _refusal(source, out, f"more than {capacity.MAX_IMPORTED_POSES:,}")
+
+
+def check_table_size(source: Path, out: Path) -> None:
+    """Refuse the table ``source`` when it holds more poses than a session does, before
+    anything is written (``out``, the session file, is only named). Its line ends bound its
+    rows from above (:func:`~hexcal.io.measurements_csv.line_ends`, the file's bytes read
+    once); only a table whose bound passes the limit is parsed to count its rows exactly
+    (:func:`~hexcal.io.measurements_csv.count_rows`, nothing checked, nothing written). A
+    table that passes is checked row by row as it streams in, and held to the limit there too
+    (a file that grew in between)."""
+    if line_ends(source) <= capacity.MAX_IMPORTED_POSES:
+        return
+    rows = count_rows(source)
+    if rows > capacity.MAX_IMPORTED_POSES:
+        raise _refusal(source, out, f"{rows:,}")
 
 
 def _attach(session: Session, writer: PoseBlockWriter, out: Path) -> None:
@@ -192,3 +219,55 @@ def write_block(session: Session, out: Path) -> Path | None:
         writer.discard()
         raise
     return session._block_path
+
+
+def remove_stale_blocks(path: Path, keep: str | None) -> list[Path]:
+    """Remove the pose blocks beside the session file ``path`` that were written for a file of
+    its name (``<name>.<12 hex digits>.poses.npy``) but that it no longer names (it names
+    ``keep``) and no other file in the folder names either: left by a session file deleted,
+    then a table imported again under its name, or by a save interrupted between its block
+    and its file. The blocks removed. Call it only holding ``path``'s lock (its blocks are
+    written only so). A file that cannot be read keeps every block: nothing named is lost."""
+    own = re.compile(rf"{re.escape(path.name)}\.[0-9a-f]{{12}}{re.escape(SUFFIX)}")
+    try:
+        stale = [p for p in path.parent.iterdir() if own.fullmatch(p.name) and p.name != keep]
+        if not stale:
+            return []
+        named = _named_in_folder(path.parent, [p.name for p in stale])
+    except OSError:
+        return []
+    removed = []
+    for block in stale:
+        if block.name not in named:
+            try:
+                block.unlink(missing_ok=True)
+            except OSError:  # left as it was: the session is not harmed by it
+                continue
+            removed.append(block)
+    return removed
+
+
+def _named_in_folder(folder: Path, names: list[str]) -> set[str]:
+    """Those of ``names`` any file in ``folder`` holds (a block's own files aside), as they
+    are or as JSON escapes them; the files are read a block at a time (OSError: unknown)."""
+    forms = {
+        name: {
+            f.encode("utf-8")
+            for f in (name, json.dumps(name)[1:-1], json.dumps(name, ensure_ascii=False)[1:-1])
+        }
+        for name in names
+    }
+    overlap = max(len(f) for fs in forms.values() for f in fs)
+    found: set[str] = set()
+    for other in folder.iterdir():
+        if other.name.endswith(SUFFIX) or not other.is_file():
+            continue
+        with open(other, "rb") as fh:
+            tail = b""
+            while chunk := fh.read(_SCAN_BYTES):
+                data = tail + chunk
+                found |= {n for n, fs in forms.items() if any(f in data for f in fs)}
+                tail = data[-overlap:]
+        if len(found) == len(names):
+            break
+    return found

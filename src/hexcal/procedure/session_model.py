@@ -294,6 +294,17 @@ class Session(BaseModel):
     _table_source: Callable[[], Measurements] | None = PrivateAttr(None)
 
     # -- the imported table ---------------------------------------------------------------------
+    def pose_count(self) -> int:
+        """Every pose the session holds: the imported table's (its pose block's count, as the
+        session file gives it: the block is not read) and the recorded ones. What the text UI
+        shows; the sessions list counts the same from the file's JSON
+        (:func:`hexcal.procedure.sessions_dir.list_sessions`)."""
+        if self._table is not None:  # read, or not written yet
+            table = len(self._table)
+        else:
+            table = self.pose_block.poses if self.pose_block is not None else 0
+        return table + len(self.poses)
+
     def imported(self) -> Measurements | None:
         """The imported table's rows (read from the pose block the first time), or None."""
         if self._table is None and self.pose_block is not None:

@@ -174,7 +174,7 @@ class StartScreen(HexcalScreen):
             self._say(str(exc), "red")
             return
         self._say(
-            f"resuming {path} ({counted(len(sf.session.poses), 'pose')})… opening the devices…"
+            f"resuming {path} ({counted(sf.session.pose_count(), 'pose')})… opening the devices…"
         )
         # What loading did (poses set aside, a stale lock taken over, orphan temporary files
         # removed) was logged: the log handler brings it to the recording log, once (it is in

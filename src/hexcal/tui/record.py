@@ -158,7 +158,7 @@ class RecordScreen(HexcalScreen):
         for box, title in (("#live-panel", "Live"), ("#log", "Log"), ("#steps-box", "Steps")):
             self.query_one(box).border_title = title
         self.query_one("#log", WrappedLog).say(
-            f"session file [b]{g.sf.path}[/b]: {counted(len(g.sf.session.poses), 'pose')} so far"
+            f"session file [b]{g.sf.path}[/b]: {counted(g.sf.session.pose_count(), 'pose')} so far"
         )
         self.show_step()
         self.refresh_live()
@@ -194,7 +194,7 @@ class RecordScreen(HexcalScreen):
                 "Press [b]k[/b] to calibrate and see where the model fails."
             )
             self.query_one("#counts", Static).update(
-                f"{counted(len(g.sf.session.poses), 'pose')} recorded"
+                f"{counted(g.sf.session.pose_count(), 'pose')} recorded"
             )
             self.query_one("#conditioning", Static).update("")
         else:
@@ -321,7 +321,11 @@ class RecordScreen(HexcalScreen):
                 return "recording a pose: wait for it"
             return None  # while it runs, a stops it
         if action == "calibrate":
-            return None if g.sf.session.poses else "nothing recorded yet: record a pose first (r)"
+            return (
+                None
+                if g.sf.session.pose_count()
+                else "nothing recorded yet: record a pose first (r)"
+            )
         if self.busy and action != "note":
             # A note saves the file, as the recording worker does, but only once it is typed.
             if action in self.ENGINE_ACTIONS or action == "go_suggested":
