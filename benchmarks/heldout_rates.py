@@ -2,7 +2,9 @@
 (:mod:`hexcal.sim.foreign_heldout`, written apart from the team's own set): for each case and
 seed, the judgement ``benchmarks/verdict_rates.py`` applies to the team's cases — the diagnosis
 chain with ``--auto``, whether the explorer's lead names what the error follows, and the
-held-out RMS over the floor once the effect file it writes is loaded unedited.
+held-out RMS over the floor once the effect file it writes is loaded unedited; beside it,
+what Model 42 leaves on the same seed's session with nothing hidden (the level a perfect file
+can reach on that seed).
 
     python benchmarks/heldout_rates.py [--sessions 3] [--jobs 1] [--out docs/heldout_rates.json]
 """
@@ -24,7 +26,8 @@ import numpy as np
 from verdict_rates import WITHIN, _explorer
 
 from hexcal.app.workflow import Inputs, diagnose_chain
-from hexcal.sim.foreign_heldout import HELDOUT, heldout
+from hexcal.diagnosis import diagnose
+from hexcal.sim.foreign_heldout import HELDOUT, clean_twin, heldout
 
 
 def run_heldout_case(job: tuple[str, int]) -> dict:
@@ -45,12 +48,19 @@ def run_heldout_case(job: tuple[str, int]) -> dict:
         "ratio_before": first.fit.cv_rms_mm / first.noise_floor_mm,
     }
     out.update(_explorer(c, last))
+    lead = None if last.exploration is None else last.exploration.lead
+    out["lead_shape"] = None if lead is None else lead.shape.describe(lead.covariate.unit)
+    out["lead_legs"] = None if lead is None else list(lead.shape.legs)
     out["top3"] = (
         []
         if last.exploration is None
         else [(x.covariate.name, x.share) for x in last.exploration.leads[:3]]
     )
     out["right"] = bool(out["right"] and out.get("ratio_after", np.inf) <= WITHIN)
+    # the same seed with nothing hidden: how far above the floor Model 42 sits by chance
+    twin = clean_twin(seed)
+    d = diagnose(twin.meas, twin.design, 42, instruments=twin.instruments)
+    out["ratio_clean_twin"] = d.fit.cv_rms_mm / d.noise_floor_mm
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -74,7 +84,9 @@ def main() -> None:
                 f"{r['case']:20s} {r['seed']} lead {r['lead']} "
                 f"share {'-' if share is None else f'{share:.2f}'} "
                 f"before {r['ratio_before']:.2f} after {r.get('ratio_after', float('nan')):.2f} "
-                f"named {r['named_right']} right {r['right']} chain {r['chain']}",
+                f"(clean twin {r['ratio_clean_twin']:.2f}) {r['lead_shape']} legs {r['lead_legs']} "
+                f"named {r['named_right']} "
+                f"right {r['right']} chain {r['chain']}",
                 flush=True,
             )
     summary = {
