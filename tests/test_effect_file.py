@@ -99,6 +99,7 @@ def _shapes(values: np.ndarray) -> list[explored.Shape]:
         explored.periodic(span / 3.7),
         explored.step(mid),
         explored.sign(),
+        explored.hinge(values, mid),
     ]
     return [s.with_legs((2, 5)) if i % 2 == 0 else s for i, s in enumerate(out)]
 

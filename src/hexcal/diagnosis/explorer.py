@@ -7,8 +7,8 @@ direction, the load and its products, the direction of motion, time, temperature
 the procedure and the table's own numeric columns) is tried with every shape of
 :mod:`hexcal.effects.explored` — a line, a smooth spline (its knot count chosen by
 cross-validation), a periodic error at the period a periodogram over the covariate finds, a
-step at a split of it, its sign — on the legs whose own share is significant, on all six, each
-leg with its own coefficients or all sharing one set.
+step at a split of it, a bend (two lines meeting at a knee), its sign — on the legs whose own
+share is significant, on all six, each leg with its own coefficients or all sharing one set.
 
 A shape counts when its score at the current fit (the model's own parameters projected out,
 :func:`hexcal.diagnosis.scoring.block_score`) exceeds the Bonferroni-corrected χ² threshold over
@@ -41,7 +41,16 @@ from hexcal.diagnosis.scoring import pose_whiteners
 from hexcal.diagnosis.selection import HELDOUT_Z, heldout_gain
 from hexcal.effects import CATALOGUE
 from hexcal.effects.covariates import Covariate, library
-from hexcal.effects.explored import ExploredEffect, Shape, line, periodic, sign, spline, step
+from hexcal.effects.explored import (
+    ExploredEffect,
+    Shape,
+    hinge,
+    line,
+    periodic,
+    sign,
+    spline,
+    step,
+)
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
 from hexcal.estimate.quantiles import chi2_isf
 
@@ -98,7 +107,7 @@ class Lead:
         """What ranks the lead: its held-out χ², less one standard error for a step, whose
         split was searched on every pose (so its held-out figure flatters it: a step placed at
         a signed covariate's zero does no better than the covariate's own sign)."""
-        if self.shape.kind == "step":
+        if self.shape.kind in ("step", "hinge"):
             return self.heldout - self.heldout_se
         return self.heldout
 
@@ -284,6 +293,40 @@ def _splits(values: np.ndarray, resid: np.ndarray, shared: bool) -> tuple[np.nda
     return out, tries
 
 
+#: Candidate knees of a bend per leg: the covariate's quantiles at these shares.
+KNEE_GRID = np.linspace(0.1, 0.9, 17)
+
+
+def _knees(values: np.ndarray, resid: np.ndarray, shared: bool) -> tuple[np.ndarray, int]:
+    """((6,) each leg's knee of a bend along its covariate ``values`` (M, 6): of the
+    quantiles :data:`KNEE_GRID` of its distinct values, where a line and the covariate beyond
+    the knee fit its residual (M, 6) best; the pooled values and the legs' summed residual
+    when ``shared``; how many knees were searched)."""
+    legs = [None] if shared else range(6)
+    out = np.zeros(6)
+    for k in legs:
+        u = values.ravel() if k is None else values[:, k]
+        r = resid.ravel() if k is None else resid[:, k]
+        distinct = np.unique(u)
+        if len(distinct) < 2 * MIN_SIDE:
+            return np.zeros(6), 0
+        knees = np.unique(np.quantile(distinct, KNEE_GRID))
+        rc = r - r.mean()
+        lin = u - u.mean()
+        best, at = -1.0, float(knees[0])
+        for q in knees:
+            x = np.column_stack([lin, np.maximum(u - q, 0.0)])
+            x = x - x.mean(axis=0)
+            coef, *_ = np.linalg.lstsq(x, rc, rcond=None)
+            gain = float(rc @ (x @ coef))
+            if gain > best:
+                best, at = gain, float(q)
+        out[:] = at if k is None else out
+        if k is not None:
+            out[k] = at
+    return out, len(KNEE_GRID)
+
+
 def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tuple[Shape, int]]:
     """The shapes tried along ``cov`` (own coefficients per leg and shared), each with the
     number of tests it stands for (a period or a split searched counts its tries)."""
@@ -297,6 +340,9 @@ def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tup
         splits, tries = _splits(values, resid, shared)
         if tries:
             out.append((step(splits, shared), tries))
+        knees, tries = _knees(values, resid, shared)
+        if tries:
+            out.append((hinge(values, knees, shared), tries))
         if cov.signed and min((values > 0).mean(), (values < 0).mean()) >= MIN_SIGN_SHARE:
             out.append((sign(shared), 1))
     if cov.periodic:
@@ -404,7 +450,7 @@ def _plainest(leads: list[Lead]) -> Lead:
 def _effective(lead: Lead) -> int:
     """The lead's parameters, with each searched split or period counted as one."""
     s = lead.shape
-    if s.kind == "step":
+    if s.kind in ("step", "hinge"):
         return s.n_params + len(s.legs)
     return s.n_params + (s.kind == "periodic")
 

@@ -197,7 +197,8 @@ FIXED: tuple[Covariate, ...] = (
     *(
         Covariate(name, f"platform {name} (from home)", "deg",
                   f"something that follows the platform's {name} (an encoder cable dragged "
-                  "as it turns, a joint that binds at an angle)", _angle(i), per_pose=True)
+                  "as it turns, a joint that binds at an angle)", _angle(i), per_pose=True,
+                  periodic=True)
         for i, name in enumerate(("roll", "pitch", "yaw"))
     ),
     Covariate("tilt", "platform tilt (from its normal at home)", "deg",
@@ -208,7 +209,7 @@ FIXED: tuple[Covariate, ...] = (
               "angle", _inclination, uses_geometry=True),
     Covariate("azimuth", "leg azimuth about the vertical (from home)", "deg",
               "a joint or an encoder head that reads with the leg's azimuth (joint play, a "
-              "cable pull)", _azimuth, uses_geometry=True),
+              "cable pull)", _azimuth, uses_geometry=True, periodic=True),
     Covariate("base_joint", "leg's turn about its base joint's fixed axis (from home)", "deg",
               "a U-joint that binds, wears or reads with its angle (a joint near its limit, a "
               "bent cross)", _joint_angle(False), uses_geometry=True,

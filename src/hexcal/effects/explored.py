@@ -14,7 +14,9 @@ Shapes, each the constant left out (the leg's offset holds it):
   periodogram over the covariate finds);
 - ``step``: 0 below a split value of the covariate, 1 from it on (a change point);
 - ``sign``: the covariate's sign (play taken up one way or the other as a load reverses, the
-  direction of the last move).
+  direction of the last move);
+- ``hinge``: a straight line and the same covariate beyond a split value (two lines meeting
+  there: a dead band, a stop, a V about a level).
 
 Each in a scope: on the legs ``legs``, each with its own coefficients, or (``shared``) one set
 of coefficients for all of them.
@@ -33,7 +35,7 @@ from hexcal.effects.covariates import covariate_values
 #: Each coefficient's plausible range and the resolution identifiability asks of it, µm.
 PLAUSIBLE_UM = (-1000.0, 1000.0)
 RESOLUTION_UM = 20.0
-KINDS = ("line", "spline", "periodic", "step", "sign")
+KINDS = ("line", "spline", "periodic", "step", "sign", "hinge")
 
 
 def _row(values) -> np.ndarray:
@@ -73,7 +75,7 @@ class Shape:
         """Columns per leg (the shared scope has this many in all)."""
         if self.kind == "spline":
             return len(self.knots[0]) + 3
-        return 2 if self.kind == "periodic" else 1
+        return 2 if self.kind in ("periodic", "hinge") else 1
 
     @property
     def n_params(self) -> int:
@@ -94,6 +96,11 @@ class Shape:
             return np.column_stack([np.sin(w), np.cos(w)])
         if self.kind == "step":
             return (u >= self.split[k]).astype(float)[:, None]
+        if self.kind == "hinge":
+            return (
+                np.column_stack([u - self.centre[k], np.maximum(u - self.split[k], 0.0)])
+                / (self.half[k])
+            )
         return np.sign(u)[:, None]
 
     def basis(self, values: np.ndarray) -> np.ndarray:
@@ -122,6 +129,7 @@ class Shape:
             ),
             "periodic": f"a periodic error of period {self.period:.4g}{per}",
             "step": "a step (a change point)",
+            "hinge": "a bend (two straight lines meeting at one value)",
             "sign": "a step at its sign change",
         }[self.kind]
         return what + (", one coefficient shared by the legs" if self.shared else "")
@@ -185,6 +193,20 @@ def periodic(period: float, shared: bool = False) -> Shape:
 
 def step(split: np.ndarray, shared: bool = False) -> Shape:
     return Shape("step", shared=shared, split=_t(np.broadcast_to(split, (6,))))
+
+
+def hinge(values: np.ndarray, split: np.ndarray, shared: bool = False) -> Shape:
+    """Two straight lines meeting at ``split`` (6,) along each leg's ``values`` (M, 6): a dead
+    band, a stop reached, a V about a level — a slope that changes at one place."""
+    lo, hi = _ranges(values, shared)
+    half = np.maximum(0.5 * (hi - lo), 1e-12)
+    return Shape(
+        "hinge",
+        shared=shared,
+        centre=_t(0.5 * (lo + hi)),
+        half=_t(half),
+        split=_t(np.broadcast_to(split, (6,))),
+    )
 
 
 def sign(shared: bool = False) -> Shape:
