@@ -18,6 +18,7 @@ from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_name, write_effect_file
 from hexcal.effects import CATALOGUE
+from hexcal.effects.lagged import parse_lag
 from hexcal.errors import RefusedError
 from hexcal.sim import verdict_cases as vc
 
@@ -62,6 +63,12 @@ TWO_AT_ONCE = tuple(c for c, covs in vc.MORE_FOREIGN.items() if len(covs) == 2)
 WITHIN = 1.15
 #: A located zero step must be within this many poses of the true one.
 POSES = 3
+
+
+def series_of(name: str) -> str:
+    """The quantity a covariate names: a series through a lag (``NAME~lagTs``) names NAME."""
+    lag = parse_lag(name)
+    return name if lag is None else lag[0]
 
 
 def build(case: str, seed: int) -> vc.HiddenCase:
@@ -165,7 +172,7 @@ def _explorer(c: vc.HiddenCase, d) -> dict:
         "covariate": "|".join(str(a) for a in accepted),
         "lead": None if lead is None else lead.covariate.name,
         "lead_share": None if lead is None else lead.share,
-        "named_right": bool(lead is not None and lead.covariate.name in accepted),
+        "named_right": bool(lead is not None and series_of(lead.covariate.name) in accepted),
     }
     out["right"] = bool(d.verdict == "unexplained" and out["named_right"])
     if lead is None:
@@ -238,8 +245,8 @@ def _two(c: vc.HiddenCase, d: Any, chained: ExplorerChain) -> dict:
     """Two effects at once: whether the chain names one accepted covariate of each, and the
     held-out RMS over the floor it reaches."""
     leads, ratio, raised = chained(c, d)
-    both = all(any(n in accepted for n in leads) for accepted in c.covariates)
-    first = bool(leads) and any(leads[0] in accepted for accepted in c.covariates)
+    both = all(any(series_of(n) in accepted for n in leads) for accepted in c.covariates)
+    first = bool(leads) and any(series_of(leads[0]) in accepted for accepted in c.covariates)
     return {
         "covariate": " & ".join("|".join(a) for a in c.covariates),
         "lead": leads[0] if leads else None,

@@ -123,6 +123,25 @@ def test_the_files_basis_is_the_explorers_shape(quadratic, tmp_path, name):
         np.testing.assert_allclose(got, 1e-3 * shape.basis(values), rtol=1e-12, atol=1e-15)
 
 
+def test_a_lagged_series_file_is_the_explorers_shape(quadratic, tmp_path):
+    """The temperature through each lag the explorer tries (its time constant in the name):
+    the written effect evaluates the same basis as the explorer scored."""
+    _, d = quadratic
+    data = d.problem.data
+    lagged = [c for c in library(data) if "~lag" in c.name]
+    assert len(lagged) == 3, [c.name for c in lagged]  # the session has a temperature
+    for cov in lagged:
+        values = covariate_values(d.problem, d.fit, cov)
+        assert values is not None
+        for i, shape in enumerate(_shapes(values)):
+            lead = Lead(cov, values, shape, 1.0, 0.0, 0.5, 0.5, True)
+            path = tmp_path / f"{cov.name.replace('~', '_')}_{i}.py"
+            path.write_text(effect_file_text(lead, "s"), encoding="utf-8")
+            with loaded(path) as (_, (effect,)):
+                got = CATALOGUE[effect].basis(data)
+            np.testing.assert_allclose(got, 1e-3 * shape.basis(values), rtol=1e-12, atol=1e-15)
+
+
 def _session_files(c, out: Path) -> list[str]:
     out.mkdir()
     write_measurements(c.meas, out / "measurements.csv")

@@ -104,12 +104,13 @@ class Lead:
 
     @property
     def ranked_by(self) -> float:
-        """What ranks the lead: its held-out χ², less one standard error for a step, whose
-        split was searched on every pose (so its held-out figure flatters it: a step placed at
-        a signed covariate's zero does no better than the covariate's own sign)."""
-        if self.shape.kind in ("step", "hinge"):
-            return self.heldout - self.heldout_se
-        return self.heldout
+        """What ranks the lead: its held-out χ², less one standard error for a step or a bend,
+        whose split was searched on every pose (so its held-out figure flatters it: a step
+        placed at a signed covariate's zero does no better than the covariate's own sign), and
+        for a series through a lag, whose time constant was searched (a lagged thermometer is a
+        smooth curve in time: it leads time only where it predicts better beyond that)."""
+        searched = self.shape.kind in ("step", "hinge") or "~lag" in self.covariate.name
+        return self.heldout - self.heldout_se if searched else self.heldout
 
     @property
     def effect_name(self) -> str:
@@ -224,7 +225,8 @@ def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndar
     temperature, or one that hardly changed). At the geometry the data carry, as the effect
     written for it evaluates it (:class:`~hexcal.effects.explored.ExploredEffect`)."""
     data = problem.data
-    if cov.name == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
+    series = cov.name.split("~lag")[0]
+    if series == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
         return None
     values = np.asarray(cov.values(data), float)
     if not np.all(np.isfinite(values)) or np.all(np.ptp(values, axis=0) == 0):

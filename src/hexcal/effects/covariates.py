@@ -24,7 +24,9 @@ platform's yaw, the time) is the same for the six legs. The library (:func:`libr
 - ``time`` (s from the session's start), ``temperature`` (°C) and the place in the procedure
   (``pose_index``, the pose's rank in recording order);
 - every extra numeric column of the measurement table, by its own name (a second
-  thermometer, humidity, a motor current): a lab's own sensor is a covariate without code.
+  thermometer, humidity, a motor current): a lab's own sensor is a covariate without code;
+- the temperature and every such column seen through a first-order lag (``NAME~lagTs``,
+  :mod:`hexcal.effects.lagged`): a part that follows the sensor slowly.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from scipy.spatial.transform import Rotation
 from hexcal.effects.backlash import deadband_mm, motion_state
 from hexcal.effects.base import EffectData
 from hexcal.effects.compliance import leg_forces
+from hexcal.effects.lagged import first_order_lag, lag_name, lag_taus, parse_lag
 
 #: A user column is a covariate when it changes by more than this share of its mean magnitude
 #: (a constant column, or one that only rounds, carries nothing).
@@ -265,17 +268,56 @@ def column_covariate(name: str) -> Covariate:
     )
 
 
+def _series(name: str, data: EffectData) -> np.ndarray:
+    if name == "temperature":
+        if data.temperature is None:
+            raise ValueError("no temperature: the measurements have no temperature column")
+        return np.asarray(data.temperature, float)
+    return np.asarray(data.columns[name], float)
+
+
+def lagged_covariate(base: str, tau_s: float) -> Covariate:
+    """``base`` (the temperature or a table column) through a lag of ``tau_s`` s."""
+    name = lag_name(base, tau_s)
+    tau = float(max(round(tau_s), 1))  # the name's whole seconds
+    return Covariate(
+        name,
+        f"{base} seen through a lag of {tau:g} s",
+        "°C" if base == "temperature" else "",
+        f"a part that follows {base} slowly (its own time to warm, to settle)",
+        lambda d: _per_pose(first_order_lag(_series(base, d), np.asarray(d.t, float), tau)),
+        per_pose=True,
+    )
+
+
 def library(data: EffectData | None = None) -> tuple[Covariate, ...]:
-    """The fixed covariates, then one per extra numeric column of ``data`` (in table order)."""
-    cols = tuple(column_covariate(n) for n in (data.columns if data is not None else {}))
-    return FIXED + cols
+    """The fixed covariates, then one per extra numeric column of ``data`` (in table order),
+    then the temperature and each column through each lag tried (:mod:`hexcal.effects.lagged`)."""
+    names = tuple(data.columns) if data is not None else ()
+    cols = tuple(column_covariate(n) for n in names)
+    if data is None:
+        return FIXED + cols
+    series = (("temperature",) if data.temperature is not None else ()) + names
+    taus = lag_taus(np.asarray(data.t, float))
+    lags = tuple(lagged_covariate(b, tau) for b in series for tau in taus)
+    return FIXED + cols + lags
 
 
 def covariate(name: str, data: EffectData | None = None) -> Covariate:
-    """The covariate called ``name`` (a fixed one, or an extra column of ``data``)."""
-    for c in library(data):
+    """The covariate called ``name`` (a fixed one, an extra column of ``data``, or either
+    through a lag: ``NAME~lagTs``)."""
+    for c in FIXED:
         if c.name == name:
             return c
+    lag = parse_lag(name)
+    if lag is not None:
+        base, tau = lag
+        if data is not None and base != "temperature" and base not in data.columns:
+            raise ValueError(
+                f"no covariate {name!r}: {base!r} is neither the temperature nor a numeric "
+                "column of the measurements"
+            )
+        return lagged_covariate(base, tau)
     if data is not None and name not in data.columns:
         raise ValueError(
             f"no covariate {name!r}: neither in the library "

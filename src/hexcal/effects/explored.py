@@ -31,6 +31,7 @@ from scipy.interpolate import BSpline
 
 from hexcal.effects.base import Effect, EffectData, ParamSpec
 from hexcal.effects.covariates import covariate_values
+from hexcal.effects.lagged import parse_lag
 
 #: Each coefficient's plausible range and the resolution identifiability asks of it, µm.
 PLAUSIBLE_UM = (-1000.0, 1000.0)
@@ -267,11 +268,13 @@ class ExploredEffect(Effect):
         return self.missing(data)
 
     def missing(self, data: EffectData) -> str | None:
-        if self.covariate == "temperature" and data.temperature is None:
+        lag = parse_lag(self.covariate)
+        series = self.covariate if lag is None else lag[0]
+        if series == "temperature" and data.temperature is None:
             return "the measurements have no temperature column"
-        if self.covariate not in _fixed() and self.covariate not in data.columns:
+        if series not in _fixed() and series not in data.columns:
             return (
-                f"it follows the table's column {self.covariate!r}, which these data do not have "
+                f"it follows the table's column {series!r}, which these data do not have "
                 "(give the table with that column)"
             )
         return None
