@@ -372,8 +372,11 @@ def main() -> None:
         runs = [json.loads(Path(p).read_text()) for p in args.merge]
         rows = [r for run in runs for r in run["rows"]]
         out = {"seconds": sum(r["seconds"] for r in runs), "summary": summarise(rows), "rows": rows}
+        out["foreign_set"] = foreign_set_rates(rows, CLEAN)
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(markdown(out["summary"]))
+        for figure, value in out["foreign_set"].items():
+            print(f"{figure}: {100 * value:.0f} %")
         return
     wanted = set(
         args.cases or (*EFFECTS, *JOINT_SIZES, "clean", "foreign", *HARD_CASES, *VERDICT_CASES)
