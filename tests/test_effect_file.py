@@ -104,18 +104,15 @@ def _shapes(values: np.ndarray) -> list[explored.Shape]:
     return [s.with_legs((2, 5)) if i % 2 == 0 else s for i, s in enumerate(out)]
 
 
-@pytest.mark.parametrize("name", [c.name for c in library()])
-def test_the_files_basis_is_the_explorers_shape(quadratic, tmp_path, name):
-    """For every covariate and a shape of every kind and scope along it, the written effect
-    evaluates the same basis (mm per µm) as the explorer scored (mm per mm)."""
-    _, d = quadratic
-    cov = next(x for x in library() if x.name == name)
+def _assert_files_are_the_shapes(d, cov, tmp_path) -> None:
+    """For a shape of every kind and scope along ``cov``, the written effect evaluates the same
+    basis (mm per µm) as the explorer scored (mm per mm), with one parameter per column."""
     values = covariate_values(d.problem, d.fit, cov)
-    assert values is not None, f"the session carries every fixed covariate ({name})"
+    assert values is not None, f"the session carries the covariate {cov.name}"
     data = d.problem.data  # the explorer and the file evaluate at the geometry the data carry
     for i, shape in enumerate(_shapes(values)):
         lead = Lead(cov, values, shape, 1.0, 0.0, 0.5, 0.5, True)
-        path = tmp_path / f"{name}_{i}.py"
+        path = tmp_path / f"{cov.name.replace('~', '_')}_{i}.py"
         path.write_text(effect_file_text(lead, "s"), encoding="utf-8")
         with loaded(path) as (_, (effect,)):
             got = CATALOGUE[effect].basis(data)
@@ -123,23 +120,21 @@ def test_the_files_basis_is_the_explorers_shape(quadratic, tmp_path, name):
         np.testing.assert_allclose(got, 1e-3 * shape.basis(values), rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.parametrize("name", [c.name for c in library()])
+def test_the_files_basis_is_the_explorers_shape(quadratic, tmp_path, name):
+    """Every fixed covariate: the written effect is the explorer's shape."""
+    _, d = quadratic
+    _assert_files_are_the_shapes(d, next(x for x in library() if x.name == name), tmp_path)
+
+
 def test_a_lagged_series_file_is_the_explorers_shape(quadratic, tmp_path):
     """The temperature through each lag the explorer tries (its time constant in the name):
-    the written effect evaluates the same basis as the explorer scored."""
+    the written effect is the explorer's shape."""
     _, d = quadratic
-    data = d.problem.data
-    lagged = [c for c in library(data) if "~lag" in c.name]
+    lagged = [c for c in library(d.problem.data) if "~lag" in c.name]
     assert len(lagged) == 3, [c.name for c in lagged]  # the session has a temperature
     for cov in lagged:
-        values = covariate_values(d.problem, d.fit, cov)
-        assert values is not None
-        for i, shape in enumerate(_shapes(values)):
-            lead = Lead(cov, values, shape, 1.0, 0.0, 0.5, 0.5, True)
-            path = tmp_path / f"{cov.name.replace('~', '_')}_{i}.py"
-            path.write_text(effect_file_text(lead, "s"), encoding="utf-8")
-            with loaded(path) as (_, (effect,)):
-                got = CATALOGUE[effect].basis(data)
-            np.testing.assert_allclose(got, 1e-3 * shape.basis(values), rtol=1e-12, atol=1e-15)
+        _assert_files_are_the_shapes(d, cov, tmp_path)
 
 
 def _session_files(c, out: Path) -> list[str]:

@@ -51,6 +51,7 @@ from hexcal.effects.explored import (
     spline,
     step,
 )
+from hexcal.effects.lagged import parse_lag
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
 from hexcal.estimate.quantiles import chi2_isf
 
@@ -109,7 +110,8 @@ class Lead:
         placed at a signed covariate's zero does no better than the covariate's own sign), and
         for a series through a lag, whose time constant was searched (a lagged thermometer is a
         smooth curve in time: it leads time only where it predicts better beyond that)."""
-        searched = self.shape.kind in ("step", "hinge") or "~lag" in self.covariate.name
+        lagged = parse_lag(self.covariate.name) is not None
+        searched = self.shape.kind in ("step", "hinge") or lagged
         return self.heldout - self.heldout_se if searched else self.heldout
 
     @property
@@ -225,7 +227,8 @@ def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndar
     temperature, or one that hardly changed). At the geometry the data carry, as the effect
     written for it evaluates it (:class:`~hexcal.effects.explored.ExploredEffect`)."""
     data = problem.data
-    series = cov.name.split("~lag")[0]
+    lag = parse_lag(cov.name)
+    series = cov.name if lag is None else lag[0]
     if series == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
         return None
     values = np.asarray(cov.values(data), float)
