@@ -18,6 +18,7 @@ from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_name, write_effect_file
 from hexcal.effects import CATALOGUE
+from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import parse_lag
 from hexcal.errors import RefusedError
 from hexcal.sim import verdict_cases as vc
@@ -65,10 +66,20 @@ WITHIN = 1.15
 POSES = 3
 
 
-def series_of(name: str) -> str:
-    """The quantity a covariate names: a series through a lag (``NAME~lagTs``) names NAME."""
+def series_of(name: str) -> tuple[str, ...]:
+    """The quantities a covariate names: a series through a lag (``NAME~lagTs``) names NAME, a
+    product (``A*B``) both of its factors."""
+    pair = parse_product(name)
+    if pair is not None:
+        return tuple(s for n in pair for s in series_of(n))
     lag = parse_lag(name)
-    return name if lag is None else lag[0]
+    return (name if lag is None else lag[0],)
+
+
+def names_right(name: str, accepted) -> bool:
+    """Whether the covariate ``name`` names what the case accepts: every quantity it names
+    among ``accepted`` (a product of the right covariate with a wrong one is wrong)."""
+    return all(s in accepted for s in series_of(name))
 
 
 def build(case: str, seed: int) -> vc.HiddenCase:
@@ -172,7 +183,7 @@ def _explorer(c: vc.HiddenCase, d) -> dict:
         "covariate": "|".join(str(a) for a in accepted),
         "lead": None if lead is None else lead.covariate.name,
         "lead_share": None if lead is None else lead.share,
-        "named_right": bool(lead is not None and series_of(lead.covariate.name) in accepted),
+        "named_right": bool(lead is not None and names_right(lead.covariate.name, accepted)),
     }
     out["right"] = bool(d.verdict == "unexplained" and out["named_right"])
     if lead is None:
@@ -245,8 +256,8 @@ def _two(c: vc.HiddenCase, d: Any, chained: ExplorerChain) -> dict:
     """Two effects at once: whether the chain names one accepted covariate of each, and the
     held-out RMS over the floor it reaches."""
     leads, ratio, raised = chained(c, d)
-    both = all(any(series_of(n) in accepted for n in leads) for accepted in c.covariates)
-    first = bool(leads) and any(series_of(leads[0]) in accepted for accepted in c.covariates)
+    both = all(any(names_right(n, accepted) for n in leads) for accepted in c.covariates)
+    first = bool(leads) and any(names_right(leads[0], accepted) for accepted in c.covariates)
     return {
         "covariate": " & ".join("|".join(a) for a in c.covariates),
         "lead": leads[0] if leads else None,

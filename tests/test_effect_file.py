@@ -22,7 +22,7 @@ from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_file_text, effect_name, write_effect_file
 from hexcal.diagnosis.explorer import Lead, covariate_values
 from hexcal.effects import CATALOGUE, explored, plugins
-from hexcal.effects.covariates import library
+from hexcal.effects.covariates import covariate, covariate_factors, library, product_covariate
 from hexcal.io.measurements import write_measurements
 from hexcal.model.instruments import save_instruments
 from hexcal.model.robot import save_robot
@@ -135,6 +135,36 @@ def test_a_lagged_series_file_is_the_explorers_shape(quadratic, tmp_path):
     assert len(lagged) == 3, [c.name for c in lagged]  # the session has a temperature
     for cov in lagged:
         _assert_files_are_the_shapes(d, cov, tmp_path)
+
+
+@pytest.mark.parametrize(
+    "pair", [("stroke", "yaw"), ("z", "stroke"), ("force", "inclination"), ("stroke", "time")]
+)
+def test_a_products_file_is_the_explorers_shape(quadratic, tmp_path, pair):
+    """The product of two covariates (a leg's, a pose's, geometric, in time), own and shared,
+    on every leg and on two: the written effect evaluates its two covariates and the bilinear
+    surface the explorer scored, a·b, a and b about the ranges' middles."""
+    _, d = quadratic
+    cov = product_covariate(covariate(pair[0]), covariate(pair[1]))
+    factors = covariate_factors(cov.name, d.problem.data)
+    assert factors.shape == (len(d.problem.data), 6, 2)
+    np.testing.assert_allclose(factors[..., 0] * factors[..., 1], cov.values(d.problem.data))
+    for i, shape in enumerate(
+        [explored.product(factors), explored.product(factors, True).with_legs((2, 5))]
+    ):
+        # The surface, by hand: leg 2's columns.
+        a = (factors[:, 1, 0] - shape.centre[1]) / shape.half[1]
+        b = (factors[:, 1, 1] - shape.centre2[1]) / shape.half2[1]
+        cols = slice(0, 3) if shape.shared else slice(3, 6)  # leg 2's own are the second three
+        np.testing.assert_allclose(shape.basis(factors)[:, 1, cols], np.c_[a * b, a, b])
+        assert explored.Shape.from_dict(shape.to_dict()) == shape
+        lead = Lead(cov, cov.values(d.problem.data), shape, 1.0, 0.0, 0.5, 0.5, True)
+        path = tmp_path / f"product_{i}.py"
+        path.write_text(effect_file_text(lead, "s"), encoding="utf-8")
+        with loaded(path) as (_, (effect,)):
+            got = CATALOGUE[effect].basis(d.problem.data)
+            assert len(CATALOGUE[effect].params(d.problem.design)) == got.shape[-1]
+        np.testing.assert_allclose(got, 1e-3 * shape.basis(factors), rtol=1e-12, atol=1e-15)
 
 
 def _session_files(c, out: Path) -> list[str]:

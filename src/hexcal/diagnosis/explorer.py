@@ -29,12 +29,14 @@ and it would be hexcal's only use of that library.
 from __future__ import annotations
 
 import contextlib
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import norm
 
+from hexcal.diagnosis.interaction_search import products
+from hexcal.diagnosis.leads import Lead, beats, best_of, covariate_values, scoped
 from hexcal.diagnosis.periodogram import periodogram
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.diagnosis.scoring import pose_whiteners
@@ -53,10 +55,7 @@ from hexcal.effects.explored import (
 )
 from hexcal.effects.lagged import parse_lag
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
-from hexcal.estimate.quantiles import chi2_isf
 
-#: Family-wise false-alarm probability over every covariate and shape tried.
-EXPLORE_ALPHA = 1e-3
 #: Interior knots of the smooth shapes tried (0: a cubic); cross-validation picks one.
 SPLINE_KNOTS = (0, 4, 11)
 #: Poses on each side of a step's split at least.
@@ -65,117 +64,12 @@ MIN_SIDE = 5
 MIN_SIGN_SHARE = 0.03
 #: Leads refitted for real (their figure stated, "never worse" checked).
 N_REFIT = 3
-#: How many of a covariate's significant shapes are cross-validated (best in-sample first).
-N_CV = 6
 #: A lead leaving more than this share of the excess is said to leave most of it.
 MOST = 0.5
 #: Periods searched along a periodic covariate: from this share of its span …
 MAX_PERIOD_SHARE = 0.6
 #: … down to this many poses per period at least (a period needs several poses to be seen).
 POSES_PER_PERIOD = 4.0
-
-
-@dataclass
-class Lead:
-    """One covariate's best shape at the fit."""
-
-    covariate: Covariate
-    values: np.ndarray  #: (M, 6) the covariate at each pose and leg
-    shape: Shape
-    score: float  #: χ² the shape removes in-sample (first order), over the noise level
-    threshold: float  #: the score it must exceed to count
-    heldout: float  #: χ² it removes from held-out poses (folds), over the noise level
-    share: float  #: of the excess χ² over the floor it explains on held-out poses
-    significant: bool = False
-    #: mm, the held-out RMS of the model with the lead added as an effect (refitted for real),
-    #: and without it
-    cv_rms_after_mm: float = float("nan")
-    cv_rms_before_mm: float = float("nan")
-    worse: bool = False  #: the refit predicts held-out poses worse: not proposed
-    #: (M, 6) mm the refitted lead's contribution at each pose and leg (the picture's curve)
-    fitted: np.ndarray | None = None
-    notes: list[str] = field(default_factory=list)
-    heldout_se: float = 0.0  #: the held-out figure's standard error (the folds' spread)
-    #: (K,) the χ² it removes from each held-out fold, over the noise level
-    folds: np.ndarray | None = None
-
-    @property
-    def columns(self) -> int:
-        return self.shape.n_params
-
-    @property
-    def ranked_by(self) -> float:
-        """What ranks the lead: its held-out χ², less one standard error for a step or a bend,
-        whose split was searched on every pose (so its held-out figure flatters it: a step
-        placed at a signed covariate's zero does no better than the covariate's own sign), and
-        for a series through a lag, whose time constant was searched (a lagged thermometer is a
-        smooth curve in time: it leads time only where it predicts better beyond that)."""
-        lagged = parse_lag(self.covariate.name) is not None
-        searched = self.shape.kind in ("step", "hinge") or lagged
-        return self.heldout - self.heldout_se if searched else self.heldout
-
-    @property
-    def effect_name(self) -> str:
-        return "by_" + re.sub(r"[^a-z0-9_]", "_", self.covariate.name.lower())[:36]
-
-    @property
-    def points_at(self) -> str:
-        if self.shape.kind == "sign" and self.covariate.signed:
-            return "play in a leg's joints, taken up one way or the other as its load reverses"
-        if self.shape.kind == "periodic":
-            return f"a cyclic error along the {self.covariate.label} (a scale, a screw, a gear)"
-        return self.covariate.points_at
-
-    @property
-    def proposed(self) -> bool:
-        return self.significant and not self.worse
-
-    def where(self) -> str:
-        legs = self.shape.legs
-        if len(legs) == 6:
-            return "every leg" + (" alike" if self.shape.shared else "")
-        return "leg" + "s" * (len(legs) > 1) + " " + ", ".join(map(str, legs))
-
-    def text(self) -> str:
-        c = self.covariate
-        after = (
-            f"; held-out RMS {1000 * self.cv_rms_before_mm:.1f} → "
-            f"{1000 * self.cv_rms_after_mm:.1f} µm with it"
-            if np.isfinite(self.cv_rms_after_mm)
-            else ""
-        )
-        said = "".join(f"; {n}" for n in self.notes)
-        return (
-            f"{c.label} ({c.name}; {self.shape.describe(c.unit)} on {self.where()}): explains "
-            f"{100 * self.share:.0f} % of the excess on held-out poses (χ² {self.score:.0f} "
-            f"in-sample with {self.columns} shape parameters, threshold "
-            f"{self.threshold:.0f}{after}){said}"
-        )
-
-    def to_dict(self) -> dict:
-        c = self.covariate
-        return {
-            "covariate": c.name,
-            "label": c.label,
-            "unit": c.unit,
-            "points_at": self.points_at,
-            "share_of_excess": self.share,
-            "chi2": self.score,
-            "heldout_chi2": self.heldout,
-            "columns": self.columns,
-            "threshold": self.threshold,
-            "shape": self.shape.to_dict(),
-            "significant": self.significant,
-            "proposed": self.proposed,
-            "effect": self.effect_name,
-            "cv_rms_after_mm": _none(self.cv_rms_after_mm),
-            "cv_rms_before_mm": _none(self.cv_rms_before_mm),
-            "notes": list(self.notes),
-        }
-
-
-def _none(v: float) -> float | None:
-    return float(v) if np.isfinite(v) else None
 
 
 @dataclass
@@ -220,21 +114,6 @@ class Exploration:
             "noise_level": self.level,
             "notes": list(self.notes),
         }
-
-
-def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndarray | None:
-    """(M, 6) ``cov`` at ``problem``'s poses, or None when the data cannot carry it (no
-    temperature, or one that hardly changed). At the geometry the data carry, as the effect
-    written for it evaluates it (:class:`~hexcal.effects.explored.ExploredEffect`)."""
-    data = problem.data
-    lag = parse_lag(cov.name)
-    series = cov.name if lag is None else lag[0]
-    if series == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
-        return None
-    values = np.asarray(cov.values(data), float)
-    if not np.all(np.isfinite(values)) or np.all(np.ptp(values, axis=0) == 0):
-        return None
-    return values
 
 
 def _period(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> tuple[float, int]:
@@ -405,20 +284,15 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
     best: dict[str, Lead] = {}
     pending: dict[str, list[tuple[float, Lead, ColumnStats]]] = {}
     for cov, values, shape, _ in tried:
-        for lead, st in _scoped(scorer, cov, values, shape, tests):
+        for lead, st in scoped(scorer, cov, values, shape, tests):
             if lead.significant:
                 merit = lead.score - lead.columns * np.log(scorer.n)
                 pending.setdefault(cov.name, []).append((merit, lead, st))
             elif cov.name not in best or lead.score > best[cov.name].score:
                 best[cov.name] = lead
     for name, rows in pending.items():
-        rows.sort(key=lambda row: -row[0])
-        for _, lead, st in rows[:N_CV]:
-            folds = st.heldout_folds()
-            lead.heldout, lead.folds = float(folds.sum()), folds
-            lead.heldout_se = float(np.std(folds, ddof=1) * np.sqrt(len(folds)))
-            lead.share = float(lead.heldout * level / excess) if excess > 0 else float("nan")
-        best[name] = _plainest([lead for _, lead, _ in rows[:N_CV]])
+        best[name] = best_of(rows, level, excess)
+    best.update(products(problem, fit, scorer, list(best.values()), held, tests, excess, level))
     tested = _ranked(list(best.values()), problem, fit)
     out = Exploration(tested, level)
     _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
@@ -432,34 +306,6 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
     return out
 
 
-def _plainest(leads: list[Lead]) -> Lead:
-    """One covariate's shape by the one-standard-error rule of cross-validation (Breiman et
-    al., *Classification and Regression Trees*, 1984, §3.4.3; Hastie, Tibshirani & Friedman,
-    *The Elements of Statistical Learning*, §7.10), on the paired folds: of the shapes whose
-    held-out χ² falls short of the best's by at most the standard error of that difference
-    (fold by fold, the same poses held out), the one with the fewest effective parameters — a
-    step's split and a period, searched, count as one more each — the better held-out χ² among
-    equals. A step on four legs at their own places (8) then leads an 11-knot spline (56) that
-    predicts held-out poses no better, and a load's sign (1 a leg) a step at its zero (2)."""
-    top = max(leads, key=lambda t: t.heldout)
-
-    def near(t: Lead) -> bool:
-        if t is top or t.folds is None or top.folds is None:
-            return t is top
-        diff = top.folds - t.folds
-        return bool(diff.sum() <= np.std(diff, ddof=1) * np.sqrt(len(diff)))
-
-    return min((t for t in leads if near(t)), key=lambda t: (_effective(t), -t.heldout))
-
-
-def _effective(lead: Lead) -> int:
-    """The lead's parameters, with each searched split or period counted as one."""
-    s = lead.shape
-    if s.kind in ("step", "hinge"):
-        return s.n_params + len(s.legs)
-    return s.n_params + (s.kind == "periodic")
-
-
 def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
     """Significant leads first, most held-out χ² first; where the first two are the same
     quantity on these poses and within a standard error of each other — covariates correlated
@@ -468,11 +314,14 @@ def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
     length² is the force's sign) — the one the library lists first (the plainer, physical
     one) leads, the other named with it."""
     out = sorted(leads, key=lambda t: (not t.significant, -t.ranked_by, -t.score))
+    _lag_first(out)
     if len(out) > 1 and out[1].significant:
         a, b = out[0], out[1]
-        order = [c.name for c in library(problem.data)]
+        order = {c.name: i for i, c in enumerate(library(problem.data))}
         close = a.heldout - b.heldout <= a.heldout_se
-        if close and order.index(b.covariate.name) < order.index(a.covariate.name):
+        # A product is not in the library: it never comes before a single covariate.
+        last = len(order)
+        if close and order.get(b.covariate.name, last) < order.get(a.covariate.name, last):
             r = float(np.corrcoef(a.values.ravel(), b.values.ravel())[0, 1])
             alike = abs(a.heldout - b.heldout) <= 1e-6 * abs(a.heldout)
             if abs(r) > SAME_QUANTITY or alike:
@@ -484,6 +333,32 @@ def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
 
 #: Two covariates correlated beyond this are the same quantity on these poses.
 SAME_QUANTITY = 0.98
+#: The chance, over every lagged series tried, that one beats the lead by noise alone.
+LAG_ALPHA = 0.05
+
+
+def _lag_first(out: list[Lead]) -> None:
+    """A lagged series handicapped below the lead (:attr:`Lead.ranked_by`) leads after all
+    where it predicts held-out poses better than the lead fold by fold, by
+    :func:`scipy.stats.norm.isf` (:data:`LAG_ALPHA` over the lagged series tried) standard
+    errors of the paired difference: the handicap guards a smooth curve in time against a
+    lag's searched time constant; a series that follows a lab's sensor better than any curve
+    in time, pose by held-out pose, is that sensor's (a coolant the part follows slowly)."""
+    sig = [t for t in out if t.significant]
+    lagged = [t for t in out if parse_lag(t.covariate.name) is not None]
+    if not sig or not lagged or parse_lag(sig[0].covariate.name) is not None:
+        return
+    z = float(norm.isf(LAG_ALPHA / len(lagged)))
+    top = sig[0]
+    for t in sorted(lagged, key=lambda t: -t.heldout):
+        if t.significant and t.heldout > top.heldout and beats(t, top, z):
+            t.notes.append(
+                f"it predicts held-out poses better than the {top.covariate.label} by more "
+                f"than {z:.1f} standard errors, pose by pose"
+            )
+            out.remove(t)
+            out.insert(0, t)
+            return
 
 
 #: What each robot.json key's default is, in words.
@@ -502,50 +377,6 @@ def _default_notes(problem: Problem, cov: Covariate) -> list[str]:
         for key in cov.default_keys
         if getattr(problem.design, key, None) is None
     ]
-
-
-def _own_columns(shape: Shape, values: np.ndarray) -> np.ndarray:
-    """(M, 6, per) leg k's columns of ``shape`` at its values, in row k."""
-    return np.stack([shape.columns(values[:, k], k) for k in range(6)], axis=1)
-
-
-def _scoped(
-    scorer: PoseProducts, cov: Covariate, values: np.ndarray, shape: Shape, tests: int
-) -> list[tuple[Lead, ColumnStats]]:
-    """``shape`` on every leg, and on the legs whose own score exceeds the per-leg threshold
-    (a dent or a binding joint is one leg's: a shape on six legs would spend five legs'
-    parameters on noise), with their own coefficients and sharing one set; each judged
-    against the family-wise threshold. A shared shape is scored on every leg only. Leg J's
-    stroke (``stroke_legJ``) is tried on the five other legs only."""
-    per = shape.per_leg
-    full = scorer.stats(_own_columns(shape, values))
-    eye = np.eye(6 * per)
-    blocks = [eye[:, k * per : (k + 1) * per] for k in range(6)]
-    # Leg J's error along its own reading is the stroke's shape, tried there: another leg's
-    # stroke is tried on the five others (cross-talk), so that one quantity has one place.
-    allowed = tuple(k for k in range(1, 7) if cov.name != f"stroke_leg{k}")
-    whole = shape if len(allowed) == 6 else shape.with_legs(allowed)
-    if shape.shared:
-        variants = [(whole, full.map(np.sum([blocks[k - 1] for k in allowed], axis=0)))]
-    else:
-        sel = np.concatenate([blocks[k - 1] for k in allowed], axis=1)
-        variants = [(whole, full if len(allowed) == 6 else full.map(sel))]
-        leg_threshold = float(chi2_isf(EXPLORE_ALPHA / (6 * tests), per))
-        legs = [k for k in allowed if full.map(blocks[k - 1]).score() > leg_threshold]
-        if 0 < len(legs) < len(allowed):
-            sel = np.concatenate([blocks[leg - 1] for leg in legs], axis=1)
-            variants.append((shape.with_legs(tuple(legs)), full.map(sel)))
-            if len(legs) > 1:
-                summed = np.sum([blocks[leg - 1] for leg in legs], axis=0)
-                variants.append((shape.with_legs(tuple(legs), shared=True), full.map(summed)))
-    out = []
-    for s, st in variants:
-        score = st.score()
-        threshold = float(chi2_isf(EXPLORE_ALPHA / tests, s.n_params))
-        lead = Lead(cov, values, s, score, threshold, float("nan"), float("nan"))
-        lead.significant = bool(score > threshold)
-        out.append((lead, st))
-    return out
 
 
 def _refit(problem: Problem, fit: ModelFit, leads: list[Lead], out: Exploration) -> None:

@@ -26,7 +26,9 @@ platform's yaw, the time) is the same for the six legs. The library (:func:`libr
 - every extra numeric column of the measurement table, by its own name (a second
   thermometer, humidity, a motor current): a lab's own sensor is a covariate without code;
 - the temperature and every such column seen through a first-order lag (``NAME~lagTs``,
-  :mod:`hexcal.effects.lagged`): a part that follows the sensor slowly.
+  :mod:`hexcal.effects.lagged`): a part that follows the sensor slowly;
+- the product of two of them (``A*B``, :mod:`hexcal.effects.interactions`): an error along one
+  whose size changes with the other. The explorer builds these from its leads, not the library.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from scipy.spatial.transform import Rotation
 from hexcal.effects.backlash import deadband_mm, motion_state
 from hexcal.effects.base import EffectData
 from hexcal.effects.compliance import leg_forces
+from hexcal.effects.interactions import SEP, parse_product, product_name
 from hexcal.effects.lagged import first_order_lag, lag_name, lag_taus, parse_lag
 
 #: A user column is a covariate when it changes by more than this share of its mean magnitude
@@ -303,9 +306,39 @@ def library(data: EffectData | None = None) -> tuple[Covariate, ...]:
     return FIXED + cols + lags
 
 
+def product_covariate(a: Covariate, b: Covariate) -> Covariate:
+    """The product of the covariates ``a`` and ``b`` ((M, 6), in ``a``'s unit × ``b``'s):
+    what the error follows when its size along one changes with the other. Its two factors,
+    which the ``product`` shape needs apart, are :func:`covariate_factors`."""
+    unit = "·".join(u for u in (a.unit, b.unit) if u)
+    return Covariate(
+        product_name(a.name, b.name),
+        f"{a.label} × {b.label}",
+        unit,
+        f"an error along the {a.label} whose size changes with the {b.label} (or the other way "
+        f"round): {a.points_at}, acting with {b.points_at}",
+        lambda d: np.asarray(a.values(d), float) * np.asarray(b.values(d), float),
+        uses_geometry=a.uses_geometry or b.uses_geometry,
+        per_pose=a.per_pose and b.per_pose,
+        default_keys=tuple(dict.fromkeys(a.default_keys + b.default_keys)),
+    )
+
+
+def covariate_factors(name: str, data: EffectData) -> np.ndarray:
+    """(M, 6, 2) the two covariates of the product covariate ``name`` (``A*B``) at ``data``'s
+    poses, ``A`` then ``B``."""
+    pair = parse_product(name)
+    if pair is None:
+        raise ValueError(f"{name!r} is not a product of two covariates (A{SEP}B)")
+    return np.stack([covariate_values(n, data) for n in pair], axis=-1)
+
+
 def covariate(name: str, data: EffectData | None = None) -> Covariate:
-    """The covariate called ``name`` (a fixed one, an extra column of ``data``, or either
-    through a lag: ``NAME~lagTs``)."""
+    """The covariate called ``name`` (a fixed one, an extra column of ``data``, either
+    through a lag: ``NAME~lagTs``, or the product of two: ``A*B``)."""
+    pair = parse_product(name)
+    if pair is not None:
+        return product_covariate(covariate(pair[0], data), covariate(pair[1], data))
     for c in FIXED:
         if c.name == name:
             return c

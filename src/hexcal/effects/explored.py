@@ -16,7 +16,11 @@ Shapes, each the constant left out (the leg's offset holds it):
 - ``sign``: the covariate's sign (play taken up one way or the other as a load reverses, the
   direction of the last move);
 - ``hinge``: a straight line and the same covariate beyond a split value (two lines meeting
-  there: a dead band, a stop, a V about a level).
+  there: a dead band, a stop, a V about a level);
+- ``product``: along a product covariate ``A*B`` (:mod:`hexcal.effects.interactions`), the
+  bilinear surface ``a·b``, ``a``, ``b`` — ``a`` and ``b`` the two covariates about the middles
+  of their ranges, over half their ranges (the lines ``a`` and ``b``: an interaction with its
+  main effects).
 
 Each in a scope: on the legs ``legs``, each with its own coefficients, or (``shared``) one set
 of coefficients for all of them.
@@ -30,13 +34,14 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from hexcal.effects.base import Effect, EffectData, ParamSpec
-from hexcal.effects.covariates import covariate_values
+from hexcal.effects.covariates import covariate_factors, covariate_values
+from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import parse_lag
 
 #: Each coefficient's plausible range and the resolution identifiability asks of it, µm.
 PLAUSIBLE_UM = (-1000.0, 1000.0)
 RESOLUTION_UM = 20.0
-KINDS = ("line", "spline", "periodic", "step", "sign", "hinge")
+KINDS = ("line", "spline", "periodic", "step", "sign", "hinge", "product")
 
 
 def _row(values) -> np.ndarray:
@@ -49,7 +54,9 @@ class Shape:
 
     ``centre``, ``half`` (6,): the line's middle and half-range; ``lo``, ``hi`` (6,) and
     ``knots`` (6, n): the spline's boundary and interior knots; ``period``: the periodic
-    shape's, in the covariate's unit; ``split`` (6,): the step's value."""
+    shape's, in the covariate's unit; ``split`` (6,): the step's value; ``centre2``,
+    ``half2`` (6,): a product's second covariate's middle and half-range (its first's are
+    ``centre`` and ``half``)."""
 
     kind: str
     legs: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
@@ -61,6 +68,8 @@ class Shape:
     knots: tuple[tuple[float, ...], ...] = ()
     period: float = 0.0
     split: tuple[float, ...] = ()
+    centre2: tuple[float, ...] = ()
+    half2: tuple[float, ...] = ()
     extra: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
@@ -76,6 +85,8 @@ class Shape:
         """Columns per leg (the shared scope has this many in all)."""
         if self.kind == "spline":
             return len(self.knots[0]) + 3
+        if self.kind == "product":
+            return 3
         return 2 if self.kind in ("periodic", "hinge") else 1
 
     @property
@@ -83,8 +94,13 @@ class Shape:
         return self.per_leg * (1 if self.shared else len(self.legs))
 
     def columns(self, u: np.ndarray, k: int) -> np.ndarray:
-        """(M, per_leg) leg ``k``'s (0-based) columns at its covariate values ``u`` (M,)."""
+        """(M, per_leg) leg ``k``'s (0-based) columns at its covariate values ``u`` (M,),
+        a product's at its two covariates' (M, 2)."""
         u = np.asarray(u, float)
+        if self.kind == "product":
+            a = (u[:, 0] - self.centre[k]) / self.half[k]
+            b = (u[:, 1] - self.centre2[k]) / self.half2[k]
+            return np.column_stack([a * b, a, b])
         if self.kind == "line":
             return ((u - self.centre[k]) / self.half[k])[:, None]
         if self.kind == "spline":
@@ -105,7 +121,8 @@ class Shape:
         return np.sign(u)[:, None]
 
     def basis(self, values: np.ndarray) -> np.ndarray:
-        """(M, 6, n_params) mm per mm: the shape at the covariate ``values`` (M, 6)."""
+        """(M, 6, n_params) mm per mm: the shape at the covariate ``values`` (M, 6); a
+        product's at its two covariates' (M, 6, 2)."""
         per = self.per_leg
         out = np.zeros((len(values), 6, self.n_params))
         for i, leg in enumerate(self.legs):
@@ -132,12 +149,13 @@ class Shape:
             "step": "a step (a change point)",
             "hinge": "a bend (two straight lines meeting at one value)",
             "sign": "a step at its sign change",
+            "product": "a bilinear surface (the product and its two lines)",
         }[self.kind]
         return what + (", one coefficient shared by the legs" if self.shared else "")
 
     def to_dict(self) -> dict:
         d: dict = {"kind": self.kind, "legs": list(self.legs), "shared": self.shared}
-        for name in ("centre", "half", "lo", "hi", "split"):
+        for name in ("centre", "half", "lo", "hi", "split", "centre2", "half2"):
             if getattr(self, name):
                 d[name] = [float(v) for v in getattr(self, name)]
         if self.knots:
@@ -160,6 +178,8 @@ class Shape:
             knots=tuple(tuple(float(v) for v in row) for row in d.get("knots", ())),
             period=float(d.get("period", 0.0)),
             split=tup("split"),
+            centre2=tup("centre2"),
+            half2=tup("half2"),
         )
 
 
@@ -207,6 +227,21 @@ def hinge(values: np.ndarray, split: np.ndarray, shared: bool = False) -> Shape:
         centre=_t(0.5 * (lo + hi)),
         half=_t(half),
         split=_t(np.broadcast_to(split, (6,))),
+    )
+
+
+def product(factors: np.ndarray, shared: bool = False) -> Shape:
+    """The bilinear surface over each leg's ranges of the two covariates ``factors``
+    (M, 6, 2) (the pooled ranges when ``shared``)."""
+    lo, hi = _ranges(factors[..., 0], shared)
+    lo2, hi2 = _ranges(factors[..., 1], shared)
+    return Shape(
+        "product",
+        shared=shared,
+        centre=_t(0.5 * (lo + hi)),
+        half=_t(np.maximum(0.5 * (hi - lo), 1e-12)),
+        centre2=_t(0.5 * (lo2 + hi2)),
+        half2=_t(np.maximum(0.5 * (hi2 - lo2), 1e-12)),
     )
 
 
@@ -262,22 +297,35 @@ class ExploredEffect(Effect):
 
     def basis(self, data: EffectData) -> np.ndarray:
         """(M, 6, n_params) mm per µm: the shape at the covariate's values."""
+        if self.shape.kind == "product":
+            return 1e-3 * self.shape.basis(covariate_factors(self.covariate, data))
         return 1e-3 * self.shape.basis(covariate_values(self.covariate, data))
 
     def cannot_predict(self, data: EffectData) -> str | None:
         return self.missing(data)
 
     def missing(self, data: EffectData) -> str | None:
-        lag = parse_lag(self.covariate)
-        series = self.covariate if lag is None else lag[0]
-        if series == "temperature" and data.temperature is None:
-            return "the measurements have no temperature column"
-        if series not in _fixed() and series not in data.columns:
-            return (
-                f"it follows the table's column {series!r}, which these data do not have "
-                "(give the table with that column)"
-            )
+        pair = parse_product(self.covariate)
+        for name in pair or (self.covariate,):
+            why = _missing_series(name, data)
+            if why:
+                return why
         return None
+
+
+def _missing_series(name: str, data: EffectData) -> str | None:
+    """Why ``data`` cannot give the covariate ``name`` (a fixed one, a column, either through a
+    lag), or None."""
+    lag = parse_lag(name)
+    series = name if lag is None else lag[0]
+    if series == "temperature" and data.temperature is None:
+        return "the measurements have no temperature column"
+    if series not in _fixed() and series not in data.columns:
+        return (
+            f"it follows the table's column {series!r}, which these data do not have "
+            "(give the table with that column)"
+        )
+    return None
 
 
 def _fixed() -> set[str]:

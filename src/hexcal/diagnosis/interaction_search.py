@@ -1,0 +1,191 @@
+"""The explorer's search of products: an error along one covariate whose size changes with
+another (:mod:`hexcal.effects.interactions`).
+
+Every pair of the library's continuous covariates is screened (some 400 on a session with a
+temperature): by the in-sample χ² its product's own columns ``a·b`` add, leg by leg, to its
+two lines ``a`` and ``b`` (:func:`_interaction`, χ² on 6 degrees of freedom under no
+interaction). Heredity — a product grown only from covariates that lead on their own, as in
+the forward pass of Friedman's MARS (1991) — was tried first and fails where an interaction is
+the point: the stroke's error growing with the yaw leaves the stroke and the yaw far down the
+single-covariate ranking (their proxies, the force × stroke, lead it), so the product was never
+tried. The :data:`N_SCREEN` pairs that add most, less those whose factors are one quantity (a
+smooth function of the other: the room's temperature drifting with the time) or whose product
+the library holds already (the force × stroke), are then scored as every shape is
+(:func:`hexcal.diagnosis.leads.scoped`, the family-wise threshold counting the pairs too) and
+cross-validated on the same folds.
+
+A product leads only where it predicts held-out poses better than each of its factors' own
+leads, fold by fold, by :func:`scipy.stats.norm.isf` (:data:`PRODUCT_ALPHA` over the pairs
+screened) standard errors of the paired difference: it holds its factors' lines and so explains
+at least as much as either line does; what it must show is the part no single covariate can.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import BSpline
+from scipy.stats import norm
+
+from hexcal.diagnosis.leads import Lead, beats, best_of, covariate_values, own_columns, scoped
+from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
+from hexcal.effects.covariates import Covariate, library, product_covariate
+from hexcal.effects.explored import product
+from hexcal.effects.interactions import parse_product
+from hexcal.effects.lagged import parse_lag
+from hexcal.estimate.effect_fit import ModelFit, Problem
+
+#: How many of the pairs screened, most interaction first, are cross-validated in full.
+N_SCREEN = 8
+#: The chance, over every partner searched, that a product beats its factors by noise alone.
+PRODUCT_ALPHA = 0.05
+#: Two covariates correlated beyond this are one quantity: their product is a square, which
+#: the smooth shapes along either hold already.
+SAME = 0.98
+
+
+def parents(leads: list[Lead]) -> list[Lead]:
+    """The leads along one continuous covariate that are significant and cross-validated,
+    best held-out first: a product's rivals where they are its factors."""
+    ok = [
+        t
+        for t in leads
+        if t.significant
+        and t.folds is not None
+        and not t.covariate.discrete
+        and parse_product(t.covariate.name) is None
+    ]
+    return sorted(ok, key=lambda t: -t.ranked_by)
+
+
+def products(
+    problem: Problem,
+    fit: ModelFit,
+    scorer: PoseProducts,
+    leads: list[Lead],
+    held: set[tuple[str, str]],
+    tests: int,
+    excess: float,
+    level: float,
+) -> dict[str, Lead]:
+    """The products that beat their factors (see the module docstring), by covariate name:
+    ``leads`` the explorer's best shape of each single covariate at ``fit``, ``held`` the
+    (covariate, shape) pairs the model holds already, ``tests`` the shapes tried along single
+    covariates (the family-wise threshold's count), ``excess`` the χ² over the floor and
+    ``level`` the noise level the scores are judged against."""
+    lib = [c for c in library(problem.data) if not c.discrete]
+    values: dict[str, np.ndarray] = {}
+    for c in lib:
+        v = covariate_values(problem, fit, c)
+        if v is not None:
+            values[c.name] = v
+    lib = [c for c in lib if c.name in values]
+    known = list(values.values())
+    screened: list[tuple[float, Covariate, np.ndarray]] = []
+    for i, first in enumerate(lib):
+        for second in lib[i + 1 :]:
+            if _series(first.name) == _series(second.name):
+                continue  # a sensor and its own lag: one series, not two acting together
+            factors = np.stack([values[first.name], values[second.name]], axis=-1)
+            screened.append(
+                (_interaction(scorer, factors), product_covariate(first, second), factors)
+            )
+    if not screened:
+        return {}
+    screened.sort(key=lambda row: -row[0])
+    z = float(norm.isf(PRODUCT_ALPHA / len(screened)))
+    family = tests + 2 * len(screened)
+    own = {t.covariate.name: t for t in parents(leads)}
+    out: dict[str, Lead] = {}
+    tried = 0
+    for _, cov, factors in screened:
+        if tried == N_SCREEN:
+            break
+        va, vb = factors[..., 0], factors[..., 1]
+        if _determined(va, vb) or _determined(vb, va):
+            continue
+        # A product the library holds already (the force × stroke) is that covariate.
+        if any(_same(va * vb, v) for v in known):
+            continue
+        tried += 1
+        lead = _best_product(scorer, cov, factors, held, family, excess, level)
+        if lead is None:
+            continue
+        rivals = [own[n] for n in parse_product(cov.name) or () if n in own]
+        if all(beats(lead, r, z) for r in rivals):
+            if rivals:
+                lead.notes.append(
+                    "it predicts held-out poses better than "
+                    + " or ".join(f"the {r.covariate.label} alone" for r in rivals)
+                    + f" by more than {z:.1f} standard errors"
+                )
+            out[cov.name] = lead
+    return out
+
+
+def _interaction(scorer: PoseProducts, factors: np.ndarray) -> float:
+    """The in-sample χ² (over the noise level) a product's own columns a·b add, leg by leg,
+    to its two lines a and b: what the pair explains beyond its two covariates alone."""
+    shape = product(factors)
+    full = scorer.stats(own_columns(shape, factors))
+    keep = np.zeros((18, 12))
+    for k in range(6):  # each leg's columns: a·b, a, b
+        keep[3 * k + 1, 2 * k] = keep[3 * k + 2, 2 * k + 1] = 1.0
+    return float(full.score() - full.map(keep).score())
+
+
+def _best_product(
+    scorer: PoseProducts,
+    cov: Covariate,
+    factors: np.ndarray,
+    held: set[tuple[str, str]],
+    family: int,
+    excess: float,
+    level: float,
+) -> Lead | None:
+    """The product's best significant shape of its scopes, cross-validated, or None."""
+    rows: list[tuple[float, Lead, ColumnStats]] = []
+    for shared in (False, True):
+        shape = product(factors, shared)
+        if (cov.name, repr(shape.to_dict())) in held:
+            continue
+        values = factors[..., 0] * factors[..., 1]
+        for lead, st in scoped(scorer, cov, values, shape, family, factors=factors):
+            if lead.significant:
+                rows.append((lead.score - lead.columns * np.log(scorer.n), lead, st))
+    return best_of(rows, level, excess) if rows else None
+
+
+def _determined(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether the covariate ``b`` (M, 6) is, leg by leg, a smooth function of ``a`` on these
+    poses (a cubic spline with 4 interior knots along ``a`` explains more than
+    :data:`SAME`² of its variance): the room's temperature drifting with the time, a leg's
+    length with its stroke. Their product is then a curve along ``a`` alone, which ``a``'s
+    own shapes hold."""
+    res = tot = 0.0
+    for k in range(a.shape[1]):
+        u, v = a[:, k], b[:, k] - b[:, k].mean()
+        tot += float(v @ v)
+        distinct = np.unique(u)
+        if len(distinct) < 8:
+            res += float(v @ v)  # too few values to carry a curve: not determined by them
+            continue
+        knots = np.quantile(distinct, np.linspace(0, 1, 6)[1:-1])
+        t = np.r_[[u.min()] * 4, knots, [u.max()] * 4]
+        x = np.column_stack([np.ones(len(u)), BSpline.design_matrix(u, t, 3).toarray()])
+        coef, *_ = np.linalg.lstsq(x, v, rcond=None)
+        r = v - x @ coef
+        res += float(r @ r)
+    return tot > 0 and 1.0 - res / tot > SAME**2
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two covariates (M, 6) are one quantity on these poses."""
+    x, y = a.ravel() - a.mean(), b.ravel() - b.mean()
+    den = float(np.sqrt((x @ x) * (y @ y)))
+    return den == 0 or abs(float(x @ y) / den) > SAME
+
+
+def _series(name: str) -> str:
+    """The recorded series a covariate is (a lagged one's own series)."""
+    lag = parse_lag(name)
+    return name if lag is None else lag[0]
