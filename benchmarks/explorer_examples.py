@@ -1,9 +1,10 @@
 """The covariate explorer's worked examples in docs/diagnosis.md: one simulated session per
 shape, each hiding an effect outside the catalogue, run through the commands the docs show.
 
-    python benchmarks/explorer_examples.py [--out docs/walkthrough/explorer]
+    python benchmarks/explorer_examples.py [--out docs/walkthrough/explorer] [--only SHAPE ...]
 
-For each shape (a line, a cubic, a periodic error, a step, a sign) it writes the session
+For each shape (a line, a cubic, a periodic error, a step, a sign, a product of two
+covariates) it writes the session
 (measurements.csv, robot.json, instruments.json), then runs, as a user would:
 
     hexcal diagnose measurements.csv --robot robot.json --instruments instruments.json \\
@@ -35,6 +36,7 @@ EXAMPLES = {
     "periodic": ("cycle 7.3 mm", 1),
     "step": ("scale joint", 1),
     "sign": ("joint play", 22),
+    "product": ("yaw x stroke", 1),
 }
 
 
@@ -86,8 +88,11 @@ def example(shape: str, case: str, seed: int, root: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("docs/walkthrough/explorer"))
+    ap.add_argument("--only", nargs="*", choices=list(EXAMPLES), help="only these shapes")
     args = ap.parse_args()
     for shape, (case, seed) in EXAMPLES.items():
+        if args.only and shape not in args.only:
+            continue
         print(example(shape, case, seed, args.out.resolve()))
 
 

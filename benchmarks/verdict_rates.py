@@ -77,9 +77,10 @@ def series_of(name: str) -> tuple[str, ...]:
 
 
 def names_right(name: str, accepted) -> bool:
-    """Whether the covariate ``name`` names what the case accepts: every quantity it names
-    among ``accepted`` (a product of the right covariate with a wrong one is wrong)."""
-    return all(s in accepted for s in series_of(name))
+    """Whether the covariate ``name`` names what the case accepts: itself, or every quantity
+    it names, among ``accepted`` (a product of the right covariate with a wrong one is wrong;
+    where the product is what is accepted, one of its factors alone is wrong)."""
+    return name in accepted or all(s in accepted for s in series_of(name))
 
 
 def build(case: str, seed: int) -> vc.HiddenCase:

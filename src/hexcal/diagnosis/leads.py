@@ -14,6 +14,7 @@ import numpy as np
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.effects.covariates import Covariate
 from hexcal.effects.explored import Shape
+from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import parse_lag
 from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.estimate.quantiles import chi2_isf
@@ -49,6 +50,29 @@ class Lead:
     folds: np.ndarray | None = None
     #: (M, 6, 2) a product covariate's two factors at each pose and leg (its shape's input)
     factors: np.ndarray | None = None
+
+    def seen_um(self) -> np.ndarray | None:
+        """(M, 6) µm the refitted lead as the residual sees it (the reading less the
+        prediction: the lead, once added, takes away −(its contribution)), each leg's mean
+        left out (the offsets' constant); None before it is refitted."""
+        if self.fitted is None:
+            return None
+        c = -np.asarray(self.fitted) * 1000.0
+        return c - c.mean(axis=0)
+
+    def axis(self) -> tuple[np.ndarray, str, str]:
+        """What the lead's picture draws the residual against: ((M, 6) values, their label
+        with the unit, their short name). The covariate; for a product (a surface over two
+        covariates, no curve along their product) the surface's own fitted value, µm, on
+        whose diagonal the residual lies where the lead explains it."""
+        cov = self.covariate
+        pair = parse_product(cov.name)
+        seen = self.seen_um()
+        if pair is not None and seen is not None:
+            name = f"fitted {' × '.join(pair)} surface"
+            return seen, f"{name} (µm)", name
+        unit = f" ({cov.unit})" if cov.unit else ""
+        return np.asarray(self.values), f"{cov.label}{unit}", cov.name
 
     @property
     def columns(self) -> int:

@@ -428,24 +428,18 @@ def _plot_covariate(view: PlotView, outdir: Path, name: str) -> Path:
     if lead is None:
         raise ValueError("no covariate leads: nothing to plot against")
     cov = lead.covariate
-    unit = f" ({cov.unit})" if cov.unit else ""
     legs = lead.shape.legs
     on = "" if len(legs) == 6 else f" on leg{'s' * (len(legs) > 1)} {', '.join(map(str, legs))}"
-    curve = None
-    if lead.fitted is not None:
-        # The residual is the reading less the prediction: the lead, once added, takes away
-        # −(its contribution); its constant is the offsets', so each leg's mean is left out.
-        c = -np.asarray(lead.fitted) * 1000.0
-        curve = c - c.mean(axis=0)
+    along, xlabel, _ = lead.axis()
     return leg_scatter(
         view,
-        lead.values,
-        f"{cov.label}{unit}",
+        along,
+        xlabel,
         f"residual against the {cov.name.replace('_', ' ')}",
         outdir,
         name,
         note=f"{100 * lead.share:.0f} % of the excess: {lead.shape.describe(lead.covariate.unit)}{on}",
-        curve=curve,
+        curve=lead.seen_um(),
     )
 
 

@@ -31,6 +31,7 @@ from hexcal.sim.foreign_more import (
     series_pull,
     stroke_cycle,
     stroke_step,
+    yaw_x_stroke,
 )
 from hexcal.sim.simulate import LengthEffect, PoseContext
 
@@ -39,6 +40,7 @@ from hexcal.sim.simulate import LengthEffect, PoseContext
 #: per session: :attr:`Drawn.covariates` holds the session's own).
 MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "yaw cable": (("yaw",),),
+    "yaw x stroke": (("stroke*yaw",),),
     "tilt error": (("tilt",),),
     "roll or pitch cable": (("roll", "pitch"),),
     "cross-talk": (tuple(f"stroke_leg{j}" for j in range(1, 7)),),
@@ -195,6 +197,10 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
     if case == "yaw cable":
         # 1.5–4 µm/deg on every leg: 20–60 µm at the ±15° the session turns the platform
         return Drawn([angle_pull("yaw", _signs(rng) * rng.uniform(0.0015, 0.004, 6))], (("yaw",),))
+    if case == "yaw x stroke":
+        # 12–18 µm per 5° × 10 mm on every leg: 40–90 µm at the stroke's ends and ±15° of yaw
+        coef = _signs(rng) * rng.uniform(0.012, 0.018, 6)
+        return Drawn([yaw_x_stroke(coef)], (("stroke*yaw",),))
     if case == "roll or pitch cable":
         # A hose pulled as the platform rolls (or pitches) either way: 35–55 µm at 10°, as the
         # angle² (a straight line in roll or pitch the geometry takes up; a knee mostly too)

@@ -47,6 +47,23 @@ def _data(truth: Robot, readings: np.ndarray, ctx: PoseContext) -> EffectData:
     )
 
 
+def yaw_x_stroke(
+    coef_mm: np.ndarray, middle_mm: float = 60.0, per_deg: float = 5.0
+) -> LengthEffect:
+    """Leg k is ``coef_mm[k]``·(yaw/``per_deg``)·(reading − ``middle_mm``)/10 longer than it
+    reads: an encoder's reader head that the platform's turn twists along its scale, so that
+    the scale's error grows with the yaw (an interaction: along the stroke alone, or the yaw
+    alone, it averages away)."""
+    coef = np.asarray(coef_mm, float)
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        yaw = platform_angle(ctx.rotation, "yaw")
+        return coef * (yaw[:, None] / per_deg) * (readings - middle_mm) / 10.0
+
+    hook.__name__ = "hidden_yaw_x_stroke"
+    return hook
+
+
 def angle_pull(
     name: str, coef_mm: np.ndarray, power: int = 1, knee_deg: float | None = None
 ) -> LengthEffect:

@@ -467,13 +467,14 @@ def lead_sketch(d: Any, lead: Any, width: int = 32) -> list[str]:
     bars on the leg that carries most of it: each bar one of ``width`` bins of the covariate
     (its median held-out residual; the shape's mean), both on one scale."""
     legs = list(lead.shape.legs)
-    if lead.fitted is None or not legs:
+    seen = lead.seen_um()  # µm, as the residual sees it
+    if seen is None or not legs:
         return []
-    fitted = -np.asarray(lead.fitted) * 1000.0  # µm, as the residual sees it
-    k = max(legs, key=lambda leg: float(np.ptp(fitted[:, leg - 1]))) - 1
-    u = np.asarray(lead.values)[:, k]
+    k = max(legs, key=lambda leg: float(np.ptp(seen[:, leg - 1]))) - 1
+    axis, _, axis_name = lead.axis()
+    u = np.asarray(axis)[:, k]
     resid = np.asarray(d.fit.held_out_residuals)[:, k] * 1000.0
-    curve = fitted[:, k] - fitted[:, k].mean()
+    curve = seen[:, k]
     edges = np.linspace(u.min(), u.max(), width + 1)
     where = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, width - 1)
     cells = [(resid[where == i], curve[where == i]) for i in range(width)]
@@ -488,9 +489,9 @@ def lead_sketch(d: Any, lead: Any, width: int = 32) -> list[str]:
         return "".join(_BARS[round((v - lo) / span * (len(_BARS) - 1))] for v in values)
 
     cov = lead.covariate
-    unit = f" {cov.unit}" if cov.unit else ""
+    unit = " µm" if axis_name != cov.name else f" {cov.unit}" if cov.unit else ""
     return [
-        f"leg {k + 1}, {cov.name} {u.min():.4g} … {u.max():.4g}{unit}; {lo:.0f} … {hi:.0f} µm:",
+        f"leg {k + 1}, {axis_name} {u.min():.4g} … {u.max():.4g}{unit}; {lo:.0f} … {hi:.0f} µm:",
         f"  residual   {bars([a for a, _ in got])}",
         f"  its shape  {bars([b for _, b in got])}",
     ]
