@@ -1,7 +1,8 @@
 """The explorer's search of products (hexcal.diagnosis.interaction_search): an error along the
 stroke whose size grows with the platform's yaw is named as that product, and its refit brings
 the error to the floor; an error along one covariate alone is not named as a product; a clean
-session has no parent to grow a product from; a covariate that is a smooth function of another
+session names no product; the direction of the last move is a factor too (hysteresis growing
+along the stroke); a covariate that is a smooth function of another
 (the room's temperature drifting with the time) makes no product with it.
 
 The product here (yaw × stroke) is none of the held-out set's (benchmarks/heldout_rates.py
@@ -55,6 +56,16 @@ def test_a_product_is_named_as_the_product(yaw_stroke):
         alone = next(t for t in last.exploration.tested if t.covariate.name == name)
         assert alone.heldout < lead.heldout
     assert any("standard errors" in n for n in lead.notes)
+
+
+def test_a_sign_times_a_quantity_is_a_product():
+    """Hysteresis that grows along the stroke (a screw's wind-up, ±20–35 µm per 50 mm by the
+    direction of the last move): the product of the stroke and the last move's sign."""
+    c = vc.foreign("windup x stroke", 2)
+    last = _chain(c)[-1]
+    lead = last.exploration.lead
+    assert lead is not None and lead.covariate.name == "stroke*last_move"
+    assert lead.cv_rms_after_mm <= floor_limit(last, extra_params=lead.columns)
 
 
 def test_one_covariate_alone_is_not_named_as_a_product():

@@ -72,7 +72,9 @@ def products(
     (covariate, shape) pairs the model holds already, ``tests`` the shapes tried along single
     covariates (the family-wise threshold's count), ``excess`` the χ² over the floor and
     ``level`` the noise level the scores are judged against."""
-    lib = [c for c in library(problem.data) if not c.discrete]
+    # A sign (the direction of the last move) is a factor too: play or friction whose size
+    # grows with the load or the stroke (its ±1 about 0 over a half-range of 1 in the surface).
+    lib = list(library(problem.data))
     values: dict[str, np.ndarray] = {}
     for c in lib:
         v = covariate_values(problem, fit, c)

@@ -31,6 +31,7 @@ from hexcal.sim.foreign_more import (
     series_pull,
     stroke_cycle,
     stroke_step,
+    windup_x_stroke,
     yaw_x_stroke,
 )
 from hexcal.sim.simulate import LengthEffect, PoseContext
@@ -41,6 +42,7 @@ from hexcal.sim.simulate import LengthEffect, PoseContext
 MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "yaw cable": (("yaw",),),
     "yaw x stroke": (("stroke*yaw",),),
+    "windup x stroke": (("stroke*last_move",),),
     "tilt error": (("tilt",),),
     "roll or pitch cable": (("roll", "pitch"),),
     "cross-talk": (tuple(f"stroke_leg{j}" for j in range(1, 7)),),
@@ -201,6 +203,10 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
         # 12–18 µm per 5° × 10 mm on every leg: 40–90 µm at the stroke's ends and ±15° of yaw
         coef = _signs(rng) * rng.uniform(0.012, 0.018, 6)
         return Drawn([yaw_x_stroke(coef)], (("stroke*yaw",),))
+    if case == "windup x stroke":
+        # 20–35 µm per 50 mm of free length, either way as the leg last moved, every leg
+        coef = rng.uniform(0.02, 0.035, 6)
+        return Drawn([windup_x_stroke(coef)], (("stroke*last_move",),))
     if case == "roll or pitch cable":
         # A hose pulled as the platform rolls (or pitches) either way: 35–55 µm at 10°, as the
         # angle² (a straight line in roll or pitch the geometry takes up; a knee mostly too)

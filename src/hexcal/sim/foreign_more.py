@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.effects import EffectData
+from hexcal.effects.backlash import motion_state
 from hexcal.effects.compliance import leg_forces
 from hexcal.io.measurements import Measurements
 from hexcal.model.robot import Robot
@@ -61,6 +62,23 @@ def yaw_x_stroke(
         return coef * (yaw[:, None] / per_deg) * (readings - middle_mm) / 10.0
 
     hook.__name__ = "hidden_yaw_x_stroke"
+    return hook
+
+
+def windup_x_stroke(
+    coef_mm: np.ndarray, start_mm: float = 20.0, per_mm: float = 50.0
+) -> LengthEffect:
+    """Leg k reads ``coef_mm[k]``·s·(reading − ``start_mm``)/``per_mm`` short, s = ±1 the
+    direction of its last move: a screw's friction winding it up by more the longer its free
+    length (hysteresis that grows along the stroke: the catalogue's backlash is one play for
+    every reading)."""
+    coef = np.asarray(coef_mm, float)
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        s = motion_state(readings, 0.02)
+        return coef * s * (readings - start_mm) / per_mm
+
+    hook.__name__ = "hidden_windup_x_stroke"
     return hook
 
 
