@@ -15,7 +15,7 @@ import pytest
 from statcheck import floor_limit
 
 from hexcal.app.workflow import Inputs, diagnose_chain
-from hexcal.diagnosis.interaction_search import _determined, parents
+from hexcal.diagnosis.interaction_search import _determined, single_leads
 from hexcal.effects.interactions import parse_product, product_name
 from hexcal.sim import verdict_cases as vc
 from hexcal.sim.session_sim import simulate_session
@@ -66,6 +66,9 @@ def test_a_sign_times_a_quantity_is_a_product():
     lead = last.exploration.lead
     assert lead is not None and lead.covariate.name == "stroke*last_move"
     assert lead.cv_rms_after_mm <= floor_limit(last, extra_params=lead.columns)
+    # It beats the sign alone (play the same at every reading: the catalogue's backlash).
+    sign = next(t for t in last.exploration.tested if t.covariate.name == "last_move")
+    assert sign.heldout < lead.heldout
 
 
 def test_one_covariate_alone_is_not_named_as_a_product():
@@ -85,7 +88,7 @@ def test_a_clean_session_grows_no_product():
     assert str(last.verdict) == "none"
     x = last.exploration
     if x is not None:
-        assert not parents(x.tested)
+        assert not single_leads(x.tested)
         assert not any(parse_product(t.covariate.name) for t in x.tested)
 
 

@@ -33,7 +33,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import norm
 
 from hexcal.diagnosis.interaction_search import products
 from hexcal.diagnosis.leads import Lead, beats, best_of, covariate_values, scoped
@@ -55,6 +54,7 @@ from hexcal.effects.explored import (
 )
 from hexcal.effects.lagged import parse_lag
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
+from hexcal.estimate.quantiles import norm_isf
 
 #: Interior knots of the smooth shapes tried (0: a cubic); cross-validation picks one.
 SPLINE_KNOTS = (0, 4, 11)
@@ -340,7 +340,7 @@ LAG_ALPHA = 0.05
 def _lag_first(out: list[Lead]) -> None:
     """A lagged series handicapped below the lead (:attr:`Lead.ranked_by`) leads after all
     where it predicts held-out poses better than the lead fold by fold, by
-    :func:`scipy.stats.norm.isf` (:data:`LAG_ALPHA` over the lagged series tried) standard
+    :func:`~hexcal.estimate.quantiles.norm_isf` (:data:`LAG_ALPHA` over the lagged series tried) standard
     errors of the paired difference: the handicap guards a smooth curve in time against a
     lag's searched time constant; a series that follows a lab's sensor better than any curve
     in time, pose by held-out pose, is that sensor's (a coolant the part follows slowly)."""
@@ -348,7 +348,7 @@ def _lag_first(out: list[Lead]) -> None:
     lagged = [t for t in out if parse_lag(t.covariate.name) is not None]
     if not sig or not lagged or parse_lag(sig[0].covariate.name) is not None:
         return
-    z = float(norm.isf(LAG_ALPHA / len(lagged)))
+    z = norm_isf(LAG_ALPHA / len(lagged))
     top = sig[0]
     for t in sorted(lagged, key=lambda t: -t.heldout):
         if t.significant and t.heldout > top.heldout and beats(t, top, z):

@@ -15,7 +15,7 @@ the library holds already (the force × stroke), are then scored as every shape 
 cross-validated on the same folds.
 
 A product leads only where it predicts held-out poses better than each of its factors' own
-leads, fold by fold, by :func:`scipy.stats.norm.isf` (:data:`PRODUCT_ALPHA` over the pairs
+leads, fold by fold, by :func:`~hexcal.estimate.quantiles.norm_isf` (:data:`PRODUCT_ALPHA` over the pairs
 screened) standard errors of the paired difference: it holds its factors' lines and so explains
 at least as much as either line does; what it must show is the part no single covariate can.
 """
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import BSpline
-from scipy.stats import norm
 
 from hexcal.diagnosis.leads import Lead, beats, best_of, covariate_values, own_columns, scoped
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
@@ -33,26 +32,24 @@ from hexcal.effects.explored import product
 from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import parse_lag
 from hexcal.estimate.effect_fit import ModelFit, Problem
+from hexcal.estimate.quantiles import norm_isf
 
 #: How many of the pairs screened, most interaction first, are cross-validated in full.
 N_SCREEN = 8
-#: The chance, over every partner searched, that a product beats its factors by noise alone.
+#: The chance, over every pair screened, that a product beats its factors by noise alone.
 PRODUCT_ALPHA = 0.05
 #: Two covariates correlated beyond this are one quantity: their product is a square, which
 #: the smooth shapes along either hold already.
 SAME = 0.98
 
 
-def parents(leads: list[Lead]) -> list[Lead]:
-    """The leads along one continuous covariate that are significant and cross-validated,
-    best held-out first: a product's rivals where they are its factors."""
+def single_leads(leads: list[Lead]) -> list[Lead]:
+    """The leads along one covariate (a sign among them) that are significant and
+    cross-validated, best held-out first: a product's rivals where they are its factors."""
     ok = [
         t
         for t in leads
-        if t.significant
-        and t.folds is not None
-        and not t.covariate.discrete
-        and parse_product(t.covariate.name) is None
+        if t.significant and t.folds is not None and parse_product(t.covariate.name) is None
     ]
     return sorted(ok, key=lambda t: -t.ranked_by)
 
@@ -94,9 +91,9 @@ def products(
     if not screened:
         return {}
     screened.sort(key=lambda row: -row[0])
-    z = float(norm.isf(PRODUCT_ALPHA / len(screened)))
+    z = norm_isf(PRODUCT_ALPHA / len(screened))
     family = tests + 2 * len(screened)
-    own = {t.covariate.name: t for t in parents(leads)}
+    own = {t.covariate.name: t for t in single_leads(leads)}
     out: dict[str, Lead] = {}
     tried = 0
     for _, cov, factors in screened:

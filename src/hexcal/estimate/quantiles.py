@@ -41,6 +41,11 @@ def norm_ppf(p):
     return special.ndtri(p)
 
 
+def norm_isf(q: float) -> float:
+    """The standard normal's upper ``q`` quantile (``scipy.stats.norm.isf``)."""
+    return float(-special.ndtri(q))
+
+
 def norm_pdf(x):
     """The standard normal density at ``x``, a number or an array (``scipy.stats.norm.pdf``)."""
     import numpy as np
