@@ -73,6 +73,9 @@ class EffectData:
     #: The measurement table's extra numeric columns by name, (M,) each: a lab's own sensors
     #: (:func:`hexcal.effects.covariates.numeric_columns`)
     columns: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (M,) the procedure step of each pose (the table's ``step``, e.g. "leg3-direction"), or
+    #: None where the poses come from no procedure (a prediction's)
+    step: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.readings)
@@ -104,6 +107,7 @@ class EffectData:
             robot.b,
             self.extras,
             self.columns,
+            self.step,
         )
 
     def subset(self, idx: np.ndarray) -> EffectData:
@@ -119,6 +123,7 @@ class EffectData:
             self.b,
             self.extras,
             {k: v[idx] for k, v in self.columns.items()},
+            None if self.step is None else self.step[idx],
         )
 
 

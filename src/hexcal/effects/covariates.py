@@ -22,7 +22,8 @@ platform's yaw, the time) is the same for the six legs. The library (:func:`libr
 - the direction of the leg's last move (``last_move``, ±1) and of the platform's along each
   axis (``platform_move_x`` … ``_z``);
 - ``time`` (s from the session's start), ``temperature`` (°C) and the place in the procedure
-  (``pose_index``, the pose's rank in recording order);
+  (``pose_index``, the pose's rank in recording order; ``step_time``, s since the pose's
+  procedure step began: a clamp that settles, a structure that relaxes after each step);
 - every extra numeric column of the measurement table, by its own name (a second
   thermometer, humidity, a motor current): a lab's own sensor is a covariate without code;
 - the temperature and every such column seen through a first-order lag (``NAME~lagTs``,
@@ -179,6 +180,19 @@ def _force_x_length2(data: EffectData) -> np.ndarray:
     return _force(data) * (data.lengths / 1000.0) ** 2
 
 
+def _step_time(data: EffectData) -> np.ndarray:
+    """(M,) s since the first pose of each pose's procedure step, in recording order; a step
+    begins anew wherever the step changes from one pose to the next (poses from no procedure,
+    ``data.step`` None, are one step)."""
+    t = np.asarray(data.t, float)
+    if data.step is None or len(t) == 0:
+        return t - (float(t[0]) if len(t) else 0.0)
+    step = np.asarray(data.step, dtype=object)
+    start = np.r_[True, step[1:] != step[:-1]]
+    first = np.maximum.accumulate(np.where(start, np.arange(len(t)), 0))
+    return t - t[first]
+
+
 _STROKE_PHYSICS = (
     "an encoder scale that bends or repeats along the stroke, a dent or a worn stretch of a "
     "screw or a rail"
@@ -248,6 +262,10 @@ FIXED: tuple[Covariate, ...] = (
               "something changing during the session (warm-up, a slipping mount, an encoder "
               "drifting)", lambda d: _per_pose(np.asarray(d.t, float) - float(np.min(d.t))),
               periodic=True, per_pose=True),
+    Covariate("step_time", "time since the pose's procedure step began", "s",
+              "something that settles anew in every step (a clamp seating, a leg relaxing "
+              "after it is clamped or released, a structure warmed by the last step's moves)",
+              lambda d: _per_pose(_step_time(d)), per_pose=True),
     Covariate("pose_index", "place in the procedure (the pose's rank)", "",
               "something that changes with the procedure's course (a step's clamp, wear, the "
               "order the poses were taken in)",

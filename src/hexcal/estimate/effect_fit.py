@@ -184,6 +184,7 @@ class Problem:
             linear42.a,
             linear42.b,
             columns=numeric_columns(meas.extra),
+            step=np.asarray(meas.step, dtype=object),
         )
         return cls(meas, design, sigmas, linear42, data)
 

@@ -29,6 +29,7 @@ from hexcal.sim.foreign_more import (
     knock_tracker,
     position_pull,
     series_pull,
+    settling_per_step,
     stroke_cycle,
     stroke_step,
     windup_x_stroke,
@@ -43,6 +44,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "yaw cable": (("yaw",),),
     "yaw x stroke": (("stroke*yaw",),),
     "windup x stroke": (("stroke*last_move",),),
+    "settling per step": (("step_time",),),
     "tilt error": (("tilt",),),
     "roll or pitch cable": (("roll", "pitch"),),
     "cross-talk": (tuple(f"stroke_leg{j}" for j in range(1, 7)),),
@@ -207,6 +209,12 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
         # 20–35 µm per 50 mm of free length, either way as the leg last moved, every leg
         coef = rng.uniform(0.02, 0.035, 6)
         return Drawn([windup_x_stroke(coef)], (("stroke*last_move",),))
+    if case == "settling per step":
+        # 3 legs, 60–100 µm at each step's start, settling with τ 20–60 s (a step lasts 2–9 min)
+        amp = _subset(rng, 3, 3) * _signs(rng) * rng.uniform(0.06, 0.10, 6)
+        return Drawn(
+            [], (("step_time",),), finish=settling_per_step(amp, float(rng.uniform(20, 60)))
+        )
     if case == "roll or pitch cable":
         # A hose pulled as the platform rolls (or pitches) either way: 35–55 µm at 10°, as the
         # angle² (a straight line in roll or pitch the geometry takes up; a knee mostly too)

@@ -13,6 +13,7 @@ recording order), as :func:`hexcal.sim.inject.zero_jump_hook` does.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -80,6 +81,25 @@ def windup_x_stroke(
 
     hook.__name__ = "hidden_windup_x_stroke"
     return hook
+
+
+def settling_per_step(amp_mm: np.ndarray, tau_s: float) -> Callable[[Measurements], Measurements]:
+    """The session with each leg reading ``amp_mm[k]``·e^(−s/``tau_s``) long, s the time since
+    its procedure step began (a clamp that seats, a leg that relaxes, anew in every step):
+    applied to the measured session, whose steps the poses' own hooks do not see."""
+    amp = np.asarray(amp_mm, float)
+
+    def finish(meas: Measurements) -> Measurements:
+        since = np.zeros(len(meas))
+        began = 0
+        for i in range(len(meas)):  # recording order: a step begins where the label changes
+            if i and meas.step[i] != meas.step[i - 1]:
+                began = i
+            since[i] = meas.t[i] - meas.t[began]
+        readings = meas.readings + amp * np.exp(-since / tau_s)[:, None]
+        return dataclasses.replace(meas, readings=readings)
+
+    return finish
 
 
 def angle_pull(
