@@ -8,7 +8,10 @@ the procedure and the table's own numeric columns) is tried with every shape of
 :mod:`hexcal.effects.explored` — a line, a smooth spline (its knot count chosen by
 cross-validation), a periodic error at the period a periodogram over the covariate finds, a
 step at a split of it, a bend (two lines meeting at a knee), its sign — on the legs whose own
-share is significant, on all six, each leg with its own coefficients or all sharing one set.
+share is significant, on all six, each leg with its own coefficients or all sharing one set;
+and every pair of covariates acting together, their product
+(:mod:`hexcal.diagnosis.interaction_search`). A lead, its scoring and its cross-validation are
+:mod:`hexcal.diagnosis.leads`.
 
 A shape counts when its score at the current fit (the model's own parameters projected out,
 :func:`hexcal.diagnosis.scoring.block_score`) exceeds the Bonferroni-corrected χ² threshold over
