@@ -3,7 +3,7 @@ shape, each hiding an effect outside the catalogue, run through the commands the
 
     python benchmarks/explorer_examples.py [--out docs/walkthrough/explorer] [--only SHAPE ...]
 
-For each shape (a line, a cubic, a periodic error, a step, a sign, a product of two
+For each shape (a line, a cubic, a periodic error, a step, a sign, a bend, a product of two
 covariates) it writes the session
 (measurements.csv, robot.json, instruments.json), then runs, as a user would:
 
@@ -36,6 +36,7 @@ EXAMPLES = {
     "periodic": ("cycle 7.3 mm", 1),
     "step": ("scale joint", 1),
     "sign": ("joint play", 22),
+    "bend": ("hose taut", 3),
     "product": ("yaw x stroke", 1),
 }
 

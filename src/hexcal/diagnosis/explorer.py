@@ -400,6 +400,8 @@ def _refit(problem: Problem, fit: ModelFit, leads: list[Lead], out: Exploration)
             basis = problem.basis(name)
         lead.cv_rms_after_mm = after.cv_rms_mm
         lead.fitted = basis @ coef if basis.shape[-1] == coef.size else None
+        if after.residuals.shape == fit.residuals.shape:
+            lead.explained = fit.residuals - after.residuals
         z = heldout_gain(fit, after, chol, out.level)[1] if chol is not None else 0.0
         if not after.cv_rms_mm < fit.cv_rms_mm:
             lead.worse = True

@@ -50,14 +50,24 @@ class Lead:
     folds: np.ndarray | None = None
     #: (M, 6, 2) a product covariate's two factors at each pose and leg (its shape's input)
     factors: np.ndarray | None = None
+    #: (M, 6) mm what the refit with the lead takes out of the model's residual (the
+    #: residual before less after: the lead's contribution less what the geometry, refitted
+    #: with it, takes up again)
+    explained: np.ndarray | None = None
 
     def seen_um(self) -> np.ndarray | None:
-        """(M, 6) µm the refitted lead as the residual sees it (the reading less the
-        prediction: the lead, once added, takes away −(its contribution)), each leg's mean
-        left out (the offsets' constant); None before it is refitted."""
-        if self.fitted is None:
+        """(M, 6) µm the refitted lead as the model's residual sees it: what the refit with
+        it takes out of that residual (:attr:`explained`; where only its own contribution is
+        known, −(that contribution), the residual being the reading less the prediction),
+        each leg's mean left out (the offsets' constant); None before it is refitted. Not the
+        contribution alone: the geometry, refitted with the lead, takes up again what it
+        shares with it (a bend's straight part), which the residual never showed."""
+        if self.explained is not None:
+            c = np.asarray(self.explained) * 1000.0
+        elif self.fitted is not None:
+            c = -np.asarray(self.fitted) * 1000.0
+        else:
             return None
-        c = -np.asarray(self.fitted) * 1000.0
         return c - c.mean(axis=0)
 
     def axis(self) -> tuple[np.ndarray, str, str]:

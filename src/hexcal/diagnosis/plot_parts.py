@@ -206,7 +206,8 @@ def leg_scatter(
     curve: np.ndarray | None = None,
 ) -> Path:
     """Six panels, one per leg: held-out residual against ``x`` (M, 6), floor band, running
-    median; and ``curve`` (M, 6) µm, a fitted shape, drawn over it where given."""
+    median; and ``curve`` (M, 6) µm, what a fitted shape takes out of it, drawn over it (its
+    running median) where given."""
     fig, axes = leg_grid()
     for k, ax in enumerate(axes):
         xk, rk = x[:, k], view.resid_um[:, k]
@@ -216,8 +217,11 @@ def leg_scatter(
         xs, ms = running(xk, rk)
         ax.plot(xs, ms, "-", color="k", lw=1.6)
         if curve is not None and np.ptp(curve[:, k]) > 0:
-            order = np.argsort(xk, kind="stable")
-            ax.plot(xk[order], curve[order, k], "-", color=LEAD_COLOUR, lw=1.8)
+            # What the lead takes out of the residual is no function of x alone (the geometry
+            # refitted with it takes up its part pose by pose): its running median, as the
+            # residual's, so that the two lines meet where the lead explains.
+            xc, mc = running(xk, curve[:, k])
+            ax.plot(xc, mc, "-", color=LEAD_COLOUR, lw=1.8)
         ax.set_title(f"leg {k + 1}", fontsize=10)
         ax.set_xlabel(xlabel)
         ax.grid(True, alpha=0.25)
@@ -226,7 +230,9 @@ def leg_scatter(
     figure_title(fig, view, what + (f" ({note})" if note else ""))
     legend = legend_handles(view)
     if curve is not None:
-        legend.append(Line2D([], [], color=LEAD_COLOUR, lw=1.8, label="the lead's fitted shape"))
+        legend.append(
+            Line2D([], [], color=LEAD_COLOUR, lw=1.8, label="what the lead takes out (median)")
+        )
     return finish(fig, outdir, name, legend)
 
 

@@ -45,6 +45,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "yaw x stroke": (("stroke*yaw",),),
     "windup x stroke": (("stroke*last_move",),),
     "settling per step": (("step_time",),),
+    "hose taut": (("roll", "pitch"),),
     "tilt error": (("tilt",),),
     "roll or pitch cable": (("roll", "pitch"),),
     "cross-talk": (tuple(f"stroke_leg{j}" for j in range(1, 7)),),
@@ -221,6 +222,12 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
         name = str(rng.choice(["roll", "pitch"]))
         coef = _signs(rng) * rng.uniform(0.035, 0.055, 6) / 10.0**2
         return Drawn([angle_pull(name, coef, power=2)], ((name,),))
+    if case == "hose taut":
+        # A hose slack until the platform rolls (or pitches) past 1–4°, then pulling every leg
+        # by 9–14 µm per degree beyond: a bend, flat on one side of its knee
+        name = str(rng.choice(["roll", "pitch"]))
+        coef = _signs(rng) * rng.uniform(0.009, 0.014, 6)
+        return Drawn([angle_pull(name, coef, knee_deg=float(rng.uniform(1.0, 4.0)))], ((name,),))
     if case == "tilt error":
         # joints seating as the platform tilts, on 4–6 legs: 30–50 µm at 10°, as the tilt²
         # (the geometry takes up about half of it: a straight line in tilt is taken up alike)
