@@ -232,6 +232,8 @@ def test_pose_products_score_as_the_rows_do():
     got = pp.stats(f).score()
     want = block_score(d.fit, whitened_columns(d.fit, shape.basis(values)))
     assert got == pytest.approx(want, rel=1e-6)
+    # The screen over all poses as one block scores alike (the products' search uses it).
+    assert pp.in_sample(f).score() == pytest.approx(want, rel=1e-6)
 
 
 def test_the_text_ui_sketches_the_residual_against_the_lead_and_its_shape(foreign):

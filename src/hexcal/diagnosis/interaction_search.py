@@ -125,7 +125,7 @@ def _interaction(scorer: PoseProducts, factors: np.ndarray) -> float:
     """The in-sample χ² (over the noise level) a product's own columns a·b add, leg by leg,
     to its two lines a and b: what the pair explains beyond its two covariates alone."""
     shape = product(factors)
-    full = scorer.stats(own_columns(shape, factors))
+    full = scorer.in_sample(own_columns(shape, factors))
     keep = np.zeros((18, 12))
     for k in range(6):  # each leg's columns: a·b, a, b
         keep[3 * k + 1, 2 * k] = keep[3 * k + 2, 2 * k + 1] = 1.0

@@ -78,6 +78,20 @@ class PoseProducts:
             )
         return self._projected(parts)
 
+    def in_sample(self, f: np.ndarray) -> ColumnStats:
+        """:meth:`stats` of the columns F (M, 6, per) over all poses as one block: the same
+        in-sample :meth:`ColumnStats.score` (the folds' products summed: ΣP_fᵀP_f =
+        WᵀW − 2XᵀX + Xᵀ(Σ qfᵀqf)X), for a fifth of the work, and no held-out figure — a
+        screen over many candidates."""
+        per = f.shape[2]
+        p = 6 * per
+        graw = np.einsum("mka,mkl,mlb->kalb", f, self.c, f).reshape(p, p)
+        x = -np.einsum("mkr,mka->rka", self.a, f).reshape(-1, p)
+        bw = -np.einsum("mka,mk->ka", f, self.d).reshape(p)
+        g = graw - 2.0 * x.T @ x + x.T @ self.qf.sum(0) @ x
+        b = bw - x.T @ self.zf.sum(0)
+        return ColumnStats(g[None], b[None], graw, self.level)
+
     def joint_stats(self, basis: np.ndarray) -> ColumnStats:
         """The projected products of a basis (M, 6, p) whose columns span several legs (a
         rigid move's)."""
