@@ -183,6 +183,33 @@ def _room(rng: np.random.Generator) -> Callable[[Measurements], Measurements]:
     return finish
 
 
+def _draw_shapes(case: str, rng: np.random.Generator) -> Drawn | None:
+    """The cases of the classes added with the explorer's products, its step time and its bend
+    (two covariates acting together, a sign among them; a settling in every step; a knee in an
+    angle), or None for another case."""
+    if case == "yaw x stroke":
+        # 12–18 µm per 5° × 10 mm on every leg: 40–90 µm at the stroke's ends and ±15° of yaw
+        coef = _signs(rng) * rng.uniform(0.012, 0.018, 6)
+        return Drawn([yaw_x_stroke(coef)], (("stroke*yaw",),))
+    if case == "windup x stroke":
+        # 20–35 µm per 50 mm of free length, either way as the leg last moved, every leg
+        coef = rng.uniform(0.02, 0.035, 6)
+        return Drawn([windup_x_stroke(coef)], (("stroke*last_move",),))
+    if case == "settling per step":
+        # 3 legs, 60–100 µm at each step's start, settling with τ 20–60 s (a step lasts 2–9 min)
+        amp = _subset(rng, 3, 3) * _signs(rng) * rng.uniform(0.06, 0.10, 6)
+        return Drawn(
+            [], (("step_time",),), finish=settling_per_step(amp, float(rng.uniform(20, 60)))
+        )
+    if case == "hose taut":
+        # A hose slack until the platform rolls (or pitches) past 1–4°, then pulling every leg
+        # by 9–14 µm per degree beyond: a bend, flat on one side of its knee
+        name = str(rng.choice(["roll", "pitch"]))
+        coef = _signs(rng) * rng.uniform(0.009, 0.014, 6)
+        return Drawn([angle_pull(name, coef, knee_deg=float(rng.uniform(1.0, 4.0)))], ((name,),))
+    return None
+
+
 def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Drawn:
     """The hidden effect(s) of ``case`` (:data:`MORE`) for a session of ``n_poses`` poses of
     the robot ``truth``, drawn from ``rng``."""
@@ -199,35 +226,18 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
             return meas
 
         return Drawn([*a.hooks, *b.hooks], a.covariates + b.covariates, finish=finish)
+    shaped = _draw_shapes(case, rng)
+    if shaped is not None:
+        return shaped
     if case == "yaw cable":
         # 1.5–4 µm/deg on every leg: 20–60 µm at the ±15° the session turns the platform
         return Drawn([angle_pull("yaw", _signs(rng) * rng.uniform(0.0015, 0.004, 6))], (("yaw",),))
-    if case == "yaw x stroke":
-        # 12–18 µm per 5° × 10 mm on every leg: 40–90 µm at the stroke's ends and ±15° of yaw
-        coef = _signs(rng) * rng.uniform(0.012, 0.018, 6)
-        return Drawn([yaw_x_stroke(coef)], (("stroke*yaw",),))
-    if case == "windup x stroke":
-        # 20–35 µm per 50 mm of free length, either way as the leg last moved, every leg
-        coef = rng.uniform(0.02, 0.035, 6)
-        return Drawn([windup_x_stroke(coef)], (("stroke*last_move",),))
-    if case == "settling per step":
-        # 3 legs, 60–100 µm at each step's start, settling with τ 20–60 s (a step lasts 2–9 min)
-        amp = _subset(rng, 3, 3) * _signs(rng) * rng.uniform(0.06, 0.10, 6)
-        return Drawn(
-            [], (("step_time",),), finish=settling_per_step(amp, float(rng.uniform(20, 60)))
-        )
     if case == "roll or pitch cable":
         # A hose pulled as the platform rolls (or pitches) either way: 35–55 µm at 10°, as the
         # angle² (a straight line in roll or pitch the geometry takes up; a knee mostly too)
         name = str(rng.choice(["roll", "pitch"]))
         coef = _signs(rng) * rng.uniform(0.035, 0.055, 6) / 10.0**2
         return Drawn([angle_pull(name, coef, power=2)], ((name,),))
-    if case == "hose taut":
-        # A hose slack until the platform rolls (or pitches) past 1–4°, then pulling every leg
-        # by 9–14 µm per degree beyond: a bend, flat on one side of its knee
-        name = str(rng.choice(["roll", "pitch"]))
-        coef = _signs(rng) * rng.uniform(0.009, 0.014, 6)
-        return Drawn([angle_pull(name, coef, knee_deg=float(rng.uniform(1.0, 4.0)))], ((name,),))
     if case == "tilt error":
         # joints seating as the platform tilts, on 4–6 legs: 30–50 µm at 10°, as the tilt²
         # (the geometry takes up about half of it: a straight line in tilt is taken up alike)
