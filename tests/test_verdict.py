@@ -30,7 +30,7 @@ from hexcal.diagnosis.text import diagnosis_text
 from hexcal.diagnosis.verdict import judge
 from hexcal.estimate.effect_fit import Problem
 from hexcal.sim import verdict_cases as vc
-from hexcal.sim.inject import effect_hook, realistic_values
+from hexcal.sim.inject import effect_hook, realistic_values, zero_jump_hook
 from hexcal.sim.robots import left_hand
 from hexcal.sim.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
 from hexcal.sim.simulate import NoiseModel
@@ -211,3 +211,27 @@ def test_an_estimated_floor_above_the_best_held_out_residual_comes_down_to_it():
     n = j.floor.size
     p = n - j.fit.dof
     assert rms == pytest.approx(0.01 * np.sqrt(1 + p / n), abs=4 * 0.01 / np.sqrt(2 * n))
+
+
+def test_a_searched_zero_step_pays_in_delta_bic_for_its_time_as_well_as_its_size():
+    """Two legs' zeros jump (leg 2 by +50 µm at pose 61, leg 5 by −50 µm at pose 121): both
+    steps are found, and ΔBIC (stated noise: Δχ² + k·ln n over the n = 6M leg rows, by hand)
+    counts each step twice — its size, fitted, and its time, searched — while an effect
+    fitted without a search counts its parameters once."""
+    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(7)
+    plan = SessionPlan(temperature_rise_k=5.0)
+    truth = perturbed_truth(design, rng, plan)
+    jumps = [zero_jump_hook(2, 60, 0.05), zero_jump_hook(5, 120, -0.05)]
+    meas, _ = simulate_session(design, 7, plan, effects=jumps, truth=truth)
+    d = diagnose(meas, design, 42, instruments=vc.INSTRUMENTS)
+    assert d.verdict == "zero_step" and not d.outlier_ids
+    assert sorted((c.leg, c.pose_id) for c in d.changes) == [(2, 61), (5, 121)]
+    ln_n = np.log(6 * len(meas))
+    refitted = [c for c in d.candidates if c.refit is not None]
+    assert len(refitted) > 1
+    for c in refitted:
+        dchi2 = c.refit.chi2 - d.fit.chi2
+        k = c.refit.n_params - d.fit.n_params
+        searched = len(d.changes) if c.effect == "zero_step" else 0
+        assert c.delta_bic == pytest.approx(dchi2 + (k + searched) * ln_n, abs=1e-6), c.effect
