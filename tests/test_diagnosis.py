@@ -15,6 +15,14 @@ from statcheck import floor_limit
 
 from hexcal.app.cli import main
 from hexcal.diagnosis import diagnose
+from hexcal.diagnosis.scoring import (
+    block_score,
+    needed_resolution,
+    orthonormal,
+    projected_scores,
+    whitened_columns,
+)
+from hexcal.effects.base import ParamSpec
 from hexcal.estimate.effect_fit import Problem, fit_model
 from hexcal.model.noise import NoiseSigmas
 from hexcal.sim.foreign import local_dent
@@ -200,3 +208,62 @@ def test_residual_table_has_every_pose_and_leg(backlash_diagnoses, tmp_path):
     assert float(r["measured_mm"]) - float(r["predicted_mm"]) == pytest.approx(
         float(r["residual_um"]) / 1000, abs=1e-6
     )
+
+
+def _rss(a: np.ndarray, r: np.ndarray) -> float:
+    """The least-squares residual sum of squares of ``r`` on the columns of ``a`` (numpy's)."""
+    x = np.linalg.lstsq(a, r, rcond=None)[0]
+    return float(np.sum((r - a @ x) ** 2))
+
+
+def test_orthonormal_spans_the_columns_and_drops_only_dependent_ones():
+    """Against numpy: as many columns as ``matrix_rank`` (SVD) counts, orthonormal, spanning
+    the columns — at any overall scale (1e-12 mm), with columns 8 decades apart in size, and
+    with one column a combination of two others (dropped)."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(60, 5))
+    dependent = np.column_stack([a, a[:, 0] + 2 * a[:, 1]])
+    cases = [a, 1e-12 * a, a * np.logspace(4, -4, 5), dependent]
+    for m in cases:
+        q = orthonormal(m)
+        assert q.shape == (60, np.linalg.matrix_rank(m))
+        np.testing.assert_allclose(q.T @ q, np.eye(q.shape[1]), atol=1e-12)
+        np.testing.assert_allclose(q @ (q.T @ m), m, atol=1e-9 * np.abs(m).max())
+
+
+def test_a_basis_scores_the_chi2_numpys_least_squares_removes_with_it(design):
+    """At a fitted Model 42 on a gain session, the χ² each gain column removes alone, and the
+    block removes together, is numpy's drop in the residual sum of squares when the column (or
+    block) is added to the fit's whitened Jacobian — at any column scale; a column the
+    Jacobian absorbs removes nothing. Rounding only: to 1e-6 of the χ²."""
+    meas, design = _session(
+        design, 303, lambda rng, t: [effect_hook("gain", realistic_values("gain", rng, t), t)]
+    )
+    problem = Problem.build(meas, design, NoiseSigmas.from_instruments(INST))
+    fit = fit_model(problem, ("offset",))
+    jw, rw, _ = fit.refinement.whitened()
+    chi2 = float(rw @ rw)
+    gain = whitened_columns(fit, problem.basis("gain"))
+    absorbed = jw @ np.random.default_rng(1).normal(size=jw.shape[1])
+    cols = np.column_stack([gain, 1e-6 * gain[:, 0], absorbed])
+    base = _rss(jw, rw)
+    want = [base - _rss(np.column_stack([jw, c]), rw) for c in cols.T]
+    got = projected_scores(fit, cols)
+    np.testing.assert_allclose(got, want, atol=1e-6 * chi2)
+    assert got[-1] == 0.0 and got[:6].max() > 1e3 * 1e-6 * chi2
+    block = np.column_stack([gain, gain[:, 0] + gain[:, 1]])  # one column dependent
+    assert block_score(fit, block) == pytest.approx(
+        base - _rss(np.column_stack([jw, gain]), rw), abs=1e-6 * chi2
+    )
+
+
+def test_a_parameter_without_its_own_resolution_must_resolve_a_tenth_of_its_half_width():
+    """ParamSpec's documented default: a tenth of the plausible half-width (a fraction, so a
+    parameter known no better than its prior range is never separable); its own resolution
+    otherwise."""
+    specs = [
+        ParamSpec("x.a", "mm", (-0.4, 0.6)),
+        ParamSpec("x.b", "ppm", (0.0, 30.0)),
+        ParamSpec("x.c", "mm", (-1.0, 1.0), resolution=0.3),
+    ]
+    np.testing.assert_allclose(needed_resolution(specs), [0.05, 1.5, 0.3], rtol=1e-12)

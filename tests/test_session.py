@@ -11,6 +11,7 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -345,3 +346,120 @@ def test_import_refuses_a_table_beyond_what_a_session_holds_before_writing(
     assert "184 poses; a session holds at most 100 imported poses" in err
     assert "hexcal.io.capacity.MAX_IMPORTED_POSES" in err
     assert f"{out} was not written" in err and list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_write_is_a_session_error_and_the_saved_state_stays(tmp_path, design, monkeypatch):
+    """The disk refusing the session file (here the writer raising what a full disk gives)
+    reaches the caller as a SessionFileError saying the last saved state is still on disk, and
+    that state loads as it was; a new file that cannot be written says it was not created."""
+    from hexcal.io.fileio import OutputFileError
+    from hexcal.procedure import session as session_module
+
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    sf.add_note("before")
+
+    def full(path, text, *a, **k):
+        raise OutputFileError(f"{path}: no space left on the device", path)
+
+    monkeypatch.setattr(session_module, "write_text_atomic", full)
+    with pytest.raises(SessionFileError, match="the last saved state is still on disk"):
+        sf.add_note("after")
+    assert [n.text for n in load_session(sf.path).notes] == ["before"]
+    with pytest.raises(SessionFileError, match="the session file was not created"):
+        SessionFile.create(tmp_path / "new.json", Session(robot=design))
+    monkeypatch.undo()
+    # The pose block (written before the file naming it) refused alike.
+    monkeypatch.setattr(session_module, "write_block", lambda s, path: full(path, ""))
+    with pytest.raises(SessionFileError, match="the last saved state is still on disk"):
+        sf.add_note("after")
+    assert [n.text for n in load_session(sf.path).notes] == ["before"]
+
+
+def test_a_temperature_column_comes_after_the_required_ones_in_the_export(tmp_path, design):
+    """The first pose with a temperature adds the column after the interchange table's
+    required columns (docs/formats.md's order), and the export writes that header."""
+    from hexcal.io.measurements import REQUIRED_COLUMNS
+    from hexcal.procedure.session import export_session
+
+    rng = np.random.default_rng(3)
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    for t, temp in [(0.0, 20.0), (1.0, 21.5)]:
+        pose = sf.session.pose_record(recorded_pose(rng), "free", 0, "free", t=t, temperature=temp)
+        sf.add_pose(pose)
+    want = [*REQUIRED_COLUMNS, "temperature"]
+    assert load_session(sf.path).columns == want
+    export_session(load_session(sf.path), tmp_path / "out")
+    header = (tmp_path / "out" / "measurements.csv").read_text().splitlines()
+    assert next(h for h in header if not h.startswith("#")).split(",") == want
+
+
+def test_the_export_writes_the_latest_of_several_models(tmp_path, design):
+    """Three results holding a model, each a robot scaled differently: calibrated.json is the
+    last one's (the time written beside it), whatever their number."""
+    from datetime import UTC, datetime
+
+    from hexcal.procedure.session import export_session
+    from hexcal.procedure.session_model import ResultRecord
+
+    rng = np.random.default_rng(4)
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    sf.add_pose(sf.session.pose_record(recorded_pose(rng), "free", 0, "free", t=0.0))
+    for k, mass in enumerate([11.0, 12.0, 13.0]):
+        robot = design.model_copy(update={"platform_mass_kg": mass})
+        at = datetime(2026, 11, 28, 9 + k, 0, tzinfo=UTC)
+        sf.add_result(ResultRecord(kind="calibration", model=42, robot=robot, at=at))
+    written = export_session(load_session(sf.path), tmp_path / "out")
+    assert written[-1] == "calibrated.json (Model 42 geometry, 2026-11-28 11:00)"
+    assert load_robot(tmp_path / "out" / "calibrated.json").platform_mass_kg == 13.0
+
+
+def test_a_refused_pose_is_set_aside_and_a_pose_with_a_non_number_names_it(tmp_path, design):
+    """Through the recording sink: a refused pose goes to set_aside with its reason, not to the
+    poses; a pose whose reading is NaN is refused naming the reading, nothing saved."""
+    rng = np.random.default_rng(5)
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    sink = sf.recording_sink(run_start=0.0)
+    step = SimpleNamespace(name="leg1-length", leg=1, constraint="length")
+    sink("pose", step, recorded_pose(rng), "")
+    sink("refused", step, recorded_pose(rng), "the tracker lost the tool")
+    s = load_session(sf.path)
+    assert [p.pose_id for p in s.poses] == [1]
+    assert [(a.step, a.reason) for a in s.set_aside] == [
+        ("leg1-length", "the tracker lost the tool")
+    ]
+    bad = recorded_pose(rng)
+    bad.readings[2] = np.nan
+    with pytest.raises(SessionFileError, match="readings") as err:
+        sink("pose", step, bad, "")
+    assert "without values" not in str(err.value)
+    assert len(load_session(sf.path).poses) == 1
+
+
+def test_a_rebooted_encoder_is_noted_on_its_pose_and_logged_with_that_note(
+    tmp_path, design, caplog
+):
+    """Leg 2's encoder reports one reboot at the second pose (the pose also carries a flagged
+    sample's note): the pose's last note names leg 2's reboot, and the warning logged is
+    that note, not the pose's other one."""
+    import dataclasses
+    import logging
+
+    rng = np.random.default_rng(6)
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    sink = sf.recording_sink(run_start=0.0)
+    step = SimpleNamespace(name="free", leg=0, constraint="free")
+    sink("pose", step, recorded_pose(rng), "")
+    pose = recorded_pose(rng)
+    pose = dataclasses.replace(
+        pose,
+        notes=("leg 6 sent no position in one set",),
+        leg_samples=[dataclasses.replace(s, reboots=(0, 1, 0, 0, 0, 0)) for s in pose.leg_samples],
+    )
+    with caplog.at_level(logging.WARNING):
+        sink("pose", step, pose, "")
+    notes = load_session(sf.path).poses[-1].notes
+    assert notes[0] == "leg 6 sent no position in one set"
+    assert notes[-1].startswith("leg 2's encoder rebooted before this pose (pose 2)")
+    assert [r.getMessage() for r in caplog.records if "rebooted" in r.getMessage()] == [
+        f"{sf.path}: {notes[-1]}"
+    ]

@@ -27,8 +27,13 @@ from hexcal.diagnosis.selection import alike as _alike
 from hexcal.diagnosis.selection import indistinct as _indistinct
 from hexcal.diagnosis.selection import wins as _wins
 from hexcal.diagnosis.text import diagnosis_text
+from hexcal.diagnosis.verdict import judge
+from hexcal.estimate.effect_fit import Problem
 from hexcal.sim import verdict_cases as vc
-from hexcal.sim.session_sim import bump_poses
+from hexcal.sim.inject import effect_hook, realistic_values, zero_jump_hook
+from hexcal.sim.robots import left_hand
+from hexcal.sim.session_sim import SessionPlan, bump_poses, perturbed_truth, simulate_session
+from hexcal.sim.simulate import NoiseModel
 
 
 def _cand(
@@ -155,3 +160,78 @@ def test_the_json_carries_the_new_verdicts_fields(backlash_diagnoses):
     assert isinstance(out["alike"], list) and isinstance(out["changes"], list)
     for cand in out["candidates"]:
         assert "heldout_z" in cand
+
+
+def _estimated_noise_judgement(noise, hidden=None, seed=5):
+    """Judge a Left Hand session simulated with ``noise`` (and ``hidden`` at its realistic
+    size) without an instruments file, the floor then estimated from the residual."""
+    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(90_000 + seed)
+    plan = SessionPlan(temperature_rise_k=5.0, noise=noise)
+    truth = perturbed_truth(design, rng, plan)
+    hooks = [effect_hook(hidden, realistic_values(hidden, rng, truth), truth)] if hidden else []
+    meas, _ = simulate_session(design, seed, plan, effects=hooks, truth=truth)
+    notes: list[str] = []
+    return judge(Problem.build(meas, design, None), ("offset",), None, notes)
+
+
+def test_an_estimated_noise_level_twice_the_typical_one_leaves_a_clean_session_at_the_floor():
+    """Tracker and encoders twice as noisy as the typical instruments the estimate is relative
+    to (DEFAULT_SIGMAS), nothing hidden, no instruments file: the level s² is the simulated
+    2² = 4 and the fit's χ² over the floor it sets is 1. σ of s² is s²·√(2/dof) (the χ²
+    distribution over dof ≈ 1060 rows), σ of χ²/dof √(2/dof); the band is 4 σ."""
+    j = _estimated_noise_judgement(NoiseModel(0.02, 0.004, 0.004))
+    dof = j.fit.dof
+    assert j.s2 == pytest.approx(4.0, abs=4 * 4.0 * np.sqrt(2 / dof))
+    assert j.chi2_per_dof == pytest.approx(1.0, abs=4 * np.sqrt(2 / dof))
+    assert not j.excess and j.verdict == "none"
+
+
+def test_an_effect_hidden_under_an_estimated_noise_level_explains_all_of_the_excess():
+    """Gain hidden at its realistic size under noise twice the typical one, no instruments
+    file: the excess over the estimated floor is the gain's, so the share it explains is 1
+    within 4 σ, σ = √(2·dof)·s² / (χ² − dof·s²) (the refit's χ² spread over that excess)."""
+    j = _estimated_noise_judgement(NoiseModel(0.02, 0.004, 0.004), hidden="gain")
+    assert j.excess and j.verdict == "gain"
+    gain = next(c for c in j.candidates if c.effect == "gain")
+    excess = j.fit.chi2 - j.fit.dof * 4.0  # over the simulated level
+    assert gain.explained == pytest.approx(1.0, abs=4 * np.sqrt(2 * j.fit.dof) * 4.0 / excess)
+
+
+def test_an_estimated_floor_above_the_best_held_out_residual_comes_down_to_it():
+    """Encoder noise only (10 µm; the tracker's 20× below typical): the typical mix the level
+    is estimated in turns it into a floor above what any model leaves on held-out poses, so
+    the floor is capped there, and then lies within 4 σ of the simulated 10 µm, σ = 10 µm /
+    √(2·6M) (the RMS of 6M residuals), beside the cross-validation's p/n inflation."""
+    j = _estimated_noise_judgement(NoiseModel(0.0005, 0.0001, 0.01))
+    heldout = [j.fit.cv_rms_mm] + [c.refit.cv_rms_mm for c in j.candidates if c.refit]
+    rms = float(np.sqrt(np.mean(j.floor**2)))
+    assert j.floor_scale < 1.0
+    assert rms <= min(heldout) * (1 + 1e-12)
+    n = j.floor.size
+    p = n - j.fit.dof
+    assert rms == pytest.approx(0.01 * np.sqrt(1 + p / n), abs=4 * 0.01 / np.sqrt(2 * n))
+
+
+def test_a_searched_zero_step_pays_in_delta_bic_for_its_time_as_well_as_its_size():
+    """Two legs' zeros jump (leg 2 by +50 µm at pose 61, leg 5 by −50 µm at pose 121): both
+    steps are found, and ΔBIC (stated noise: Δχ² + k·ln n over the n = 6M leg rows, by hand)
+    counts each step twice — its size, fitted, and its time, searched — while an effect
+    fitted without a search counts its parameters once."""
+    design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
+    rng = np.random.default_rng(7)
+    plan = SessionPlan(temperature_rise_k=5.0)
+    truth = perturbed_truth(design, rng, plan)
+    jumps = [zero_jump_hook(2, 60, 0.05), zero_jump_hook(5, 120, -0.05)]
+    meas, _ = simulate_session(design, 7, plan, effects=jumps, truth=truth)
+    d = diagnose(meas, design, 42, instruments=vc.INSTRUMENTS)
+    assert d.verdict == "zero_step" and not d.outlier_ids
+    assert sorted((c.leg, c.pose_id) for c in d.changes) == [(2, 61), (5, 121)]
+    ln_n = np.log(6 * len(meas))
+    refitted = [c for c in d.candidates if c.refit is not None]
+    assert len(refitted) > 1
+    for c in refitted:
+        dchi2 = c.refit.chi2 - d.fit.chi2
+        k = c.refit.n_params - d.fit.n_params
+        searched = len(d.changes) if c.effect == "zero_step" else 0
+        assert c.delta_bic == pytest.approx(dchi2 + (k + searched) * ln_n, abs=1e-6), c.effect
