@@ -175,14 +175,20 @@ def _select(db: Path, functions: tuple[str, ...] | None, sample: int | None, see
             foreign = parts[0] == "core/ReplaceBinaryOperator" and _family(parts[1]) != _family(
                 parts[2]
             )
-            (keep if inside and not foreign and not note else skip).append(item.job_id)
-        if sample is not None and sample < len(keep):
-            chosen = set(random.Random(seed).sample(keep, sample))
-            skip += [j for j in keep if j not in chosen]
+            key = (str(m.module_path), *m.start_pos, *m.end_pos, m.operator_name, m.occurrence)
+            (keep if inside and not foreign and not note else skip).append((key, item.job_id))
+        # cosmic-ray lists its work in random order under random ids: sorted by where and what
+        # each mutant is, the same --seed draws the same mutants on every run.
+        keep.sort()
+        ids = [j for _, j in keep]
+        skip_ids = [j for _, j in skip]
+        if sample is not None and sample < len(ids):
+            chosen = set(random.Random(seed).sample(ids, sample))
+            skip_ids += [j for j in ids if j not in chosen]
         done = WorkResult(
             output=None, test_outcome=None, diff=None, worker_outcome=WorkerOutcome.SKIPPED
         )
-        wdb.set_multiple_results(skip, done)
+        wdb.set_multiple_results(skip_ids, done)
 
 
 def _family(op: str) -> str:
