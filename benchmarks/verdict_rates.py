@@ -19,7 +19,7 @@ from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_name, write_effect_file
 from hexcal.effects import CATALOGUE
 from hexcal.effects.interactions import parse_product
-from hexcal.effects.lagged import parse_lag
+from hexcal.effects.lagged import series_of as lagged_series
 from hexcal.errors import RefusedError
 from hexcal.sim import verdict_cases as vc
 
@@ -76,8 +76,7 @@ def series_of(name: str) -> tuple[str, ...]:
     pair = parse_product(name)
     if pair is not None:
         return tuple(s for n in pair for s in series_of(n))
-    lag = parse_lag(name)
-    return (name if lag is None else lag[0],)
+    return (lagged_series(name),)
 
 
 def names_right(name: str, accepted) -> bool:

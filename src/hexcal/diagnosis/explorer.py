@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.diagnosis.interaction_search import products
-from hexcal.diagnosis.leads import Lead, beats, best_of, covariate_values, scoped
+from hexcal.diagnosis.leads import SAME_QUANTITY, Lead, beats, best_of, covariate_values, scoped
 from hexcal.diagnosis.periodogram import periodogram
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.diagnosis.scoring import pose_whiteners
@@ -276,10 +276,12 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
     excess = fit.chi2 - fit.dof * s2
     held = _held_shapes(fit)
     tried: list[tuple[Covariate, np.ndarray, Shape, int]] = []
+    carried: dict[str, tuple[Covariate, np.ndarray]] = {}  # the library's order
     for cov in library(problem.data):
         values = covariate_values(problem, fit, cov)
         if values is None:
             continue
+        carried[cov.name] = (cov, values)
         for shape, tries in _families(cov, values, fit.residuals):
             if (cov.name, repr(shape.to_dict())) not in held:
                 tried.append((cov, values, shape, tries))
@@ -295,7 +297,7 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
                 best[cov.name] = lead
     for name, rows in pending.items():
         best[name] = best_of(rows, level, excess)
-    best.update(products(problem, fit, scorer, list(best.values()), held, tests, excess, level))
+    best.update(products(carried, scorer, list(best.values()), held, tests, excess, level))
     tested = _ranked(list(best.values()), problem, fit)
     out = Exploration(tested, level)
     _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
@@ -334,8 +336,6 @@ def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
     return out
 
 
-#: Two covariates correlated beyond this are the same quantity on these poses.
-SAME_QUANTITY = 0.98
 #: The chance, over every lagged series tried, that one beats the lead by noise alone.
 LAG_ALPHA = 0.05
 

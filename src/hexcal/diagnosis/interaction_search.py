@@ -25,22 +25,18 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import BSpline
 
-from hexcal.diagnosis.leads import Lead, beats, best_of, covariate_values, own_columns, scoped
+from hexcal.diagnosis.leads import SAME_QUANTITY, Lead, beats, best_of, own_columns, scoped
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
-from hexcal.effects.covariates import Covariate, library, product_covariate
+from hexcal.effects.covariates import Covariate, product_covariate
 from hexcal.effects.explored import product
 from hexcal.effects.interactions import parse_product
-from hexcal.effects.lagged import parse_lag
-from hexcal.estimate.effect_fit import ModelFit, Problem
+from hexcal.effects.lagged import series_of
 from hexcal.estimate.quantiles import norm_isf
 
 #: How many of the pairs screened, most interaction first, are cross-validated in full.
 N_SCREEN = 8
 #: The chance, over every pair screened, that a product beats its factors by noise alone.
 PRODUCT_ALPHA = 0.05
-#: Two covariates correlated beyond this are one quantity: their product is a square, which
-#: the smooth shapes along either hold already.
-SAME = 0.98
 
 
 def single_leads(leads: list[Lead]) -> list[Lead]:
@@ -55,8 +51,7 @@ def single_leads(leads: list[Lead]) -> list[Lead]:
 
 
 def products(
-    problem: Problem,
-    fit: ModelFit,
+    covariates: dict[str, tuple[Covariate, np.ndarray]],
     scorer: PoseProducts,
     leads: list[Lead],
     held: set[tuple[str, str]],
@@ -65,24 +60,20 @@ def products(
     level: float,
 ) -> dict[str, Lead]:
     """The products that beat their factors (see the module docstring), by covariate name:
-    ``leads`` the explorer's best shape of each single covariate at ``fit``, ``held`` the
+    ``covariates`` the library's covariates the poses carry, by name in the library's order,
+    with their values (M, 6) at the fit; ``leads`` the explorer's best shape of each single covariate at ``fit``, ``held`` the
     (covariate, shape) pairs the model holds already, ``tests`` the shapes tried along single
     covariates (the family-wise threshold's count), ``excess`` the χ² over the floor and
     ``level`` the noise level the scores are judged against."""
     # A sign (the direction of the last move) is a factor too: play or friction whose size
     # grows with the load or the stroke (its ±1 about 0 over a half-range of 1 in the surface).
-    lib = list(library(problem.data))
-    values: dict[str, np.ndarray] = {}
-    for c in lib:
-        v = covariate_values(problem, fit, c)
-        if v is not None:
-            values[c.name] = v
-    lib = [c for c in lib if c.name in values]
+    lib = [c for c, _ in covariates.values()]
+    values = {name: v for name, (_, v) in covariates.items()}
     known = list(values.values())
     screened: list[tuple[float, Covariate, np.ndarray]] = []
     for i, first in enumerate(lib):
         for second in lib[i + 1 :]:
-            if _series(first.name) == _series(second.name):
+            if series_of(first.name) == series_of(second.name):
                 continue  # a sensor and its own lag: one series, not two acting together
             factors = np.stack([values[first.name], values[second.name]], axis=-1)
             screened.append(
@@ -157,7 +148,7 @@ def _best_product(
 def _determined(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether the covariate ``b`` (M, 6) is, leg by leg, a smooth function of ``a`` on these
     poses (a cubic spline with 4 interior knots along ``a`` explains more than
-    :data:`SAME`² of its variance): the room's temperature drifting with the time, a leg's
+    :data:`~hexcal.diagnosis.leads.SAME_QUANTITY`² of its variance): the room's temperature drifting with the time, a leg's
     length with its stroke. Their product is then a curve along ``a`` alone, which ``a``'s
     own shapes hold."""
     res = tot = 0.0
@@ -174,17 +165,11 @@ def _determined(a: np.ndarray, b: np.ndarray) -> bool:
         coef, *_ = np.linalg.lstsq(x, v, rcond=None)
         r = v - x @ coef
         res += float(r @ r)
-    return tot > 0 and 1.0 - res / tot > SAME**2
+    return tot > 0 and 1.0 - res / tot > SAME_QUANTITY**2
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two covariates (M, 6) are one quantity on these poses."""
     x, y = a.ravel() - a.mean(), b.ravel() - b.mean()
     den = float(np.sqrt((x @ x) * (y @ y)))
-    return den == 0 or abs(float(x @ y) / den) > SAME
-
-
-def _series(name: str) -> str:
-    """The recorded series a covariate is (a lagged one's own series)."""
-    lag = parse_lag(name)
-    return name if lag is None else lag[0]
+    return den == 0 or abs(float(x @ y) / den) > SAME_QUANTITY

@@ -15,7 +15,7 @@ from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.effects.covariates import Covariate
 from hexcal.effects.explored import Shape
 from hexcal.effects.interactions import parse_product
-from hexcal.effects.lagged import parse_lag
+from hexcal.effects.lagged import parse_lag, series_of
 from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.estimate.quantiles import chi2_isf
 
@@ -23,6 +23,8 @@ from hexcal.estimate.quantiles import chi2_isf
 EXPLORE_ALPHA = 1e-3
 #: How many of a covariate's significant shapes are cross-validated (best in-sample first).
 N_CV = 6
+#: Two covariates correlated beyond this are the same quantity on these poses.
+SAME_QUANTITY = 0.98
 
 
 @dataclass
@@ -171,8 +173,7 @@ def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndar
     temperature, or one that hardly changed). At the geometry the data carry, as the effect
     written for it evaluates it (:class:`~hexcal.effects.explored.ExploredEffect`)."""
     data = problem.data
-    lag = parse_lag(cov.name)
-    series = cov.name if lag is None else lag[0]
+    series = series_of(cov.name)
     if series == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
         return None
     values = np.asarray(cov.values(data), float)

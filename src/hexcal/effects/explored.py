@@ -36,7 +36,7 @@ from scipy.interpolate import BSpline
 from hexcal.effects.base import Effect, EffectData, ParamSpec
 from hexcal.effects.covariates import covariate_factors, covariate_values
 from hexcal.effects.interactions import parse_product
-from hexcal.effects.lagged import parse_lag
+from hexcal.effects.lagged import series_of
 
 #: Each coefficient's plausible range and the resolution identifiability asks of it, µm.
 PLAUSIBLE_UM = (-1000.0, 1000.0)
@@ -316,8 +316,7 @@ class ExploredEffect(Effect):
 def _missing_series(name: str, data: EffectData) -> str | None:
     """Why ``data`` cannot give the covariate ``name`` (a fixed one, a column, either through a
     lag), or None."""
-    lag = parse_lag(name)
-    series = name if lag is None else lag[0]
+    series = series_of(name)
     if series == "temperature" and data.temperature is None:
         return "the measurements have no temperature column"
     if series not in _fixed() and series not in data.columns:

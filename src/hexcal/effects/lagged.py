@@ -32,6 +32,13 @@ def parse_lag(name: str) -> tuple[str, float] | None:
     return None if m is None else (m["base"], float(m["tau"]))
 
 
+def series_of(name: str) -> str:
+    """The recorded series a covariate ``name`` is: a lagged covariate's own series, else the
+    name itself."""
+    lag = parse_lag(name)
+    return name if lag is None else lag[0]
+
+
 def lag_taus(t: np.ndarray) -> list[float]:
     """The time constants (s, whole) tried on a session recorded at times ``t`` (M,) s."""
     span = float(np.ptp(t)) if len(t) else 0.0
