@@ -17,6 +17,7 @@ import numpy as np
 from hexcal.app.workflow import Inputs, diagnose_chain
 from hexcal.diagnosis import diagnose
 from hexcal.diagnosis.effect_file import effect_name, write_effect_file
+from hexcal.diagnosis.same_poses import before_on_after_poses
 from hexcal.effects import CATALOGUE
 from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import series_of as lagged_series
@@ -199,8 +200,16 @@ def _explorer(c: vc.HiddenCase, d) -> dict:
         return out
     out["ratio_after"] = after.fit.cv_rms_mm / after.noise_floor_mm
     out["verdict_after"] = str(after.verdict)
-    out["raised"] = bool(after.fit.cv_rms_mm > d.fit.cv_rms_mm)
+    out["raised"] = _raised(d, after)
     return out
+
+
+def _raised(before: Any, after: Any) -> bool:
+    """The file raised the held-out RMS above the model without it, on the same poses: where
+    the diagnosis with the file kept poses the one before set aside (the effect explains
+    them), the model before is refitted on those poses (``same_poses``); the two figures over
+    different poses are not one measure."""
+    return bool(after.fit.cv_rms_mm > before_on_after_poses(before, after))
 
 
 #: Two effects at once: the explorer chain called as ``chained(case, diagnosis)`` on the
@@ -220,8 +229,7 @@ def explore_once(c: vc.HiddenCase, d: Any) -> tuple[list[str], float, bool]:
         after = _written_file_fit(c, d, lead, [e for e in d.effects if e != "offset"])
     except RefusedError:  # the written file cannot be fitted: where the model was
         return [lead.covariate.name], d.fit.cv_rms_mm / d.noise_floor_mm, False
-    raised = bool(after.fit.cv_rms_mm > d.fit.cv_rms_mm)
-    return [lead.covariate.name], after.fit.cv_rms_mm / after.noise_floor_mm, raised
+    return [lead.covariate.name], after.fit.cv_rms_mm / after.noise_floor_mm, _raised(d, after)
 
 
 def explore_chained(c: vc.HiddenCase, d: Any) -> tuple[list[str], float, bool]:
@@ -246,8 +254,12 @@ def explore_chained(c: vc.HiddenCase, d: Any) -> tuple[list[str], float, bool]:
         and x.exploration.lead is not None
         and any(e.startswith("by_") for e in after.effects if e not in x.effects)
     ]
-    cv = [x.fit.cv_rms_mm for x in chain]
-    raised = any(b > a for a, b in itertools.pairwise(cv))
+    # the chain has compared each step with the one before on its own poses (same_poses)
+    raised = any(
+        b.fit.cv_rms_mm
+        > (b.cv_rms_before_mm if np.isfinite(b.cv_rms_before_mm) else a.fit.cv_rms_mm)
+        for a, b in itertools.pairwise(chain)
+    )
     last = chain[-1]
     return leads, last.fit.cv_rms_mm / last.noise_floor_mm, raised
 

@@ -23,6 +23,7 @@ from hexcal.sim.foreign_more import (
     leg_inclination,
     platform_angle,
     stroke_cycle,
+    turn_friction,
 )
 from hexcal.sim.simulate import PoseContext
 
@@ -59,6 +60,19 @@ def test_cross_talk_moves_one_leg_with_anothers_reading():
     assert not np.delete(out, 1, axis=1).any()
     with pytest.raises(ValueError, match="two legs"):
         cross_talk(3, 3, 0.001, 60.0)
+
+
+def test_turn_friction_follows_the_direction_of_the_platforms_last_turn_not_its_angle():
+    # yaw 0 → 4 → 8 → 6 → 6 (still) → 9°: turning up, up, down, (kept), up
+    yaw = np.array([0.0, 4.0, 8.0, 6.0, 6.0, 9.0])
+    ctx = _ctx(np.column_stack([np.zeros(6), np.zeros(6), yaw]))
+    coef = np.array([0.03, -0.02, 0.0, 0.01, 0.04, -0.03])
+    out = turn_friction("yaw", coef)(np.full((6, 6), 60.0), ctx)
+    s = np.array([0.0, 1.0, 1.0, -1.0, -1.0, 1.0])
+    np.testing.assert_allclose(out, s[:, None] * coef[None, :], atol=1e-12)
+    # the same poses turned in roll instead: the yaw's friction sees no turn
+    still = _ctx(np.column_stack([yaw, np.zeros(6), np.zeros(6)]))
+    np.testing.assert_allclose(turn_friction("yaw", coef)(np.full((6, 6), 60.0), still), 0.0)
 
 
 def test_joint_seating_is_nothing_at_home_and_grows_as_the_legs_inclination_squared():

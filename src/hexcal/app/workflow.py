@@ -639,6 +639,7 @@ def diagnose_chain(
     diagnosis as it is done."""
     from hexcal.diagnosis import diagnose
     from hexcal.diagnosis.effect_file import write_explored
+    from hexcal.diagnosis.same_poses import compare_steps
 
     added = list(dict.fromkeys((*inp.model_effects, *add)))
     problem = None if previous is None else previous.problem
@@ -659,6 +660,8 @@ def diagnose_chain(
             raise _stall_message(inp, exc) from None
         problem = d.problem
         _name_the_floor(d, inp)
+        if steps:
+            compare_steps(steps[-1], d)
         steps.append(d)
         if on_step is not None:
             on_step(d)

@@ -46,6 +46,7 @@ from hexcal.diagnosis.outliers import (
     session_problem,
 )
 from hexcal.diagnosis.plan import Offer, offers
+from hexcal.diagnosis.readmitted import check_readmitted
 from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
 from hexcal.diagnosis.selection import BIC_STRONG, MOST
 from hexcal.diagnosis.verdict import (
@@ -142,6 +143,9 @@ class Diagnosis:
     plans: list[Offer] = field(default_factory=list)
     #: Candidates whose score rests on a robot.json key left at its default
     defaults: list[DefaultNote] = field(default_factory=list)
+    #: mm, the chain's step before refitted on this step's poses where the two set aside
+    #: other outliers (:func:`hexcal.diagnosis.same_poses.compare_steps`); NaN otherwise
+    cv_rms_before_mm: float = float("nan")
 
     def default_note(self, effect: str) -> DefaultNote | None:
         return next((n for n in self.defaults if n.effect == effect), None)
@@ -229,6 +233,7 @@ class Diagnosis:
             "rms_mm": f.rms_mm,
             "cv_rms_mm": f.cv_rms_mm,
             "cv_blocked_rms_mm": f.cv_blocked_rms_mm,
+            "cv_rms_before_same_poses_mm": _nan_none(self.cv_rms_before_mm),
             "noise_floor_mm": self.noise_floor_mm,
             "noise_floor_source": self.floor_source,
             "noise_floor_estimated": self.floor_estimated,
@@ -347,6 +352,8 @@ def diagnose(
     exploration, noise_factor = None, float("nan")
     if verdict == Outcome.UNEXPLAINED:
         exploration = explore(work, fit, j.s2, max(j.level, j.s2))
+        if outliers:  # its file would judge them again: a lead must hold on the poses it keeps
+            check_readmitted(problem, work, fit.effects, exploration)
         if _noise_understated(j, where, exploration, sig is not None):
             verdict, noise_factor = Outcome.NOISE_UNDERSTATED, float(np.sqrt(j.chi2_per_dof))
             notes.append(_noise_note(noise_factor, j))

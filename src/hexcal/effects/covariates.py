@@ -166,6 +166,18 @@ def _platform_move(axis: int) -> Callable[[EffectData], np.ndarray]:
     return values
 
 
+def _platform_turn(axis: int) -> Callable[[EffectData], np.ndarray]:
+    """±1: the sign of the platform's last turn in roll, pitch or yaw (``axis`` 0–2, the
+    angles from home; a change under 0.005° is the tracker's jitter, not a turn); 0 until it
+    first turns."""
+
+    def values(data: EffectData) -> np.ndarray:
+        angle = _angles(data)[:, axis : axis + 1]
+        return _per_pose(motion_state(angle, 0.005)[:, 0])
+
+    return values
+
+
 def _force(data: EffectData) -> np.ndarray:
     mass = data.robot.platform_mass_kg or 1.0
     com = getattr(data.robot, "platform_com_mm", None)
@@ -254,6 +266,13 @@ FIXED: tuple[Covariate, ...] = (
                   "±1", "play or friction in the platform's guidance, taken up as it reverses",
                   _platform_move(i), discrete=True, per_pose=True)
         for i, axis in enumerate("xyz")
+    ),
+    *(
+        Covariate(f"platform_move_{name}", f"direction of the platform's last turn in {name}",
+                  "±1", "play or friction in a joint or a cable that the platform's turn takes "
+                  "up, one way or the other as it reverses", _platform_turn(i), discrete=True,
+                  per_pose=True)
+        for i, name in enumerate(("roll", "pitch", "yaw"))
     ),
     Covariate("temperature", "structure temperature", "°C",
               "an expansion that is not proportional to the leg length (an encoder, a mount)",

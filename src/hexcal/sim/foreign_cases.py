@@ -32,6 +32,7 @@ from hexcal.sim.foreign_more import (
     settling_per_step,
     stroke_cycle,
     stroke_step,
+    turn_friction,
     windup_x_stroke,
     yaw_x_stroke,
 )
@@ -46,6 +47,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "windup x stroke": (("stroke*last_move",),),
     "settling per step": (("step_time",),),
     "hose taut": (("roll", "pitch"),),
+    "turn friction": (tuple(f"platform_move_{a}" for a in ("roll", "pitch", "yaw")),),
     "tilt error": (("tilt",),),
     "roll or pitch cable": (("roll", "pitch"),),
     "cross-talk": (tuple(f"stroke_leg{j}" for j in range(1, 7)),),
@@ -207,6 +209,12 @@ def _draw_shapes(case: str, rng: np.random.Generator) -> Drawn | None:
         name = str(rng.choice(["roll", "pitch"]))
         coef = _signs(rng) * rng.uniform(0.009, 0.014, 6)
         return Drawn([angle_pull(name, coef, knee_deg=float(rng.uniform(1.0, 4.0)))], ((name,),))
+    if case == "turn friction":
+        # a cable dragged one way or the other as the platform last turned in roll, pitch or
+        # yaw: every leg 20–40 µm, either sign (the platform's hysteresis, not a leg's)
+        name = str(rng.choice(["roll", "pitch", "yaw"]))
+        coef = _signs(rng) * rng.uniform(0.02, 0.04, 6)
+        return Drawn([turn_friction(name, coef)], ((f"platform_move_{name}",),))
     return None
 
 

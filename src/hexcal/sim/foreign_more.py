@@ -122,6 +122,21 @@ def angle_pull(
     return hook
 
 
+def turn_friction(name: str, coef_mm: np.ndarray, deadband_deg: float = 0.005) -> LengthEffect:
+    """Leg k reads ``coef_mm[k]``·s short, s = ±1 the direction of the platform's last turn in
+    ``name`` (roll, pitch or yaw; 0 before its first turn): a cable or a hose whose friction
+    the platform's turn drags one way or the other, hysteresis of the platform's motion, not
+    of the leg's own (a leg's ``last_move`` need not reverse when the platform's turn does)."""
+    coef = np.asarray(coef_mm, float)
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        a = platform_angle(ctx.rotation, name)[:, None]
+        return coef * motion_state(a, deadband_deg)
+
+    hook.__name__ = f"hidden_{name}_turn_friction"
+    return hook
+
+
 def leg_inclination(truth: Robot, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """(N, 6) deg: each leg's angle from the base's z axis at the poses (position (N, 3) mm,
     rotation (N, 3, 3))."""

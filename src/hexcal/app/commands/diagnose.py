@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -184,6 +185,11 @@ def _step_rows(steps: list[Diagnosis]) -> list[dict]:
             "effects": list(d.effects),
             "cv_rms_mm": d.fit.cv_rms_mm,
             "cv_blocked_rms_mm": d.fit.cv_blocked_rms_mm,
+            # the step before on this step's poses, where the two set aside other outliers
+            "cv_rms_before_same_poses_mm": (
+                float(d.cv_rms_before_mm) if math.isfinite(d.cv_rms_before_mm) else None
+            ),
+            "poses_used": len(d.problem.meas),
             "noise_floor_mm": d.noise_floor_mm,
             "verdict": d.verdict,
             "pose_accuracy": None if d.accuracy is None else d.accuracy.to_dict(),
