@@ -39,6 +39,7 @@ VERDICT_LABELS = {
     "windup x stroke": "outside: a screw winding up by 20–35 µm per 50 mm of free length, by the last move (stroke × its sign)",
     "settling per step": "outside: 3 legs settling anew in every step, 60–100 µm, τ 20–60 s",
     "hose taut": "outside: a hose slack until the platform rolls or pitches past 1–4°, then 9–14 µm/° (a bend)",
+    "turn friction": "outside: a cable's friction dragged by the platform's last turn (roll, pitch or yaw), 20–40 µm a leg",
     "tilt error": "outside: joints seating as the platform tilts, 30–50 µm at 10° (∝ tilt²)",
     "roll or pitch cable": "outside: a hose pulled by roll or pitch, 35–55 µm at 10° (∝ angle²)",
     "cross-talk": "outside: two legs reading 2.4–3.4 µm per mm of a third leg's stroke",
