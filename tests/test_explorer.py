@@ -19,6 +19,7 @@ from hexcal.diagnosis.explorer import (
     Exploration,
     Lead,
     _families,
+    _period,
     _refit,
     covariate_values,
     lead_effect,
@@ -115,6 +116,24 @@ def test_what_the_geometry_absorbs_is_not_named(case):
     d = diagnose(c.meas, c.design, 42, instruments=c.instruments)
     assert d.verdict == "none", [(x.effect, x.delta_bic, x.heldout_z) for x in d.candidates]
     assert d.where["summary"] == "residual at the noise floor everywhere"
+
+
+@pytest.mark.parametrize("signs", [(1, -1, 1, -1, 1, -1), (1, 1, 1, 1, 1, 1)])
+def test_the_period_along_a_per_pose_covariate_is_found_whatever_each_legs_sign(signs):
+    """A cycle in time that the legs follow with their own signs (summing to zero: a mean over
+    the legs holds none of it) or all alike: the own-coefficient search finds its period, and
+    the shared one too where the legs agree. The grid's refinement is 1/20 of a resolution
+    element, 1/(20·span): a period found within 1 % of 400 s over a 2,400 s span is within
+    the search's own resolution (400²/2,400 = 67 s) by 15×."""
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0.0, 2400.0, 180))
+    values = np.repeat(t[:, None], 6, axis=1)
+    amp = 0.03 * np.array(signs, float) * rng.uniform(0.7, 1.0, 6)
+    resid = amp * np.sin(2 * np.pi * t / 400.0 + 0.4)[:, None] + rng.normal(0, 0.01, (180, 6))
+    own, tries = _period(values, resid, shared=False)
+    assert tries > 1 and own == pytest.approx(400.0, rel=0.01)
+    if sum(signs) != 0:
+        assert _period(values, resid, shared=True)[0] == pytest.approx(400.0, rel=0.01)
 
 
 def test_spline_knots_are_dense_where_the_poses_are_yet_never_on_top_of_each_other():

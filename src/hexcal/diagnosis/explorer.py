@@ -119,23 +119,23 @@ class Exploration:
         }
 
 
-def _period(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> tuple[float, int]:
-    """(the period a periodogram of the residual (M, 6) over ``values`` finds, summed over the
-    legs — on a grid of 5 points per resolution element, then refined 20× finer about its
-    peak, since a period 0.5 % off drifts a quarter turn over 14 cycles; how many independent
-    periods the search looked at)."""
+def _period(values: np.ndarray, resid: np.ndarray, shared: bool) -> tuple[float, int]:
+    """(the period a periodogram of the residual (M, 6) over ``values`` finds — on a grid of
+    5 points per resolution element, then refined 20× finer about its peak, since a period
+    0.5 % off drifts a quarter turn over 14 cycles; how many independent periods the search
+    looked at). ``shared`` (one coefficient for every leg): one periodogram of every leg's
+    points together, coherent; otherwise each leg's own, their powers summed (the legs may
+    follow the covariate with their own signs and sizes, which one periodogram would cancel)."""
     span = float(np.max(np.ptp(values, axis=0)))
     m = len(values)
     hi = MAX_PERIOD_SHARE * span
     lo = max(span * POSES_PER_PERIOD / m, hi / 200.0)
     if not (span > 0 and lo < hi):
         return 0.0, 0
-    legs = range(1) if cov.per_pose else range(6)
-    series = [
-        (values[:, k], resid.mean(axis=1) if cov.per_pose else resid[:, k])
-        for k in legs
-        if np.ptp(values[:, k]) > 0
-    ]
+    if shared:
+        series = [(values.T.ravel(), resid.T.ravel())]
+    else:
+        series = [(values[:, k], resid[:, k]) for k in range(6) if np.ptp(values[:, k]) > 0]
 
     def power(freqs: np.ndarray) -> np.ndarray:
         return sum((periodogram(u, r, 1.0 / freqs) ** 2 for u, r in series), np.zeros(len(freqs)))
@@ -233,9 +233,10 @@ def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tup
         if cov.signed and min((values > 0).mean(), (values < 0).mean()) >= MIN_SIGN_SHARE:
             out.append((sign(shared), 1))
     if cov.periodic:
-        period, tries = _period(cov, values, resid)
-        if period > 0:
-            out += [(periodic(period, shared), tries) for shared in scopes]
+        for shared in scopes:
+            period, tries = _period(values, resid, shared)
+            if period > 0:
+                out.append((periodic(period, shared), tries))
     return out
 
 
