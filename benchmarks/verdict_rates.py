@@ -46,6 +46,7 @@ VERDICT_LABELS = {
     "cycle 7.3 mm": "outside: a cyclic encoder error of period 7.3 mm, 24–42 µm, every leg",
     "scale joint": "outside: 3–4 legs reading 60–90 µm short past one place of their stroke",
     "cycle 11-17 mm": "outside: a cyclic encoder error of period 11–17 mm, 40–60 µm, 3–5 legs",
+    "cycle with harmonic": "outside: a cycle of 6–9 mm, 25–40 µm, with its second harmonic at 40–80 %, every leg",
     "bending": "outside: legs bowing ∝ axial force × length², 45–100 µm at 33 N, 200 mm",
     "force x stroke": "outside: 4–6 legs shortening ∝ force × stroke, 50–110 µm at 33 N, 60 mm",
     "user column": "outside: each leg 15–30 µm per σ of a lab's own sensor column",

@@ -97,6 +97,7 @@ def _shapes(values: np.ndarray) -> list[explored.Shape]:
         explored.spline(values, 4),
         explored.spline(values, 0, shared=True),
         explored.periodic(span / 3.7),
+        explored.periodic(span / 2.3, shared=True, harmonics=3),
         explored.step(mid),
         explored.sign(),
         explored.hinge(values, mid),

@@ -46,6 +46,7 @@ from hexcal.diagnosis.selection import HELDOUT_Z, heldout_gain
 from hexcal.effects import CATALOGUE
 from hexcal.effects.covariates import Covariate, library
 from hexcal.effects.explored import (
+    MAX_HARMONICS,
     ExploredEffect,
     Shape,
     hinge,
@@ -235,8 +236,8 @@ def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tup
     if cov.periodic:
         for shared in scopes:
             period, tries = _period(values, resid, shared)
-            if period > 0:
-                out.append((periodic(period, shared), tries))
+            if period > 0:  # the cycle's harmonics too: cross-validation picks how many
+                out += [(periodic(period, shared, h), tries) for h in range(1, MAX_HARMONICS + 1)]
     return out
 
 

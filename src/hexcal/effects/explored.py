@@ -11,7 +11,8 @@ Shapes, each the constant left out (the leg's offset holds it):
 - ``spline``: a cubic B-spline with interior knots at the covariate's quantiles (a smooth
   curve; the explorer chooses how many by cross-validation);
 - ``periodic``: a sine and a cosine of the covariate at one period (the period a
-  periodogram over the covariate finds);
+  periodogram over the covariate finds), and at ``harmonics`` − 1 of its harmonics (an
+  encoder's interpolation error, a screw's wobble: cycles that are not pure sines);
 - ``step``: 0 below a split value of the covariate, 1 from it on (a change point);
 - ``sign``: the covariate's sign (play taken up one way or the other as a load reverses, the
   direction of the last move);
@@ -42,6 +43,8 @@ from hexcal.effects.lagged import series_of
 PLAUSIBLE_UM = (-1000.0, 1000.0)
 RESOLUTION_UM = 20.0
 KINDS = ("line", "spline", "periodic", "step", "sign", "hinge", "product")
+#: A periodic shape's harmonics at most (the explorer tries 1 to this many).
+MAX_HARMONICS = 3
 
 
 def _row(values) -> np.ndarray:
@@ -54,7 +57,8 @@ class Shape:
 
     ``centre``, ``half`` (6,): the line's middle and half-range; ``lo``, ``hi`` (6,) and
     ``knots`` (6, n): the spline's boundary and interior knots; ``period``: the periodic
-    shape's, in the covariate's unit; ``split`` (6,): the step's value; ``centre2``,
+    shape's, in the covariate's unit, and ``harmonics`` how many it holds (1: the period's
+    sine alone; 2: with the half period's too …); ``split`` (6,): the step's value; ``centre2``,
     ``half2`` (6,): a product's second covariate's middle and half-range (its first's are
     ``centre`` and ``half``)."""
 
@@ -70,6 +74,7 @@ class Shape:
     split: tuple[float, ...] = ()
     centre2: tuple[float, ...] = ()
     half2: tuple[float, ...] = ()
+    harmonics: int = 1
     extra: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
@@ -79,6 +84,8 @@ class Shape:
             raise ValueError(f"shape legs {self.legs}: 1 to 6, at least one")
         if self.kind == "periodic" and not self.period > 0:
             raise ValueError(f"a periodic shape needs a period > 0 (got {self.period})")
+        if not (isinstance(self.harmonics, int) and 1 <= self.harmonics <= MAX_HARMONICS):
+            raise ValueError(f"harmonics {self.harmonics!r}: an integer from 1 to {MAX_HARMONICS}")
 
     @property
     def per_leg(self) -> int:
@@ -87,7 +94,9 @@ class Shape:
             return len(self.knots[0]) + 3
         if self.kind == "product":
             return 3
-        return 2 if self.kind in ("periodic", "hinge") else 1
+        if self.kind == "periodic":
+            return 2 * self.harmonics
+        return 2 if self.kind == "hinge" else 1
 
     @property
     def n_params(self) -> int:
@@ -110,7 +119,9 @@ class Shape:
             return BSpline.design_matrix(x, t, 3).toarray()[:, 1:]
         if self.kind == "periodic":
             w = 2.0 * np.pi * u / self.period
-            return np.column_stack([np.sin(w), np.cos(w)])
+            return np.column_stack(
+                [f(h * w) for h in range(1, self.harmonics + 1) for f in (np.sin, np.cos)]
+            )
         if self.kind == "step":
             return (u >= self.split[k]).astype(float)[:, None]
         if self.kind == "hinge":
@@ -145,7 +156,12 @@ class Shape:
                 if self.knots and len(self.knots[0])
                 else "a cubic curve"
             ),
-            "periodic": f"a periodic error of period {self.period:.4g}{per}",
+            "periodic": f"a periodic error of period {self.period:.4g}{per}"
+            + (
+                f" with {self.harmonics - 1} harmonic{'s' * (self.harmonics > 2)}"
+                if self.harmonics > 1
+                else ""
+            ),
             "step": "a step (a change point)",
             "hinge": "a bend (two straight lines meeting at one value)",
             "sign": "a step at its sign change",
@@ -162,6 +178,8 @@ class Shape:
             d["knots"] = [[float(v) for v in row] for row in self.knots]
         if self.period:
             d["period"] = float(self.period)
+        if self.harmonics > 1:
+            d["harmonics"] = int(self.harmonics)
         return d
 
     @classmethod
@@ -180,6 +198,7 @@ class Shape:
             split=tup("split"),
             centre2=tup("centre2"),
             half2=tup("half2"),
+            harmonics=int(d.get("harmonics", 1)),
         )
 
 
@@ -208,8 +227,8 @@ def spline(values: np.ndarray, n_knots: int, shared: bool = False) -> Shape:
     return Shape("spline", shared=shared, lo=_t(lo), hi=_t(hi), knots=tuple(_t(r) for r in knots))
 
 
-def periodic(period: float, shared: bool = False) -> Shape:
-    return Shape("periodic", shared=shared, period=float(period))
+def periodic(period: float, shared: bool = False, harmonics: int = 1) -> Shape:
+    return Shape("periodic", shared=shared, period=float(period), harmonics=int(harmonics))
 
 
 def step(split: np.ndarray, shared: bool = False) -> Shape:

@@ -54,6 +54,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "cycle 7.3 mm": (("stroke",),),
     "scale joint": (("stroke",),),
     "cycle 11-17 mm": (("stroke",),),
+    "cycle with harmonic": (("stroke",),),
     "bending": (("force_x_length2",),),
     "force x stroke": (("force_x_stroke",),),
     "user column": (("humidity_pct", "motor_current_a", "air_pressure_hpa"),),
@@ -270,6 +271,13 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
             period = float(rng.uniform(11.0, 17.0))
         amp = _subset(rng, 3, 5) * rng.uniform(0.04, 0.06, 6)
         return Drawn([stroke_cycle(period, amp, rng.uniform(0, 2 * np.pi, 6))], (("stroke",),))
+    if case == "cycle with harmonic":
+        # an interpolation error that is not a pure sine: period 6–9 mm, 25–40 µm, and its
+        # second harmonic at 40–80 % of it, every leg its own phases
+        period = float(rng.uniform(6.0, 9.0))
+        amp, ph = rng.uniform(0.025, 0.04, 6), rng.uniform(0, 2 * np.pi, 6)
+        second, ph2 = rng.uniform(0.4, 0.8, 6), rng.uniform(0, 2 * np.pi, 6)
+        return Drawn([stroke_cycle(period, amp, ph, second, ph2)], (("stroke",),))
     if case == "bending":
         # each leg 45–100 µm shorter at the typical force and length
         coef = rng.uniform(0.045, 0.1, 6) / (FORCE_N * LENGTH_MM**2)

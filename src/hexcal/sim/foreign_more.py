@@ -190,14 +190,25 @@ def cross_talk(leg: int, source: int, coef: float, centre_mm: float) -> LengthEf
     return hook
 
 
-def stroke_cycle(period_mm: float, amp_mm: np.ndarray, phase: np.ndarray) -> LengthEffect:
+def stroke_cycle(
+    period_mm: float,
+    amp_mm: np.ndarray,
+    phase: np.ndarray,
+    second: np.ndarray | None = None,
+    second_phase: np.ndarray | None = None,
+) -> LengthEffect:
     """Leg k reads short by ``amp_mm[k]``·sin(2π·reading/``period_mm`` + ``phase[k]``): a
     cyclic encoder error (an eccentric code wheel on a pinion, a scale's interpolation error)
-    whose period is not the lead screw's. A leg with amplitude 0 has none."""
+    whose period is not the lead screw's. A leg with amplitude 0 has none. ``second`` (6,):
+    plus ``amp_mm[k]``·``second[k]``·sin(4π·reading/``period_mm`` + ``second_phase[k]``), the
+    second harmonic an interpolation error carries (a cycle that is not a pure sine)."""
     amp, ph = np.asarray(amp_mm, float), np.asarray(phase, float)
+    two = np.zeros(6) if second is None else np.asarray(second, float)
+    ph2 = np.zeros(6) if second_phase is None else np.asarray(second_phase, float)
 
     def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
-        return amp * np.sin(2 * np.pi * readings / period_mm + ph)
+        w = 2 * np.pi * readings / period_mm
+        return amp * (np.sin(w + ph) + two * np.sin(2 * w + ph2))
 
     hook.__name__ = f"hidden_cycle_{period_mm:g}mm"
     return hook
