@@ -49,6 +49,7 @@ VERDICT_LABELS = {
     "cycle with harmonic": "outside: a cycle of 6–9 mm, 25–40 µm, with its second harmonic at 40–80 %, every leg",
     "bending": "outside: legs bowing ∝ axial force × length², 45–100 µm at 33 N, 200 mm",
     "force x stroke": "outside: 4–6 legs shortening ∝ force × stroke, 50–110 µm at 33 N, 60 mm",
+    "load friction": "outside: every leg 20–40 µm either way as its axial load last rose or fell (the load's hysteresis)",
     "user column": "outside: each leg 15–30 µm per σ of a lab's own sensor column",
     "position pull": "outside: a cable pulled by x, y or z, 15–35 µm per 10 mm per leg",
     "joint seating": "outside: joints seating ∝ (θ − θ_home)², 22–35 µm at 5° of inclination",

@@ -49,6 +49,9 @@ from hexcal.effects.lagged import first_order_lag, lag_name, lag_taus, parse_lag
 #: A user column is a covariate when it changes by more than this share of its mean magnitude
 #: (a constant column, or one that only rounds, carries nothing).
 MIN_COLUMN_SPREAD = 1e-9
+#: K, a change of the temperature below this is a thermometer's jitter, not a warming or a
+#: cooling (a PT100's repeatability is some 0.01 K).
+TEMPERATURE_JITTER_K = 0.02
 
 
 @dataclass(frozen=True)
@@ -184,6 +187,20 @@ def _force(data: EffectData) -> np.ndarray:
     return leg_forces(data, mass, None if com is None else np.asarray(com, float))
 
 
+def _force_change(data: EffectData) -> np.ndarray:
+    """(M, 6) ±1: whether each leg's axial force last rose or fell (a change under 0.1 % of
+    its range over the session is no change); 0 until it first changes."""
+    f = _force(data)
+    return motion_state(f, 1e-3 * max(float(np.max(np.ptp(f, axis=0))), 1e-12))
+
+
+def _temperature_change(data: EffectData) -> np.ndarray:
+    """(M, 6) ±1: whether the structure was last warming or cooling (a change under
+    :data:`TEMPERATURE_JITTER_K` is a thermometer's jitter); 0 until it first changes."""
+    t = np.asarray(data.temperature, float)[:, None]
+    return _per_pose(motion_state(t, TEMPERATURE_JITTER_K)[:, 0])
+
+
 def _force_x_stroke(data: EffectData) -> np.ndarray:
     return _force(data) * np.asarray(data.readings, float)
 
@@ -258,6 +275,10 @@ FIXED: tuple[Covariate, ...] = (
     Covariate("force_x_length2", "axial force × length²", "N·m²",
               "a leg bending under its load (buckling-like shortening ∝ F·L²)",
               _force_x_length2, uses_geometry=True, default_keys=("platform_com_mm",)),
+    Covariate("force_change", "whether the leg's axial force last rose or fell", "±1",
+              "friction in a joint or a load-dependent part that holds the last load: the error "
+              "depends on whether the load was rising or falling", _force_change,
+              discrete=True, uses_geometry=True, default_keys=("platform_com_mm",)),
     Covariate("last_move", "direction of the leg's last move", "±1",
               "play or friction that depends on the direction of approach",
               lambda d: motion_state(d.readings, deadband_mm(d)), discrete=True),
@@ -277,6 +298,9 @@ FIXED: tuple[Covariate, ...] = (
     Covariate("temperature", "structure temperature", "°C",
               "an expansion that is not proportional to the leg length (an encoder, a mount)",
               lambda d: _per_pose(np.asarray(d.temperature, float)), per_pose=True),
+    Covariate("temperature_change", "whether the structure was last warming or cooling", "±1",
+              "thermal hysteresis: a part that expands differently warming and cooling, or "
+              "lags its thermometer", _temperature_change, discrete=True, per_pose=True),
     Covariate("time", "time since the session started", "s",
               "something changing during the session (warm-up, a slipping mount, an encoder "
               "drifting)", lambda d: _per_pose(np.asarray(d.t, float) - float(np.min(d.t))),

@@ -27,6 +27,7 @@ from hexcal.sim.foreign_more import (
     heating,
     joint_seating,
     knock_tracker,
+    load_friction,
     position_pull,
     series_pull,
     settling_per_step,
@@ -57,6 +58,7 @@ MORE: dict[str, tuple[tuple[str, ...], ...]] = {
     "cycle with harmonic": (("stroke",),),
     "bending": (("force_x_length2",),),
     "force x stroke": (("force_x_stroke",),),
+    "load friction": (("force_change",),),
     "user column": (("humidity_pct", "motor_current_a", "air_pressure_hpa"),),
     "position pull": (AXES,),
     "joint seating": (("inclination",),),
@@ -282,6 +284,11 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
         # each leg 45–100 µm shorter at the typical force and length
         coef = rng.uniform(0.045, 0.1, 6) / (FORCE_N * LENGTH_MM**2)
         return Drawn([force_product(truth, coef, "length2")], (("force_x_length2",),))
+    if case == "load friction":
+        # every leg 20–40 µm either way as its load last rose or fell
+        return Drawn(
+            [load_friction(truth, _signs(rng) * rng.uniform(0.02, 0.04, 6))], (("force_change",),)
+        )
     if case == "force x stroke":
         # 4–6 legs 50–110 µm shorter at the typical force and reading
         coef = _subset(rng, 4, 6) * rng.uniform(0.05, 0.11, 6) / (FORCE_N * READING_MM)

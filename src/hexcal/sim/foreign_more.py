@@ -248,6 +248,21 @@ def force_product(truth: Robot, coef: np.ndarray, kind: str) -> LengthEffect:
     return hook
 
 
+def load_friction(truth: Robot, coef_mm: np.ndarray, deadband_n: float = 0.05) -> LengthEffect:
+    """Leg k reads ``coef_mm[k]``·s short, s = ±1 whether its axial force (N, as
+    :func:`~hexcal.effects.compliance.leg_forces` computes it) last rose or fell (0 before it
+    first changes): a joint's friction or a load-dependent part that holds the last load —
+    hysteresis of the load's history, not of the leg's motion nor of the load's sign."""
+    c = np.asarray(coef_mm, float)
+    mass = truth.platform_mass_kg or 1.0
+
+    def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
+        return c * motion_state(leg_forces(_data(truth, readings, ctx), mass), deadband_n)
+
+    hook.__name__ = "hidden_load_friction"
+    return hook
+
+
 def series_pull(values: np.ndarray, coef_mm: np.ndarray) -> LengthEffect:
     """Leg k is ``coef_mm[k]``·(v − mean v) longer than it reads, v (N,) a series recorded
     with the session (one value per pose, in recording order): what a lab's own sensor column
