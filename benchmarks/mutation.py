@@ -64,17 +64,34 @@ ESTIMATE = (
 )
 #: The estimate modules without a test file of their own name: the tests that call them.
 ESTIMATE_TESTS = {
-    "lm": ["tests/test_refine_solver.py"],
-    "leg_rows": ["tests/test_refine_solver.py", "tests/test_folds.py"],
-    "calibrate": ["tests/test_calibrate.py", "tests/test_refine.py"],
+    "lm": ["tests/test_lm.py", "tests/test_refine_solver.py"],
+    "nbp": ["tests/test_nbp.py", "tests/test_guided.py"],
+    "leg_rows": [
+        "tests/test_refine_solver.py",
+        "tests/test_folds.py",
+        "tests/test_refine_batch.py",
+    ],
+    "calibrate": ["tests/test_calibrate.py", "tests/test_refine.py", "tests/test_model_file.py"],
 }
+#: The diagnosis' wider tests: the sessions with drift, joint effects and zero steps.
+DIAGNOSIS_WIDER = [
+    "tests/test_drift.py",
+    "tests/test_joint_effects.py",
+    "tests/test_changepoint.py",
+]
 #: name → (files to mutate, tests to run); the tests run quick and slow (-m "").
 TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "frames": (["drivers/can_frames.py"], FRAME_TESTS),
     "fileio": (["src/hexcal/io/fileio.py"], ["tests/test_fileio.py", "tests/test_strict_json.py"]),
     "session": (
         ["src/hexcal/procedure/session.py"],
-        ["tests/test_session.py", "tests/test_session_lock.py", "tests/test_fuzz_sessions.py"],
+        [
+            "tests/test_session.py",
+            "tests/test_session_lock.py",
+            "tests/test_fuzz_sessions.py",
+            "tests/test_recording.py",
+            "tests/test_sessions_dir.py",
+        ],
     ),
     **{
         f"estimate.{m}": (
@@ -85,11 +102,16 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     },
     "verdict": (
         ["src/hexcal/diagnosis/verdict.py"],
-        ["tests/test_verdict.py", "tests/test_diagnosis_thresholds.py", "tests/test_diagnosis.py"],
+        [
+            "tests/test_verdict.py",
+            "tests/test_diagnosis_thresholds.py",
+            "tests/test_diagnosis.py",
+            *DIAGNOSIS_WIDER,
+        ],
     ),
     "scoring": (
         ["src/hexcal/diagnosis/scoring.py"],
-        ["tests/test_diagnosis.py", "tests/test_verdict.py"],
+        ["tests/test_diagnosis.py", "tests/test_verdict.py", *DIAGNOSIS_WIDER],
     ),
     "covariates": (
         ["src/hexcal/effects/covariates.py"],
