@@ -124,3 +124,85 @@ def test_a_problem_out_of_evaluations_is_not_converged_and_does_not_hold_the_oth
     assert list(sol.converged) == [False, True]
     assert sol.nfev[0] == 3
     assert np.allclose(sol.x[1], [2.0, 1.3, 0.5], rtol=1e-12)
+
+
+@dataclass
+class _Noise:
+    """A System whose χ² the steps cannot change (every point evaluates to ``chi2``, as a fit
+    whose steps are below what χ² resolves): the step from x is ``−shrink·(x − target)``
+    (``shrink`` 1: the steps go straight to ``target``; a ``target`` moved with x: steps of a
+    constant length, the rounding noise of a fit at its floor), and δᵀAδ = ``a``·‖δ‖²."""
+
+    x: np.ndarray  #: (B, n)
+    chi2: np.ndarray  #: (B,)
+    a: float
+    target: np.ndarray  #: (B, n)
+    shrink: np.ndarray  #: (B, 1)
+
+    def step(self, lam: np.ndarray) -> np.ndarray:
+        return -self.shrink * (self.x - self.target) / (1.0 + lam[:, None])
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        return self.a * np.sum(delta**2, axis=-1)
+
+    def take(self, i: np.ndarray) -> _Noise:
+        return _Noise(self.x[i], self.chi2[i], self.a, self.target[i], self.shrink[i])
+
+    def put(self, i: np.ndarray, other: _Noise) -> None:
+        self.x[i], self.chi2[i], self.target[i] = other.x, other.chi2, other.target
+        self.shrink[i] = other.shrink
+
+
+def test_a_step_below_the_relative_tolerance_of_a_huge_chi2_is_the_last_without_evaluation():
+    """A model that misfits by far (χ² = 1e20): a Gauss–Newton step removing 10 of it (above
+    STEP_TOL, below REL_STEP_TOL · χ² = 100) is the last, taken without another evaluation —
+    one evaluation in all, at x0."""
+    x0 = np.array([[1.0]])
+    sol = minimise(
+        lambda x, i: _Noise(x.copy(), np.full(len(i), 1e20), 10.0, x + 1.0, np.ones((len(i), 1))),
+        x0,
+        50,
+    )
+    assert sol.converged.all() and list(sol.nfev) == [1]
+    assert sol.x[0, 0] == 2.0
+
+
+def test_steps_at_the_rounding_floor_stop_when_they_stop_shrinking():
+    """χ² = 1e6 that the steps cannot lower, and steps of δᵀAδ = 1e-5 (above STEP_TOL and
+    REL_STEP_TOL · χ², below UNRESOLVED · χ² = 1e-3): the rounding floor. Problem 0's steps keep
+    their length (each one from the point the last reached) and its χ² rises by 1e-15 of itself
+    per step, as rounding may: the first step is taken all the same (too small for χ² to judge),
+    and the second, no shorter than half the first, is the last — two evaluations, both steps
+    taken (x0 + 2 δ). Problem 1's
+    steps shrink fourfold in length each time (δᵀAδ sixteenfold): not the floor, it goes on to
+    STEP_TOL (1e-5 · 16⁻ᵏ ≤ 1e-12 at k = 6, the seventh evaluation)."""
+
+    def evaluate(x: np.ndarray, i: np.ndarray) -> _Noise:
+        first = i[:, None] == 0
+        target = np.where(first, x + 1e-3, 0.0)  # problem 0: always a step of 1e-3 ahead
+        shrink = np.where(first, 1.0, 0.75)
+        chi2 = 1e6 + np.where(first[:, 0], 1e-6 * (x[:, 0] - 5.0), 0.0)  # rising by rounding
+        return _Noise(x.copy(), chi2, 10.0, target, shrink)
+
+    x0 = np.array([[5.0], [1e-3 / 0.75]])  # problem 1's first step: 0.75 of the way to 0
+    sol = minimise(evaluate, x0, 50)
+    assert sol.converged.all(), sol.nfev
+    assert list(sol.nfev) == [2, 7]
+    assert sol.x[0, 0] == pytest.approx(5.0 + 2e-3, rel=1e-15)
+    assert abs(sol.x[1, 0]) < 1e-6
+
+
+def test_the_rank_cut_is_relative_to_each_problems_own_largest_eigenvalue():
+    """Two 2 × 2 systems of unit diagonal: the first nearly singular (scaled eigenvalues 2 and
+    2e-15, a relative 1e-15 below RANK_TOL, so its weak direction is left out), the second with
+    eigenvalues 1.99 and 0.01. Each problem's cut is relative to its own largest eigenvalue:
+    the first's step is the pseudo-inverse's along its strong direction only, however small
+    the second's eigenvalues are."""
+    c = 1.0 - 2e-15
+    A = np.array([[[1.0, c], [c, 1.0]], [[1.0, 0.99], [0.99, 1.0]]])
+    g = np.array([[1.0, -0.5], [0.3, 0.2]])
+    got = scaled_solve(A, g, np.zeros(2))
+    strong = np.array([1.0, 1.0]) / np.sqrt(2.0)  # the eigenvector of 2 − 2e-15·…
+    want0 = -strong * (strong @ g[0]) / (1.0 + c)
+    assert np.allclose(got[0], want0, rtol=1e-9, atol=0)
+    assert np.allclose(got[1], np.linalg.solve(A[1], -g[1]), rtol=1e-9)
