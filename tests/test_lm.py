@@ -173,15 +173,16 @@ def test_steps_at_the_rounding_floor_stop_when_they_stop_shrinking():
     their length (each one from the point the last reached) and its χ² rises by 1e-15 of itself
     per step, as rounding may: the first step is taken all the same (too small for χ² to judge),
     and the second, no shorter than half the first, is the last — two evaluations, both steps
-    taken (x0 + 2 δ). Problem 1's
-    steps shrink fourfold in length each time (δᵀAδ sixteenfold): not the floor, it goes on to
-    STEP_TOL (1e-5 · 16⁻ᵏ ≤ 1e-12 at k = 6, the seventh evaluation)."""
+    taken (x0 + 2 δ). Problem 1 (χ² = 1e3: REL_STEP_TOL · χ² = 1e-15, below STEP_TOL): its
+    steps shrink fourfold in length each time (δᵀAδ sixteenfold), so they are not at the floor
+    and it goes on to STEP_TOL (1e-5 · 16⁻ᵏ ≤ 1e-12 at k = 6, the seventh evaluation)."""
 
     def evaluate(x: np.ndarray, i: np.ndarray) -> _Noise:
         first = i[:, None] == 0
         target = np.where(first, x + 1e-3, 0.0)  # problem 0: always a step of 1e-3 ahead
         shrink = np.where(first, 1.0, 0.75)
-        chi2 = 1e6 + np.where(first[:, 0], 1e-6 * (x[:, 0] - 5.0), 0.0)  # rising by rounding
+        # Problem 0: χ² rising by rounding; problem 1: a smaller χ², REL_STEP_TOL · χ² = 1e-15
+        chi2 = np.where(first[:, 0], 1e6 + 1e-6 * (x[:, 0] - 5.0), 1e3)
         return _Noise(x.copy(), chi2, 10.0, target, shrink)
 
     x0 = np.array([[5.0], [1e-3 / 0.75]])  # problem 1's first step: 0.75 of the way to 0
@@ -206,3 +207,44 @@ def test_the_rank_cut_is_relative_to_each_problems_own_largest_eigenvalue():
     want0 = -strong * (strong @ g[0]) / (1.0 + c)
     assert np.allclose(got[0], want0, rtol=1e-9, atol=0)
     assert np.allclose(got[1], np.linalg.solve(A[1], -g[1]), rtol=1e-9)
+
+
+@dataclass
+class _Scripted:
+    """One problem whose χ² at each evaluation is the next of a script, whatever the point: a
+    step is a success or a failure as the script says. Its steps (δ = 1, δᵀAδ = 1: never
+    negligible) record the λ they are asked for."""
+
+    chi2: np.ndarray
+    asked: list
+
+    def step(self, lam: np.ndarray) -> np.ndarray:
+        self.asked.append(float(lam[0]))
+        return np.ones((len(lam), 1))
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        return np.sum(delta**2, axis=-1)
+
+    def take(self, i: np.ndarray) -> _Scripted:
+        return _Scripted(self.chi2[i].copy(), self.asked)
+
+    def put(self, i: np.ndarray, other: _Scripted) -> None:
+        self.chi2[i] = other.chi2
+
+
+def test_lambda_grows_tenfold_per_failure_shrinks_tenfold_per_success_and_returns_to_zero():
+    """Gauss–Newton (λ = 0) until a step fails to lower χ²; then λ = 1e-3, ×10 per failure,
+    ÷10 per success, and back to 0 once it would fall below 1e-12."""
+    script = [100.0, 200.0, 150.0, 90.0, 80.0, 85.0] + [79.0 - k for k in range(11)]
+    asked: list[float] = []
+    calls = iter(script)
+
+    def evaluate(x: np.ndarray, i: np.ndarray) -> _Scripted:
+        return _Scripted(np.array([next(calls)]), asked)
+
+    sol = minimise(evaluate, np.zeros((1, 1)), len(script))
+    assert not sol.converged[0] and sol.nfev[0] == len(script)
+    # fail, fail, success, success, fail, then ten successes (1e-3 → 1e-12, then 0)
+    want = [0.0, 1e-3, 1e-2, 1e-3, 1e-4, 1e-3] + [10.0**-k for k in range(4, 13)] + [0.0]
+    assert asked[: len(want)] == pytest.approx(want, rel=1e-9, abs=0)
+    assert sol.x[0, 0] == 13.0  # the 13 steps that lowered χ² taken, the 3 that failed not
