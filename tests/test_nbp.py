@@ -187,3 +187,50 @@ def test_motion_text_weighs_5_degrees_of_tilt_as_10_mm_of_move():
     R2 = Rotation.from_rotvec([np.deg2rad(6.0), 0.0, 0.0]).as_matrix()
     text = nbp.motion_text(np.zeros(3), R0, np.array([0.0, 0.0, 11.0]), R2)
     assert text == "tilt the platform about x by +6.0°, move it along z by +11 mm"
+
+
+@pytest.mark.parametrize("constraint", ["direction", "direction+length", "length"])
+def test_a_steps_own_noise_free_poses_estimate_its_clamp_and_leg(constraint):
+    """Eight noise-free poses of leg 3 (direction with two negative components) for each clamp
+    type: the direct forms give back what the step determines — Type I the leg's points and
+    its unit direction, Type II the platform point and where the clamp holds it, Type III the
+    base point, the length and, as the cone's axis, the leg's direction at the last pose — to
+    1e-9 mm; what it cannot tell comes from the design."""
+    sim = Simulator(ROBOT)
+    k = 2
+    draw = {"direction": sim.type_i, "direction+length": sim.type_ii, "length": sim.type_iii}
+    P, R = draw[constraint](k, (8,), np.random.default_rng(20))
+    v = P + R @ ROBOT.b[k] - ROBOT.a[k]
+    lengths = np.linalg.norm(v, axis=-1)
+    g = nbp.estimate_geometry(constraint, k, P, R, lengths - ROBOT.offsets[k], ROBOT)
+    assert np.allclose(g.a, ROBOT.a[k], atol=1e-9) and np.allclose(g.b, ROBOT.b[k], atol=1e-9)
+    if constraint == "direction":
+        assert np.allclose(g.direction, v[0] / lengths[0], atol=1e-12)
+        assert (v[0] < 0).sum() == 2
+    elif constraint == "direction+length":
+        assert np.allclose(g.point, P[0] + R[0] @ ROBOT.b[k], atol=1e-9)
+    else:
+        assert g.length == pytest.approx(lengths[0], abs=1e-9)
+        assert np.allclose(g.direction, v[-1] / lengths[-1], atol=1e-12)
+        assert not np.allclose(v[-2] / lengths[-2], v[-1] / lengths[-1], atol=1e-3)
+
+
+def test_a_manifold_mostly_near_a_singularity_gives_fewer_candidates_all_within_the_limit(
+    monkeypatch,
+):
+    """With the limit lowered to the 3rd percentile of the Type II manifold's condition number,
+    20 redraws cannot replace every draw beyond it: fewer than the 200 asked are returned,
+    none lost that was within the limit — about 200 · (1 − 0.97²¹) ≈ 95 of them (107 with these
+    seeds; binomial σ ≈ 7, and the percentile of 400 draws is itself uncertain by a third: at
+    least 40 allows for both)."""
+    sim = Simulator(ROBOT)
+    k = 2
+    P, R = sim.type_ii(k, (1,), np.random.default_rng(0))
+    geo = nbp.LegGeometry(k, ROBOT.a[k], ROBOT.b[k], point=P[0] + R[0] @ ROBOT.b[k])
+    Pc, Rc = nbp.candidates(sim, "direction+length", geo, 400, np.random.default_rng(1))
+    cond = condition_number(ROBOT.a, ROBOT.b, Pc, Rotation.from_matrix(Rc))
+    limit = float(np.percentile(cond, 3))
+    monkeypatch.setattr(nbp, "MAX_CONDITION", limit)
+    Pc, Rc = nbp.candidates(sim, "direction+length", geo, 200, np.random.default_rng(2))
+    assert 40 <= len(Pc) < 200
+    assert condition_number(ROBOT.a, ROBOT.b, Pc, Rotation.from_matrix(Rc)).max() <= limit
