@@ -1,0 +1,109 @@
+"""The CAN driver's receive path (drivers/can_receive.py) fed frames directly, no bus: a
+listen-only driver (its sets opened by the SYNCs it sees) handles SYNCs, positions and EMCYs
+stamped on a bus clock the test chooses, so where each frame falls — which set it flags, how
+late it was — is known exactly. The bus-level contract is tests/test_drivers_can_encoders.py."""
+
+from __future__ import annotations
+
+import re
+
+import can
+import pytest
+
+from hexcal.drivers.can_config import CanBusConfig, LegEncoderConfig
+from hexcal.drivers.can_encoders import LegEncoders
+
+DEADLINE_S = 0.008
+
+
+def _driver() -> LegEncoders:
+    """A listen-only driver of six legs, nodes 0x21–0x26, 1000 counts/mm, an 8 ms deadline."""
+    legs = [
+        LegEncoderConfig(leg=k + 1, node_id=0x21 + k, counts_per_mm=1000.0, sign=1, zero_mm=0.0)
+        for k in range(6)
+    ]
+    config = CanBusConfig(
+        interface="virtual",
+        channel="receive-path-bus",
+        legs=legs,
+        sync_period_s=0.01,
+        heartbeat_timeout_s=10.0,
+        max_tpdo_delay_s=DEADLINE_S,
+        sync_counter=240,
+    )
+    return LegEncoders(config, listen_only=True)
+
+
+def _frame(cob: int, data: bytes, ts: float) -> can.Message:
+    return can.Message(arbitration_id=cob, data=data, timestamp=ts, is_extended_id=False)
+
+
+def _sync(counter: int, ts: float) -> can.Message:
+    return _frame(0x80, bytes([counter]), ts)
+
+
+def _position(leg: int, mm: float, ts: float) -> can.Message:
+    """Leg ``leg``'s position frame (its node's TPDO2, 0x280 + node id)."""
+    cob = 0x280 + 0x20 + leg
+    return _frame(cob, round(mm * 1000).to_bytes(4, "little", signed=True), ts)
+
+
+def _feed(drv: LegEncoders, frames: list[tuple[can.Message, float]]) -> list:
+    """Each frame handled at its host arrival time; then every open set closed."""
+    for msg, t in frames:
+        drv._dispatch(msg, t)
+    with drv._lock:
+        drv._close_all()
+    return list(drv._queue)
+
+
+def _positions(ts: float, legs=range(1, 7)) -> list[tuple[can.Message, float]]:
+    return [(_position(k, 100.0 + k, ts), ts + 1e-4) for k in legs]
+
+
+def test_a_late_position_flags_its_set_with_how_late_it_was():
+    """Leg 2's position stamped 62.5 ms after its SYNC (the limit 8 ms; no later SYNC): its set
+    is flagged, the message giving 62.5 ms (to 0.05 ms: its one decimal) and the limit; the
+    other legs' positions, 1 ms after the SYNC, are not."""
+    t0 = 1000.0
+    frames = [(_sync(5, t0), t0)] + _positions(t0 + 0.001, (1, 3, 4, 5, 6))
+    frames += [(_position(2, 102.0, t0 + 0.0625), t0 + 0.0626)]
+    (s,) = _feed(_driver(), frames)
+    assert not s.complete and s.readings_mm[1] == pytest.approx(102.0)
+    (late,) = [f for f in s.faults if "arrived" in f]
+    m = re.match(
+        r"leg 2 encoder \(node 0x22\) position arrived ([\d.]+) ms after SYNC 5 \(limit ([\d.]+) ms\)",
+        late,
+    )
+    assert m, late
+    assert float(m[1]) == pytest.approx(62.5, abs=0.05)
+    assert float(m[2]) == pytest.approx(1e3 * DEADLINE_S, abs=0.05)
+
+
+def test_an_emergency_flags_the_set_its_bus_time_falls_in_not_the_newest():
+    """Two SYNCs 10 ms apart, then leg 3's EMCY stamped 5 ms after the first (handled after the
+    second): the first set carries it, the second does not (its node reported no error
+    register, so the error does not carry on to later sets)."""
+    t0 = 1000.0
+    emcy = _frame(0x80 + 0x23, bytes([0x10, 0x82, 0x00, 0, 0, 0, 0, 0]), t0 + 0.005)
+    frames = [(_sync(1, t0), t0)] + _positions(t0 + 0.001)
+    frames += [(_sync(2, t0 + 0.010), t0 + 0.010), (emcy, t0 + 0.0105)]
+    frames += _positions(t0 + 0.011)
+    first, second = _feed(_driver(), frames)
+    assert any(f.startswith("leg 3 encoder (node 0x23) sent EMCY 0x8210") for f in first.faults)
+    assert not first.complete
+    assert second.complete and not second.faults
+
+
+def test_a_position_stamped_at_a_closed_sets_sync_is_discarded_as_late_not_an_orphan():
+    """Set 1 closed (a position of set 2 came after its answers were due); then leg 1's
+    position stamped at set 1's own SYNC time arrives: it belonged to that set, so it is
+    discarded quietly as late — no 'outside any SYNC window' fault on the set open now."""
+    t0 = 1000.0
+    frames = [(_sync(1, t0), t0)] + _positions(t0 + 0.001)
+    frames += [(_sync(2, t0 + 0.010), t0 + 0.010)] + _positions(t0 + 0.012)
+    frames += [(_position(1, 101.0, t0), t0 + 0.0125)]
+    drv = _driver()
+    first, second = _feed(drv, frames)
+    assert first.complete and second.complete, (first.faults, second.faults)
+    assert drv._late_discarded == 1
