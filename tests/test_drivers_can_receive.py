@@ -6,6 +6,8 @@ late it was — is known exactly. The bus-level contract is tests/test_drivers_c
 from __future__ import annotations
 
 import re
+import time
+from types import SimpleNamespace
 
 import can
 import pytest
@@ -16,8 +18,9 @@ from hexcal.drivers.can_encoders import LegEncoders
 DEADLINE_S = 0.008
 
 
-def _driver() -> LegEncoders:
-    """A listen-only driver of six legs, nodes 0x21–0x26, 1000 counts/mm, an 8 ms deadline."""
+def _driver(listen_only: bool = True, deadline_s: float = DEADLINE_S) -> LegEncoders:
+    """A driver of six legs, nodes 0x21–0x26, 1000 counts/mm, an 8 ms deadline; listen-only
+    unless asked (then it produces the SYNCs)."""
     legs = [
         LegEncoderConfig(leg=k + 1, node_id=0x21 + k, counts_per_mm=1000.0, sign=1, zero_mm=0.0)
         for k in range(6)
@@ -26,12 +29,12 @@ def _driver() -> LegEncoders:
         interface="virtual",
         channel="receive-path-bus",
         legs=legs,
-        sync_period_s=0.01,
+        sync_period_s=max(0.01, 2 * deadline_s),  # the deadline must be under a period
         heartbeat_timeout_s=10.0,
-        max_tpdo_delay_s=DEADLINE_S,
+        max_tpdo_delay_s=deadline_s,
         sync_counter=240,
     )
-    return LegEncoders(config, listen_only=True)
+    return LegEncoders(config, listen_only=listen_only)
 
 
 def _frame(cob: int, data: bytes, ts: float) -> can.Message:
@@ -107,3 +110,46 @@ def test_a_position_stamped_at_a_closed_sets_sync_is_discarded_as_late_not_an_or
     first, second = _feed(drv, frames)
     assert first.complete and second.complete, (first.faults, second.faults)
     assert drv._late_discarded == 1
+
+
+@pytest.mark.parametrize(
+    ("cls", "ctrl", "state"),
+    [
+        (0x004, 0x10, "ERROR-PASSIVE"),  # the controller's own report: RX error-passive
+        (0x004, 0x40, "ACTIVE"),  # ... back to error-active
+        (0x008, 0x10, "ACTIVE"),  # a protocol violation: its data byte 1 is no controller state
+        (0x008 | 0x004, 0x20, "ERROR-PASSIVE"),  # both: the controller's part counts
+    ],
+)
+def test_only_a_controller_error_frame_moves_the_bus_state(cls, ctrl, state):
+    """An error frame changes the bus state only through its controller class (CAN_ERR_CRTL)
+    and that byte; a protocol violation's data say nothing about the controller."""
+    drv = _driver()
+    err = can.Message(
+        arbitration_id=0x20000000 | cls,
+        is_error_frame=True,
+        is_extended_id=True,
+        data=bytes([0, ctrl, 0x08, 0, 0, 0, 0, 0]),
+        timestamp=1000.0,
+    )
+    drv._dispatch(err, 1000.0)
+    assert drv.status()["bus_state"] == state
+
+
+def test_the_echo_of_the_drivers_own_sync_gives_its_set_the_wire_time():
+    """A producing driver (network stubbed: the SYNC's transmit returns at once) on a bus that
+    marks its echoes: the echo of its SYNC, stamped 0.2 s after the driver stamped the SYNC
+    before sending (the host stalled; within half the 1 s deadline of it), moves the set's
+    SYNC time to the echo's — the exact wire time — and positions count from there."""
+    drv = _driver(listen_only=False, deadline_s=1.0)
+    drv._network = SimpleNamespace(sync=SimpleNamespace(transmit=lambda counter: None))
+    t = time.monotonic()
+    drv._dispatch(_frame(0x721, bytes([5]), t), t)  # a heartbeat: the bus clock learnt, offset 0
+    drv._send_sync_locked()
+    echo = can.Message(
+        arbitration_id=0x80, data=bytes([1]), timestamp=t + 0.2, is_rx=False, is_extended_id=False
+    )
+    drv._dispatch(echo, t + 0.2)
+    (s,) = _feed(drv, _positions(t + 0.2005))
+    assert s.sync_counter == 1 and s.t_sync == pytest.approx(t + 0.2, abs=1e-9)
+    assert s.arrival == pytest.approx([t + 0.2005] * 6, abs=1e-9)
