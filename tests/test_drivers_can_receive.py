@@ -153,3 +153,28 @@ def test_the_echo_of_the_drivers_own_sync_gives_its_set_the_wire_time():
     (s,) = _feed(drv, _positions(t + 0.2005))
     assert s.sync_counter == 1 and s.t_sync == pytest.approx(t + 0.2, abs=1e-9)
     assert s.arrival == pytest.approx([t + 0.2005] * 6, abs=1e-9)
+
+
+def test_a_short_position_frame_is_named_and_gives_no_reading():
+    """Leg 4's position frame with 3 data bytes (a 32-bit position needs 4): its set has no
+    reading for leg 4 and says which leg sent how many bytes; the other legs read as sent."""
+    t0 = 1000.0
+    short = _frame(0x280 + 0x24, bytes([1, 2, 3]), t0 + 0.001)
+    frames = [(_sync(1, t0), t0)] + _positions(t0 + 0.001, (1, 2, 3, 5, 6))
+    frames += [(short, t0 + 0.0012)]
+    (s,) = _feed(_driver(), frames)
+    assert s.readings_mm[3] != s.readings_mm[3]  # NaN
+    assert s.readings_mm[[0, 1, 2, 4, 5]] == pytest.approx([101.0, 102.0, 103.0, 105.0, 106.0])
+    assert any(f.startswith("leg 4 encoder (node 0x24) sent a 3-byte TPDO2") for f in s.faults)
+
+
+def test_a_position_stamped_off_the_bus_clock_is_charged_to_its_own_leg():
+    """Leg 5's position stamped 5 s before the bus clock learnt from the SYNC (its stamp not
+    trusted): it is discarded, and the note names leg 5 and the stamp 5 s early (−5.000 s)."""
+    t0 = 1000.0
+    frames = [(_sync(1, t0), t0)] + _positions(t0 + 0.001, (1, 2, 3, 4, 6))
+    frames += [(_position(5, 105.0, t0 + 0.001 - 5.0), t0 + 0.001)]
+    (s,) = _feed(_driver(), frames)
+    assert s.readings_mm[4] != s.readings_mm[4]
+    (note,) = [f for f in s.faults if "off the clock" in f]
+    assert note.startswith("leg 5 encoder (node 0x25) sent a position stamped -5.000 s off"), note
