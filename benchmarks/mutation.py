@@ -67,6 +67,7 @@ ESTIMATE_TESTS = {
     "lm": ["tests/test_lm.py", "tests/test_refine_solver.py"],
     "nbp": ["tests/test_nbp.py", "tests/test_guided.py"],
     "leg_rows": [
+        "tests/test_leg_rows.py",
         "tests/test_refine_solver.py",
         "tests/test_folds.py",
         "tests/test_refine_batch.py",
