@@ -66,6 +66,8 @@ ESTIMATE = (
 ESTIMATE_TESTS = {
     "lm": ["tests/test_lm.py", "tests/test_refine_solver.py"],
     "nbp": ["tests/test_nbp.py", "tests/test_guided.py"],
+    #: test_nbp checks bound's informations against nbp's own Jacobian rows (a Woodbury update).
+    "bound": ["tests/test_bound.py", "tests/test_nbp.py"],
     "leg_rows": [
         "tests/test_leg_rows.py",
         "tests/test_refine_solver.py",
