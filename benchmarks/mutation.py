@@ -118,7 +118,7 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     ),
     "covariates": (
         ["src/hexcal/effects/covariates.py"],
-        ["tests/test_effect_file.py", "tests/test_explorer.py"],
+        ["tests/test_covariates.py", "tests/test_effect_file.py", "tests/test_explorer.py"],
     ),
     #: The drivers' frame handling: the receive path fed frames directly, and the contract's
     #: tests on python-can's virtual bus (and the one about echoes no interface marks, which
