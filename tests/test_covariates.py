@@ -78,3 +78,17 @@ def test_a_covariate_is_per_pose_exactly_when_its_six_legs_values_are_one():
     for c in covs:
         v = np.asarray(c.values(d), float)
         assert c.per_pose == bool(np.all(v == v[:, [0]])), c.name
+
+
+def test_tilt_is_the_platforms_turn_away_from_its_normal_at_home():
+    """Rotations from home about horizontal axes by 0°, 5° and 12°, each after a yaw of 30°
+    (a turn about the normal, no tilt): the tilt is 0°, 5° and 12°."""
+    d0 = _data(3)
+    yaw = Rotation.from_euler("z", 30.0, degrees=True)
+    turns = [
+        Rotation.from_rotvec(np.deg2rad(a) * np.array([np.cos(c), np.sin(c), 0.0]))
+        for a, c in ((0.0, 0.3), (5.0, 1.1), (12.0, 2.5))
+    ]
+    R = np.stack([(t * yaw).as_matrix() for t in turns])
+    d = dataclasses.replace(d0, rotation=R)
+    assert covariate_values("tilt", d)[:, 0] == pytest.approx([0.0, 5.0, 12.0], abs=1e-6)
