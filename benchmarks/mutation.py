@@ -64,17 +64,37 @@ ESTIMATE = (
 )
 #: The estimate modules without a test file of their own name: the tests that call them.
 ESTIMATE_TESTS = {
-    "lm": ["tests/test_refine_solver.py"],
-    "leg_rows": ["tests/test_refine_solver.py", "tests/test_folds.py"],
-    "calibrate": ["tests/test_calibrate.py", "tests/test_refine.py"],
+    "lm": ["tests/test_lm.py", "tests/test_refine_solver.py"],
+    "nbp": ["tests/test_nbp.py", "tests/test_guided.py"],
+    #: test_nbp checks bound's informations against nbp's own Jacobian rows (a Woodbury update).
+    "bound": ["tests/test_bound.py", "tests/test_nbp.py"],
+    "leg_rows": [
+        "tests/test_leg_rows.py",
+        "tests/test_refine_solver.py",
+        "tests/test_folds.py",
+        "tests/test_refine_batch.py",
+    ],
+    "calibrate": ["tests/test_calibrate.py", "tests/test_refine.py", "tests/test_model_file.py"],
 }
+#: The diagnosis' wider tests: the sessions with drift, joint effects and zero steps.
+DIAGNOSIS_WIDER = [
+    "tests/test_drift.py",
+    "tests/test_joint_effects.py",
+    "tests/test_changepoint.py",
+]
 #: name → (files to mutate, tests to run); the tests run quick and slow (-m "").
 TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "frames": (["drivers/can_frames.py"], FRAME_TESTS),
     "fileio": (["src/hexcal/io/fileio.py"], ["tests/test_fileio.py", "tests/test_strict_json.py"]),
     "session": (
         ["src/hexcal/procedure/session.py"],
-        ["tests/test_session.py", "tests/test_session_lock.py", "tests/test_fuzz_sessions.py"],
+        [
+            "tests/test_session.py",
+            "tests/test_session_lock.py",
+            "tests/test_fuzz_sessions.py",
+            "tests/test_recording.py",
+            "tests/test_sessions_dir.py",
+        ],
     ),
     **{
         f"estimate.{m}": (
@@ -85,20 +105,33 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     },
     "verdict": (
         ["src/hexcal/diagnosis/verdict.py"],
-        ["tests/test_verdict.py", "tests/test_diagnosis_thresholds.py", "tests/test_diagnosis.py"],
+        [
+            "tests/test_verdict.py",
+            "tests/test_diagnosis_thresholds.py",
+            "tests/test_diagnosis.py",
+            *DIAGNOSIS_WIDER,
+        ],
     ),
     "scoring": (
         ["src/hexcal/diagnosis/scoring.py"],
-        ["tests/test_diagnosis.py", "tests/test_verdict.py"],
+        ["tests/test_diagnosis.py", "tests/test_verdict.py", *DIAGNOSIS_WIDER],
     ),
     "covariates": (
         ["src/hexcal/effects/covariates.py"],
-        ["tests/test_effect_file.py", "tests/test_explorer.py"],
+        ["tests/test_covariates.py", "tests/test_effect_file.py", "tests/test_explorer.py"],
     ),
-    #: The drivers' frame handling: the contract's tests on python-can's virtual bus.
+    #: The drivers' frame handling: the receive path fed frames directly, and the contract's
+    #: tests on python-can's virtual bus (and the one about echoes no interface marks, which
+    #: only udp_multicast makes).
     "receive": (
         ["drivers/can_receive.py"],
-        ["tests/test_drivers_can_frames.py", "tests/test_drivers_can_encoders.py", "-k", "virtual"],
+        [
+            "tests/test_drivers_can_receive.py",
+            "tests/test_drivers_can_frames.py",
+            "tests/test_drivers_can_encoders.py",
+            "-k",
+            "virtual or own_sync_looped or test_drivers_can_receive",
+        ],
     ),
 }
 

@@ -206,3 +206,22 @@ def test_the_mse_bounds_are_traces_of_the_inverse_information_one_or_a_batch():
     for pose_type, block in (("type_i", slice(3, 6)), ("type_ii_iii", slice(6, 9))):
         want = np.trace(inv[:, block, block], axis1=-2, axis2=-1)
         assert np.allclose(bound.base_point_mse_bound(info, pose_type), want, rtol=1e-9), pose_type
+
+
+def test_a_batch_inverts_the_well_posed_on_their_own_scale_and_pseudo_inverts_the_rest():
+    """Three informations that all factor: one well posed but on scales 1e16 apart (its bound
+    is numpy's inverse, 1e16 along the weak axis — not cut as rounding), one well posed with
+    mixed scales, and one whose two columns agree to 2 ulps (a direction left undetermined: a
+    scaled Cholesky pivot² of 1e-15, below WELL_POSED_PIVOT), which gets numpy's
+    pseudo-inverse; the first two are inverted on their own scale in the same batch."""
+    c = 1.0 - 2 * np.finfo(float).eps
+    info = np.array(
+        [
+            [[1e-16, 1e-17], [1e-17, 1.0]],
+            [[4e6, 1e3], [1e3, 2.0]],
+            [[1.0, c], [c, 1.0]],
+        ]
+    )
+    got = bound.bound(info)
+    assert np.allclose(got[:2], np.linalg.inv(info[:2]), rtol=1e-9, atol=0)
+    assert np.allclose(got[2], np.linalg.pinv(info[2], hermitian=True), rtol=1e-9, atol=1e-12)

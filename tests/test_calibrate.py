@@ -7,10 +7,16 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from hexcal.app.report_text import calibration_json, calibration_text
-from hexcal.estimate.calibrate import RETRY_CHI2_PER_DOF, calibrate, refine_from_seeds
+from hexcal.estimate.calibrate import (
+    RETRY_CHI2_PER_DOF,
+    calibrate,
+    leg_residuals,
+    refine_from_seeds,
+)
 from hexcal.estimate.layout import ParameterLayout
 from hexcal.estimate.refine import refine
 from hexcal.estimate.solvers.free import free_linear
@@ -154,3 +160,43 @@ def test_clamps_that_fit_as_well_as_a_misfit_model_are_used_and_the_effect_named
     check = calibrate(meas, design, 42, INST).clamp_check
     assert check.model_misfit and check.used
     assert "misses an effect" in check.text and "the clamps held" not in check.text
+
+
+def _gain_session(design):
+    rng = np.random.default_rng(3)
+    truth = perturbed_truth(design, rng, SessionPlan())
+    hook = effect_hook("gain", realistic_values("gain", rng, truth), truth)
+    meas, _ = simulate_session(design, 3, SessionPlan(), effects=[hook], truth=truth)
+    return meas
+
+
+def test_an_effect_fit_weighs_the_rows_by_the_stated_noise(design):
+    """Gain hidden, the session's noise that of INST: calibrated with gain and the noise stated
+    twice too large, χ²/dof is a quarter of what the stated INST gives (the rows weighed by
+    1/σ², not by the typical instruments'), within 4 σ of 1/4, σ = √(2/dof)/4."""
+    meas = _gain_session(design)
+    doubled = Instruments(
+        tracker=TrackerNoise(position_sigma_mm=0.02, orientation_sigma_deg=0.004),
+        encoders=EncoderNoise(reading_sigma_mm=0.004),
+    )
+    r = calibrate(meas, design, 42, doubled, effects=("gain",)).refinement
+    assert r.chi2 / r.dof == pytest.approx(0.25, abs=4 * np.sqrt(2 / r.dof) / 4)
+
+
+def test_leg_residuals_are_reading_plus_offset_less_the_legs_length():
+    """Reading + offset − ‖p + R b_k − a_k‖ for each pose and leg, by hand, and zero on
+    noise-free readings of the geometry itself."""
+    sim = Simulator(TRUTH, ranges=PoseRanges(box_mm=(30.0, 30.0, 30.0)))
+    rng = np.random.default_rng(6)
+    P, R = sim.free((5,), rng)
+    lengths = np.linalg.norm(P[:, None] + np.einsum("mij,kj->mki", R, TRUTH.b) - TRUTH.a, axis=-1)
+    rho = lengths - TRUTH.offsets
+    q = Rotation.from_matrix(R).as_quat(scalar_first=True)
+    meas = Measurements.from_arrays(P, q, rho)
+    assert np.allclose(leg_residuals(TRUTH.a, TRUTH.b, TRUTH.offsets, meas), 0.0, atol=1e-9)
+    off = TRUTH.offsets + 1.5
+    got = leg_residuals(TRUTH.a + 2.0, TRUTH.b, off, meas)
+    for m in range(5):
+        for k in range(6):
+            want = rho[m, k] + off[k] - np.linalg.norm(P[m] + R[m] @ TRUTH.b[k] - TRUTH.a[k] - 2.0)
+            assert got[m, k] == pytest.approx(want, abs=1e-9)

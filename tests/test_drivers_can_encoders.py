@@ -646,6 +646,24 @@ def test_rebooted_node_is_restarted(driver, mock):
     assert_contiguous(seen + more)
 
 
+def test_a_node_sent_to_pre_operational_is_started_again(driver, mock, config):
+    """Another NMT master sends leg 4's node to PRE-OPERATIONAL (no boot-up: it keeps its
+    settings): its heartbeat says so, a set is flagged with that state, and the driver starts
+    it again (NMT start), so complete sets follow."""
+    read_sets(driver, 2)
+    n_start = mock.nmt_log.count((0x01, 0x24))
+    with can.Bus(**config.bus_kwargs()) as other:
+        other.send(can.Message(arbitration_id=0x000, data=[0x80, 0x24], is_extended_id=False))
+    seen, bad = read_until(driver, lambda s: any("PRE-OPERATIONAL" in f for f in s.faults))
+    assert any(
+        f.startswith("leg 4 encoder (node 0x24) reports NMT state PRE-OPERATIONAL")
+        for f in bad.faults
+    )
+    more, _ = read_until(driver, lambda s: s.complete)
+    assert mock.nmt_log.count((0x01, 0x24)) > n_start  # the driver sent NMT start again
+    assert_contiguous(seen + more)
+
+
 def test_another_sync_producer_is_flagged(driver, config, target):
     """Another master's SYNC is flagged — also where the driver's own SYNCs come back unmarked
     (udp_multicast), which must not be (test_own_sync_looped_back_is_not_another_producer)."""

@@ -124,3 +124,127 @@ def test_a_problem_out_of_evaluations_is_not_converged_and_does_not_hold_the_oth
     assert list(sol.converged) == [False, True]
     assert sol.nfev[0] == 3
     assert np.allclose(sol.x[1], [2.0, 1.3, 0.5], rtol=1e-12)
+
+
+@dataclass
+class _Noise:
+    """A System whose χ² the steps cannot change (every point evaluates to ``chi2``, as a fit
+    whose steps are below what χ² resolves): the step from x is ``−shrink·(x − target)``
+    (``shrink`` 1: the steps go straight to ``target``; a ``target`` moved with x: steps of a
+    constant length, the rounding noise of a fit at its floor), and δᵀAδ = ``a``·‖δ‖²."""
+
+    x: np.ndarray  #: (B, n)
+    chi2: np.ndarray  #: (B,)
+    a: float
+    target: np.ndarray  #: (B, n)
+    shrink: np.ndarray  #: (B, 1)
+
+    def step(self, lam: np.ndarray) -> np.ndarray:
+        return -self.shrink * (self.x - self.target) / (1.0 + lam[:, None])
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        return self.a * np.sum(delta**2, axis=-1)
+
+    def take(self, i: np.ndarray) -> _Noise:
+        return _Noise(self.x[i], self.chi2[i], self.a, self.target[i], self.shrink[i])
+
+    def put(self, i: np.ndarray, other: _Noise) -> None:
+        self.x[i], self.chi2[i], self.target[i] = other.x, other.chi2, other.target
+        self.shrink[i] = other.shrink
+
+
+def test_a_step_below_the_relative_tolerance_of_a_huge_chi2_is_the_last_without_evaluation():
+    """A model that misfits by far (χ² = 1e20): a Gauss–Newton step removing 10 of it (above
+    STEP_TOL, below REL_STEP_TOL · χ² = 100) is the last, taken without another evaluation —
+    one evaluation in all, at x0."""
+    x0 = np.array([[1.0]])
+    sol = minimise(
+        lambda x, i: _Noise(x.copy(), np.full(len(i), 1e20), 10.0, x + 1.0, np.ones((len(i), 1))),
+        x0,
+        50,
+    )
+    assert sol.converged.all() and list(sol.nfev) == [1]
+    assert sol.x[0, 0] == 2.0
+
+
+def test_steps_at_the_rounding_floor_stop_when_they_stop_shrinking():
+    """χ² = 1e6 that the steps cannot lower, and steps of δᵀAδ = 1e-5 (above STEP_TOL and
+    REL_STEP_TOL · χ², below UNRESOLVED · χ² = 1e-3): the rounding floor. Problem 0's steps keep
+    their length (each one from the point the last reached) and its χ² rises by 1e-15 of itself
+    per step, as rounding may: the first step is taken all the same (too small for χ² to judge),
+    and the second, no shorter than half the first, is the last — two evaluations, both steps
+    taken (x0 + 2 δ). Problem 1 (χ² = 1e3: REL_STEP_TOL · χ² = 1e-15, below STEP_TOL): its
+    steps shrink fourfold in length each time (δᵀAδ sixteenfold), so they are not at the floor
+    and it goes on to STEP_TOL (1e-5 · 16⁻ᵏ ≤ 1e-12 at k = 6, the seventh evaluation)."""
+
+    def evaluate(x: np.ndarray, i: np.ndarray) -> _Noise:
+        first = i[:, None] == 0
+        target = np.where(first, x + 1e-3, 0.0)  # problem 0: always a step of 1e-3 ahead
+        shrink = np.where(first, 1.0, 0.75)
+        # Problem 0: χ² rising by rounding; problem 1: a smaller χ², REL_STEP_TOL · χ² = 1e-15
+        chi2 = np.where(first[:, 0], 1e6 + 1e-6 * (x[:, 0] - 5.0), 1e3)
+        return _Noise(x.copy(), chi2, 10.0, target, shrink)
+
+    x0 = np.array([[5.0], [1e-3 / 0.75]])  # problem 1's first step: 0.75 of the way to 0
+    sol = minimise(evaluate, x0, 50)
+    assert sol.converged.all(), sol.nfev
+    assert list(sol.nfev) == [2, 7]
+    assert sol.x[0, 0] == pytest.approx(5.0 + 2e-3, rel=1e-15)
+    assert abs(sol.x[1, 0]) < 1e-6
+
+
+def test_the_rank_cut_is_relative_to_each_problems_own_largest_eigenvalue():
+    """Two 2 × 2 systems of unit diagonal: the first nearly singular (scaled eigenvalues 2 and
+    2e-15, a relative 1e-15 below RANK_TOL, so its weak direction is left out), the second with
+    eigenvalues 1.99 and 0.01. Each problem's cut is relative to its own largest eigenvalue:
+    the first's step is the pseudo-inverse's along its strong direction only, however small
+    the second's eigenvalues are."""
+    c = 1.0 - 2e-15
+    A = np.array([[[1.0, c], [c, 1.0]], [[1.0, 0.99], [0.99, 1.0]]])
+    g = np.array([[1.0, -0.5], [0.3, 0.2]])
+    got = scaled_solve(A, g, np.zeros(2))
+    strong = np.array([1.0, 1.0]) / np.sqrt(2.0)  # the eigenvector of 2 − 2e-15·…
+    want0 = -strong * (strong @ g[0]) / (1.0 + c)
+    assert np.allclose(got[0], want0, rtol=1e-9, atol=0)
+    assert np.allclose(got[1], np.linalg.solve(A[1], -g[1]), rtol=1e-9)
+
+
+@dataclass
+class _Scripted:
+    """One problem whose χ² at each evaluation is the next of a script, whatever the point: a
+    step is a success or a failure as the script says. Its steps (δ = 1, δᵀAδ = 1: never
+    negligible) record the λ they are asked for."""
+
+    chi2: np.ndarray
+    asked: list
+
+    def step(self, lam: np.ndarray) -> np.ndarray:
+        self.asked.append(float(lam[0]))
+        return np.ones((len(lam), 1))
+
+    def quad(self, delta: np.ndarray) -> np.ndarray:
+        return np.sum(delta**2, axis=-1)
+
+    def take(self, i: np.ndarray) -> _Scripted:
+        return _Scripted(self.chi2[i].copy(), self.asked)
+
+    def put(self, i: np.ndarray, other: _Scripted) -> None:
+        self.chi2[i] = other.chi2
+
+
+def test_lambda_grows_tenfold_per_failure_shrinks_tenfold_per_success_and_returns_to_zero():
+    """Gauss–Newton (λ = 0) until a step fails to lower χ²; then λ = 1e-3, ×10 per failure,
+    ÷10 per success, and back to 0 once it would fall below 1e-12."""
+    script = [100.0, 200.0, 150.0, 90.0, 80.0, 85.0] + [79.0 - k for k in range(11)]
+    asked: list[float] = []
+    calls = iter(script)
+
+    def evaluate(x: np.ndarray, i: np.ndarray) -> _Scripted:
+        return _Scripted(np.array([next(calls)]), asked)
+
+    sol = minimise(evaluate, np.zeros((1, 1)), len(script))
+    assert not sol.converged[0] and sol.nfev[0] == len(script)
+    # fail, fail, success, success, fail, then ten successes (1e-3 → 1e-12, then 0)
+    want = [0.0, 1e-3, 1e-2, 1e-3, 1e-4, 1e-3] + [10.0**-k for k in range(4, 13)] + [0.0]
+    assert asked[: len(want)] == pytest.approx(want, rel=1e-9, abs=0)
+    assert sol.x[0, 0] == 13.0  # the 13 steps that lowered χ² taken, the 3 that failed not

@@ -435,6 +435,24 @@ def test_a_refused_pose_is_set_aside_and_a_pose_with_a_non_number_names_it(tmp_p
     assert len(load_session(sf.path).poses) == 1
 
 
+def test_a_recorded_pose_set_aside_later_moves_alone_with_its_reason(tmp_path, design):
+    """Through the recording sink: three poses recorded, then the second set aside (its step's
+    check failed): it alone moves to set_aside, with the reason; the first and third stay."""
+    rng = np.random.default_rng(7)
+    sf = SessionFile.create(tmp_path / "s.json", Session(robot=design))
+    sink = sf.recording_sink(run_start=0.0)
+    step = SimpleNamespace(name="leg3-length", leg=3, constraint="length")
+    poses = [recorded_pose(rng) for _ in range(3)]
+    for pose in poses:
+        sink("pose", step, pose, "")
+    sink("set-aside", step, poses[1], "the clamp slipped")
+    s = load_session(sf.path)
+    assert [p.pose_id for p in s.poses] == [1, 3]
+    assert [(a.step, a.reason, a.pose.pose_id) for a in s.set_aside] == [
+        ("leg3-length", "the clamp slipped", 2)
+    ]
+
+
 def test_a_rebooted_encoder_is_noted_on_its_pose_and_logged_with_that_note(
     tmp_path, design, caplog
 ):

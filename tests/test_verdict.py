@@ -27,8 +27,15 @@ from hexcal.diagnosis.selection import alike as _alike
 from hexcal.diagnosis.selection import indistinct as _indistinct
 from hexcal.diagnosis.selection import wins as _wins
 from hexcal.diagnosis.text import diagnosis_text
-from hexcal.diagnosis.verdict import judge
+from hexcal.diagnosis.verdict import (
+    _catalogue_closes,
+    _named_notes,
+    _note_heldout_refusals,
+    judge,
+    scaled,
+)
 from hexcal.estimate.effect_fit import Problem
+from hexcal.model.noise import NoiseSigmas
 from hexcal.sim import verdict_cases as vc
 from hexcal.sim.inject import effect_hook, realistic_values, zero_jump_hook
 from hexcal.sim.robots import left_hand
@@ -162,16 +169,17 @@ def test_the_json_carries_the_new_verdicts_fields(backlash_diagnoses):
         assert "heldout_z" in cand
 
 
-def _estimated_noise_judgement(noise, hidden=None, seed=5):
-    """Judge a Left Hand session simulated with ``noise`` (and ``hidden`` at its realistic
-    size) without an instruments file, the floor then estimated from the residual."""
+def _estimated_noise_judgement(noise, hidden=(), seed=5, notes=None):
+    """Judge a Left Hand session simulated with ``noise`` (and the effects ``hidden`` at their
+    realistic size) without an instruments file, the floor then estimated from the residual."""
     design = left_hand().model_copy(update={"platform_mass_kg": 20.0})
     rng = np.random.default_rng(90_000 + seed)
     plan = SessionPlan(temperature_rise_k=5.0, noise=noise)
     truth = perturbed_truth(design, rng, plan)
-    hooks = [effect_hook(hidden, realistic_values(hidden, rng, truth), truth)] if hidden else []
+    hidden = (hidden,) if isinstance(hidden, str) else hidden
+    hooks = [effect_hook(h, realistic_values(h, rng, truth), truth) for h in hidden]
     meas, _ = simulate_session(design, seed, plan, effects=hooks, truth=truth)
-    notes: list[str] = []
+    notes = [] if notes is None else notes
     return judge(Problem.build(meas, design, None), ("offset",), None, notes)
 
 
@@ -190,10 +198,12 @@ def test_an_estimated_noise_level_twice_the_typical_one_leaves_a_clean_session_a
 def test_an_effect_hidden_under_an_estimated_noise_level_explains_all_of_the_excess():
     """Gain hidden at its realistic size under noise twice the typical one, no instruments
     file: the excess over the estimated floor is the gain's, so the share it explains is 1
-    within 4 σ, σ = √(2·dof)·s² / (χ² − dof·s²) (the refit's χ² spread over that excess)."""
+    within 4 σ, σ = √(2·dof)·s² / (χ² − dof·s²) (the refit's χ² spread over that excess), and
+    its refit alone is back at the floor (s² ≈ 4 ≠ 1: the refit's χ² is taken over dof·s²)."""
     j = _estimated_noise_judgement(NoiseModel(0.02, 0.004, 0.004), hidden="gain")
     assert j.excess and j.verdict == "gain"
     gain = next(c for c in j.candidates if c.effect == "gain")
+    assert gain.closes and gain.with_effect == ""
     excess = j.fit.chi2 - j.fit.dof * 4.0  # over the simulated level
     assert gain.explained == pytest.approx(1.0, abs=4 * np.sqrt(2 * j.fit.dof) * 4.0 / excess)
 
@@ -235,3 +245,88 @@ def test_a_searched_zero_step_pays_in_delta_bic_for_its_time_as_well_as_its_size
         k = c.refit.n_params - d.fit.n_params
         searched = len(d.changes) if c.effect == "zero_step" else 0
         assert c.delta_bic == pytest.approx(dchi2 + (k + searched) * ln_n, abs=1e-6), c.effect
+
+
+def test_two_effects_under_an_estimated_noise_level_name_the_first_and_what_it_leaves():
+    """Backlash and gain hidden under noise twice the typical one, no instruments file (s² ≈
+    4): backlash is named, its refit brings the residual to the floor only with gain (the
+    remaining excess over (dof − gain's parameters)·s²), and the note says to add backlash and
+    diagnose again. Both hidden effects are in the catalogue, so whatever any refit leaves, the
+    other catalogue effects together explain: every refitted candidate leads a chain."""
+    notes: list[str] = []
+    j = _estimated_noise_judgement(
+        NoiseModel(0.02, 0.004, 0.004), hidden=("gain", "backlash"), notes=notes
+    )
+    assert j.excess and j.verdict == "backlash"
+    backlash = next(c for c in j.candidates if c.effect == "backlash")
+    assert backlash.closes and backlash.with_effect == "gain"
+    assert (
+        "backlash leaves an excess that gain would explain: add backlash, then diagnose again"
+        in notes
+    )
+    refitted = [c for c in j.candidates if c.refit is not None]
+    assert len(refitted) == 3 and all(c.chain for c in refitted), [
+        (c.effect, c.chain) for c in refitted
+    ]
+
+
+def test_an_effect_alone_in_the_catalogue_leaves_no_chain():
+    """No other available, identifiable effect to explain what a refit leaves: no chain."""
+    c = _cand("gain")
+    other = Candidate("thermal", 10.0, False, True)  # not identifiable: it cannot help
+    assert not _catalogue_closes(None, c, [c], 1.0, 1.2)  # type: ignore[arg-type]
+    assert not _catalogue_closes(None, c, [c, other], 1.0, 1.2)  # type: ignore[arg-type]
+
+
+def test_the_unexplained_note_lists_the_effects_that_help_with_their_refits_figures():
+    """An effect outside the catalogue (a quadratic along the stroke, seed 40): unexplained.
+    The note lists exactly the refitted effects with very strong evidence (ΔBIC below
+    BIC_STRONG), each with the χ²/dof its refit leaves over the floor."""
+    h = vc.foreign("stroke quadratic", 40)
+    d = diagnose(h.meas, h.design, 42, instruments=h.instruments)
+    assert d.verdict == "unexplained"
+    refitted = [c for c in d.candidates if c.refit is not None]
+    helpful = [c for c in refitted if c.delta_bic < BIC_STRONG]
+    assert helpful and len(helpful) < len(refitted)  # both kinds, so the list is a choice
+    note = next(n for n in d.notes if n.startswith("some effects help"))
+    listed = re.findall(r"(\w+) \(explains (\d+) % of the excess, leaves χ²/dof ([\d.]+)\)", note)
+    assert sorted(e for e, _, _ in listed) == sorted(c.effect for c in helpful)
+    for effect, share, left in listed:
+        c = next(c for c in helpful if c.effect == effect)
+        assert int(share) == round(100 * c.explained)
+        assert float(left) == pytest.approx(c.refit.chi2 / (c.refit.dof * d.noise_level), abs=0.006)
+
+
+def test_at_the_floor_the_note_names_strong_effects_that_predict_no_better():
+    """At the floor, an effect with very strong in-sample evidence but a held-out gain below
+    HELDOUT_Z is named in the note, with its figures; one that predicts better, or with weak
+    evidence, is not."""
+    refused = _cand("gain", dbic=BIC_STRONG - 30, z=HELDOUT_Z - 1.5)
+    better = _cand("thermal", dbic=BIC_STRONG - 30, z=HELDOUT_Z + 1.0)
+    weak = _cand("drift", dbic=BIC_STRONG + 1, z=0.0)
+    notes: list[str] = []
+    _note_heldout_refusals([refused, better, weak], notes)
+    assert len(notes) == 1
+    gain = f"gain (ΔBIC {BIC_STRONG - 30:.0f}, held-out gain {HELDOUT_Z - 1.5:.1f} σ)"
+    assert notes[0].startswith(f"at the noise floor, {gain} would fit better")
+    assert "thermal" not in notes[0] and "drift" not in notes[0]
+    notes.clear()
+    _note_heldout_refusals([better, weak], notes)
+    assert notes == []
+
+
+def test_the_several_effects_note_quotes_the_share_and_the_held_out_rms():
+    """A named effect that leads a chain without closing the excess: the note quotes the share
+    it explains (%) and the held-out RMS before and after it (µm)."""
+    best = _cand("gain", explained=0.62, chain=True)  # refit's held-out RMS 0.011 mm
+    fit = SimpleNamespace(cv_rms_mm=0.0145)
+    (note,) = _named_notes(best, [], fit, [best], 1.0)  # type: ignore[arg-type]
+    assert note.startswith(
+        "gain explains 62 % of the excess and predicts held-out poses better (held-out RMS "
+        "14.50 → 11.00 µm), but leaves an excess that several other catalogue effects"
+    )
+
+
+def test_a_noise_scaled_is_each_of_its_sigmas_times_the_factor():
+    s = scaled(NoiseSigmas(0.02, 0.004, 0.003), 2.5)
+    assert (s.position_mm, s.orientation_rad, s.reading_mm) == pytest.approx((0.05, 0.01, 0.0075))
