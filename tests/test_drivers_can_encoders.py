@@ -872,11 +872,15 @@ def test_replayed_log_decodes_to_the_same_readings(tmp_path, robot, target, suff
     with LegEncoders(replay_cfg, listen_only=True) as listener:
         assert replay_log(path, replay_cfg) > 13 * 7  # every SYNC and TPDO, and more
         replayed = {}
-        while True:
+        # Read until every live SYNC is seen, waiting by the clock (10 s), not by the first
+        # 0.3 s without a set: on a loaded machine the listener's thread lags the replay.
+        want = {s.sync_counter for s in live}
+        until = time.monotonic() + 10.0
+        while not want <= replayed.keys() and time.monotonic() < until:
             try:
                 s = listener.read_set(timeout=0.3)
             except EncoderError:
-                break
+                continue
             replayed[s.sync_counter] = s
     assert not any(m["nmt_state"] != "OPERATIONAL" for m in listener.status()["legs"])
     for s in live:  # same SYNCs, same positions in them (NaN where none came), bit for bit
