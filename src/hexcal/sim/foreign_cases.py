@@ -212,12 +212,31 @@ def _draw_shapes(case: str, rng: np.random.Generator) -> Drawn | None:
         name = str(rng.choice(["roll", "pitch"]))
         coef = _signs(rng) * rng.uniform(0.009, 0.014, 6)
         return Drawn([angle_pull(name, coef, knee_deg=float(rng.uniform(1.0, 4.0)))], ((name,),))
+    return None
+
+
+def _draw_directions(case: str, rng: np.random.Generator, truth: Robot) -> Drawn | None:
+    """The cases of the classes added with the covariates of a change's direction (the
+    platform's turn, the load's rise or fall) and the cycle's harmonics, or None for another
+    case."""
     if case == "turn friction":
         # a cable dragged one way or the other as the platform last turned in roll, pitch or
         # yaw: every leg 20–40 µm, either sign (the platform's hysteresis, not a leg's)
         name = str(rng.choice(["roll", "pitch", "yaw"]))
         coef = _signs(rng) * rng.uniform(0.02, 0.04, 6)
         return Drawn([turn_friction(name, coef)], ((f"platform_move_{name}",),))
+    if case == "load friction":
+        # every leg 20–40 µm either way as its load last rose or fell
+        return Drawn(
+            [load_friction(truth, _signs(rng) * rng.uniform(0.02, 0.04, 6))], (("force_change",),)
+        )
+    if case == "cycle with harmonic":
+        # an interpolation error that is not a pure sine: period 6–9 mm, 25–40 µm, and its
+        # second harmonic at 40–80 % of it, every leg its own phases
+        period = float(rng.uniform(6.0, 9.0))
+        amp, ph = rng.uniform(0.025, 0.04, 6), rng.uniform(0, 2 * np.pi, 6)
+        second, ph2 = rng.uniform(0.4, 0.8, 6), rng.uniform(0, 2 * np.pi, 6)
+        return Drawn([stroke_cycle(period, amp, ph, second, ph2)], (("stroke",),))
     return None
 
 
@@ -238,6 +257,8 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
 
         return Drawn([*a.hooks, *b.hooks], a.covariates + b.covariates, finish=finish)
     shaped = _draw_shapes(case, rng)
+    if shaped is None:
+        shaped = _draw_directions(case, rng, truth)
     if shaped is not None:
         return shaped
     if case == "yaw cable":
@@ -273,22 +294,10 @@ def draw(case: str, rng: np.random.Generator, truth: Robot, n_poses: int) -> Dra
             period = float(rng.uniform(11.0, 17.0))
         amp = _subset(rng, 3, 5) * rng.uniform(0.04, 0.06, 6)
         return Drawn([stroke_cycle(period, amp, rng.uniform(0, 2 * np.pi, 6))], (("stroke",),))
-    if case == "cycle with harmonic":
-        # an interpolation error that is not a pure sine: period 6–9 mm, 25–40 µm, and its
-        # second harmonic at 40–80 % of it, every leg its own phases
-        period = float(rng.uniform(6.0, 9.0))
-        amp, ph = rng.uniform(0.025, 0.04, 6), rng.uniform(0, 2 * np.pi, 6)
-        second, ph2 = rng.uniform(0.4, 0.8, 6), rng.uniform(0, 2 * np.pi, 6)
-        return Drawn([stroke_cycle(period, amp, ph, second, ph2)], (("stroke",),))
     if case == "bending":
         # each leg 45–100 µm shorter at the typical force and length
         coef = rng.uniform(0.045, 0.1, 6) / (FORCE_N * LENGTH_MM**2)
         return Drawn([force_product(truth, coef, "length2")], (("force_x_length2",),))
-    if case == "load friction":
-        # every leg 20–40 µm either way as its load last rose or fell
-        return Drawn(
-            [load_friction(truth, _signs(rng) * rng.uniform(0.02, 0.04, 6))], (("force_change",),)
-        )
     if case == "force x stroke":
         # 4–6 legs 50–110 µm shorter at the typical force and reading
         coef = _subset(rng, 4, 6) * rng.uniform(0.05, 0.11, 6) / (FORCE_N * READING_MM)
