@@ -645,7 +645,7 @@ def diagnose_chain(
     problem = None if previous is None else previous.problem
     if previous is None:
         screen_inputs(inp)
-    steps = []
+    steps: list[Any] = []
     while True:
         try:
             d = diagnose(
