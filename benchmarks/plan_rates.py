@@ -37,7 +37,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from hexcal.diagnosis.plan import GEOMETRY, _candidates, plan_poses
+from hexcal.diagnosis.plan import GEOMETRY, When, _candidates, plan_poses
 from hexcal.diagnosis.scoring import pose_whiteners
 from hexcal.diagnosis.selection import BIC_STRONG, bic_delta, indistinct, vuong_z
 from hexcal.estimate.effect_fit import Problem, fit_model
@@ -108,23 +108,46 @@ def ambiguous(pair: str, seed: int):
     return None, None, TRIES
 
 
-def run_session(args: tuple[str, int, int]) -> dict:
-    pair, seed, n = args
+def _lab(meas) -> tuple[float, float] | None:
+    """The temperatures the simulated lab can hold: the session's own range."""
+    temp = meas.temperature
+    return None if temp is None else (float(np.min(temp)), float(np.max(temp)))
+
+
+def _held(plan) -> float | None:
+    temp = plan.meas.temperature
+    return None if temp is None else float(temp[0])
+
+
+def _rng(seed: int) -> np.random.Generator:
+    return np.random.default_rng(seed)
+
+
+def run_session(args: tuple[str, int, int, bool]) -> dict:
+    pair, seed, n, lab_holds = args
     c, before, tries = ambiguous(pair, seed)
     if c is None:
         return {"pair": pair, "seed": seed, "ambiguous": False, "tries": tries}
     problem = Problem.build(c.meas, c.design, NoiseSigmas.from_instruments(c.instruments))
+    when = When(temperatures=_lab(c.meas) if lab_holds else None)
     t0 = time.perf_counter()
-    plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
+    plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=_rng(seed), when=when)
     seconds = time.perf_counter() - t0
     if plan.decide is not None and 0 < plan.decide < n:  # the fewest that decide, as offered
         n = plan.decide
-        plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
+        # the same schedule (wait, temperature), fewer poses
+        when = When(plan.wait, temperature=_held(plan))
+        plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=_rng(seed), when=when)
     P, R, t = plan.meas.position, plan.meas.rotations.as_matrix(), plan.meas.t
-    planned = _fits(c.record(P, R, t, seed), c)
+    temp = plan.meas.temperature
+    planned = _fits(c.record(P, R, t, seed, temp), c)
     rng = np.random.default_rng([seed, 1])
     Pr, Rr = _candidates(problem, c.simulator.robot, 4 * n, rng)
-    random = _fits(c.record(Pr[:n], Rr[:n], t, seed), c)
+    # The control: as many random reachable poses recorded as the session goes on (no wait);
+    # and the same poses after the plan's wait, at its temperature (what the timing alone does).
+    t_now = np.round(t - plan.wait, 3)
+    random = _fits(c.record(Pr[:n], Rr[:n], t_now, seed), c)
+    waited = _fits(c.record(Pr[:n], Rr[:n], t, seed, temp), c) if plan.wait > 0 else random
     true = c.hidden
     other = next(h for h in c.pair if h != true)
     lam, sd = plan.expected.get(true, (float("nan"), float("nan")))
@@ -140,6 +163,8 @@ def run_session(args: tuple[str, int, int]) -> dict:
         "right_before": _right(before, c),
         "right_planned": _right(planned, c),
         "right_random": _right(random, c),
+        "right_random_waited": _right(waited, c),
+        "wait_s": plan.wait,
         "predicted": lam,
         "predicted_sd": sd,
         "realised": realised,
@@ -167,6 +192,8 @@ def summary(rows: list[dict]) -> dict:
             "right_before": float(np.mean([r["right_before"] for r in rs])),
             "right_planned": float(np.mean([r["right_planned"] for r in rs])),
             "right_random": float(np.mean([r["right_random"] for r in rs])),
+            "right_random_waited": float(np.mean([r["right_random_waited"] for r in rs])),
+            "median_wait_s": float(np.median([r["wait_s"] for r in rs])),
             "within_1sd": float(np.mean(np.abs(z) <= 1)) if len(z) else None,
             "within_2sd": float(np.mean(np.abs(z) <= 2)) if len(z) else None,
             "median_z": float(np.median(z)) if len(z) else None,
@@ -218,8 +245,14 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--pairs", nargs="+", default=list(PAIRS))
     ap.add_argument("--out", help="write every session's row and the summary here (JSON)")
+    ap.add_argument(
+        "--lab-holds",
+        action="store_true",
+        help="the simulated lab can hold the rig at any temperature the session saw (changing "
+        "it no faster than the session did): the plan chooses the temperature too",
+    )
     args = ap.parse_args()
-    work = [(p, s, args.poses) for p in args.pairs for s in range(args.sessions)]
+    work = [(p, s, args.poses, args.lab_holds) for p in args.pairs for s in range(args.sessions)]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_session, work))
     result = {"poses": args.poses, "summary": summary(rows), "sessions": rows}

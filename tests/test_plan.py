@@ -70,7 +70,7 @@ def test_the_diagnosis_offers_plans_with_the_command_that_makes_them():
     offered a plan: how many poses would decide, and ``hexcal plan``'s arguments."""
     from types import SimpleNamespace
 
-    from hexcal.diagnosis.plan import MAX_OFFER, offers
+    from hexcal.diagnosis.plan_offer import MAX_OFFER, offers
     from hexcal.diagnosis.scoring import Candidate
     from hexcal.diagnosis.text import plan_lines
 

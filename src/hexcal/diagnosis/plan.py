@@ -23,7 +23,7 @@ The new poses are taken to follow the session at its median pace, at its last te
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -89,6 +89,23 @@ class Plan:
     #: Separation, per hypothesis taken as true: (expected Δχ² the other leaves beyond it,
     #: its standard deviation) after the planned poses
     expected: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: s from the session's last pose to the first planned one, less one pose's pace
+    wait: float = 0.0
+
+
+@dataclass(frozen=True)
+class When:
+    """When the planned poses are recorded, and at what temperature: ``wait_s`` before the
+    first (None: the plan chooses, :func:`waits_to_try` up to ``max_wait_s``), at
+    ``temperature`` °C held (None: the session's last; a lab with a climate-controlled room or
+    chamber may state another)."""
+
+    wait_s: float | None = None
+    max_wait_s: float | None = None
+    temperature: float | None = None
+    #: (low, high) °C the lab can hold the rig at (a climate-controlled room or chamber): the
+    #: plan may then choose the temperature too (:func:`temperatures_to_try`)
+    temperatures: tuple[float, float] | None = None
 
 
 @dataclass
@@ -102,6 +119,8 @@ class _Setting:
     s2: float
     dt: float  #: s between poses
     hypotheses: tuple[str, ...]
+    #: °C the new poses are taken at: the session's last, or the temperature the lab will hold
+    hold: float | None = None
 
 
 def plan_poses(
@@ -112,18 +131,21 @@ def plan_poses(
     resolve: str | None = None,
     rng: np.random.Generator | None = None,
     n_candidates: int = N_CANDIDATES,
+    when: When | None = None,
 ) -> Plan:
     """Plan ``n_poses`` poses for ``problem``'s session with ``effects`` in the model (see the
     module docstring): ``separate`` two hypotheses (effect names, or :data:`GEOMETRY`), or
-    ``resolve`` one effect. Raises ValueError for an effect these data cannot carry or a
-    hypothesis already in the model."""
+    ``resolve`` one effect; ``when``: the wait before them and the temperature they are taken
+    at (:class:`When`; None: the wait the plan chooses, the session's last temperature). Raises
+    ValueError for an effect these data cannot carry or a hypothesis already in the model."""
     if (separate is None) == (resolve is None):
         raise ValueError("plan: give two hypotheses to separate, or one effect to resolve")
     if n_poses < 1:
         raise ValueError(f"plan: --poses must be at least 1 (got {n_poses})")
     rng = np.random.default_rng(0) if rng is None else rng
     hyps = tuple(separate) if separate is not None else (str(resolve),)
-    setting = _setting(problem, effects, hyps)
+    when = When() if when is None else when
+    setting = _setting(problem, effects, hyps, when.temperature)
     pool = _candidates(problem, setting.robot, n_candidates, rng)
     if len(pool[0]) < n_poses:
         raise ValueError(
@@ -131,29 +153,20 @@ def plan_poses(
             "session's range: check leg_range_mm and joint_limit_deg in robot.json"
         )
     crit = _Criterion(setting, resolve is not None)
-    t_mid = _times(problem, setting.dt, (n_poses + 1) // 2 + 1)[-1:]
-    chosen = crit.greedy(pool, n_poses, t_mid)
+    crit, wait, chosen = _schedule(crit, pool, n_poses, when)
+    setting = crit.s
     P, R = pool[0][chosen], pool[1][chosen]
-    t_new = np.round(_times(problem, setting.dt, n_poses), 3)
+    t_new = np.round(_times(problem, setting.dt, n_poses, wait), 3)
     planned, sd = crit.final(P, R, t_new)
     draws = [_draw(pool, n_poses, rng) for _ in range(N_RANDOM)]
     random = float(np.mean([crit.final(d[0], d[1], t_new)[0] for d in draws]))
-    match = _match(crit, problem, setting.dt, planned, n_poses, rng, n_candidates)
+    match = _match(crit, problem, planned, t_new, rng, n_candidates)
     meas = _table(problem, setting, P, R, t_new)
     expected, decide = {}, None
     if resolve is None:
         lam, sd_of = crit.directions(P, R, t_new)
         expected = {h: (lam[h], sd_of[h]) for h in lam}
         decide = crit.decided_after(P, R, t_new)
-    notes = [
-        "free poses only: a plan under a clamp is not made (record these with no leg clamped)",
-        f"the new poses are taken to follow the session every {setting.dt:.0f} s"
-        + (
-            f", at its last temperature ({problem.meas.temperature[-1]:.2f} °C)"
-            if problem.meas.temperature is not None
-            else ""
-        ),
-    ]
     return Plan(
         meas,
         "resolve" if resolve is not None else "separate",
@@ -164,13 +177,142 @@ def plan_poses(
         match,
         sd,
         decide,
-        notes,
+        _notes(problem, setting, wait, when),
         expected,
+        wait,
     )
 
 
-def _setting(problem: Problem, effects: tuple[str, ...], hyps: tuple[str, ...]) -> _Setting:
-    """Fit the model and each hypothesis to the session's poses."""
+def _notes(problem: Problem, s: _Setting, wait: float, when: When) -> list[str]:
+    """What the plan takes for granted: free poses, when they are recorded, at what
+    temperature (and whether the session's own temperature still moved at its end)."""
+    notes = [
+        "free poses only: a plan under a clamp is not made (record these with no leg clamped)",
+        f"record the first pose {wait:.0f} s after the session's last "
+        f"({'the wait the plan chose' if when.wait_s is None else 'the wait asked for'}), then "
+        f"one every {s.dt:.0f} s (the session's pace): the t column",
+    ]
+    temp = problem.meas.temperature
+    if temp is None or s.hold is None:
+        return notes
+    stated = when.temperature is not None or s.hold != float(temp[-1])
+    notes.append(
+        f"at {s.hold:.2f} °C held through the poses ("
+        + (
+            "the temperature asked for"
+            if when.temperature is not None
+            else "the plan's choice: reached during the wait"
+            if stated
+            else "the session's last, held through the wait"
+        )
+        + "): the temperature column — the diagnosis takes each pose at the temperature it "
+        "records, so a temperature that moves on with time makes the wait worth less"
+    )
+    rate = end_trend(problem.meas)
+    if not stated and abs(rate) * max(wait, s.dt) / 3600.0 > 0.1:
+        notes.append(
+            f"the session's temperature was still moving at its end ({rate:+.2f} K/h): hold "
+            f"the room or the chamber at {s.hold:.2f} °C, or plan again once it has settled"
+        )
+    return notes
+
+
+def end_trend(meas: Measurements) -> float:
+    """K/h: the temperature's slope over the last quarter of the session's poses (least
+    squares), 0 without a temperature column."""
+    if meas.temperature is None or len(meas) < 4:
+        return 0.0
+    k = max(len(meas) // 4, 3)
+    t, temp = np.asarray(meas.t[-k:], float), np.asarray(meas.temperature[-k:], float)
+    if np.ptp(t) <= 0:
+        return 0.0
+    return float(np.polyfit(t, temp, 1)[0] * 3600.0)
+
+
+#: Candidate poses each (wait, temperature) of a schedule is tried with before the chosen one
+#: is planned with them all.
+SCHEDULE_CANDIDATES = 500
+
+
+def _schedule(crit: _Criterion, pool, n: int, when: When) -> tuple[_Criterion, float, np.ndarray]:
+    """(the criterion at the temperature chosen, the wait s before the first pose, the indices
+    of ``n`` poses of ``pool``). The wait and temperature asked for; else, where the
+    hypotheses' separation depends on when the poses are recorded (an effect of the time, a
+    drift's) or at what temperature (where the lab can hold one of ``when.temperatures``),
+    each wait of :func:`waits_to_try` at each temperature the rig reaches by then
+    (:func:`temperatures_to_try`) is tried on :data:`SCHEDULE_CANDIDATES` of the poses, and the
+    one after which the least lab time (the wait and the poses' own, at the session's pace)
+    decides is planned — the one that separates most when none does."""
+    s = crit.s
+    waits = [0.0] if when.wait_s is None else [float(when.wait_s)]
+    if when.wait_s is None and not crit.resolve:
+        tried = waits_to_try(s.problem, when.max_wait_s)
+        if crit.timed(pool, tried[-1]) or when.temperatures is not None:
+            waits = tried
+    options = [(w, h) for w in waits for h in temperatures_to_try(s, w, when)]
+    if len(options) == 1:
+        w = options[0][0]
+        t = _times(s.problem, s.dt, n, w)
+        return crit, w, crit.greedy(pool, n, t[(n - 1) // 2 :][:1])
+    few = (pool[0][:SCHEDULE_CANDIDATES], pool[1][:SCHEDULE_CANDIDATES])
+    best: tuple[float, float, float, float | None] | None = None
+    crits = {s.hold: crit}
+    for w, hold in options:
+        if hold not in crits:
+            crits[hold] = _Criterion(replace(s, hold=hold), crit.resolve)
+        c = crits[hold]
+        t = _times(s.problem, s.dt, n, w)
+        chosen = c.greedy(few, n, t[(n - 1) // 2 :][:1])
+        P, R = few[0][chosen], few[1][chosen]
+        k = c.decided_after(P, R, t)
+        cost = np.inf if k is None else w + k * s.dt
+        value = c.final(P, R, t)[0]
+        if best is None or (cost, -value) < (best[0], -best[1]):
+            best = (cost, value, w, hold)
+    assert best is not None
+    _, _, w, hold = best
+    t = _times(s.problem, s.dt, n, w)
+    return crits[hold], w, crits[hold].greedy(pool, n, t[(n - 1) // 2 :][:1])
+
+
+def temperatures_to_try(s: _Setting, wait: float, when: When) -> list[float | None]:
+    """The temperatures (°C) a schedule tries after ``wait`` s: the one held (the session's
+    last, or the one asked for), and where the lab can hold any within ``when.temperatures``,
+    the farthest it reaches each way by then, the rig's temperature changing no faster than
+    the session saw it change (its range over its time span)."""
+    out: list[float | None] = [s.hold]
+    temp = s.problem.meas.temperature
+    if when.temperatures is None or temp is None or s.hold is None or when.temperature is not None:
+        return out
+    lo, hi = sorted(when.temperatures)
+    span = float(np.ptp(np.asarray(s.problem.meas.t, float)))
+    rate = float(np.ptp(temp)) / span if span > 0 else 0.0
+    reach = rate * (wait + s.dt)
+    for far in (max(lo, s.hold - reach), min(hi, s.hold + reach)):
+        if abs(far - s.hold) >= 0.1 and all(abs(far - o) >= 0.1 for o in out if o is not None):
+            out.append(round(far, 2))
+    return out
+
+
+def waits_to_try(problem: Problem, max_wait_s: float | None = None) -> list[float]:
+    """The waits (s) a plan tries, shortest first: none, then 1/8, 1/4, 1/2 and all of the
+    longest (``max_wait_s``; None: as long as the session took, a time baseline twice the
+    session's)."""
+    t = np.asarray(problem.meas.t, float)
+    longest = float(np.ptp(t)) if max_wait_s is None else float(max_wait_s)
+    if longest <= 0:
+        return [0.0]
+    return [0.0, *(longest / 2.0**k for k in (3, 2, 1, 0))]
+
+
+def _setting(
+    problem: Problem,
+    effects: tuple[str, ...],
+    hyps: tuple[str, ...],
+    temperature: float | None = None,
+) -> _Setting:
+    """Fit the model and each hypothesis to the session's poses; the new poses at
+    ``temperature`` (None: the session's last)."""
     for h in hyps:
         if h == GEOMETRY:
             continue
@@ -192,11 +334,14 @@ def _setting(problem: Problem, effects: tuple[str, ...], hyps: tuple[str, ...]) 
         s2 = min(f.chi2 / f.dof for f in fits.values())
     dt = float(np.median(np.diff(problem.meas.t))) if len(problem.meas) > 1 else 10.0
     robot = fitted_robot(problem.design, base.refinement)
-    return _Setting(problem, base, fits, robot, s2, max(dt, 1.0), hyps)
+    temp = problem.meas.temperature
+    hold = None if temp is None else float(temp[-1] if temperature is None else temperature)
+    return _Setting(problem, base, fits, robot, s2, max(dt, 1.0), hyps, hold)
 
 
-def _times(problem: Problem, dt: float, n: int) -> np.ndarray:
-    return float(problem.meas.t[-1]) + dt * np.arange(1, n + 1)
+def _times(problem: Problem, dt: float, n: int, wait: float = 0.0) -> np.ndarray:
+    """(n,) s: the new poses' times, the first ``wait`` + ``dt`` after the session's last."""
+    return float(problem.meas.t[-1]) + wait + dt * np.arange(1, n + 1)
 
 
 def _candidates(
@@ -263,15 +408,19 @@ def _draw(pool: tuple[np.ndarray, np.ndarray], n: int, rng: np.random.Generator)
     return pool[0][i], pool[1][i]
 
 
-def _match(crit, problem, dt, planned, n, rng, n_candidates) -> int | None:
+def _match(crit, problem, planned, t_new, rng, n_candidates) -> int | None:
     """The fewest random reachable poses (doubling, then halving the gap) whose mean criterion
-    (over :data:`N_RANDOM` // 4 draws) reaches ``planned``; None beyond :data:`MATCH_LIMIT` × n."""
+    (over :data:`N_RANDOM` // 4 draws) reaches ``planned``, recorded after the same wait as the
+    plan's (``t_new``: its times); None beyond :data:`MATCH_LIMIT` × n."""
+    n, dt = len(t_new), crit.s.dt
+    wait = float(t_new[0]) - float(problem.meas.t[-1]) - dt
 
     def reaches(k: int) -> bool:
         vals = []
         for _ in range(max(N_RANDOM // 4, 1)):
             pool = _candidates(problem, crit.s.robot, max(k, 1), rng)
-            vals.append(crit.final(pool[0], pool[1], _times(problem, dt, len(pool[0])))[0])
+            t = _times(problem, dt, len(pool[0]), wait)
+            vals.append(crit.final(pool[0], pool[1], t)[0])
         return crit.better(float(np.mean(vals)), planned)
 
     lo, hi = n, n
@@ -289,7 +438,7 @@ def _table(problem: Problem, s: _Setting, P: np.ndarray, R: np.ndarray, t: np.nd
     """The plan as a measurement table: the readings the fitted model predicts at each pose
     (refused, :class:`~hexcal.estimate.predict.PredictionError`, were one beyond a stroke or a
     joint's limit)."""
-    temp = _temperature(problem, len(P))
+    temp = None if s.hold is None else np.full(len(P), s.hold)
     model = s.base.leg_model(problem.design)
     rho = model.readings(P, R, t, temp, check_limits=True)
     first = int(problem.meas.pose_id.max()) + 1
@@ -304,11 +453,6 @@ def _table(problem: Problem, s: _Setting, P: np.ndarray, R: np.ndarray, t: np.nd
     )
 
 
-def _temperature(problem: Problem, n: int) -> np.ndarray | None:
-    temp = problem.meas.temperature
-    return None if temp is None else np.full(n, float(temp[-1]))
-
-
 class _Criterion:
     """The plan's criterion on the session's poses plus new ones, from whitened rows."""
 
@@ -320,6 +464,17 @@ class _Criterion:
 
     def better(self, value: float, target: float) -> bool:
         return value <= target if self.resolve else value >= target
+
+    def timed(self, pool, wait: float) -> bool:
+        """Whether the hypotheses' separation depends on when poses are recorded: the
+        criterion of a few of ``pool``'s poses now and ``wait`` s later differs."""
+        if wait <= 0:
+            return False
+        P, R = pool[0][: BATCH // 10], pool[1][: BATCH // 10]
+        now, later = (
+            self.final(P, R, _times(self.s.problem, self.s.dt, len(P), w))[0] for w in (0.0, wait)
+        )
+        return not np.isclose(now, later, rtol=1e-6, atol=1e-9)
 
     def _rows_at(self, P: np.ndarray, R: np.ndarray, t: np.ndarray | None = None):
         """Per model: whitened rows (n, 6, p) of the session's poses followed by the new ones;
@@ -480,7 +635,7 @@ def _data(s: _Setting, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> EffectDat
     d = s.problem.data
     n = len(P)
     rho = LegModel(s.robot).geometric(P, R) - s.robot.offsets
-    temp = None if d.temperature is None else np.concatenate([d.temperature, _temp(d, n)])
+    temp = None if d.temperature is None else np.concatenate([d.temperature, _temp(s, n)])
     return EffectData(
         np.concatenate([d.readings, rho]),
         np.concatenate([d.position, P]),
@@ -494,8 +649,8 @@ def _data(s: _Setting, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> EffectDat
     )
 
 
-def _temp(d: EffectData, n: int) -> np.ndarray:
-    return np.full(n, float(d.temperature[-1])) if d.temperature is not None else np.zeros(n)
+def _temp(s: _Setting, n: int) -> np.ndarray:
+    return np.full(n, s.hold) if s.hold is not None else np.zeros(n)
 
 
 def _geometry_rows(fit: ModelFit, data: EffectData) -> np.ndarray:
@@ -517,131 +672,3 @@ def _values(s: _Setting, name: str) -> np.ndarray:
     """(q,) hypothesis ``name``'s fitted parameter values, in their spec units."""
     ref = s.fits[name].refinement
     return np.array([ref.value(p.name) for p in get_effect(name).params(s.problem.design)])
-
-
-#: Planned poses beyond which a plan is not offered (the issue's "a dozen or two").
-MAX_OFFER = 20
-#: Candidate poses an offer picks from (fewer than a plan's: the diagnosis waits for it).
-OFFER_CANDIDATES = 800
-#: Planned poses offered to confirm what the recorded poses should already decide.
-CONFIRM_POSES = 4
-#: Unresolved candidates offered a plan, the best-scoring first.
-MAX_RESOLVE_OFFERS = 2
-
-
-@dataclass
-class Offer:
-    """A plan the diagnosis offers: how many planned poses would decide (None: more than
-    :data:`MAX_OFFER`)."""
-
-    kind: str  #: "separate" or "resolve"
-    hypotheses: tuple[str, ...]
-    poses: int | None
-
-    @property
-    def n_planned(self) -> int:
-        """How many poses to plan for it: its count, a few to confirm (0), at most
-        :data:`MAX_OFFER` (None)."""
-        return self.poses or (CONFIRM_POSES if self.poses == 0 else MAX_OFFER)
-
-    def args(self) -> list[str]:
-        """``hexcal plan``'s own arguments for it (after the session's)."""
-        flag = "--separate" if self.kind == "separate" else "--resolve"
-        return [flag, *self.hypotheses, "--poses", str(self.n_planned), "--out", "plan.csv"]
-
-    def text(self) -> str:
-        what = (
-            f"tell {' from '.join(self.hypotheses)} apart"
-            if self.kind == "separate"
-            else f"resolve {self.hypotheses[0]}"
-        )
-        if self.poses is None:
-            return f"more than {MAX_OFFER} planned poses would be needed to {what}"
-        if self.poses == 0:
-            return (
-                f"the poses recorded should already {what} by their expected separation, though "
-                "their χ² spread wider than the noise: a few planned poses confirm it"
-            )
-        return f"{self.poses} planned poses would {what}"
-
-    def to_dict(self) -> dict:
-        return {"kind": self.kind, "hypotheses": list(self.hypotheses), "poses": self.poses}
-
-
-def poses_to_decide(
-    problem: Problem,
-    effects: tuple[str, ...],
-    separate: tuple[str, str] | None = None,
-    resolve: str | None = None,
-    rng: np.random.Generator | None = None,
-    n_candidates: int = OFFER_CANDIDATES,
-) -> int | None:
-    """The fewest planned poses (at most :data:`MAX_OFFER`; None beyond) after which the
-    question is decided: two hypotheses' expected separation, less two of its standard
-    deviations, beyond the look-alike margin and what the parameter counts cost in ΔBIC
-    (:func:`~hexcal.diagnosis.selection.separates`); an effect's every parameter resolved as
-    the score test asks (:func:`~hexcal.diagnosis.scoring.needed_resolution`)."""
-    from hexcal.diagnosis.scoring import needed_resolution
-
-    rng = np.random.default_rng(0) if rng is None else rng
-    hyps = tuple(separate) if separate is not None else (str(resolve),)
-    setting = _setting(problem, effects, hyps)
-    pool = _candidates(problem, setting.robot, n_candidates, rng)
-    crit = _Criterion(setting, resolve is not None)
-    n_max = min(MAX_OFFER, len(pool[0]))
-    t = _times(problem, setting.dt, n_max)
-    chosen = crit.greedy(pool, n_max, t[n_max // 2 :][:1])
-    P, R = pool[0][chosen], pool[1][chosen]
-    if resolve is None:
-        return crit.decided_after(P, R, t)
-    need = needed_resolution(get_effect(hyps[0]).params(problem.design))
-    for n in range(0, n_max + 1):
-        rows = crit._rows_at(P[:n], R[:n], t[:n])
-        info = selection.schur_block(crit._gram(rows[0]), len(need))
-        cov = np.linalg.pinv(info)
-        if np.all(np.sqrt(np.clip(np.diag(cov), 0, None)) < need):
-            return n
-    return None
-
-
-def offers(
-    problem: Problem,
-    fit: ModelFit,
-    verdict: str,
-    alike: list[str],
-    candidates,
-) -> list[Offer]:
-    """The plans a diagnosis offers at ``fit``: to tell the verdict from each look-alike, and
-    to resolve the candidates the poses cannot tell from the geometry whose columns together
-    would remove more than the look-alike margin (their score counting every column, the
-    unresolved ones too: worth deciding), the best first."""
-    from hexcal.diagnosis.score import score_columns
-
-    effects = fit.effects
-    # Effects located by a search (a zero step's, a tracker move's time) have no basis to plan
-    # with beyond the session's end: their pairs are not planned.
-    named = (verdict, *alike) if alike else ()  # look-alikes come with an effect named
-    searched = {e for e in named if getattr(get_effect(e), "searched_params", 0)}
-    asked: list[tuple[str, tuple[str, ...]]] = [
-        ("separate", (verdict, e)) for e in alike if not searched & {verdict, e}
-    ]
-    whole = {
-        c.effect: score_columns(problem, fit, c.effect).score(
-            np.ones(len(get_effect(c.effect).params(problem.design)), bool)
-        )
-        for c in candidates
-        if c.available and not c.identifiable
-    }
-    stuck = [
-        e for e, s in sorted(whole.items(), key=lambda kv: -kv[1]) if s >= selection.ALIKE_DCHI2
-    ]
-    asked += [("resolve", (e,)) for e in stuck]
-    out = []
-    for kind, hyps in asked[: len(asked) - len(stuck) + MAX_RESOLVE_OFFERS]:
-        pair = (hyps[0], hyps[1]) if kind == "separate" else None
-        what = None if pair else hyps[0]
-        try:
-            out.append(Offer(kind, hyps, poses_to_decide(problem, effects, pair, what)))
-        except (ValueError, np.linalg.LinAlgError):  # a fit these data cannot make: no offer
-            continue
-    return out

@@ -16,8 +16,9 @@ The pairs (:data:`PAIRS`), one hidden per session:
 
 Each session is short (:data:`FREE_POSES` free poses after the clamped sets) so that the poses
 recorded leave the pair ambiguous. Effects are simulated on the whole recording, the planned
-poses after the session's (a drift's time runs on; the temperature holds at its last value,
-as the planner assumes).
+poses after the session's at the times and temperatures the plan's table gives (a drift's
+time runs on through a planned wait; the temperature is what the plan asks the lab to hold,
+the session's last unless stated).
 """
 
 from __future__ import annotations
@@ -73,13 +74,23 @@ class LookAlike:
     simulator: Simulator
     history: _History
 
-    def record(self, P: np.ndarray, R: np.ndarray, t: np.ndarray, seed: int) -> Measurements:
+    def record(
+        self,
+        P: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        seed: int,
+        temperature: np.ndarray | None = None,
+    ) -> Measurements:
         """The session with free poses (P (N, 3) mm, R (N, 3, 3)) recorded after it at times
-        t (N,) s, at the session's last temperature (0.05 K jitter)."""
+        t (N,) s — a plan's t column, its wait included — at ``temperature`` (N,) °C, a plan's
+        temperature column (None: the session's last), each with the thermometer's 0.05 K
+        jitter: the lab holds the temperature the plan asks for."""
         rng = np.random.default_rng([seed, 37])
         temp = self.meas.temperature
         last = 20.0 if temp is None else float(temp[-1])
-        tn = np.round(last + rng.normal(0.0, 0.05, len(P)), 2)
+        held = np.full(len(P), last) if temperature is None else np.asarray(temperature, float)
+        tn = np.round(held + rng.normal(0.0, 0.05, len(P)), 2)
         Pm, Rm, rho = self.simulator.measure(rng, P, R, PoseContext(P, R, t, tn))
         m = self.meas
         first = int(m.pose_id.max()) + 1

@@ -23,7 +23,7 @@ from textual.containers import VerticalScroll
 from textual.content import Content
 from textual.widgets import Header, Static
 
-from hexcal.diagnosis.plan import Offer
+from hexcal.diagnosis.plan_offer import Offer
 from hexcal.estimate.nbp import motion_text
 from hexcal.procedure.guided import GuidedError
 from hexcal.procedure.recording import MotionError
