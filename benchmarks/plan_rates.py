@@ -37,7 +37,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from hexcal.diagnosis.plan import GEOMETRY, When, _candidates, plan_poses
+from hexcal.diagnosis.plan import GEOMETRY, When, plan_poses
+from hexcal.diagnosis.plan_pool import _candidates
 from hexcal.diagnosis.scoring import pose_whiteners
 from hexcal.diagnosis.selection import BIC_STRONG, bic_delta, indistinct, vuong_z
 from hexcal.estimate.effect_fit import Problem, fit_model

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexcal.diagnosis.plan import GEOMETRY, plan_poses, reachable
+from hexcal.diagnosis.plan import GEOMETRY, plan_poses
+from hexcal.diagnosis.plan_pool import reachable
 from hexcal.estimate.effect_fit import Problem, fit_model, fitted_robot
 from hexcal.estimate.predict import LegModel, Poses
 from hexcal.model.noise import NoiseSigmas
@@ -49,6 +50,62 @@ def test_every_planned_pose_is_reachable_by_the_inverse_kinematics_strokes_and_j
     back = model.poses(rho, guess=Poses(P, R))
     np.testing.assert_allclose(back.position, P, atol=1e-6)
     np.testing.assert_allclose(plan.meas.readings, rho, atol=1e-3)  # the table's 4 decimals
+    _check_schedule(problem, plan)
+
+
+def _check_schedule(problem, plan, lab=None):
+    """The plan's time and temperature columns: the first pose ``plan.wait`` + one pose's
+    pace after the session's last, then one every pace (the session's median); one
+    temperature held — the session's last, or within the lab's range ``lab`` and no farther
+    from the last than the session's own rate (its range over its span) reaches by then."""
+    meas = problem.meas
+    dt = max(float(np.median(np.diff(meas.t))), 1.0)
+    t = plan.meas.t
+    assert plan.wait >= 0
+    np.testing.assert_allclose(t[0], meas.t[-1] + plan.wait + dt, atol=1e-3)
+    np.testing.assert_allclose(np.diff(t), dt, atol=1e-3)
+    temp = plan.meas.temperature
+    assert np.ptp(temp) == 0
+    if lab is None:
+        assert temp[0] == meas.temperature[-1]
+        return
+    rate = np.ptp(meas.temperature) / np.ptp(meas.t)
+    assert lab[0] <= temp[0] <= lab[1]
+    assert abs(temp[0] - meas.temperature[-1]) <= rate * (plan.wait + dt) + 0.01
+
+
+def test_a_drift_pair_is_planned_after_a_wait_and_the_simulator_records_when_and_where_planned():
+    """Thermal against drift: poses at the session's last temperature tell them apart only
+    through time (the drift going on while the temperature holds), so the plan waits before
+    them, at most the session's own span; where the lab can hold the rig anywhere in the
+    session's range, it chooses a temperature too, reachable by then at the session's own
+    rate. The look-alike's simulator records the plan's poses at its times and temperatures
+    (the thermometer's 0.05 K jitter: 0.25 K is 5σ)."""
+    from hexcal.diagnosis.plan import When
+    from hexcal.sim.plan_cases import case
+
+    c = case("thermal vs drift", 3, 0.5)  # the session alone far from deciding
+    problem = Problem.build(c.meas, c.design, NoiseSigmas.from_instruments(c.instruments))
+    span = float(np.ptp(c.meas.t))
+    held = plan_poses(problem, ("offset",), 8, separate=c.pair, n_candidates=300)
+    assert 0 < held.wait <= span + 1e-6
+    _check_schedule(problem, held)
+    lab = (float(c.meas.temperature.min()), float(c.meas.temperature.max()))
+    chosen = plan_poses(
+        problem, ("offset",), 8, separate=c.pair, n_candidates=300, when=When(temperatures=lab)
+    )
+    _check_schedule(problem, chosen, lab)
+    assert chosen.planned >= held.planned * 0.9  # a choice more, at least as good (a 10 % slack:
+    # the schedule is chosen on a sample of the candidates, the poses then on all of them)
+    asked = plan_poses(
+        problem, ("offset",), 4, separate=c.pair, n_candidates=300, when=When(60.0, None, 21.5)
+    )
+    assert asked.wait == 60.0 and set(asked.meas.temperature) == {21.5}
+    P, R = chosen.meas.position, chosen.meas.rotations.as_matrix()
+    got = c.record(P, R, chosen.meas.t, 1, chosen.meas.temperature)
+    new = got.step == "plan"
+    np.testing.assert_array_equal(got.t[new], chosen.meas.t)
+    assert np.abs(got.temperature[new] - chosen.meas.temperature).max() <= 0.25
 
 
 def test_planned_poses_separate_better_than_random_ones_and_geometry_counts_one_way():

@@ -13,12 +13,17 @@ session; its fitted contribution is a column of whitened leg lengths over any po
 - To resolve one effect: D-optimal — the log-determinant of its parameters' information once
   the geometry's and the model's other columns are projected out.
 
-Poses are picked greedily from a large random set of reachable free poses (the session's own
-box and tilt about home, :data:`REACH`, nearer home where the limits cut deep; the legs'
-stroke ``leg_range_mm``, the joints' limits
-``joint_limit_deg``, away from singularities as :mod:`hexcal.estimate.nbp` keeps them), each
-candidate's gain computed for all at once. Clamped poses are not planned: a plan is free poses.
-The new poses are taken to follow the session at its median pace, at its last temperature.
+Poses are picked greedily from a large set of reachable free poses
+(:mod:`hexcal.diagnosis.plan_pool`: random ones within the session's own box and tilt about
+home, and as many on that region's edge), each candidate's gain computed for all at once.
+Clamped poses are not planned: a plan is free poses.
+
+A plan is a schedule too (:class:`When`): the new poses follow the session at its median pace,
+after a wait the plan chooses where the time separates the hypotheses (a drift goes on while
+the temperature holds; up to the session's own span), at the session's last temperature held —
+or at one the lab states, or, where the lab can hold a range, at the one the plan chooses,
+reached no faster than the session's own temperature changed (:func:`_schedule`). The table's
+t and temperature columns say when and at what temperature to record each pose.
 """
 
 from __future__ import annotations
@@ -29,16 +34,18 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.diagnosis import selection
+from hexcal.diagnosis.plan_pool import (
+    BATCH,
+    _candidates,
+    _with_edges,
+)
 from hexcal.effects import EffectData, get_effect
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
 from hexcal.estimate.leg_rows import pose_jacobian
-from hexcal.estimate.nbp import MAX_CONDITION
 from hexcal.estimate.predict import LegModel
 from hexcal.io.measurements import Measurements
-from hexcal.model.kinematics import condition_number
 from hexcal.model.noise import DEFAULT_SIGMAS, leg_whiteners
 from hexcal.model.robot import Robot
-from hexcal.model.workspace import Limits, PoseRanges, Workspace
 
 #: The hypothesis "no further effect": the model as it is.
 GEOMETRY = "geometry"
@@ -48,17 +55,6 @@ N_CANDIDATES = 2000
 N_RANDOM = 20
 #: At most this many times the plan's poses are tried as random ones to match its separation.
 MATCH_LIMIT = 64
-#: The plan's poses range over this many times the session's box and tilt about home (within
-#: the strokes and the joints' limits). Twice gave the plan more separation (gain against
-#: compliance, 20 poses: 2.6–3.2 times 20 random ones' where the session's own span gave
-#: 1.7–2.3) but random poses from the wider set nearly as much: over 30 sessions random poses
-#: named the right one in 77 % for ujoint against the geometry (32 % within the session's span),
-#: 68 % for gain against compliance. The session's span it is.
-REACH = 1.0
-#: Rounds of random draws the candidate poses are collected over.
-ROUNDS = 25
-#: Poses drawn per round: at least this many, and twice those asked for.
-BATCH = 200
 
 
 @dataclass
@@ -91,6 +87,9 @@ class Plan:
     expected: dict[str, tuple[float, float]] = field(default_factory=dict)
     #: s from the session's last pose to the first planned one, less one pose's pace
     wait: float = 0.0
+    #: Separation: per hypothesis taken as true, the Δχ²'s standard deviation from the new
+    #: poses' noise alone (the session's poses held as recorded)
+    noise_sd: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -153,19 +152,21 @@ def plan_poses(
             "session's range: check leg_range_mm and joint_limit_deg in robot.json"
         )
     crit = _Criterion(setting, resolve is not None)
-    crit, wait, chosen = _schedule(crit, pool, n_poses, when)
+    both = _with_edges(problem, setting.robot, pool, rng)
+    crit, wait, chosen = _schedule(crit, both, n_poses, when)
     setting = crit.s
-    P, R = pool[0][chosen], pool[1][chosen]
+    P, R = both[0][chosen], both[1][chosen]
     t_new = np.round(_times(problem, setting.dt, n_poses, wait), 3)
     planned, sd = crit.final(P, R, t_new)
     draws = [_draw(pool, n_poses, rng) for _ in range(N_RANDOM)]
     random = float(np.mean([crit.final(d[0], d[1], t_new)[0] for d in draws]))
     match = _match(crit, problem, planned, t_new, rng, n_candidates)
     meas = _table(problem, setting, P, R, t_new)
-    expected, decide = {}, None
+    expected, decide, noise_sd = {}, None, {}
     if resolve is None:
         lam, sd_of = crit.directions(P, R, t_new)
         expected = {h: (lam[h], sd_of[h]) for h in lam}
+        noise_sd = crit.directions(P, R, t_new, noise_only=True)[1]
         decide = crit.decided_after(P, R, t_new)
     return Plan(
         meas,
@@ -180,6 +181,7 @@ def plan_poses(
         _notes(problem, setting, wait, when),
         expected,
         wait,
+        noise_sd,
     )
 
 
@@ -245,11 +247,12 @@ def _schedule(crit: _Criterion, pool, n: int, when: When) -> tuple[_Criterion, f
     decides is planned — the one that separates most when none does."""
     s = crit.s
     waits = [0.0] if when.wait_s is None else [float(when.wait_s)]
+    warm = when.temperatures is not None and crit.warmed(pool, max(when.temperatures))
     if when.wait_s is None and not crit.resolve:
         tried = waits_to_try(s.problem, when.max_wait_s)
-        if crit.timed(pool, tried[-1]) or when.temperatures is not None:
+        if crit.timed(pool, tried[-1]) or warm:
             waits = tried
-    options = [(w, h) for w in waits for h in temperatures_to_try(s, w, when)]
+    options = [(w, h) for w in waits for h in temperatures_to_try(s, w, when if warm else When())]
     if len(options) == 1:
         w = options[0][0]
         t = _times(s.problem, s.dt, n, w)
@@ -344,65 +347,6 @@ def _times(problem: Problem, dt: float, n: int, wait: float = 0.0) -> np.ndarray
     return float(problem.meas.t[-1]) + wait + dt * np.arange(1, n + 1)
 
 
-def _candidates(
-    problem: Problem, robot: Robot, n: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """Up to ``n`` reachable free poses (P (K, 3) mm, R (K, 3, 3)), uniform over those within
-    :data:`REACH` times the session's box and tilt about home (:func:`session_ranges`), the
-    strokes and the joints' limits, away from singularities (:func:`reachable`): drawn in
-    rounds, the unreachable ones dropped, then nearer home (the session's span, half of it ...)
-    while fewer than ``n`` are found, so that a workspace the limits cut deep gives what it
-    has."""
-    span = session_ranges(problem.meas, robot)
-    ws = Workspace(robot)
-    Ps, Rs, found = [], [], 0
-    for reach in dict.fromkeys((REACH, 1.0, 0.5, 0.25)):  # limits that cut deep: nearer home
-        box, tilt = reach * np.asarray(span.box_mm), np.deg2rad(reach * span.tilt_deg)
-        for _ in range(ROUNDS):
-            k = max(2 * n, BATCH)
-            P = ws.home_position + rng.uniform(-1.0, 1.0, (k, 3)) * box
-            R = Rotation.from_rotvec(rng.uniform(-tilt, tilt, (k, 3))).as_matrix()
-            R = R @ ws.home_rotation
-            ok = reachable(robot, P, R)
-            Ps.append(P[ok])
-            Rs.append(R[ok])
-            found += int(ok.sum())
-            if found >= n:
-                break
-        if found >= n:
-            break
-    if found == 0:
-        raise ValueError(
-            "plan: no free pose within the session's range is reachable: check leg_range_mm and "
-            "joint_limit_deg in robot.json"
-        )
-    return np.concatenate(Ps)[:n], np.concatenate(Rs)[:n]
-
-
-def session_ranges(meas: Measurements, robot: Robot) -> PoseRanges:
-    """The box (mm) and tilt (deg) about ``robot``'s home that the session's poses span."""
-    ws = Workspace(robot)
-    box = np.max(np.abs(meas.position - ws.home_position), axis=0)
-    rel = meas.rotations * Rotation.from_matrix(ws.home_rotation).inv()
-    tilt = float(np.max(np.abs(rel.as_rotvec(degrees=True))))
-    return PoseRanges(box_mm=tuple(np.maximum(box, 1.0).tolist()), tilt_deg=max(tilt, 0.1))
-
-
-def reachable(robot: Robot, P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """(K,) poses within the strokes (``leg_range_mm`` on readings), the joints' limits
-    (``joint_limit_deg`` from each leg's direction at home, else 50° from the base's and
-    platform's normals), and away from singularities (:data:`~hexcal.estimate.nbp.MAX_CONDITION`)."""
-    limit = robot.joint_limit_deg
-    ws = Workspace(robot, limits=Limits(limit or 50.0, limit or 50.0))
-    ok = ws.feasible(P, R)
-    if limit is not None:
-        from hexcal.estimate.predict import Poses
-
-        base, plat = LegModel(robot).joint_angles(Poses(P, R))
-        ok &= np.maximum(base, plat).max(axis=1) <= limit
-    return ok & (condition_number(robot.a, robot.b, P, Rotation.from_matrix(R)) <= MAX_CONDITION)
-
-
 def _draw(pool: tuple[np.ndarray, np.ndarray], n: int, rng: np.random.Generator):
     i = rng.choice(len(pool[0]), n, replace=False)
     return pool[0][i], pool[1][i]
@@ -475,6 +419,18 @@ class _Criterion:
             self.final(P, R, _times(self.s.problem, self.s.dt, len(P), w))[0] for w in (0.0, wait)
         )
         return not np.isclose(now, later, rtol=1e-6, atol=1e-9)
+
+    def warmed(self, pool, temperature: float) -> bool:
+        """Whether the hypotheses' separation depends on the temperature the poses are
+        recorded at: the criterion of a few of ``pool``'s poses at the held temperature and at
+        ``temperature`` (1 K away if the same) differs."""
+        if self.s.hold is None or self.resolve:
+            return False
+        other = temperature if abs(temperature - self.s.hold) >= 0.1 else self.s.hold + 1.0
+        P, R = pool[0][: BATCH // 10], pool[1][: BATCH // 10]
+        t = _times(self.s.problem, self.s.dt, len(P))
+        there = _Criterion(replace(self.s, hold=other), False)
+        return not np.isclose(self.final(P, R, t)[0], there.final(P, R, t)[0], 1e-6, 1e-9)
 
     def _rows_at(self, P: np.ndarray, R: np.ndarray, t: np.ndarray | None = None):
         """Per model: whitened rows (n, 6, p) of the session's poses followed by the new ones;
@@ -578,7 +534,7 @@ class _Criterion:
         return next((n for n in range(len(P) + 1) if self.decided(P[:n], R[:n], t[:n])), None)
 
     def directions(
-        self, P: np.ndarray, R: np.ndarray, t: np.ndarray
+        self, P: np.ndarray, R: np.ndarray, t: np.ndarray, noise_only: bool = False
     ) -> tuple[dict[str, float], dict[str, float]]:
         """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, and
         that Δχ²'s standard deviation), keyed by the true one's name.
@@ -591,7 +547,9 @@ class _Criterion:
         is to come — their noise, √(4 θ̂ᵀS_newθ̂ + 2 tr(P_A − P_B)²)
         (:func:`~hexcal.diagnosis.selection.delta_chi2_sd`), and θ̂'s spread seen through them,
         4 θ̂ᵀS_new C S_newθ̂ (to first order the realised Δχ² less the prediction is
-        2 θ̂ᵀS_new(v − u), v the new poses' estimate's error, u the session's)."""
+        2 θ̂ᵀS_new(v − u), v the new poses' estimate's error, u the session's). ``noise_only``:
+        the new poses' noise alone (the session held, its θ̂ with it: what redrawing only the
+        new poses' noise spreads the Δχ² by)."""
         rows = self._rows_at(P, R, t)
         x = [r.reshape(-1, r.shape[-1]) for r in rows]
         cross = x[0][:, :-1].T @ x[1][:, :-1]
@@ -617,6 +575,7 @@ class _Criterion:
             lam[true] = max(raw - float(np.trace(info @ cov)), 0.0)
             lam_new = max(float(theta @ new @ theta), 0.0)
             own_sd2 = 4.0 * max(float(theta @ new @ cov @ new @ theta), 0.0)
+            own_sd2 = 0.0 if noise_only else own_sd2
             sd[true] = float(np.sqrt(selection.delta_chi2_sd(lam_new, spread) ** 2 + own_sd2))
         return lam, sd
 

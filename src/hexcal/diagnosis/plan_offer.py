@@ -17,6 +17,7 @@ from hexcal.diagnosis.plan import (
     _schedule,
     _setting,
     _times,
+    _with_edges,
 )
 from hexcal.effects import get_effect
 from hexcal.estimate.effect_fit import ModelFit, Problem
@@ -106,6 +107,7 @@ def poses_to_decide(
     pool = _candidates(problem, setting.robot, n_candidates, rng)
     crit = _Criterion(setting, resolve is not None)
     n_max = min(MAX_OFFER, len(pool[0]))
+    pool = _with_edges(problem, setting.robot, pool, rng)
     crit, wait, chosen = _schedule(crit, pool, n_max, When())
     t = _times(problem, setting.dt, n_max, wait)
     P, R = pool[0][chosen], pool[1][chosen]
