@@ -16,11 +16,12 @@ both hypotheses are refitted on all the poses:
   whether or not both bring the residual to the floor); for the nested pair (the geometry
   alone against ujoint), ujoint's ΔBIC is very strong. The sessions are drawn until their own poses leave the pair undecided that way
   (:func:`ambiguous`);
-- the predicted separation against the realised: z = (Δχ² realised − (λ + p_true −
-  p_other)) / sd, with λ and sd the plan's for the true hypothesis (its fitted contribution
-  projected out of the other's columns, less the inflation its fitted values' spread gives;
-  sd = √(4λ + 2 tr(P_A − P_B)² + the fitted values' share)). If sd is right,
-  |z| ≤ 1 in 68 % of sessions and |z| ≤ 2 in 95 %.
+- the predicted separation against the realised: z = (Δχ² realised − mean) / sd, the mean
+  and sd the plan's for the true hypothesis — the predictive distribution of the Δχ² given
+  the session's residuals (:func:`hexcal.diagnosis.selection.predicted_delta_chi2`: the new
+  poses' residuals as the true hypothesis fitted to the session predicts them, with their
+  noise and that fit's spread). If sd is right, |z| ≤ 1 in 68 % of sessions and |z| ≤ 2 in
+  95 %.
 """
 
 # ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
@@ -151,9 +152,8 @@ def run_session(args: tuple[str, int, int, bool]) -> dict:
     waited = _fits(c.record(Pr[:n], Rr[:n], t, seed, temp), c) if plan.wait > 0 else random
     true = c.hidden
     other = next(h for h in c.pair if h != true)
-    lam, sd = plan.expected.get(true, (float("nan"), float("nan")))
+    mean, sd = plan.expected.get(true, (float("nan"), float("nan")))
     realised = planned[other][1] - planned[true][1]
-    mean = lam + planned[true][2] - planned[other][2]
     return {
         "pair": pair,
         "seed": seed,
@@ -166,8 +166,9 @@ def run_session(args: tuple[str, int, int, bool]) -> dict:
         "right_random": _right(random, c),
         "right_random_waited": _right(waited, c),
         "wait_s": plan.wait,
-        "predicted": lam,
+        "predicted": mean,
         "predicted_sd": sd,
+        "predicted_noise_sd": plan.noise_sd.get(true, float("nan")),
         "realised": realised,
         "z": (realised - mean) / sd if sd > 0 else float("nan"),
         "separation_before": plan.before,

@@ -43,14 +43,14 @@ def one(pair: str, seed: int, draws: int) -> dict:
     for k in range(draws):
         f = _fits(c.record(P, R, t, 10_000 + k, plan.meas.temperature), c)
         realised.append(f[other][1] - f[true][1])
-    lam, sd = plan.expected[true]
+    mean, sd = plan.expected[true]
     r = np.array(realised)
     return {
         "pair": pair,
         "seed": seed,
         "ambiguous": True,
         "hidden": true,
-        "predicted_mean": lam + (f[true][2] - f[other][2]),
+        "predicted_mean": mean,
         "predicted_sd": sd,
         "predicted_noise_sd": plan.noise_sd[true],
         "realised_mean": float(r.mean()),

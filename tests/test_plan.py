@@ -152,18 +152,60 @@ def test_the_diagnosis_offers_plans_with_the_command_that_makes_them():
 
 
 def test_a_separation_decides_when_two_sd_short_of_its_mean_it_pays_its_parameters_and_margin():
-    """The expected Δχ² (λ plus the parameters' difference dp), less 2 sd, against what the
-    verdict asks: dp·ln n in ΔBIC and the look-alike margin; against the model alone, very
-    strong evidence (dp·ln n + 10)."""
+    """The expected Δχ², less 2 sd, against what the verdict asks: dp·ln n in ΔBIC and the
+    look-alike margin; against the model alone, very strong evidence (dp·ln n + 10)."""
     from hexcal.diagnosis.selection import ALIKE_DCHI2, BIC_STRONG, separates
 
     n, sd = 1000, 10.0
     cost = 5 * np.log(n)  # gain's six parameters against compliance's one
-    assert separates(cost - 5 + 2 * sd + 0.1, sd, 5, n, nested=False)
-    assert not separates(cost - 5 + 2 * sd - 0.1, sd, 5, n, nested=False)
+    assert separates(cost + 2 * sd + 0.1, sd, 5, n, nested=False)
+    assert not separates(cost + 2 * sd - 0.1, sd, 5, n, nested=False)
     # Fewer parameters than the other: the look-alike margin is what counts.
-    assert separates(ALIKE_DCHI2 + 2 + 2 * sd + 0.1, sd, -2, n, nested=False)
-    assert not separates(ALIKE_DCHI2 + 2 + 2 * sd - 0.1, sd, -2, n, nested=False)
+    assert separates(ALIKE_DCHI2 + 2 * sd + 0.1, sd, -2, n, nested=False)
+    assert not separates(ALIKE_DCHI2 + 2 * sd - 0.1, sd, -2, n, nested=False)
     strong = 6 * np.log(n) - BIC_STRONG
-    assert separates(strong - 6 + 2 * sd + 0.1, sd, 6, n, nested=True)
-    assert not separates(strong - 6 + 2 * sd - 0.1, sd, 6, n, nested=True)
+    assert separates(strong + 2 * sd + 0.1, sd, 6, n, nested=True)
+    assert not separates(strong + 2 * sd - 0.1, sd, 6, n, nested=True)
+
+
+@pytest.mark.parametrize("resolved", [True, False])
+def test_the_predicted_delta_chi2_is_unbiased_and_its_sd_the_realised_spread_over_sessions(
+    resolved,
+):
+    """A linear model, known: common columns X, the true model's own A (its θ drawn once),
+    the other's B, partly alike; 60 session rows, 30 new. 3000 sessions redrawn (the session's
+    noise and the new rows' alike), Δχ² = χ²_B − χ²_A refitted on every row each time, less
+    :func:`predicted_delta_chi2`'s mean of that session: d. Its mean is 0 within 4 standard
+    errors (σ: d's own sample sd / √3000). The predicted variance is d's: mean sd² within 4
+    standard errors of var d (σ: the sample sd of (d − d̄)² / √3000) where A is resolved by
+    the session; where it is not (its session columns 5 times smaller), the sd estimated from
+    ŷ is clipped at 0 now and then and so errs large, never small (mean sd² ≥ var d − 4σ)."""
+    from hexcal.diagnosis.selection import predicted_delta_chi2
+
+    rng = np.random.default_rng(0 if not resolved else 1)
+    m, n, px, pa, pb = 60, 30, 4, 4, 3
+    X = rng.normal(size=(m + n, px))
+    A = rng.normal(size=(m + n, pa)) + 0.5 * X[:, :pa]
+    if not resolved:
+        A[:m] *= 0.2
+    B = 0.7 * A[:, :1] @ np.ones((1, pb)) + rng.normal(size=(m + n, pb))
+    za, zb = np.hstack([X, A]), np.hstack([X, B])
+    truth = np.concatenate([rng.normal(size=px), (1.0 if resolved else 0.3) * rng.normal(size=pa)])
+
+    def chi2(z, y):
+        return float(np.sum((y - z @ np.linalg.lstsq(z, y, rcond=None)[0]) ** 2))
+
+    draws = 3000
+    d, var = np.empty(draws), np.empty(draws)
+    for k in range(draws):
+        ys = za[:m] @ truth + rng.normal(size=m)
+        y = np.concatenate([ys, za[m:] @ truth + rng.normal(size=n)])
+        mean, sd = predicted_delta_chi2(za, zb, ys)
+        d[k], var[k] = chi2(zb, y) - chi2(za, y) - mean, sd**2
+    assert abs(d.mean()) <= 4 * d.std(ddof=1) / np.sqrt(draws)
+    sq = (d - d.mean()) ** 2
+    se = sq.std(ddof=1) / np.sqrt(draws)
+    if resolved:
+        assert abs(var.mean() - sq.mean()) <= 4 * se
+    else:
+        assert var.mean() >= sq.mean() - 4 * se

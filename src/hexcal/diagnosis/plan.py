@@ -403,6 +403,10 @@ class _Criterion:
     def __init__(self, s: _Setting, resolve: bool) -> None:
         self.s, self.resolve = s, resolve
         m = len(s.problem.meas)
+        d = s.problem.data
+        w = leg_whiteners(s.robot.a, s.robot.b, d.position, d.rotation, _sigmas(s.problem))
+        #: (6M,) the session's residuals at the model's fit, whitened as the rows are
+        self.residual = (w @ s.base.residuals[..., None]).ravel() / np.sqrt(s.s2)
         self.old = [self._gram(x) for x in self._rows_at(np.zeros((0, 3)), np.zeros((0, 3, 3)))]
         self.m = m
 
@@ -510,7 +514,7 @@ class _Criterion:
     def decided(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
         """Whether the session's poses and these decide, whichever hypothesis is true
         (:func:`~hexcal.diagnosis.selection.separates`)."""
-        lam, sd = self.directions(P, R, t)
+        mean, sd = self.directions(P, R, t)
         ref = self.s.base.refinement
         rows = ref.dof + len(ref.x) + 6 * len(P)
 
@@ -519,13 +523,13 @@ class _Criterion:
 
         return all(
             selection.separates(
-                lam[h],
+                mean[h],
                 sd[h],
                 count(h) - count(_other(self.s, h)),
                 rows,
                 _other(self.s, h) == GEOMETRY,
             )
-            for h in lam
+            for h in mean
         )
 
     def decided_after(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> int | None:
@@ -536,48 +540,25 @@ class _Criterion:
     def directions(
         self, P: np.ndarray, R: np.ndarray, t: np.ndarray, noise_only: bool = False
     ) -> tuple[dict[str, float], dict[str, float]]:
-        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, and
-        that Δχ²'s standard deviation), keyed by the true one's name.
-
-        The noncentrality of the true one's contribution θᵀSθ (S: the information of its
-        parameters once the other's columns are projected out, over every pose) is estimated
-        from its fitted values θ̂, whose own spread C (the session's information, inverted)
-        inflates it by tr(SC) on average: that is taken off. The spread: the session's part of
-        Δχ² is recorded already and made θ̂, so only the new poses' share S_new = S − S_session
-        is to come — their noise, √(4 θ̂ᵀS_newθ̂ + 2 tr(P_A − P_B)²)
-        (:func:`~hexcal.diagnosis.selection.delta_chi2_sd`), and θ̂'s spread seen through them,
-        4 θ̂ᵀS_new C S_newθ̂ (to first order the realised Δχ² less the prediction is
-        2 θ̂ᵀS_new(v − u), v the new poses' estimate's error, u the session's). ``noise_only``:
-        the new poses' noise alone (the session held, its θ̂ with it: what redrawing only the
-        new poses' noise spreads the Δχ² by)."""
+        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, both
+        refitted on the session's poses and these, and that Δχ²'s standard deviation), keyed
+        by the true one's name: the predictive distribution given the session's residuals
+        (:func:`~hexcal.diagnosis.selection.predicted_delta_chi2`, linear at the model's fit):
+        the session's part is recorded already; the new poses' residuals are what the true
+        hypothesis fitted to the session predicts, with their noise and that fit's own spread
+        (``noise_only``: their noise alone, what redrawing only the new poses' noise spreads
+        the Δχ² by)."""
         rows = self._rows_at(P, R, t)
-        x = [r.reshape(-1, r.shape[-1]) for r in rows]
-        cross = x[0][:, :-1].T @ x[1][:, :-1]
-        spread = selection.overlap(
-            x[0][:, :-1].T @ x[0][:, :-1], x[1][:, :-1].T @ x[1][:, :-1], cross
-        )
-        lam, sd = {}, {}
+        flat = [r[..., :-1].reshape(-1, r.shape[-1] - 1) for r in rows]
+        mean, sd = {}, {}
         for i, h in enumerate(self.s.hypotheses):
-            true = _other(self.s, h)  # model i's last column: the other's contribution
+            true = _other(self.s, h)  # model i is the other's: true's columns are model 1 − i's
             if true == GEOMETRY:  # the geometry alone has no contribution to show
                 continue
-            q = len(get_effect(true).params(self.s.problem.design))
-            own = rows[1 - i][..., -1 - q : -1]
-            both = np.concatenate([rows[i][..., :-1], own], axis=-1)
-            after = both.reshape(-1, both.shape[-1])
-            session = both[: self.m].reshape(-1, both.shape[-1])
-            info = selection.schur_block(after.T @ after, q)
-            new = info - selection.schur_block(session.T @ session, q)
-            before = rows[1 - i][: self.m, :, :-1].reshape(-1, x[1 - i].shape[-1] - 1)
-            cov = np.linalg.pinv(selection.schur_block(before.T @ before, q))
-            theta = _values(self.s, true)
-            raw = float(theta @ info @ theta)
-            lam[true] = max(raw - float(np.trace(info @ cov)), 0.0)
-            lam_new = max(float(theta @ new @ theta), 0.0)
-            own_sd2 = 4.0 * max(float(theta @ new @ cov @ new @ theta), 0.0)
-            own_sd2 = 0.0 if noise_only else own_sd2
-            sd[true] = float(np.sqrt(selection.delta_chi2_sd(lam_new, spread) ** 2 + own_sd2))
-        return lam, sd
+            mean[true], sd[true] = selection.predicted_delta_chi2(
+                flat[1 - i], flat[i], self.residual, noise_only
+            )
+        return mean, sd
 
 
 def _other(s: _Setting, h: str) -> str:
