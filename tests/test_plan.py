@@ -209,3 +209,25 @@ def test_the_predicted_delta_chi2_is_unbiased_and_its_sd_the_realised_spread_ove
         assert abs(var.mean() - sq.mean()) <= 4 * se
     else:
         assert var.mean() >= sq.mean() - 4 * se
+
+
+def test_a_hidden_drift_runs_on_through_a_wait_on_the_sessions_own_clock():
+    """The look-alike's simulator after the session: a drift's contribution at a new pose is
+    the session's linear law continued — n_k·v·(t − t_mid), t_mid the middle of the session's
+    own time span — however long the wait (from the whole recording's middle instead, it
+    would step back by half the time added)."""
+    from hexcal.sim.plan_cases import case
+    from hexcal.sim.simulate import PoseContext
+
+    c = case("thermal vs drift", 3)
+    assert c.hidden == "drift"
+    m = c.meas
+    mid = 0.5 * (m.t.min() + m.t.max())
+    P, R = m.position[-1:], m.rotations.as_matrix()[-1:]
+    per_s = []
+    for wait in (0.0, 3600.0):
+        t = np.array([m.t[-1] + wait + 10.0])
+        got = c.history(np.zeros((1, 6)), PoseContext(P, R, t, np.array([25.0])))
+        per_s.append(got[0] / (t[0] - mid))  # n_k·v, whatever the time: the law continued
+    assert np.abs(per_s[0]).max() > 0
+    np.testing.assert_allclose(per_s[1], per_s[0], rtol=1e-9)

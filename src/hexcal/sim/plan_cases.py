@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hexcal.effects.drift import T_MID
 from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot
@@ -121,19 +122,25 @@ class LookAlike:
 
 class _History:
     """A hidden effect evaluated over the whole recording: the session's poses (kept from the
-    session's simulation) followed by the new ones, whose part is returned."""
+    session's simulation) followed by the new ones, whose part is returned — on the session's
+    own clock (a drift reckoned from the middle of the session's time span, as it was while
+    the session was recorded: from the middle of the whole recording, the new poses' drift
+    would step back by half of the time added, a wait's too)."""
 
-    def __init__(self, hook: LengthEffect) -> None:
-        self.hook = hook
+    def __init__(self, name: str, values: np.ndarray, truth: Robot) -> None:
+        self.name, self.values, self.truth = name, values, truth
+        self.hook: LengthEffect = effect_hook(name, values, truth)
         self.past: PoseContext | None = None
         self.recording = True
-        self.__name__ = getattr(hook, "__name__", "hidden")
+        self.__name__ = getattr(self.hook, "__name__", "hidden")
 
     def __call__(self, readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
         if self.recording or self.past is None:
             self.past = ctx
             return self.hook(readings, ctx)
         p = self.past
+        t = np.asarray(p.t, float)
+        later = effect_hook(self.name, self.values, self.truth, {T_MID: 0.5 * (t.min() + t.max())})
         n = len(p.t)
         whole = PoseContext(
             np.concatenate([p.position, ctx.position]),
@@ -144,7 +151,7 @@ class _History:
         # The session's rows only feed history (a drift's clock): their readings' exact
         # values do not matter to the new rows of these effects.
         old = np.repeat(readings[:1], n, axis=0)
-        return self.hook(np.concatenate([old, readings]), whole)[n:]
+        return later(np.concatenate([old, readings]), whole)[n:]
 
 
 def case(pair: str, seed: int, scale: float = 1.0) -> LookAlike:
@@ -167,7 +174,7 @@ def case(pair: str, seed: int, scale: float = 1.0) -> LookAlike:
         hidden = "gain"
     truth = perturbed_truth(design, rng, plan)
     values = _values(hidden, rng, truth, scale)
-    hook = _History(effect_hook(hidden, values, truth))
+    hook = _History(hidden, values, truth)
     meas, _ = simulate_session(design, seed, plan, effects=[hook], truth=truth)
     hook.recording = False
     sim = Simulator(truth, ranges=plan.ranges, noise=plan.noise, effects=[hook])

@@ -66,6 +66,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="C",
         help="°C the lab will hold while recording the plan (default: the session's last)",
     )
+    p.add_argument(
+        "--can-hold",
+        type=float,
+        nargs=2,
+        metavar=("LOW", "HIGH"),
+        help="°C range the lab can hold the rig at (a climate-controlled room or chamber): the "
+        "plan then chooses the temperature too, reached no faster than the session's changed",
+    )
     p.add_argument("--seed", type=SEED, default=0, help="the random candidate poses' seed")
     p.add_argument("--out", type=Path, required=True, help="the planned poses (CSV)")
     p.add_argument("--force", action="store_true", help="replace an existing --out file")
@@ -89,7 +97,10 @@ def run(args: argparse.Namespace) -> int:
     for name in ("wait", "max_wait"):
         if getattr(args, name) is not None and getattr(args, name) < 0:
             raise SystemExit(f"hexcal plan: --{name.replace('_', '-')} must be at least 0 s")
-    when = When(args.wait, args.max_wait, args.temperature)
+    if args.temperature is not None and args.can_hold is not None:
+        raise SystemExit("hexcal plan: --temperature or --can-hold, not both")
+    held = None if args.can_hold is None else (args.can_hold[0], args.can_hold[1])
+    when = When(args.wait, args.max_wait, args.temperature, held)
     plan = plan_session(
         inp, ModelKind(args.model), args.add, args.poses, separate, args.resolve, args.seed, when
     )
@@ -115,7 +126,7 @@ def plan_dict(plan, out: Path) -> dict:
         "random_poses_to_match": plan.match,
         "decided_after": plan.decide if plan.kind == "separate" else None,
         "wait_s": plan.wait,
-        "temperature_c": None if plan.meas.temperature is None else plan.meas.temperature[0],
+        "temperature_c": None if plan.meas.temperature is None else float(plan.meas.temperature[0]),
         "out": str(out),
         "notes": plan.notes,
     }
@@ -131,7 +142,7 @@ def plan_lines(plan) -> list[str]:
             f"expected separation of {a} and {b} (the Δχ² between them, whichever is true):",
             f"  the session's poses alone: {plan.before:.1f}",
             f"  with these {n} planned poses: {plan.planned:.1f} ± {plan.planned_sd:.1f}",
-            f"  with {n} random reachable poses: {plan.random:.1f}",
+            f"  with {n} random reachable poses, recorded as these are: {plan.random:.1f}",
             f"  random reachable poses needed to match the plan: {more}",
             "  decided (ΔBIC and the look-alike margin, 2 standard deviations short): "
             + (
