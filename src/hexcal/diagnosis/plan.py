@@ -530,6 +530,18 @@ class _Criterion:
                 _other(self.s, h) == GEOMETRY,
             )
             for h in mean
+        ) and (GEOMETRY in self.s.hypotheses or self._vuong_apart(P, R, t))
+
+    def _vuong_apart(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
+        """Whether Vuong's test would put the two apart whichever is true, two standard
+        deviations short (:func:`~hexcal.diagnosis.selection.predicted_vuong_z` ≥
+        :data:`~hexcal.diagnosis.selection.HELDOUT_Z`): the look-alike rule asks it of
+        non-nested hypotheses besides their Δχ²."""
+        rows = self._rows_at(P, R, t)
+        flat = [r[..., :-1].reshape(-1, r.shape[-1] - 1) for r in rows]
+        return all(
+            selection.predicted_vuong_z(flat[1 - i], flat[i], self.residual) >= selection.HELDOUT_Z
+            for i in range(len(flat))
         )
 
     def decided_after(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> int | None:

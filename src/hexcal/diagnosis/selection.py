@@ -272,3 +272,37 @@ def _basis(cols: np.ndarray) -> np.ndarray:
     s = np.sqrt(np.clip(np.sum(cols**2, axis=0), 1e-300, None))
     u, sv, _ = np.linalg.svd(cols / s, full_matrices=False)
     return u[:, sv > 1e-10 * sv[0]] if len(sv) else u
+
+
+#: Draws of the new poses from the predictive that :func:`predicted_vuong_z` takes.
+VUONG_DRAWS = 64
+
+
+def predicted_vuong_z(
+    true_cols: np.ndarray, other_cols: np.ndarray, residual: np.ndarray, seed: int = 0
+) -> float:
+    """Vuong's z of the two models (:func:`vuong_z`: the other's per-pose χ² less the true
+    one's, rows in poses of six) once the new rows are recorded, two standard deviations
+    short: its 2.3 % quantile over :data:`VUONG_DRAWS` draws of the new rows' residuals from
+    the predictive of :func:`predicted_delta_chi2` (the true model fitted to the first rows,
+    that fit's spread, unit noise), both models refitted (projected) on every row each time.
+    A separation carried by k poses has a z of at most about √k however large its Δχ²: few
+    poses decide by Δχ² and still fit alike by Vuong's test."""
+    m = len(residual)
+    ua, ub = _basis(true_cols), _basis(other_cols)
+    scale = np.sqrt(np.clip(np.sum(true_cols[:m] ** 2, axis=0), 1e-300, None))
+    zs, zn = true_cols[:m] / scale, true_cols[m:] / scale
+    cov = np.linalg.pinv(zs.T @ zs, rcond=1e-12, hermitian=True)
+    gamma = cov @ (zs.T @ residual)
+    ev, evec = np.linalg.eigh(cov)
+    spread = evec * np.sqrt(np.clip(ev, 0.0, None))
+    rng = np.random.default_rng(seed)
+    g = gamma + rng.normal(size=(VUONG_DRAWS, len(gamma))) @ spread.T
+    new = g @ zn.T + rng.normal(size=(VUONG_DRAWS, len(zn)))
+    y = np.concatenate([np.broadcast_to(residual, (VUONG_DRAWS, m)), new], axis=1)
+    ra = y - (y @ ua) @ ua.T
+    rb = y - (y @ ub) @ ub.T
+    d = (rb**2 - ra**2).reshape(VUONG_DRAWS, -1, 6).sum(axis=-1)
+    sd = d.std(axis=1, ddof=1)
+    z = np.where(sd > 0, d.mean(axis=1) / np.where(sd > 0, sd, 1.0) * np.sqrt(d.shape[1]), 0.0)
+    return float(np.quantile(z, 0.023))
