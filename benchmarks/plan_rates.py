@@ -34,6 +34,7 @@ single_thread_blas()
 import argparse
 import json
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -217,15 +218,17 @@ LABELS = {
 
 
 def markdown(summary: dict, total: int) -> str:
-    """docs/diagnosis.md's table of a run of ``total`` sessions per pair."""
+    """docs/diagnosis.md's table of a run of ``total`` sessions per pair (``python
+    plan_rates.py --markdown FILE.json`` prints it again from a run's --out)."""
 
     def pct(x: float, n: int) -> str:
         return f"{100 * x:.0f} %" if n >= 20 else f"{round(x * n)} of {n}"
 
     rows = [
-        "| pair | ambiguous sessions | planned poses (median) | right after the planned | "
-        "after as many random | \\|z\\| ≤ 1 | \\|z\\| ≤ 2 | random poses to match (median) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| pair | ambiguous sessions | planned poses (median) | wait (median) | right after the "
+        "planned | after as many random | random on the plan's schedule | \\|z\\| ≤ 1 | "
+        "\\|z\\| ≤ 2 | random poses to match (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for pair, label in LABELS.items():
         s = summary.get(pair)
@@ -233,8 +236,10 @@ def markdown(summary: dict, total: int) -> str:
             continue
         n = s["sessions"]
         rows.append(
-            f"| {label} | {n} of {total} | {s['median_poses']:.0f} | {pct(s['right_planned'], n)} "
-            f"| {pct(s['right_random'], n)} | {pct(s['within_1sd'], n)} | "
+            f"| {label} | {n} of {total} | {s['median_poses']:.0f} | "
+            f"{s['median_wait_s'] / 60:.0f} min | {pct(s['right_planned'], n)} "
+            f"| {pct(s['right_random'], n)} | {pct(s['right_random_waited'], n)} | "
+            f"{pct(s['within_1sd'], n)} | "
             f"{pct(s['within_2sd'], n)} | {s['median_random_to_match']:.0f} |"
         )
     return "\n".join(rows)
@@ -253,7 +258,14 @@ def main() -> None:
         help="the simulated lab can hold the rig at any temperature the session saw (changing "
         "it no faster than the session did): the plan chooses the temperature too",
     )
+    ap.add_argument("--markdown", metavar="JSON", help="print the table of a run's --out, and stop")
     args = ap.parse_args()
+    if args.markdown:
+        with open(args.markdown) as f:
+            done = json.load(f)
+        total = max(Counter(r["pair"] for r in done["sessions"]).values())
+        print(markdown(done["summary"], total))
+        return
     work = [(p, s, args.poses, args.lab_holds) for p in args.pairs for s in range(args.sessions)]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_session, work))

@@ -231,3 +231,52 @@ def test_a_hidden_drift_runs_on_through_a_wait_on_the_sessions_own_clock():
         per_s.append(got[0] / (t[0] - mid))  # n_k·v, whatever the time: the law continued
     assert np.abs(per_s[0]).max() > 0
     np.testing.assert_allclose(per_s[1], per_s[0], rtol=1e-9)
+
+
+def test_hexcal_plan_writes_the_schedule_it_is_asked_for_and_refuses_two_temperatures(
+    tmp_path, capsys
+):
+    """``hexcal plan --wait S --temperature C``: the table's t column starts S + one pose's
+    pace after the session's last pose, its temperature column holds C, and --json says both;
+    --temperature with --can-hold is refused, and nothing is written."""
+    import json
+
+    from hexcal.app.cli import main
+    from hexcal.io.measurements import write_measurements
+    from hexcal.io.measurements_csv import read_measurements
+    from hexcal.sim.plan_cases import case
+
+    c = case("thermal vs drift", 3, 0.5)
+    write_measurements(c.meas, tmp_path / "m.csv")
+    (tmp_path / "robot.json").write_text(c.design.model_dump_json())
+    (tmp_path / "instruments.json").write_text(c.instruments.model_dump_json())
+    args = ["plan", str(tmp_path / "m.csv"), "--robot", str(tmp_path / "robot.json")]
+    args += ["--instruments", str(tmp_path / "instruments.json"), "--separate", "thermal", "drift"]
+    out = tmp_path / "plan.csv"
+    assert (
+        main(
+            [
+                *args,
+                "--poses",
+                "3",
+                "--wait",
+                "600",
+                "--temperature",
+                "21",
+                "--out",
+                str(out),
+                "--json",
+            ]
+        )
+        == 0
+    )
+    said = json.loads(capsys.readouterr().out)
+    assert (said["wait_s"], said["temperature_c"], said["poses"]) == (600.0, 21.0, 3)
+    plan = read_measurements(out)
+    dt = max(float(np.median(np.diff(c.meas.t))), 1.0)
+    np.testing.assert_allclose(plan.t[0], c.meas.t[-1] + 600 + dt, atol=1e-3)
+    assert set(plan.temperature) == {21.0}
+    refused = tmp_path / "refused.csv"
+    with pytest.raises(SystemExit, match="--temperature or --can-hold"):
+        main([*args, "--temperature", "21", "--can-hold", "20", "25", "--out", str(refused)])
+    assert not refused.exists()
