@@ -1,13 +1,17 @@
 """Experiments that decide: `hexcal plan` over simulated look-alike sessions.
 
-    python benchmarks/plan_rates.py [--sessions 50] [--poses 12] [--jobs 2] [--pairs ...]
+    python benchmarks/plan_rates.py [--sessions 50] [--poses 20] [--jobs 2] [--pairs ...]
+                                    [--lab-holds] [--out FILE.json] | --markdown FILE.json
 
 For each pair of :mod:`hexcal.sim.plan_cases` (gain vs compliance on the motion base, thermal
 vs drift, ujoint vs the geometry), sessions whose poses leave the pair ambiguous, one of the two
 hidden. The planner picks at most ``--poses`` poses to separate them (:func:`hexcal.diagnosis.
 plan.plan_poses`): the fewest of them after which it expects the question decided (``Plan.
 decide``, what the diagnosis offers), else all; the same robot records them (the simulator with
-the truth), and, as the control, as many random reachable poses from the same set. After each,
+the truth) at the plan's times and temperatures (its schedule: a wait, a temperature held), and,
+as the control, as many random reachable poses from the same set recorded as the session goes
+on, and again on the plan's schedule (what the schedule alone does). ``--lab-holds``: the
+simulated lab can hold any temperature the session saw (the plan may choose one). After each,
 both hypotheses are refitted on all the poses:
 
 - named right: the true hypothesis' ΔBIC against the model is very strong

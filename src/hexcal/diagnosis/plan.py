@@ -8,8 +8,13 @@ session; its fitted contribution is a column of whitened leg lengths over any po
 
 - To separate A from B: whichever is true, the other leaves χ² beyond the noise by the
   noncentrality of the true one's contribution once the other's columns are projected out
-  (:func:`hexcal.diagnosis.selection.schur_after`); the poses maximise the smaller of the two
-  (the geometry alone has no contribution: against it, only the effect's counts).
+  (:func:`hexcal.diagnosis.selection.schur_after`); the poses are picked to maximise the
+  smaller of the two (the geometry alone has no contribution: against it, only the effect's
+  counts). What they are then expected to show is the Δχ²'s own distribution given the
+  session (:func:`hexcal.diagnosis.selection.predicted_delta_chi2`: its mean, unbiased, and
+  standard deviation), and they decide where that, two standard deviations short, pays the
+  verdict's margins and Vuong's test would also put the two apart
+  (:func:`~hexcal.diagnosis.selection.predicted_vuong_z`).
 - To resolve one effect: D-optimal — the log-determinant of its parameters' information once
   the geometry's and the model's other columns are projected out.
 
@@ -63,8 +68,9 @@ class Plan:
 
     ``meas``: the poses as a measurement table (free poses, step ``plan``, the readings the
     fitted model predicts at each, mm); ``planned``, ``random``: the criterion with these N
-    poses added and with N random reachable ones (mean of :data:`N_RANDOM`) — to separate, the
-    expected Δχ² (noncentrality) between the hypotheses; to resolve, the geometric-mean
+    poses added and with N random reachable ones (mean of :data:`N_RANDOM`, recorded on the
+    plan's schedule) — to separate, the expected Δχ² between the hypotheses (the predictive
+    mean, the smaller of the two directions); to resolve, the geometric-mean
     standard error of the effect's parameters (spec units); ``planned_sd``: the Δχ²'s standard
     deviation (separation only); ``match``: random poses whose mean criterion reaches the
     plan's (None: more than :data:`MATCH_LIMIT` × N); ``before``: the criterion on the
@@ -82,8 +88,9 @@ class Plan:
     #: separation decides (:func:`~hexcal.diagnosis.selection.separates`; None: not all of them)
     decide: int | None = None
     notes: list[str] = field(default_factory=list)
-    #: Separation, per hypothesis taken as true: (expected Δχ² the other leaves beyond it,
-    #: its standard deviation) after the planned poses
+    #: Separation, per hypothesis taken as true: (the mean Δχ² the other leaves beyond it,
+    #: both refitted on every pose — the parameter counts' difference included — and its
+    #: standard deviation) after the planned poses
     expected: dict[str, tuple[float, float]] = field(default_factory=dict)
     #: s from the session's last pose to the first planned one, less one pose's pace
     wait: float = 0.0
