@@ -197,9 +197,14 @@ def _notes(problem: Problem, s: _Setting, wait: float, when: When) -> list[str]:
     temperature (and whether the session's own temperature still moved at its end)."""
     notes = [
         "free poses only: a plan under a clamp is not made (record these with no leg clamped)",
-        f"record the first pose {wait:.0f} s after the session's last "
-        f"({'the wait the plan chose' if when.wait_s is None else 'the wait asked for'}), then "
-        f"one every {s.dt:.0f} s (the session's pace): the t column",
+        (
+            f"record the first pose {wait:.0f} s after the session's last "
+            f"({'the wait the plan chose' if when.wait_s is None else 'the wait asked for'}), "
+            "then"
+            if wait > 0
+            else "record them as the session goes on,"
+        )
+        + f" one every {s.dt:.0f} s (the session's pace): the t column",
     ]
     temp = problem.meas.temperature
     if temp is None or s.hold is None:
@@ -212,7 +217,7 @@ def _notes(problem: Problem, s: _Setting, wait: float, when: When) -> list[str]:
             if when.temperature is not None
             else "the plan's choice: reached during the wait"
             if stated
-            else "the session's last, held through the wait"
+            else "the session's last" + (", held through the wait" if wait > 0 else "")
         )
         + "): the temperature column — the diagnosis takes each pose at the temperature it "
         "records, so a temperature that moves on with time makes the wait worth less"
