@@ -1,13 +1,17 @@
 """Experiments that decide: `hexcal plan` over simulated look-alike sessions.
 
-    python benchmarks/plan_rates.py [--sessions 50] [--poses 12] [--jobs 2] [--pairs ...]
+    python benchmarks/plan_rates.py [--sessions 50] [--poses 20] [--jobs 2] [--pairs ...]
+                                    [--lab-holds] [--out FILE.json] | --markdown FILE.json
 
 For each pair of :mod:`hexcal.sim.plan_cases` (gain vs compliance on the motion base, thermal
 vs drift, ujoint vs the geometry), sessions whose poses leave the pair ambiguous, one of the two
 hidden. The planner picks at most ``--poses`` poses to separate them (:func:`hexcal.diagnosis.
 plan.plan_poses`): the fewest of them after which it expects the question decided (``Plan.
 decide``, what the diagnosis offers), else all; the same robot records them (the simulator with
-the truth), and, as the control, as many random reachable poses from the same set. After each,
+the truth) at the plan's times and temperatures (its schedule: a wait, a temperature held), and,
+as the control, as many random reachable poses from the same set recorded as the session goes
+on, and again on the plan's schedule (what the schedule alone does). ``--lab-holds``: the
+simulated lab can hold any temperature the session saw (the plan may choose one). After each,
 both hypotheses are refitted on all the poses:
 
 - named right: the true hypothesis' ΔBIC against the model is very strong
@@ -16,11 +20,12 @@ both hypotheses are refitted on all the poses:
   whether or not both bring the residual to the floor); for the nested pair (the geometry
   alone against ujoint), ujoint's ΔBIC is very strong. The sessions are drawn until their own poses leave the pair undecided that way
   (:func:`ambiguous`);
-- the predicted separation against the realised: z = (Δχ² realised − (λ + p_true −
-  p_other)) / sd, with λ and sd the plan's for the true hypothesis (its fitted contribution
-  projected out of the other's columns, less the inflation its fitted values' spread gives;
-  sd = √(4λ + 2 tr(P_A − P_B)² + the fitted values' share)). If sd is right,
-  |z| ≤ 1 in 68 % of sessions and |z| ≤ 2 in 95 %.
+- the predicted separation against the realised: z = (Δχ² realised − mean) / sd, the mean
+  and sd the plan's for the true hypothesis — the predictive distribution of the Δχ² given
+  the session's residuals (:func:`hexcal.diagnosis.selection.predicted_delta_chi2`: the new
+  poses' residuals as the true hypothesis fitted to the session predicts them, with their
+  noise and that fit's spread). If sd is right, |z| ≤ 1 in 68 % of sessions and |z| ≤ 2 in
+  95 %.
 """
 
 # ruff: noqa: E402  (the BLAS thread count is set before numpy is imported)
@@ -33,11 +38,13 @@ single_thread_blas()
 import argparse
 import json
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from hexcal.diagnosis.plan import GEOMETRY, _candidates, plan_poses
+from hexcal.diagnosis.plan import GEOMETRY, When, plan_poses
+from hexcal.diagnosis.plan_pool import _candidates
 from hexcal.diagnosis.scoring import pose_whiteners
 from hexcal.diagnosis.selection import BIC_STRONG, bic_delta, indistinct, vuong_z
 from hexcal.estimate.effect_fit import Problem, fit_model
@@ -108,28 +115,50 @@ def ambiguous(pair: str, seed: int):
     return None, None, TRIES
 
 
-def run_session(args: tuple[str, int, int]) -> dict:
-    pair, seed, n = args
+def _lab(meas) -> tuple[float, float] | None:
+    """The temperatures the simulated lab can hold: the session's own range."""
+    temp = meas.temperature
+    return None if temp is None else (float(np.min(temp)), float(np.max(temp)))
+
+
+def _held(plan) -> float | None:
+    temp = plan.meas.temperature
+    return None if temp is None else float(temp[0])
+
+
+def _rng(seed: int) -> np.random.Generator:
+    return np.random.default_rng(seed)
+
+
+def run_session(args: tuple[str, int, int, bool]) -> dict:
+    pair, seed, n, lab_holds = args
     c, before, tries = ambiguous(pair, seed)
     if c is None:
         return {"pair": pair, "seed": seed, "ambiguous": False, "tries": tries}
     problem = Problem.build(c.meas, c.design, NoiseSigmas.from_instruments(c.instruments))
+    when = When(temperatures=_lab(c.meas) if lab_holds else None)
     t0 = time.perf_counter()
-    plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
+    plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=_rng(seed), when=when)
     seconds = time.perf_counter() - t0
     if plan.decide is not None and 0 < plan.decide < n:  # the fewest that decide, as offered
         n = plan.decide
-        plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=np.random.default_rng(seed))
+        # the same schedule (wait, temperature), fewer poses
+        when = When(plan.wait, temperature=_held(plan))
+        plan = plan_poses(problem, ("offset",), n, separate=c.pair, rng=_rng(seed), when=when)
     P, R, t = plan.meas.position, plan.meas.rotations.as_matrix(), plan.meas.t
-    planned = _fits(c.record(P, R, t, seed), c)
+    temp = plan.meas.temperature
+    planned = _fits(c.record(P, R, t, seed, temp), c)
     rng = np.random.default_rng([seed, 1])
     Pr, Rr = _candidates(problem, c.simulator.robot, 4 * n, rng)
-    random = _fits(c.record(Pr[:n], Rr[:n], t, seed), c)
+    # The control: as many random reachable poses recorded as the session goes on (no wait);
+    # and the same poses after the plan's wait, at its temperature (what the timing alone does).
+    t_now = np.round(t - plan.wait, 3)
+    random = _fits(c.record(Pr[:n], Rr[:n], t_now, seed), c)
+    waited = _fits(c.record(Pr[:n], Rr[:n], t, seed, temp), c) if plan.wait > 0 else random
     true = c.hidden
     other = next(h for h in c.pair if h != true)
-    lam, sd = plan.expected.get(true, (float("nan"), float("nan")))
+    mean, sd = plan.expected.get(true, (float("nan"), float("nan")))
     realised = planned[other][1] - planned[true][1]
-    mean = lam + planned[true][2] - planned[other][2]
     return {
         "pair": pair,
         "seed": seed,
@@ -140,8 +169,11 @@ def run_session(args: tuple[str, int, int]) -> dict:
         "right_before": _right(before, c),
         "right_planned": _right(planned, c),
         "right_random": _right(random, c),
-        "predicted": lam,
+        "right_random_waited": _right(waited, c),
+        "wait_s": plan.wait,
+        "predicted": mean,
         "predicted_sd": sd,
+        "predicted_noise_sd": plan.noise_sd.get(true, float("nan")),
         "realised": realised,
         "z": (realised - mean) / sd if sd > 0 else float("nan"),
         "separation_before": plan.before,
@@ -167,6 +199,8 @@ def summary(rows: list[dict]) -> dict:
             "right_before": float(np.mean([r["right_before"] for r in rs])),
             "right_planned": float(np.mean([r["right_planned"] for r in rs])),
             "right_random": float(np.mean([r["right_random"] for r in rs])),
+            "right_random_waited": float(np.mean([r["right_random_waited"] for r in rs])),
+            "median_wait_s": float(np.median([r["wait_s"] for r in rs])),
             "within_1sd": float(np.mean(np.abs(z) <= 1)) if len(z) else None,
             "within_2sd": float(np.mean(np.abs(z) <= 2)) if len(z) else None,
             "median_z": float(np.median(z)) if len(z) else None,
@@ -188,15 +222,17 @@ LABELS = {
 
 
 def markdown(summary: dict, total: int) -> str:
-    """docs/diagnosis.md's table of a run of ``total`` sessions per pair."""
+    """docs/diagnosis.md's table of a run of ``total`` sessions per pair (``python
+    plan_rates.py --markdown FILE.json`` prints it again from a run's --out)."""
 
     def pct(x: float, n: int) -> str:
         return f"{100 * x:.0f} %" if n >= 20 else f"{round(x * n)} of {n}"
 
     rows = [
-        "| pair | ambiguous sessions | planned poses (median) | right after the planned | "
-        "after as many random | \\|z\\| ≤ 1 | \\|z\\| ≤ 2 | random poses to match (median) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| pair | ambiguous sessions | planned poses (median) | wait (median) | right after the "
+        "planned | after as many random | random on the plan's schedule | \\|z\\| ≤ 1 | "
+        "\\|z\\| ≤ 2 | random poses to match (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for pair, label in LABELS.items():
         s = summary.get(pair)
@@ -204,8 +240,10 @@ def markdown(summary: dict, total: int) -> str:
             continue
         n = s["sessions"]
         rows.append(
-            f"| {label} | {n} of {total} | {s['median_poses']:.0f} | {pct(s['right_planned'], n)} "
-            f"| {pct(s['right_random'], n)} | {pct(s['within_1sd'], n)} | "
+            f"| {label} | {n} of {total} | {s['median_poses']:.0f} | "
+            f"{s['median_wait_s'] / 60:.0f} min | {pct(s['right_planned'], n)} "
+            f"| {pct(s['right_random'], n)} | {pct(s['right_random_waited'], n)} | "
+            f"{pct(s['within_1sd'], n)} | "
             f"{pct(s['within_2sd'], n)} | {s['median_random_to_match']:.0f} |"
         )
     return "\n".join(rows)
@@ -218,8 +256,21 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--pairs", nargs="+", default=list(PAIRS))
     ap.add_argument("--out", help="write every session's row and the summary here (JSON)")
+    ap.add_argument(
+        "--lab-holds",
+        action="store_true",
+        help="the simulated lab can hold the rig at any temperature the session saw (changing "
+        "it no faster than the session did): the plan chooses the temperature too",
+    )
+    ap.add_argument("--markdown", metavar="JSON", help="print the table of a run's --out, and stop")
     args = ap.parse_args()
-    work = [(p, s, args.poses) for p in args.pairs for s in range(args.sessions)]
+    if args.markdown:
+        with open(args.markdown) as f:
+            done = json.load(f)
+        total = max(Counter(r["pair"] for r in done["sessions"]).values())
+        print(markdown(done["summary"], total))
+        return
+    work = [(p, s, args.poses, args.lab_holds) for p in args.pairs for s in range(args.sessions)]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_session, work))
     result = {"poses": args.poses, "summary": summary(rows), "sessions": rows}

@@ -9,7 +9,8 @@ from types import SimpleNamespace
 import pytest
 
 from hexcal.diagnosis.decide import hypotheses, standing
-from hexcal.diagnosis.plan import GEOMETRY, Offer
+from hexcal.diagnosis.plan import GEOMETRY
+from hexcal.diagnosis.plan_offer import Offer
 
 
 def _d(verdict, alike=(), chi2=None, effects=("offset",), fit=200.0, s2=1.0, **cand):

@@ -120,7 +120,7 @@ def test_a_plan_spent_undecided_says_so_and_keeps_the_latest_rows_in_view(
     from dataclasses import replace
 
     import hexcal.diagnosis.decide as decide
-    from hexcal.diagnosis.plan import Offer
+    from hexcal.diagnosis.plan_offer import Offer
 
     real = decide.standing
     monkeypatch.setattr(

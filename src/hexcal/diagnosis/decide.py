@@ -1,7 +1,7 @@
 """Where a plan's question stands after the poses so far: the text UI's decide step records the
 planned poses (:mod:`hexcal.diagnosis.plan`) one by one, diagnoses again after each, and asks
 this module whether the question the diagnosis offered the plan for (an
-:class:`~hexcal.diagnosis.plan.Offer`) is decided.
+:class:`~hexcal.diagnosis.plan_offer.Offer`) is decided.
 
 It is decided as the diagnosis decides, at the verdict's own confidence
 (:mod:`hexcal.diagnosis.verdict`, :mod:`hexcal.diagnosis.selection`): an effect is named on very
@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from hexcal.diagnosis.plan import GEOMETRY, Offer
+from hexcal.diagnosis.plan import GEOMETRY
+from hexcal.diagnosis.plan_offer import Offer
 from hexcal.estimate.effect_fit import fit_model
 from hexcal.vocabulary import Outcome
 

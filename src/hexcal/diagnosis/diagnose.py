@@ -45,7 +45,7 @@ from hexcal.diagnosis.outliers import (
     pose_residuals,
     session_problem,
 )
-from hexcal.diagnosis.plan import Offer, offers
+from hexcal.diagnosis.plan_offer import Offer, offers
 from hexcal.diagnosis.readmitted import check_readmitted
 from hexcal.diagnosis.scoring import Candidate, jacobian_basis, score_candidate
 from hexcal.diagnosis.selection import BIC_STRONG, MOST
@@ -139,7 +139,7 @@ class Diagnosis:
     noise_factor: float = float("nan")
     #: A rigid move of the tracker located by the search (``frame_step``'s time)
     frame: FrameChange | None = None
-    #: The plans offered where the poses cannot decide (:func:`hexcal.diagnosis.plan.offers`)
+    #: The plans offered where the poses cannot decide (:func:`hexcal.diagnosis.plan_offer.offers`)
     plans: list[Offer] = field(default_factory=list)
     #: Candidates whose score rests on a robot.json key left at its default
     defaults: list[DefaultNote] = field(default_factory=list)

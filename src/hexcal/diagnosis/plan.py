@@ -8,37 +8,49 @@ session; its fitted contribution is a column of whitened leg lengths over any po
 
 - To separate A from B: whichever is true, the other leaves χ² beyond the noise by the
   noncentrality of the true one's contribution once the other's columns are projected out
-  (:func:`hexcal.diagnosis.selection.schur_after`); the poses maximise the smaller of the two
-  (the geometry alone has no contribution: against it, only the effect's counts).
+  (:func:`hexcal.diagnosis.selection.schur_after`); the poses are picked to maximise the
+  smaller of the two (the geometry alone has no contribution: against it, only the effect's
+  counts). What they are then expected to show is the Δχ²'s own distribution given the
+  session (:func:`hexcal.diagnosis.selection.predicted_delta_chi2`: its mean, unbiased, and
+  standard deviation), and they decide where that, two standard deviations short, pays the
+  verdict's margins and Vuong's test would also put the two apart
+  (:func:`~hexcal.diagnosis.selection.predicted_vuong_z`).
 - To resolve one effect: D-optimal — the log-determinant of its parameters' information once
   the geometry's and the model's other columns are projected out.
 
-Poses are picked greedily from a large random set of reachable free poses (the session's own
-box and tilt about home, :data:`REACH`, nearer home where the limits cut deep; the legs'
-stroke ``leg_range_mm``, the joints' limits
-``joint_limit_deg``, away from singularities as :mod:`hexcal.estimate.nbp` keeps them), each
-candidate's gain computed for all at once. Clamped poses are not planned: a plan is free poses.
-The new poses are taken to follow the session at its median pace, at its last temperature.
+Poses are picked greedily from a large set of reachable free poses
+(:mod:`hexcal.diagnosis.plan_pool`: random ones within the session's own box and tilt about
+home, and as many on that region's edge), each candidate's gain computed for all at once.
+Clamped poses are not planned: a plan is free poses.
+
+A plan is a schedule too (:class:`When`): the new poses follow the session at its median pace,
+after a wait the plan chooses where the time separates the hypotheses (a drift goes on while
+the temperature holds; up to the session's own span), at the session's last temperature held —
+or at one the lab states, or, where the lab can hold a range, at the one the plan chooses,
+reached no faster than the session's own temperature changed (:func:`_schedule`). The table's
+t and temperature columns say when and at what temperature to record each pose.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexcal.diagnosis import selection
+from hexcal.diagnosis.plan_pool import (
+    BATCH,
+    _candidates,
+    _with_edges,
+)
 from hexcal.effects import EffectData, get_effect
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model, fitted_robot
 from hexcal.estimate.leg_rows import pose_jacobian
-from hexcal.estimate.nbp import MAX_CONDITION
 from hexcal.estimate.predict import LegModel
 from hexcal.io.measurements import Measurements
-from hexcal.model.kinematics import condition_number
 from hexcal.model.noise import DEFAULT_SIGMAS, leg_whiteners
 from hexcal.model.robot import Robot
-from hexcal.model.workspace import Limits, PoseRanges, Workspace
 
 #: The hypothesis "no further effect": the model as it is.
 GEOMETRY = "geometry"
@@ -48,17 +60,6 @@ N_CANDIDATES = 2000
 N_RANDOM = 20
 #: At most this many times the plan's poses are tried as random ones to match its separation.
 MATCH_LIMIT = 64
-#: The plan's poses range over this many times the session's box and tilt about home (within
-#: the strokes and the joints' limits). Twice gave the plan more separation (gain against
-#: compliance, 20 poses: 2.6–3.2 times 20 random ones' where the session's own span gave
-#: 1.7–2.3) but random poses from the wider set nearly as much: over 30 sessions random poses
-#: named the right one in 77 % for ujoint against the geometry (32 % within the session's span),
-#: 68 % for gain against compliance. The session's span it is.
-REACH = 1.0
-#: Rounds of random draws the candidate poses are collected over.
-ROUNDS = 25
-#: Poses drawn per round: at least this many, and twice those asked for.
-BATCH = 200
 
 
 @dataclass
@@ -67,8 +68,9 @@ class Plan:
 
     ``meas``: the poses as a measurement table (free poses, step ``plan``, the readings the
     fitted model predicts at each, mm); ``planned``, ``random``: the criterion with these N
-    poses added and with N random reachable ones (mean of :data:`N_RANDOM`) — to separate, the
-    expected Δχ² (noncentrality) between the hypotheses; to resolve, the geometric-mean
+    poses added and with N random reachable ones (mean of :data:`N_RANDOM`, recorded on the
+    plan's schedule) — to separate, the expected Δχ² between the hypotheses (the predictive
+    mean, the smaller of the two directions); to resolve, the geometric-mean
     standard error of the effect's parameters (spec units); ``planned_sd``: the Δχ²'s standard
     deviation (separation only); ``match``: random poses whose mean criterion reaches the
     plan's (None: more than :data:`MATCH_LIMIT` × N); ``before``: the criterion on the
@@ -86,9 +88,30 @@ class Plan:
     #: separation decides (:func:`~hexcal.diagnosis.selection.separates`; None: not all of them)
     decide: int | None = None
     notes: list[str] = field(default_factory=list)
-    #: Separation, per hypothesis taken as true: (expected Δχ² the other leaves beyond it,
-    #: its standard deviation) after the planned poses
+    #: Separation, per hypothesis taken as true: (the mean Δχ² the other leaves beyond it,
+    #: both refitted on every pose — the parameter counts' difference included — and its
+    #: standard deviation) after the planned poses
     expected: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: s from the session's last pose to the first planned one, less one pose's pace
+    wait: float = 0.0
+    #: Separation: per hypothesis taken as true, the Δχ²'s standard deviation from the new
+    #: poses' noise alone (the session's poses held as recorded)
+    noise_sd: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class When:
+    """When the planned poses are recorded, and at what temperature: ``wait_s`` before the
+    first (None: the plan chooses, :func:`waits_to_try` up to ``max_wait_s``), at
+    ``temperature`` °C held (None: the session's last; a lab with a climate-controlled room or
+    chamber may state another)."""
+
+    wait_s: float | None = None
+    max_wait_s: float | None = None
+    temperature: float | None = None
+    #: (low, high) °C the lab can hold the rig at (a climate-controlled room or chamber): the
+    #: plan may then choose the temperature too (:func:`temperatures_to_try`)
+    temperatures: tuple[float, float] | None = None
 
 
 @dataclass
@@ -102,6 +125,8 @@ class _Setting:
     s2: float
     dt: float  #: s between poses
     hypotheses: tuple[str, ...]
+    #: °C the new poses are taken at: the session's last, or the temperature the lab will hold
+    hold: float | None = None
 
 
 def plan_poses(
@@ -112,18 +137,21 @@ def plan_poses(
     resolve: str | None = None,
     rng: np.random.Generator | None = None,
     n_candidates: int = N_CANDIDATES,
+    when: When | None = None,
 ) -> Plan:
     """Plan ``n_poses`` poses for ``problem``'s session with ``effects`` in the model (see the
     module docstring): ``separate`` two hypotheses (effect names, or :data:`GEOMETRY`), or
-    ``resolve`` one effect. Raises ValueError for an effect these data cannot carry or a
-    hypothesis already in the model."""
+    ``resolve`` one effect; ``when``: the wait before them and the temperature they are taken
+    at (:class:`When`; None: the wait the plan chooses, the session's last temperature). Raises
+    ValueError for an effect these data cannot carry or a hypothesis already in the model."""
     if (separate is None) == (resolve is None):
         raise ValueError("plan: give two hypotheses to separate, or one effect to resolve")
     if n_poses < 1:
         raise ValueError(f"plan: --poses must be at least 1 (got {n_poses})")
     rng = np.random.default_rng(0) if rng is None else rng
     hyps = tuple(separate) if separate is not None else (str(resolve),)
-    setting = _setting(problem, effects, hyps)
+    when = When() if when is None else when
+    setting = _setting(problem, effects, hyps, when.temperature)
     pool = _candidates(problem, setting.robot, n_candidates, rng)
     if len(pool[0]) < n_poses:
         raise ValueError(
@@ -131,29 +159,22 @@ def plan_poses(
             "session's range: check leg_range_mm and joint_limit_deg in robot.json"
         )
     crit = _Criterion(setting, resolve is not None)
-    t_mid = _times(problem, setting.dt, (n_poses + 1) // 2 + 1)[-1:]
-    chosen = crit.greedy(pool, n_poses, t_mid)
-    P, R = pool[0][chosen], pool[1][chosen]
-    t_new = np.round(_times(problem, setting.dt, n_poses), 3)
+    both = _with_edges(problem, setting.robot, pool, rng)
+    crit, wait, chosen = _schedule(crit, both, n_poses, when)
+    setting = crit.s
+    P, R = both[0][chosen], both[1][chosen]
+    t_new = np.round(_times(problem, setting.dt, n_poses, wait), 3)
     planned, sd = crit.final(P, R, t_new)
     draws = [_draw(pool, n_poses, rng) for _ in range(N_RANDOM)]
     random = float(np.mean([crit.final(d[0], d[1], t_new)[0] for d in draws]))
-    match = _match(crit, problem, setting.dt, planned, n_poses, rng, n_candidates)
+    match = _match(crit, problem, planned, t_new, rng, n_candidates)
     meas = _table(problem, setting, P, R, t_new)
-    expected, decide = {}, None
+    expected, decide, noise_sd = {}, None, {}
     if resolve is None:
         lam, sd_of = crit.directions(P, R, t_new)
         expected = {h: (lam[h], sd_of[h]) for h in lam}
+        noise_sd = crit.directions(P, R, t_new, noise_only=True)[1]
         decide = crit.decided_after(P, R, t_new)
-    notes = [
-        "free poses only: a plan under a clamp is not made (record these with no leg clamped)",
-        f"the new poses are taken to follow the session every {setting.dt:.0f} s"
-        + (
-            f", at its last temperature ({problem.meas.temperature[-1]:.2f} °C)"
-            if problem.meas.temperature is not None
-            else ""
-        ),
-    ]
     return Plan(
         meas,
         "resolve" if resolve is not None else "separate",
@@ -164,13 +185,149 @@ def plan_poses(
         match,
         sd,
         decide,
-        notes,
+        _notes(problem, setting, wait, when),
         expected,
+        wait,
+        noise_sd,
     )
 
 
-def _setting(problem: Problem, effects: tuple[str, ...], hyps: tuple[str, ...]) -> _Setting:
-    """Fit the model and each hypothesis to the session's poses."""
+def _notes(problem: Problem, s: _Setting, wait: float, when: When) -> list[str]:
+    """What the plan takes for granted: free poses, when they are recorded, at what
+    temperature (and whether the session's own temperature still moved at its end)."""
+    notes = [
+        "free poses only: a plan under a clamp is not made (record these with no leg clamped)",
+        (
+            f"record the first pose {wait:.0f} s after the session's last "
+            f"({'the wait the plan chose' if when.wait_s is None else 'the wait asked for'}), "
+            "then"
+            if wait > 0
+            else "record them as the session goes on,"
+        )
+        + f" one every {s.dt:.0f} s (the session's pace): the t column",
+    ]
+    temp = problem.meas.temperature
+    if temp is None or s.hold is None:
+        return notes
+    stated = when.temperature is not None or s.hold != float(temp[-1])
+    notes.append(
+        f"at {s.hold:.2f} °C held through the poses ("
+        + (
+            "the temperature asked for"
+            if when.temperature is not None
+            else "the plan's choice: reached during the wait"
+            if stated
+            else "the session's last" + (", held through the wait" if wait > 0 else "")
+        )
+        + "): the temperature column — the diagnosis takes each pose at the temperature it "
+        "records, so a temperature that moves on with time makes the wait worth less"
+    )
+    rate = end_trend(problem.meas)
+    if not stated and abs(rate) * max(wait, s.dt) / 3600.0 > 0.1:
+        notes.append(
+            f"the session's temperature was still moving at its end ({rate:+.2f} K/h): hold "
+            f"the room or the chamber at {s.hold:.2f} °C, or plan again once it has settled"
+        )
+    return notes
+
+
+def end_trend(meas: Measurements) -> float:
+    """K/h: the temperature's slope over the last quarter of the session's poses (least
+    squares), 0 without a temperature column."""
+    if meas.temperature is None or len(meas) < 4:
+        return 0.0
+    k = max(len(meas) // 4, 3)
+    t, temp = np.asarray(meas.t[-k:], float), np.asarray(meas.temperature[-k:], float)
+    if np.ptp(t) <= 0:
+        return 0.0
+    return float(np.polyfit(t, temp, 1)[0] * 3600.0)
+
+
+#: Candidate poses each (wait, temperature) of a schedule is tried with before the chosen one
+#: is planned with them all.
+SCHEDULE_CANDIDATES = 500
+
+
+def _schedule(crit: _Criterion, pool, n: int, when: When) -> tuple[_Criterion, float, np.ndarray]:
+    """(the criterion at the temperature chosen, the wait s before the first pose, the indices
+    of ``n`` poses of ``pool``). The wait and temperature asked for; else, where the
+    hypotheses' separation depends on when the poses are recorded (an effect of the time, a
+    drift's) or at what temperature (where the lab can hold one of ``when.temperatures``),
+    each wait of :func:`waits_to_try` at each temperature the rig reaches by then
+    (:func:`temperatures_to_try`) is tried on :data:`SCHEDULE_CANDIDATES` of the poses, and the
+    one after which the least lab time (the wait and the poses' own, at the session's pace)
+    decides is planned — the one that separates most when none does."""
+    s = crit.s
+    waits = [0.0] if when.wait_s is None else [float(when.wait_s)]
+    warm = when.temperatures is not None and crit.warmed(pool, max(when.temperatures))
+    if when.wait_s is None and not crit.resolve:
+        tried = waits_to_try(s.problem, when.max_wait_s)
+        if crit.timed(pool, tried[-1]) or warm:
+            waits = tried
+    options = [(w, h) for w in waits for h in temperatures_to_try(s, w, when if warm else When())]
+    if len(options) == 1:
+        w = options[0][0]
+        t = _times(s.problem, s.dt, n, w)
+        return crit, w, crit.greedy(pool, n, t[(n - 1) // 2 :][:1])
+    few = (pool[0][:SCHEDULE_CANDIDATES], pool[1][:SCHEDULE_CANDIDATES])
+    best: tuple[float, float, float, float | None] | None = None
+    crits = {s.hold: crit}
+    for w, hold in options:
+        if hold not in crits:
+            crits[hold] = _Criterion(replace(s, hold=hold), crit.resolve)
+        c = crits[hold]
+        t = _times(s.problem, s.dt, n, w)
+        chosen = c.greedy(few, n, t[(n - 1) // 2 :][:1])
+        P, R = few[0][chosen], few[1][chosen]
+        k = c.decided_after(P, R, t)
+        cost = np.inf if k is None else w + k * s.dt
+        value = c.final(P, R, t)[0]
+        if best is None or (cost, -value) < (best[0], -best[1]):
+            best = (cost, value, w, hold)
+    assert best is not None
+    _, _, w, hold = best
+    t = _times(s.problem, s.dt, n, w)
+    return crits[hold], w, crits[hold].greedy(pool, n, t[(n - 1) // 2 :][:1])
+
+
+def temperatures_to_try(s: _Setting, wait: float, when: When) -> list[float | None]:
+    """The temperatures (°C) a schedule tries after ``wait`` s: the one held (the session's
+    last, or the one asked for), and where the lab can hold any within ``when.temperatures``,
+    the farthest it reaches each way by then, the rig's temperature changing no faster than
+    the session saw it change (its range over its time span)."""
+    out: list[float | None] = [s.hold]
+    temp = s.problem.meas.temperature
+    if when.temperatures is None or temp is None or s.hold is None or when.temperature is not None:
+        return out
+    lo, hi = sorted(when.temperatures)
+    span = float(np.ptp(np.asarray(s.problem.meas.t, float)))
+    rate = float(np.ptp(temp)) / span if span > 0 else 0.0
+    reach = rate * (wait + s.dt)
+    for far in (max(lo, s.hold - reach), min(hi, s.hold + reach)):
+        if abs(far - s.hold) >= 0.1 and all(abs(far - o) >= 0.1 for o in out if o is not None):
+            out.append(round(far, 2))
+    return out
+
+
+def waits_to_try(problem: Problem, max_wait_s: float | None = None) -> list[float]:
+    """The waits (s) a plan tries, shortest first: none, then 1/8, 1/4, 1/2 and all of the
+    longest (``max_wait_s``; None: as long as the session took, a time baseline twice the
+    session's)."""
+    t = np.asarray(problem.meas.t, float)
+    longest = float(np.ptp(t)) if max_wait_s is None else float(max_wait_s)
+    if longest <= 0:
+        return [0.0]
+    return [0.0, *(longest / 2.0**k for k in (3, 2, 1, 0))]
+
+
+def _setting(
+    problem: Problem,
+    effects: tuple[str, ...],
+    hyps: tuple[str, ...],
+    temperature: float | None = None,
+) -> _Setting:
+    """Fit the model and each hypothesis to the session's poses; the new poses at
+    ``temperature`` (None: the session's last)."""
     for h in hyps:
         if h == GEOMETRY:
             continue
@@ -192,70 +349,14 @@ def _setting(problem: Problem, effects: tuple[str, ...], hyps: tuple[str, ...]) 
         s2 = min(f.chi2 / f.dof for f in fits.values())
     dt = float(np.median(np.diff(problem.meas.t))) if len(problem.meas) > 1 else 10.0
     robot = fitted_robot(problem.design, base.refinement)
-    return _Setting(problem, base, fits, robot, s2, max(dt, 1.0), hyps)
+    temp = problem.meas.temperature
+    hold = None if temp is None else float(temp[-1] if temperature is None else temperature)
+    return _Setting(problem, base, fits, robot, s2, max(dt, 1.0), hyps, hold)
 
 
-def _times(problem: Problem, dt: float, n: int) -> np.ndarray:
-    return float(problem.meas.t[-1]) + dt * np.arange(1, n + 1)
-
-
-def _candidates(
-    problem: Problem, robot: Robot, n: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """Up to ``n`` reachable free poses (P (K, 3) mm, R (K, 3, 3)), uniform over those within
-    :data:`REACH` times the session's box and tilt about home (:func:`session_ranges`), the
-    strokes and the joints' limits, away from singularities (:func:`reachable`): drawn in
-    rounds, the unreachable ones dropped, then nearer home (the session's span, half of it ...)
-    while fewer than ``n`` are found, so that a workspace the limits cut deep gives what it
-    has."""
-    span = session_ranges(problem.meas, robot)
-    ws = Workspace(robot)
-    Ps, Rs, found = [], [], 0
-    for reach in dict.fromkeys((REACH, 1.0, 0.5, 0.25)):  # limits that cut deep: nearer home
-        box, tilt = reach * np.asarray(span.box_mm), np.deg2rad(reach * span.tilt_deg)
-        for _ in range(ROUNDS):
-            k = max(2 * n, BATCH)
-            P = ws.home_position + rng.uniform(-1.0, 1.0, (k, 3)) * box
-            R = Rotation.from_rotvec(rng.uniform(-tilt, tilt, (k, 3))).as_matrix()
-            R = R @ ws.home_rotation
-            ok = reachable(robot, P, R)
-            Ps.append(P[ok])
-            Rs.append(R[ok])
-            found += int(ok.sum())
-            if found >= n:
-                break
-        if found >= n:
-            break
-    if found == 0:
-        raise ValueError(
-            "plan: no free pose within the session's range is reachable: check leg_range_mm and "
-            "joint_limit_deg in robot.json"
-        )
-    return np.concatenate(Ps)[:n], np.concatenate(Rs)[:n]
-
-
-def session_ranges(meas: Measurements, robot: Robot) -> PoseRanges:
-    """The box (mm) and tilt (deg) about ``robot``'s home that the session's poses span."""
-    ws = Workspace(robot)
-    box = np.max(np.abs(meas.position - ws.home_position), axis=0)
-    rel = meas.rotations * Rotation.from_matrix(ws.home_rotation).inv()
-    tilt = float(np.max(np.abs(rel.as_rotvec(degrees=True))))
-    return PoseRanges(box_mm=tuple(np.maximum(box, 1.0).tolist()), tilt_deg=max(tilt, 0.1))
-
-
-def reachable(robot: Robot, P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """(K,) poses within the strokes (``leg_range_mm`` on readings), the joints' limits
-    (``joint_limit_deg`` from each leg's direction at home, else 50° from the base's and
-    platform's normals), and away from singularities (:data:`~hexcal.estimate.nbp.MAX_CONDITION`)."""
-    limit = robot.joint_limit_deg
-    ws = Workspace(robot, limits=Limits(limit or 50.0, limit or 50.0))
-    ok = ws.feasible(P, R)
-    if limit is not None:
-        from hexcal.estimate.predict import Poses
-
-        base, plat = LegModel(robot).joint_angles(Poses(P, R))
-        ok &= np.maximum(base, plat).max(axis=1) <= limit
-    return ok & (condition_number(robot.a, robot.b, P, Rotation.from_matrix(R)) <= MAX_CONDITION)
+def _times(problem: Problem, dt: float, n: int, wait: float = 0.0) -> np.ndarray:
+    """(n,) s: the new poses' times, the first ``wait`` + ``dt`` after the session's last."""
+    return float(problem.meas.t[-1]) + wait + dt * np.arange(1, n + 1)
 
 
 def _draw(pool: tuple[np.ndarray, np.ndarray], n: int, rng: np.random.Generator):
@@ -263,15 +364,19 @@ def _draw(pool: tuple[np.ndarray, np.ndarray], n: int, rng: np.random.Generator)
     return pool[0][i], pool[1][i]
 
 
-def _match(crit, problem, dt, planned, n, rng, n_candidates) -> int | None:
+def _match(crit, problem, planned, t_new, rng, n_candidates) -> int | None:
     """The fewest random reachable poses (doubling, then halving the gap) whose mean criterion
-    (over :data:`N_RANDOM` // 4 draws) reaches ``planned``; None beyond :data:`MATCH_LIMIT` × n."""
+    (over :data:`N_RANDOM` // 4 draws) reaches ``planned``, recorded after the same wait as the
+    plan's (``t_new``: its times); None beyond :data:`MATCH_LIMIT` × n."""
+    n, dt = len(t_new), crit.s.dt
+    wait = float(t_new[0]) - float(problem.meas.t[-1]) - dt
 
     def reaches(k: int) -> bool:
         vals = []
         for _ in range(max(N_RANDOM // 4, 1)):
             pool = _candidates(problem, crit.s.robot, max(k, 1), rng)
-            vals.append(crit.final(pool[0], pool[1], _times(problem, dt, len(pool[0])))[0])
+            t = _times(problem, dt, len(pool[0]), wait)
+            vals.append(crit.final(pool[0], pool[1], t)[0])
         return crit.better(float(np.mean(vals)), planned)
 
     lo, hi = n, n
@@ -289,7 +394,7 @@ def _table(problem: Problem, s: _Setting, P: np.ndarray, R: np.ndarray, t: np.nd
     """The plan as a measurement table: the readings the fitted model predicts at each pose
     (refused, :class:`~hexcal.estimate.predict.PredictionError`, were one beyond a stroke or a
     joint's limit)."""
-    temp = _temperature(problem, len(P))
+    temp = None if s.hold is None else np.full(len(P), s.hold)
     model = s.base.leg_model(problem.design)
     rho = model.readings(P, R, t, temp, check_limits=True)
     first = int(problem.meas.pose_id.max()) + 1
@@ -304,22 +409,44 @@ def _table(problem: Problem, s: _Setting, P: np.ndarray, R: np.ndarray, t: np.nd
     )
 
 
-def _temperature(problem: Problem, n: int) -> np.ndarray | None:
-    temp = problem.meas.temperature
-    return None if temp is None else np.full(n, float(temp[-1]))
-
-
 class _Criterion:
     """The plan's criterion on the session's poses plus new ones, from whitened rows."""
 
     def __init__(self, s: _Setting, resolve: bool) -> None:
         self.s, self.resolve = s, resolve
         m = len(s.problem.meas)
+        d = s.problem.data
+        w = leg_whiteners(s.robot.a, s.robot.b, d.position, d.rotation, _sigmas(s.problem))
+        #: (6M,) the session's residuals at the model's fit, whitened as the rows are
+        self.residual = (w @ s.base.residuals[..., None]).ravel() / np.sqrt(s.s2)
         self.old = [self._gram(x) for x in self._rows_at(np.zeros((0, 3)), np.zeros((0, 3, 3)))]
         self.m = m
 
     def better(self, value: float, target: float) -> bool:
         return value <= target if self.resolve else value >= target
+
+    def timed(self, pool, wait: float) -> bool:
+        """Whether the hypotheses' separation depends on when poses are recorded: the
+        criterion of a few of ``pool``'s poses now and ``wait`` s later differs."""
+        if wait <= 0:
+            return False
+        P, R = pool[0][: BATCH // 10], pool[1][: BATCH // 10]
+        now, later = (
+            self.final(P, R, _times(self.s.problem, self.s.dt, len(P), w))[0] for w in (0.0, wait)
+        )
+        return not np.isclose(now, later, rtol=1e-6, atol=1e-9)
+
+    def warmed(self, pool, temperature: float) -> bool:
+        """Whether the hypotheses' separation depends on the temperature the poses are
+        recorded at: the criterion of a few of ``pool``'s poses at the held temperature and at
+        ``temperature`` (1 K away if the same) differs."""
+        if self.s.hold is None or self.resolve:
+            return False
+        other = temperature if abs(temperature - self.s.hold) >= 0.1 else self.s.hold + 1.0
+        P, R = pool[0][: BATCH // 10], pool[1][: BATCH // 10]
+        t = _times(self.s.problem, self.s.dt, len(P))
+        there = _Criterion(replace(self.s, hold=other), False)
+        return not np.isclose(self.final(P, R, t)[0], there.final(P, R, t)[0], 1e-6, 1e-9)
 
     def _rows_at(self, P: np.ndarray, R: np.ndarray, t: np.ndarray | None = None):
         """Per model: whitened rows (n, 6, p) of the session's poses followed by the new ones;
@@ -399,7 +526,7 @@ class _Criterion:
     def decided(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
         """Whether the session's poses and these decide, whichever hypothesis is true
         (:func:`~hexcal.diagnosis.selection.separates`)."""
-        lam, sd = self.directions(P, R, t)
+        mean, sd = self.directions(P, R, t)
         ref = self.s.base.refinement
         rows = ref.dof + len(ref.x) + 6 * len(P)
 
@@ -408,13 +535,25 @@ class _Criterion:
 
         return all(
             selection.separates(
-                lam[h],
+                mean[h],
                 sd[h],
                 count(h) - count(_other(self.s, h)),
                 rows,
                 _other(self.s, h) == GEOMETRY,
             )
-            for h in lam
+            for h in mean
+        ) and (GEOMETRY in self.s.hypotheses or self._vuong_apart(P, R, t))
+
+    def _vuong_apart(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
+        """Whether Vuong's test would put the two apart whichever is true, two standard
+        deviations short (:func:`~hexcal.diagnosis.selection.predicted_vuong_z` ≥
+        :data:`~hexcal.diagnosis.selection.HELDOUT_Z`): the look-alike rule asks it of
+        non-nested hypotheses besides their Δχ²."""
+        rows = self._rows_at(P, R, t)
+        flat = [r[..., :-1].reshape(-1, r.shape[-1] - 1) for r in rows]
+        return all(
+            selection.predicted_vuong_z(flat[1 - i], flat[i], self.residual) >= selection.HELDOUT_Z
+            for i in range(len(flat))
         )
 
     def decided_after(self, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> int | None:
@@ -423,47 +562,27 @@ class _Criterion:
         return next((n for n in range(len(P) + 1) if self.decided(P[:n], R[:n], t[:n])), None)
 
     def directions(
-        self, P: np.ndarray, R: np.ndarray, t: np.ndarray
+        self, P: np.ndarray, R: np.ndarray, t: np.ndarray, noise_only: bool = False
     ) -> tuple[dict[str, float], dict[str, float]]:
-        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, and
-        that Δχ²'s standard deviation), keyed by the true one's name.
-
-        The noncentrality of the true one's contribution θᵀSθ (S: the information of its
-        parameters once the other's columns are projected out, over every pose) is estimated
-        from its fitted values θ̂, whose own spread C (the session's information, inverted)
-        inflates it by tr(SC) on average: that is taken off. The spread: the session's part of
-        Δχ² is recorded already and made θ̂, so only the new poses' share S_new = S − S_session
-        is to come — their noise, √(4 θ̂ᵀS_newθ̂ + 2 tr(P_A − P_B)²)
-        (:func:`~hexcal.diagnosis.selection.delta_chi2_sd`), and θ̂'s spread seen through them,
-        4 θ̂ᵀS_new C S_newθ̂ (to first order the realised Δχ² less the prediction is
-        2 θ̂ᵀS_new(v − u), v the new poses' estimate's error, u the session's)."""
+        """Per hypothesis taken as true: (the expected Δχ² the other leaves beyond it, both
+        refitted on the session's poses and these, and that Δχ²'s standard deviation), keyed
+        by the true one's name: the predictive distribution given the session's residuals
+        (:func:`~hexcal.diagnosis.selection.predicted_delta_chi2`, linear at the model's fit):
+        the session's part is recorded already; the new poses' residuals are what the true
+        hypothesis fitted to the session predicts, with their noise and that fit's own spread
+        (``noise_only``: their noise alone, what redrawing only the new poses' noise spreads
+        the Δχ² by)."""
         rows = self._rows_at(P, R, t)
-        x = [r.reshape(-1, r.shape[-1]) for r in rows]
-        cross = x[0][:, :-1].T @ x[1][:, :-1]
-        spread = selection.overlap(
-            x[0][:, :-1].T @ x[0][:, :-1], x[1][:, :-1].T @ x[1][:, :-1], cross
-        )
-        lam, sd = {}, {}
+        flat = [r[..., :-1].reshape(-1, r.shape[-1] - 1) for r in rows]
+        mean, sd = {}, {}
         for i, h in enumerate(self.s.hypotheses):
-            true = _other(self.s, h)  # model i's last column: the other's contribution
+            true = _other(self.s, h)  # model i is the other's: true's columns are model 1 − i's
             if true == GEOMETRY:  # the geometry alone has no contribution to show
                 continue
-            q = len(get_effect(true).params(self.s.problem.design))
-            own = rows[1 - i][..., -1 - q : -1]
-            both = np.concatenate([rows[i][..., :-1], own], axis=-1)
-            after = both.reshape(-1, both.shape[-1])
-            session = both[: self.m].reshape(-1, both.shape[-1])
-            info = selection.schur_block(after.T @ after, q)
-            new = info - selection.schur_block(session.T @ session, q)
-            before = rows[1 - i][: self.m, :, :-1].reshape(-1, x[1 - i].shape[-1] - 1)
-            cov = np.linalg.pinv(selection.schur_block(before.T @ before, q))
-            theta = _values(self.s, true)
-            raw = float(theta @ info @ theta)
-            lam[true] = max(raw - float(np.trace(info @ cov)), 0.0)
-            lam_new = max(float(theta @ new @ theta), 0.0)
-            own_sd2 = 4.0 * max(float(theta @ new @ cov @ new @ theta), 0.0)
-            sd[true] = float(np.sqrt(selection.delta_chi2_sd(lam_new, spread) ** 2 + own_sd2))
-        return lam, sd
+            mean[true], sd[true] = selection.predicted_delta_chi2(
+                flat[1 - i], flat[i], self.residual, noise_only
+            )
+        return mean, sd
 
 
 def _other(s: _Setting, h: str) -> str:
@@ -480,7 +599,7 @@ def _data(s: _Setting, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> EffectDat
     d = s.problem.data
     n = len(P)
     rho = LegModel(s.robot).geometric(P, R) - s.robot.offsets
-    temp = None if d.temperature is None else np.concatenate([d.temperature, _temp(d, n)])
+    temp = None if d.temperature is None else np.concatenate([d.temperature, _temp(s, n)])
     return EffectData(
         np.concatenate([d.readings, rho]),
         np.concatenate([d.position, P]),
@@ -494,8 +613,8 @@ def _data(s: _Setting, P: np.ndarray, R: np.ndarray, t: np.ndarray) -> EffectDat
     )
 
 
-def _temp(d: EffectData, n: int) -> np.ndarray:
-    return np.full(n, float(d.temperature[-1])) if d.temperature is not None else np.zeros(n)
+def _temp(s: _Setting, n: int) -> np.ndarray:
+    return np.full(n, s.hold) if s.hold is not None else np.zeros(n)
 
 
 def _geometry_rows(fit: ModelFit, data: EffectData) -> np.ndarray:
@@ -517,131 +636,3 @@ def _values(s: _Setting, name: str) -> np.ndarray:
     """(q,) hypothesis ``name``'s fitted parameter values, in their spec units."""
     ref = s.fits[name].refinement
     return np.array([ref.value(p.name) for p in get_effect(name).params(s.problem.design)])
-
-
-#: Planned poses beyond which a plan is not offered (the issue's "a dozen or two").
-MAX_OFFER = 20
-#: Candidate poses an offer picks from (fewer than a plan's: the diagnosis waits for it).
-OFFER_CANDIDATES = 800
-#: Planned poses offered to confirm what the recorded poses should already decide.
-CONFIRM_POSES = 4
-#: Unresolved candidates offered a plan, the best-scoring first.
-MAX_RESOLVE_OFFERS = 2
-
-
-@dataclass
-class Offer:
-    """A plan the diagnosis offers: how many planned poses would decide (None: more than
-    :data:`MAX_OFFER`)."""
-
-    kind: str  #: "separate" or "resolve"
-    hypotheses: tuple[str, ...]
-    poses: int | None
-
-    @property
-    def n_planned(self) -> int:
-        """How many poses to plan for it: its count, a few to confirm (0), at most
-        :data:`MAX_OFFER` (None)."""
-        return self.poses or (CONFIRM_POSES if self.poses == 0 else MAX_OFFER)
-
-    def args(self) -> list[str]:
-        """``hexcal plan``'s own arguments for it (after the session's)."""
-        flag = "--separate" if self.kind == "separate" else "--resolve"
-        return [flag, *self.hypotheses, "--poses", str(self.n_planned), "--out", "plan.csv"]
-
-    def text(self) -> str:
-        what = (
-            f"tell {' from '.join(self.hypotheses)} apart"
-            if self.kind == "separate"
-            else f"resolve {self.hypotheses[0]}"
-        )
-        if self.poses is None:
-            return f"more than {MAX_OFFER} planned poses would be needed to {what}"
-        if self.poses == 0:
-            return (
-                f"the poses recorded should already {what} by their expected separation, though "
-                "their χ² spread wider than the noise: a few planned poses confirm it"
-            )
-        return f"{self.poses} planned poses would {what}"
-
-    def to_dict(self) -> dict:
-        return {"kind": self.kind, "hypotheses": list(self.hypotheses), "poses": self.poses}
-
-
-def poses_to_decide(
-    problem: Problem,
-    effects: tuple[str, ...],
-    separate: tuple[str, str] | None = None,
-    resolve: str | None = None,
-    rng: np.random.Generator | None = None,
-    n_candidates: int = OFFER_CANDIDATES,
-) -> int | None:
-    """The fewest planned poses (at most :data:`MAX_OFFER`; None beyond) after which the
-    question is decided: two hypotheses' expected separation, less two of its standard
-    deviations, beyond the look-alike margin and what the parameter counts cost in ΔBIC
-    (:func:`~hexcal.diagnosis.selection.separates`); an effect's every parameter resolved as
-    the score test asks (:func:`~hexcal.diagnosis.scoring.needed_resolution`)."""
-    from hexcal.diagnosis.scoring import needed_resolution
-
-    rng = np.random.default_rng(0) if rng is None else rng
-    hyps = tuple(separate) if separate is not None else (str(resolve),)
-    setting = _setting(problem, effects, hyps)
-    pool = _candidates(problem, setting.robot, n_candidates, rng)
-    crit = _Criterion(setting, resolve is not None)
-    n_max = min(MAX_OFFER, len(pool[0]))
-    t = _times(problem, setting.dt, n_max)
-    chosen = crit.greedy(pool, n_max, t[n_max // 2 :][:1])
-    P, R = pool[0][chosen], pool[1][chosen]
-    if resolve is None:
-        return crit.decided_after(P, R, t)
-    need = needed_resolution(get_effect(hyps[0]).params(problem.design))
-    for n in range(0, n_max + 1):
-        rows = crit._rows_at(P[:n], R[:n], t[:n])
-        info = selection.schur_block(crit._gram(rows[0]), len(need))
-        cov = np.linalg.pinv(info)
-        if np.all(np.sqrt(np.clip(np.diag(cov), 0, None)) < need):
-            return n
-    return None
-
-
-def offers(
-    problem: Problem,
-    fit: ModelFit,
-    verdict: str,
-    alike: list[str],
-    candidates,
-) -> list[Offer]:
-    """The plans a diagnosis offers at ``fit``: to tell the verdict from each look-alike, and
-    to resolve the candidates the poses cannot tell from the geometry whose columns together
-    would remove more than the look-alike margin (their score counting every column, the
-    unresolved ones too: worth deciding), the best first."""
-    from hexcal.diagnosis.score import score_columns
-
-    effects = fit.effects
-    # Effects located by a search (a zero step's, a tracker move's time) have no basis to plan
-    # with beyond the session's end: their pairs are not planned.
-    named = (verdict, *alike) if alike else ()  # look-alikes come with an effect named
-    searched = {e for e in named if getattr(get_effect(e), "searched_params", 0)}
-    asked: list[tuple[str, tuple[str, ...]]] = [
-        ("separate", (verdict, e)) for e in alike if not searched & {verdict, e}
-    ]
-    whole = {
-        c.effect: score_columns(problem, fit, c.effect).score(
-            np.ones(len(get_effect(c.effect).params(problem.design)), bool)
-        )
-        for c in candidates
-        if c.available and not c.identifiable
-    }
-    stuck = [
-        e for e, s in sorted(whole.items(), key=lambda kv: -kv[1]) if s >= selection.ALIKE_DCHI2
-    ]
-    asked += [("resolve", (e,)) for e in stuck]
-    out = []
-    for kind, hyps in asked[: len(asked) - len(stuck) + MAX_RESOLVE_OFFERS]:
-        pair = (hyps[0], hyps[1]) if kind == "separate" else None
-        what = None if pair else hyps[0]
-        try:
-            out.append(Offer(kind, hyps, poses_to_decide(problem, effects, pair, what)))
-        except (ValueError, np.linalg.LinAlgError):  # a fit these data cannot make: no offer
-            continue
-    return out

@@ -9,8 +9,8 @@ the live ranking (:mod:`hexcal.diagnosis.live_rank`) all weigh hypotheses here:
 - hypotheses on poses not yet recorded: the expected separation, the noncentrality of one
   hypothesis' fitted contribution once the other's model is projected out, from normal
   equations (Gram matrices: :func:`schur_last`, and after each candidate pose at once,
-  :func:`schur_after`), and the spread of the Δχ² it predicts (:func:`delta_chi2_sd`,
-  :func:`overlap`).
+  :func:`schur_after`), and the Δχ² the poses are expected to show, its mean and spread given
+  the poses recorded (:func:`predicted_delta_chi2`).
 """
 
 from __future__ import annotations
@@ -109,17 +109,17 @@ def indistinct(dchi2: float, z: float) -> bool:
     return dchi2 < ALIKE_DCHI2 or z < HELDOUT_Z
 
 
-def separates(lam: float, sd: float, dp: int, n: int, nested: bool) -> bool:
+def separates(mean: float, sd: float, dp: int, n: int, nested: bool) -> bool:
     """Whether an expected separation decides for the true hypothesis by the verdict's rules,
-    two standard deviations short of its mean: the Δχ² the other leaves beyond it — mean
-    noncentrality ``lam`` plus ``dp``, the true one's parameters less the other's (those fit
-    noise too), standard deviation ``sd`` — must pay for ``dp`` in ΔBIC over ``n`` residual
-    rows and pass the look-alike margin (:data:`ALIKE_DCHI2`; Vuong's z ≥ 2 asks about the
-    same of a Δχ² whose spread is ``sd``); against the model alone (``nested``) the effect's
-    ΔBIC must be very strong (:data:`BIC_STRONG`)."""
+    two standard deviations short of its mean: the Δχ² the other leaves beyond it — its mean
+    ``mean`` (:func:`predicted_delta_chi2`), standard deviation ``sd`` — must pay for ``dp``,
+    the true one's parameters less the other's, in ΔBIC over ``n`` residual rows and pass the
+    look-alike margin (:data:`ALIKE_DCHI2`; Vuong's z ≥ 2 asks about the same of a Δχ² whose
+    spread is ``sd``); against the model alone (``nested``) the effect's ΔBIC must be very
+    strong (:data:`BIC_STRONG`)."""
     cost = dp * float(np.log(n))
     margin = cost - BIC_STRONG if nested else max(ALIKE_DCHI2, cost)
-    return bool(lam + dp - 2.0 * sd >= margin)
+    return bool(mean - 2.0 * sd >= margin)
 
 
 def vuong_z(a: ModelFit, b: ModelFit, chol: np.ndarray, s2: float = 1.0) -> float:
@@ -182,15 +182,6 @@ def schur_block(gram: np.ndarray, q: int) -> np.ndarray:
     return bb - np.swapaxes(ab_s, -1, -2) @ inv @ ab_s
 
 
-def delta_chi2_sd(noncentrality: np.ndarray | float, overlap: float = 0.0) -> np.ndarray:
-    """The standard deviation of Δχ² = χ²_wrong − χ²_true about its mean (the noncentrality λ
-    plus the parameter counts' difference): ``√(4λ + 2·overlap)``. The cross term of the true
-    contribution with the noise gives 4λ; the noise's quadratic form between the two models'
-    projections gives 2·tr((P_A − P_B)²) (``overlap``: at most the two effects' columns, as
-    the geometry's are common)."""
-    return np.sqrt(4.0 * np.asarray(noncentrality, float) + 2.0 * overlap)
-
-
 def schur_after(gram: np.ndarray, rows: np.ndarray, q: int) -> np.ndarray:
     """(K, q, q): the information of the last ``q`` columns, the others projected out, once
     each of K candidate poses' rows (K, r, p) is added to the Gram matrix ``gram`` (p, p) —
@@ -212,20 +203,106 @@ def schur_after(gram: np.ndarray, rows: np.ndarray, q: int) -> np.ndarray:
     return out + np.swapaxes(uz, -1, -2) @ np.linalg.solve(inner, uz)
 
 
-def overlap(gram_a: np.ndarray, gram_b: np.ndarray, cross: np.ndarray) -> float:
-    """tr((P_A − P_B)²) of two models' column spaces, for :func:`delta_chi2_sd`, from their
-    Gram matrices (pA, pA), (pB, pB) and ``cross`` = X_Aᵀ X_B (pA, pB): rank A + rank B −
-    2 tr(P_A P_B) (the geometry's columns, common to both, cancel)."""
-    ia, ra = _scaled_pinv(gram_a)
-    ib, rb = _scaled_pinv(gram_b)
-    shared = float(np.trace(ia @ cross @ ib @ cross.T))
-    return max(ra + rb - 2.0 * shared, 0.0)
+def predicted_delta_chi2(
+    true_cols: np.ndarray,
+    other_cols: np.ndarray,
+    residual: np.ndarray,
+    noise_only: bool = False,
+) -> tuple[float, float]:
+    """(mean, standard deviation) of Δχ² = χ²_other − χ²_true, both models refitted on every
+    row, before the rows after the first ``len(residual)`` (the new poses') are recorded,
+    given those first rows' whitened residuals ``residual`` (at a fit both models extend;
+    unit noise), the true model's columns ``true_cols`` (N, pA) and the other's
+    ``other_cols`` (N, pB) over all N rows (the common ones in both).
+
+    Linear and Gaussian, Δχ² = yᵀQy, Q = P_A − P_B the difference of the two projections, y
+    every row's residuals. The prediction is ŷᵀQŷ, ŷ the first rows' residuals followed by
+    what the true model fitted to them predicts for the new rows, plus the mean of the
+    realised less it over the noise of every row (the session's too: the fit ŷ is made of it)
+    — the truth μ fixed, whatever it is: with e the noise and T the map that makes ŷ − μ of it
+    (the first rows' noise, and the fit's error seen through the new rows' columns), the
+    difference is 2μᵀQ(I − T)e + eᵀMe, M = Q − TᵀQT. So
+
+    - mean = ŷᵀQŷ + tr M (unbiased: a fit's θ̂ is longer than θ on average, and a plug-in
+      ŷᵀQŷ alone overstates a poorly resolved effect's separation many times over);
+    - variance = 4 |(I − T)ᵀQμ|² + 2 tr M², the first term estimated without bias from ŷ
+      (its excess over μ's, ‖(I − T)ᵀQT‖², taken off).
+
+    ``noise_only``: the standard deviation over the new rows' noise alone, the first rows
+    held as recorded (what redrawing only the new poses' noise spreads the Δχ² by):
+    4 |(Qμ)_n|² + 2 tr Q_nn², estimated alike. Reckoned on the models' thin bases (no N × N
+    matrix)."""
+    m = len(residual)
+    ua, ub = _basis(true_cols), _basis(other_cols)
+    u = np.concatenate([ua, ub], axis=1)
+    j = np.concatenate([np.ones(ua.shape[1]), -np.ones(ub.shape[1])])
+    scale = np.sqrt(np.clip(np.sum(true_cols[:m] ** 2, axis=0), 1e-300, None))
+    zs, zn = true_cols[:m] / scale, true_cols[m:] / scale
+    cov = np.linalg.pinv(zs.T @ zs, rcond=1e-12, hermitian=True)
+    y = np.concatenate([residual, zn @ (cov @ (zs.T @ residual))])
+    qy = u @ (j * (u.T @ y))
+    # TᵀU: the first rows' U_s + Z_s C Z_nᵀ U_n, none on the new rows
+    w = u[:m] + zs @ (cov @ (zn.T @ u[m:]))
+    uu, ww, uw = u.T @ u, w.T @ w, u[:m].T @ w
+    un = u[m:].T @ u[m:]
+    a = qy[m:]
+    if noise_only:
+        jq = j[:, None] * un
+        bias = float(np.sum((j[:, None] * ww * j[None, :]) * un.T))
+        var = 4.0 * max(float(a @ a) - bias, 0.0) + 2.0 * float(np.sum(jq * jq.T))
+        return float(y @ qy + np.trace(j[:, None] * uu) - np.trace(j[:, None] * ww)), float(
+            np.sqrt(var)
+        )
+    ev, evec = np.linalg.eigh(cov)
+    lo = zn @ (evec * np.sqrt(np.clip(ev, 0.0, None)))  # Z_n C Z_nᵀ = lo loᵀ
+    lu = lo.T @ u[m:]
+    unv = un + lu.T @ lu  # U_nᵀ V U_n, V = I + Z_n C Z_nᵀ
+    tr_m = float(np.sum(j * np.diag(uu)) - np.sum(j * np.diag(ww)))
+    ju, jw, jx = j[:, None] * uu, j[:, None] * ww, j[:, None] * uw
+    tr_m2 = float(np.sum(ju * ju.T) - 2.0 * np.sum(jx * (j[:, None] * uw.T).T) + np.sum(jw * jw.T))
+    lin = float(a @ a) + float(np.sum((lo.T @ a) ** 2))
+    bias = float(np.sum((j[:, None] * ww * j[None, :]) * unv.T))
+    var = 4.0 * max(lin - bias, 0.0) + 2.0 * max(tr_m2, 0.0)
+    return float(y @ qy) + tr_m, float(np.sqrt(var))
 
 
-def _scaled_pinv(gram: np.ndarray) -> tuple[np.ndarray, int]:
-    """(pseudo-inverse, rank) of a Gram matrix, its columns scaled to unit norm first (the
-    geometry's and the effects' columns differ by orders of magnitude)."""
-    s = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
-    inv = np.linalg.pinv(gram / np.outer(s, s), rcond=1e-12, hermitian=True)
-    rank = int(np.linalg.matrix_rank(gram / np.outer(s, s), tol=1e-12, hermitian=True))
-    return inv / np.outer(s, s), rank
+def _basis(cols: np.ndarray) -> np.ndarray:
+    """(N, r) an orthonormal basis of the columns' span (scaled to unit norm first; a
+    direction below 1e-10 of the largest singular value is no part of it)."""
+    s = np.sqrt(np.clip(np.sum(cols**2, axis=0), 1e-300, None))
+    u, sv, _ = np.linalg.svd(cols / s, full_matrices=False)
+    return u[:, sv > 1e-10 * sv[0]] if len(sv) else u
+
+
+#: Draws of the new poses from the predictive that :func:`predicted_vuong_z` takes.
+VUONG_DRAWS = 64
+
+
+def predicted_vuong_z(
+    true_cols: np.ndarray, other_cols: np.ndarray, residual: np.ndarray, seed: int = 0
+) -> float:
+    """Vuong's z of the two models (:func:`vuong_z`: the other's per-pose χ² less the true
+    one's, rows in poses of six) once the new rows are recorded, two standard deviations
+    short: its 2.3 % quantile over :data:`VUONG_DRAWS` draws of the new rows' residuals from
+    the predictive of :func:`predicted_delta_chi2` (the true model fitted to the first rows,
+    that fit's spread, unit noise), both models refitted (projected) on every row each time.
+    A separation carried by k poses has a z of at most about √k however large its Δχ²: few
+    poses decide by Δχ² and still fit alike by Vuong's test."""
+    m = len(residual)
+    ua, ub = _basis(true_cols), _basis(other_cols)
+    scale = np.sqrt(np.clip(np.sum(true_cols[:m] ** 2, axis=0), 1e-300, None))
+    zs, zn = true_cols[:m] / scale, true_cols[m:] / scale
+    cov = np.linalg.pinv(zs.T @ zs, rcond=1e-12, hermitian=True)
+    gamma = cov @ (zs.T @ residual)
+    ev, evec = np.linalg.eigh(cov)
+    spread = evec * np.sqrt(np.clip(ev, 0.0, None))
+    rng = np.random.default_rng(seed)
+    g = gamma + rng.normal(size=(VUONG_DRAWS, len(gamma))) @ spread.T
+    new = g @ zn.T + rng.normal(size=(VUONG_DRAWS, len(zn)))
+    y = np.concatenate([np.broadcast_to(residual, (VUONG_DRAWS, m)), new], axis=1)
+    ra = y - (y @ ua) @ ua.T
+    rb = y - (y @ ub) @ ub.T
+    d = (rb**2 - ra**2).reshape(VUONG_DRAWS, -1, 6).sum(axis=-1)
+    sd = d.std(axis=1, ddof=1)
+    z = np.where(sd > 0, d.mean(axis=1) / np.where(sd > 0, sd, 1.0) * np.sqrt(d.shape[1]), 0.0)
+    return float(np.quantile(z, 0.023))

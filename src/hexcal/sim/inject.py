@@ -24,8 +24,12 @@ TYPICAL_SESSION_H = 184 * 14.0 / 3600.0
 TRUE_PLAY_DEADBAND_MM = 1e-4
 
 
-def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
-    """A simulator hook adding effect ``name`` with ``values`` (spec units) to the true robot."""
+def effect_hook(
+    name: str, values: np.ndarray, truth: Robot, extras: dict | None = None
+) -> LengthEffect:
+    """A simulator hook adding effect ``name`` with ``values`` (spec units) to the true robot;
+    ``extras``: the effects' data extras (:attr:`~hexcal.effects.base.EffectData.extras`, e.g.
+    a drift's time origin, :data:`hexcal.effects.drift.T_MID`)."""
     eff = get_effect(name)
     values = np.asarray(values, float)
     n = len(eff.params(truth))
@@ -41,7 +45,15 @@ def effect_hook(name: str, values: np.ndarray, truth: Robot) -> LengthEffect:
 
     def hook(readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
         data = EffectData(
-            readings, ctx.position, ctx.rotation, ctx.t, ctx.temperature, truth, truth.a, truth.b
+            readings,
+            ctx.position,
+            ctx.rotation,
+            ctx.t,
+            ctx.temperature,
+            truth,
+            truth.a,
+            truth.b,
+            extras=dict(extras or {}),
         )
         return eff.true_contribution(data, values)
 

@@ -16,8 +16,9 @@ The pairs (:data:`PAIRS`), one hidden per session:
 
 Each session is short (:data:`FREE_POSES` free poses after the clamped sets) so that the poses
 recorded leave the pair ambiguous. Effects are simulated on the whole recording, the planned
-poses after the session's (a drift's time runs on; the temperature holds at its last value,
-as the planner assumes).
+poses after the session's at the times and temperatures the plan's table gives (a drift's
+time runs on through a planned wait; the temperature is what the plan asks the lab to hold,
+the session's last unless stated).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hexcal.effects.drift import T_MID
 from hexcal.io.measurements import Measurements
 from hexcal.model.instruments import Instruments
 from hexcal.model.robot import Robot
@@ -73,13 +75,23 @@ class LookAlike:
     simulator: Simulator
     history: _History
 
-    def record(self, P: np.ndarray, R: np.ndarray, t: np.ndarray, seed: int) -> Measurements:
+    def record(
+        self,
+        P: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        seed: int,
+        temperature: np.ndarray | None = None,
+    ) -> Measurements:
         """The session with free poses (P (N, 3) mm, R (N, 3, 3)) recorded after it at times
-        t (N,) s, at the session's last temperature (0.05 K jitter)."""
+        t (N,) s — a plan's t column, its wait included — at ``temperature`` (N,) °C, a plan's
+        temperature column (None: the session's last), each with the thermometer's 0.05 K
+        jitter: the lab holds the temperature the plan asks for."""
         rng = np.random.default_rng([seed, 37])
         temp = self.meas.temperature
         last = 20.0 if temp is None else float(temp[-1])
-        tn = np.round(last + rng.normal(0.0, 0.05, len(P)), 2)
+        held = np.full(len(P), last) if temperature is None else np.asarray(temperature, float)
+        tn = np.round(held + rng.normal(0.0, 0.05, len(P)), 2)
         Pm, Rm, rho = self.simulator.measure(rng, P, R, PoseContext(P, R, t, tn))
         m = self.meas
         first = int(m.pose_id.max()) + 1
@@ -110,19 +122,25 @@ class LookAlike:
 
 class _History:
     """A hidden effect evaluated over the whole recording: the session's poses (kept from the
-    session's simulation) followed by the new ones, whose part is returned."""
+    session's simulation) followed by the new ones, whose part is returned — on the session's
+    own clock (a drift reckoned from the middle of the session's time span, as it was while
+    the session was recorded: from the middle of the whole recording, the new poses' drift
+    would step back by half of the time added, a wait's too)."""
 
-    def __init__(self, hook: LengthEffect) -> None:
-        self.hook = hook
+    def __init__(self, name: str, values: np.ndarray, truth: Robot) -> None:
+        self.name, self.values, self.truth = name, values, truth
+        self.hook: LengthEffect = effect_hook(name, values, truth)
         self.past: PoseContext | None = None
         self.recording = True
-        self.__name__ = getattr(hook, "__name__", "hidden")
+        self.__name__ = getattr(self.hook, "__name__", "hidden")
 
     def __call__(self, readings: np.ndarray, ctx: PoseContext) -> np.ndarray:
         if self.recording or self.past is None:
             self.past = ctx
             return self.hook(readings, ctx)
         p = self.past
+        t = np.asarray(p.t, float)
+        later = effect_hook(self.name, self.values, self.truth, {T_MID: 0.5 * (t.min() + t.max())})
         n = len(p.t)
         whole = PoseContext(
             np.concatenate([p.position, ctx.position]),
@@ -133,7 +151,7 @@ class _History:
         # The session's rows only feed history (a drift's clock): their readings' exact
         # values do not matter to the new rows of these effects.
         old = np.repeat(readings[:1], n, axis=0)
-        return self.hook(np.concatenate([old, readings]), whole)[n:]
+        return later(np.concatenate([old, readings]), whole)[n:]
 
 
 def case(pair: str, seed: int, scale: float = 1.0) -> LookAlike:
@@ -156,7 +174,7 @@ def case(pair: str, seed: int, scale: float = 1.0) -> LookAlike:
         hidden = "gain"
     truth = perturbed_truth(design, rng, plan)
     values = _values(hidden, rng, truth, scale)
-    hook = _History(effect_hook(hidden, values, truth))
+    hook = _History(hidden, values, truth)
     meas, _ = simulate_session(design, seed, plan, effects=[hook], truth=truth)
     hook.recording = False
     sim = Simulator(truth, ranges=plan.ranges, noise=plan.noise, effects=[hook])

@@ -133,7 +133,10 @@ class LookAlikeBackend(Backend):
     session whose poses leave two hypotheses undecided (:meth:`write_session` writes it, its
     procedure done, to resume), and the same robot behind the real drivers to record more poses
     of — its hidden effect over the whole recording, the clock running on from the session's last
-    pose, at its last temperature (as the planner takes the new poses)."""
+    pose, at its last temperature. A plan's wait and a temperature other than the last are not
+    simulated here (the drivers stamp poses on the real clock): the simulator behind
+    ``benchmarks/plan_rates.py`` (:meth:`hexcal.sim.plan_cases.LookAlike.record`) honours a
+    plan's t and temperature columns."""
 
     look_alike: Any = field(kw_only=True, repr=False)  #: a plan_cases.LookAlike
     seed: int = 1

@@ -23,7 +23,7 @@ from textual.containers import VerticalScroll
 from textual.content import Content
 from textual.widgets import Header, Static
 
-from hexcal.diagnosis.plan import Offer
+from hexcal.diagnosis.plan_offer import Offer
 from hexcal.estimate.nbp import motion_text
 from hexcal.procedure.guided import GuidedError
 from hexcal.procedure.recording import MotionError
@@ -205,7 +205,8 @@ class DecideScreen(HexcalScreen):
         mover = self._guided.mover is not None
         keys = "g goes there, r records, a does every pose" if mover else "r records there"
         return (
-            f"Planned pose {k + 1} of {len(plan.meas)}: {move}; the legs should read {legs} mm "
+            _schedule_text(plan, k)
+            + f"Planned pose {k + 1} of {len(plan.meas)}: {move}; the legs should read {legs} mm "
             f"— {keys}",
             "bold",
         )
@@ -352,3 +353,14 @@ class DecideScreen(HexcalScreen):
 
     def action_back(self) -> None:
         self.app.pop_screen()
+
+
+def _schedule_text(plan: Any, k: int) -> str:
+    """Before the first planned pose of a plan with a schedule: how long to wait, and at what
+    temperature to hold the rig (the plan's t and temperature columns)."""
+    wait = float(getattr(plan, "wait", 0.0))
+    if k > 0 or wait <= 0:
+        return ""
+    temp = plan.meas.temperature
+    held = "" if temp is None else f", the rig held at {float(temp[0]):.2f} °C"
+    return f"First wait {wait / 60:.0f} min after the session's last pose{held} (the plan's schedule). "

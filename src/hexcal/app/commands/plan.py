@@ -47,6 +47,33 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     what.add_argument("--resolve", metavar="EFFECT", help="an effect whose parameters to resolve")
     p.add_argument("--poses", type=POSITIVE_COUNT, default=12, help="how many poses (default 12)")
+    p.add_argument(
+        "--wait",
+        type=float,
+        metavar="S",
+        help="s to wait after the session's last pose before the first planned one (default: "
+        "the plan chooses, up to --max-wait, where the time separates the hypotheses)",
+    )
+    p.add_argument(
+        "--max-wait",
+        type=float,
+        metavar="S",
+        help="the longest wait the plan may ask for, s (default: as long as the session took)",
+    )
+    p.add_argument(
+        "--temperature",
+        type=float,
+        metavar="C",
+        help="°C the lab will hold while recording the plan (default: the session's last)",
+    )
+    p.add_argument(
+        "--can-hold",
+        type=float,
+        nargs=2,
+        metavar=("LOW", "HIGH"),
+        help="°C range the lab can hold the rig at (a climate-controlled room or chamber): the "
+        "plan then chooses the temperature too, reached no faster than the session's changed",
+    )
     p.add_argument("--seed", type=SEED, default=0, help="the random candidate poses' seed")
     p.add_argument("--out", type=Path, required=True, help="the planned poses (CSV)")
     p.add_argument("--force", action="store_true", help="replace an existing --out file")
@@ -65,8 +92,17 @@ def run(args: argparse.Namespace) -> int:
     inp = read_inputs(args)
     refuse_overwrite(args.out, inp, args.force)
     separate = tuple(args.separate) if args.separate else None
+    from hexcal.diagnosis.plan import When
+
+    for name in ("wait", "max_wait"):
+        if getattr(args, name) is not None and getattr(args, name) < 0:
+            raise SystemExit(f"hexcal plan: --{name.replace('_', '-')} must be at least 0 s")
+    if args.temperature is not None and args.can_hold is not None:
+        raise SystemExit("hexcal plan: --temperature or --can-hold, not both")
+    held = None if args.can_hold is None else (args.can_hold[0], args.can_hold[1])
+    when = When(args.wait, args.max_wait, args.temperature, held)
     plan = plan_session(
-        inp, ModelKind(args.model), args.add, args.poses, separate, args.resolve, args.seed
+        inp, ModelKind(args.model), args.add, args.poses, separate, args.resolve, args.seed, when
     )
     write_measurements(plan.meas, args.out)
     if args.json:
@@ -89,6 +125,8 @@ def plan_dict(plan, out: Path) -> dict:
         "random": plan.random,
         "random_poses_to_match": plan.match,
         "decided_after": plan.decide if plan.kind == "separate" else None,
+        "wait_s": plan.wait,
+        "temperature_c": None if plan.meas.temperature is None else float(plan.meas.temperature[0]),
         "out": str(out),
         "notes": plan.notes,
     }
@@ -104,7 +142,7 @@ def plan_lines(plan) -> list[str]:
             f"expected separation of {a} and {b} (the Δχ² between them, whichever is true):",
             f"  the session's poses alone: {plan.before:.1f}",
             f"  with these {n} planned poses: {plan.planned:.1f} ± {plan.planned_sd:.1f}",
-            f"  with {n} random reachable poses: {plan.random:.1f}",
+            f"  with {n} random reachable poses, recorded as these are: {plan.random:.1f}",
             f"  random reachable poses needed to match the plan: {more}",
             "  decided (ΔBIC and the look-alike margin, 2 standard deviations short): "
             + (
@@ -134,9 +172,11 @@ def plan_session(
     separate: tuple[str, str] | None = None,
     resolve: str | None = None,
     seed: int = 0,
+    when: Any = None,
 ) -> Any:
     """The poses that decide (:func:`hexcal.diagnosis.plan.plan_poses`) for a session with
-    ``added`` effects in the model (and a calibrated model's own)."""
+    ``added`` effects in the model (and a calibrated model's own); ``when``: a
+    :class:`~hexcal.diagnosis.plan.When` (None: the plan chooses the wait)."""
     import numpy as np
 
     from hexcal.diagnosis.plan import plan_poses
@@ -147,4 +187,4 @@ def plan_session(
     effects = tuple(dict.fromkeys((*base, *inp.model_effects, *added)))
     problem = Problem.build(inp.meas, inp.design, inp.sigmas)
     rng = np.random.default_rng(seed)
-    return plan_poses(problem, effects, n_poses, separate, resolve, rng)
+    return plan_poses(problem, effects, n_poses, separate, resolve, rng, when=when)
