@@ -15,7 +15,8 @@ import pytest
 from statcheck import floor_limit
 
 from hexcal.app.workflow import Inputs, diagnose_chain
-from hexcal.diagnosis.interaction_search import _determined, single_leads
+from hexcal.diagnosis.interaction_search import single_leads
+from hexcal.diagnosis.leads import determined
 from hexcal.effects.interactions import parse_product, product_name
 from hexcal.sim import verdict_cases as vc
 from hexcal.sim.session_sim import simulate_session
@@ -98,6 +99,6 @@ def test_a_smooth_function_of_another_covariate_is_determined_by_it():
     temperature = 20.0 + 3.0 * (1 - np.exp(-t / 900.0)) + rng.normal(0, 0.01, t.size)
     stroke = rng.uniform(10.0, 110.0, (t.size, 6))
     per_pose = lambda v: np.repeat(v[:, None], 6, axis=1)  # noqa: E731
-    assert _determined(per_pose(t), per_pose(temperature))
-    assert not _determined(per_pose(t), stroke)
-    assert not _determined(stroke, per_pose(t))
+    assert determined(per_pose(t), per_pose(temperature))
+    assert not determined(per_pose(t), stroke)
+    assert not determined(stroke, per_pose(t))

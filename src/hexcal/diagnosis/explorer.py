@@ -38,7 +38,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexcal.diagnosis.interaction_search import products
-from hexcal.diagnosis.leads import SAME_QUANTITY, Lead, beats, best_of, covariate_values, scoped
+from hexcal.diagnosis.leads import (
+    SAME_QUANTITY,
+    Lead,
+    beats,
+    best_of,
+    covariate_values,
+    determined,
+    scoped,
+)
 from hexcal.diagnosis.periodogram import periodogram
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.diagnosis.scoring import pose_whiteners
@@ -317,7 +325,8 @@ def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
     """Significant leads first, most held-out χ² first; where the first two are the same
     quantity on these poses and within a standard error of each other — covariates correlated
     beyond :data:`SAME_QUANTITY` (the time and the place in the procedure when the poses come
-    at a steady pace), or shapes that explain exactly alike (a step at zero of the force ×
+    at a steady pace), one a smooth function of the other (a room's temperature cycling in
+    time: :func:`~hexcal.diagnosis.leads.determined`), or shapes that explain exactly alike (a step at zero of the force ×
     length² is the force's sign) — the one the library lists first (the plainer, physical
     one) leads, the other named with it."""
     out = sorted(leads, key=lambda t: (not t.significant, -t.ranked_by, -t.score))
@@ -331,8 +340,16 @@ def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
         if close and order.get(b.covariate.name, last) < order.get(a.covariate.name, last):
             r = float(np.corrcoef(a.values.ravel(), b.values.ravel())[0, 1])
             alike = abs(a.heldout - b.heldout) <= 1e-6 * abs(a.heldout)
-            if abs(r) > SAME_QUANTITY or alike:
-                why = f"r {r:.3f}" if abs(r) > SAME_QUANTITY else "they explain exactly alike"
+            # one a smooth function of the other: a room's temperature cycling in time
+            function = determined(a.values, b.values) or determined(b.values, a.values)
+            if abs(r) > SAME_QUANTITY or alike or function:
+                why = (
+                    f"r {r:.3f}"
+                    if abs(r) > SAME_QUANTITY
+                    else "they explain exactly alike"
+                    if alike
+                    else "one is a smooth function of the other"
+                )
                 b.notes.append(f"or the {a.covariate.label}: the same on these poses ({why})")
                 out[0], out[1] = b, a
     return out

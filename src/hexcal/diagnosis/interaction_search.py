@@ -23,9 +23,16 @@ at least as much as either line does; what it must show is the part no single co
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import BSpline
 
-from hexcal.diagnosis.leads import SAME_QUANTITY, Lead, beats, best_of, own_columns, scoped
+from hexcal.diagnosis.leads import (
+    SAME_QUANTITY,
+    Lead,
+    beats,
+    best_of,
+    determined,
+    own_columns,
+    scoped,
+)
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.effects.covariates import Covariate, product_covariate
 from hexcal.effects.explored import product
@@ -91,7 +98,7 @@ def products(
         if tried == N_SCREEN:
             break
         va, vb = factors[..., 0], factors[..., 1]
-        if _determined(va, vb) or _determined(vb, va):
+        if determined(va, vb) or determined(vb, va):
             continue
         # A product the library holds already (the force × stroke) is that covariate.
         if any(_same(va * vb, v) for v in known):
@@ -143,29 +150,6 @@ def _best_product(
             if lead.significant:
                 rows.append((lead.score - lead.columns * np.log(scorer.n), lead, st))
     return best_of(rows, level, excess) if rows else None
-
-
-def _determined(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether the covariate ``b`` (M, 6) is, leg by leg, a smooth function of ``a`` on these
-    poses (a cubic spline with 4 interior knots along ``a`` explains more than
-    :data:`~hexcal.diagnosis.leads.SAME_QUANTITY`² of its variance): the room's temperature drifting with the time, a leg's
-    length with its stroke. Their product is then a curve along ``a`` alone, which ``a``'s
-    own shapes hold."""
-    res = tot = 0.0
-    for k in range(a.shape[1]):
-        u, v = a[:, k], b[:, k] - b[:, k].mean()
-        tot += float(v @ v)
-        distinct = np.unique(u)
-        if len(distinct) < 8:
-            res += float(v @ v)  # too few values to carry a curve: not determined by them
-            continue
-        knots = np.quantile(distinct, np.linspace(0, 1, 6)[1:-1])
-        t = np.r_[[u.min()] * 4, knots, [u.max()] * 4]
-        x = np.column_stack([np.ones(len(u)), BSpline.design_matrix(u, t, 3).toarray()])
-        coef, *_ = np.linalg.lstsq(x, v, rcond=None)
-        r = v - x @ coef
-        res += float(r @ r)
-    return tot > 0 and 1.0 - res / tot > SAME_QUANTITY**2
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:

@@ -10,6 +10,7 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.interpolate import BSpline
 
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
 from hexcal.effects.covariates import Covariate
@@ -282,3 +283,27 @@ def beats(lead: Lead, rival: Lead, z: float) -> bool:
     diff = lead.folds - rival.folds
     se = float(np.std(diff, ddof=1) * np.sqrt(len(diff)))
     return bool(diff.sum() > z * se)
+
+
+def determined(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether the covariate ``b`` (M, 6) is, leg by leg, a smooth function of ``a`` on these
+    poses (a cubic spline with 4 interior knots along ``a`` explains more than
+    :data:`SAME_QUANTITY`² of its variance): the room's temperature drifting with the time, a leg's
+    length with its stroke. Their product is then a curve along ``a`` alone, which ``a``'s
+    own shapes hold; and two leads along them that explain alike are one quantity on these
+    poses."""
+    res = tot = 0.0
+    for k in range(a.shape[1]):
+        u, v = a[:, k], b[:, k] - b[:, k].mean()
+        tot += float(v @ v)
+        distinct = np.unique(u)
+        if len(distinct) < 8:
+            res += float(v @ v)  # too few values to carry a curve: not determined by them
+            continue
+        knots = np.quantile(distinct, np.linspace(0, 1, 6)[1:-1])
+        t = np.r_[[u.min()] * 4, knots, [u.max()] * 4]
+        x = np.column_stack([np.ones(len(u)), BSpline.design_matrix(u, t, 3).toarray()])
+        coef, *_ = np.linalg.lstsq(x, v, rcond=None)
+        r = v - x @ coef
+        res += float(r @ r)
+    return tot > 0 and 1.0 - res / tot > SAME_QUANTITY**2
