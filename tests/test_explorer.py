@@ -166,6 +166,16 @@ def test_a_sensor_that_is_a_smooth_function_of_the_time_leads_the_time():
     assert any("one is a smooth function of the other" in n for n in lead.notes)
 
 
+def test_a_product_is_not_put_below_its_factor_as_one_quantity():
+    """A leg error ∝ z × stroke (the held-out set's "z x stroke", seed 0): the stroke follows z
+    so closely that the product is nearly a smooth function of z, and a curve in z explains 84 %.
+    The product (100 %) must lead: the smooth-function ordering is kept from products, whose
+    own test against their factors decides."""
+    c = heldout("z x stroke", 0)
+    d = diagnose(c.meas, c.design, 42, instruments=c.instruments)
+    assert d.exploration.lead is not None and d.exploration.lead.covariate.name == "stroke*z"
+
+
 def test_spline_knots_are_dense_where_the_poses_are_yet_never_on_top_of_each_other():
     """Knots at the quantiles of a leg's distinct values: a clamped leg's repeated reading
     counts once (no two knots on it), and every interval between knots holds poses (a basis

@@ -64,6 +64,7 @@ from hexcal.effects.explored import (
     spline,
     step,
 )
+from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import parse_lag
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
 from hexcal.estimate.quantiles import norm_isf
@@ -340,8 +341,12 @@ def _ranked(leads: list[Lead], problem: Problem, fit: ModelFit) -> list[Lead]:
         if close and order.get(b.covariate.name, last) < order.get(a.covariate.name, last):
             r = float(np.corrcoef(a.values.ravel(), b.values.ravel())[0, 1])
             alike = abs(a.heldout - b.heldout) <= 1e-6 * abs(a.heldout)
-            # one a smooth function of the other: a room's temperature cycling in time
-            function = determined(a.values, b.values) or determined(b.values, a.values)
+            # one a smooth function of the other: a room's temperature cycling in time (not a
+            # product against a factor: the product's own test against its factors decides)
+            product = parse_product(a.covariate.name) or parse_product(b.covariate.name)
+            function = not product and (
+                determined(a.values, b.values) or determined(b.values, a.values)
+            )
             if abs(r) > SAME_QUANTITY or alike or function:
                 why = (
                     f"r {r:.3f}"
