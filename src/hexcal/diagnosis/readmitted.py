@@ -42,8 +42,12 @@ def check_readmitted(
                 cv_with = fit_model(kept, (*effects, name)).cv_rms_mm
                 cv_without = fit_model(kept, effects).cv_rms_mm
             except (ValueError, np.linalg.LinAlgError) as exc:
-                cv_with, cv_without = float("nan"), float("nan")
-                lead.notes.append(f"its refit on the poses it would keep failed: {exc}")
+                lead.worse = True
+                lead.notes.append(
+                    f"not proposed: its refit on the poses it would keep failed: {exc}"
+                )
+                exploration.notes.append(f"{lead.covariate.name}: " + lead.notes[-1])
+                continue
         if cv_with < cv_without:
             return
         lead.worse = True
