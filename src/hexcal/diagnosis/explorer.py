@@ -22,7 +22,11 @@ from each held-out fold is summed (no parameter-count penalty: a shape that fits
 on held-out poses by itself). The best lead of each covariate is then refitted for real as an
 effect (:class:`~hexcal.effects.explored.ExploredEffect`, exactly what the effect file it
 writes declares): its held-out RMS is the figure stated, and a lead whose refit predicts
-held-out poses worse than the model without it is not proposed.
+held-out poses worse than the model without it is not proposed. Those refits settle the
+headline (:mod:`hexcal.diagnosis.lead_refit`): the explorer's own figure projects the geometry
+out once, which flatters a shape of many columns, so a lower lead whose refit predicts
+held-out poses better, pose by pose, leads instead, and the headline's plainer shapes are
+refitted too.
 
 Folds: plain numpy (a permutation of the poses, a fixed seed), not scikit-learn's GroupKFold:
 the groups are whole poses (their six readings share the pose's noise), which a reshape gives,
@@ -31,13 +35,12 @@ and it would be hexcal's only use of that library.
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from hexcal.diagnosis.interaction_search import products
+from hexcal.diagnosis.lead_refit import N_REFIT, headline, refit_leads, reshaped
 from hexcal.diagnosis.leads import (
     SAME_QUANTITY,
     Lead,
@@ -49,8 +52,6 @@ from hexcal.diagnosis.leads import (
 )
 from hexcal.diagnosis.periodogram import periodogram
 from hexcal.diagnosis.pose_products import ColumnStats, PoseProducts
-from hexcal.diagnosis.scoring import pose_whiteners
-from hexcal.diagnosis.selection import HELDOUT_Z, heldout_gain
 from hexcal.effects import CATALOGUE
 from hexcal.effects.covariates import Covariate, library
 from hexcal.effects.explored import (
@@ -66,7 +67,7 @@ from hexcal.effects.explored import (
 )
 from hexcal.effects.interactions import parse_product
 from hexcal.effects.lagged import parse_lag
-from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
+from hexcal.estimate.effect_fit import ModelFit, Problem
 from hexcal.estimate.quantiles import norm_isf
 
 #: Interior knots of the smooth shapes tried (0: a cubic); cross-validation picks one.
@@ -75,8 +76,6 @@ SPLINE_KNOTS = (0, 4, 11)
 MIN_SIDE = 5
 #: A signed covariate's sign (a load reversing) must hold this share of the poses both ways.
 MIN_SIGN_SHARE = 0.03
-#: Leads refitted for real (their figure stated, "never worse" checked).
-N_REFIT = 3
 #: A lead leaving more than this share of the excess is said to leave most of it.
 MOST = 0.5
 #: Periods searched along a periodic covariate: from this share of its span …
@@ -250,25 +249,6 @@ def _families(cov: Covariate, values: np.ndarray, resid: np.ndarray) -> list[tup
     return out
 
 
-@contextlib.contextmanager
-def lead_effect(problem: Problem, lead: Lead) -> Iterator[str]:
-    """The lead registered as an effect (its name) for as long as the block runs."""
-    name, n = lead.effect_name, 1
-    while name in CATALOGUE:  # a file of the same name is loaded already
-        n += 1
-        name = f"{lead.effect_name[:36]}_{n}"
-    eff = ExploredEffect(name, lead.covariate.name, lead.shape)
-    eff.physics = f"a shape along the {lead.covariate.label}"
-    eff.separating_motion = f"poses spreading the {lead.covariate.label} over its range"
-    CATALOGUE[name] = eff
-    try:
-        yield name
-    finally:
-        CATALOGUE.pop(name, None)
-        problem._bases.pop(name, None)
-        problem._missing.pop(name, None)
-
-
 def _held_shapes(fit: ModelFit) -> set[tuple[str, str]]:
     """(covariate, shape) of the explored effects the model holds already."""
     out = set()
@@ -311,7 +291,10 @@ def explore(problem: Problem, fit: ModelFit, s2: float, level: float) -> Explora
     best.update(products(carried, scorer, list(best.values()), held, tests, excess, level))
     tested = _ranked(list(best.values()), problem, fit)
     out = Exploration(tested, level)
-    _refit(problem, fit, [t for t in tested if t.significant and t.heldout > 0][:N_REFIT], out)
+    refit = [t for t in tested if t.significant and t.heldout > 0][:N_REFIT]
+    refit_leads(problem, fit, refit, level, out.notes)
+    headline(problem, fit, out.tested, level)
+    reshaped(problem, fit, out.tested, level)
     for t in tested:
         if t.significant and not t.heldout > 0:
             t.worse = True
@@ -404,43 +387,3 @@ def _default_notes(problem: Problem, cov: Covariate) -> list[str]:
         for key in cov.default_keys
         if getattr(problem.design, key, None) is None
     ]
-
-
-def _refit(problem: Problem, fit: ModelFit, leads: list[Lead], out: Exploration) -> None:
-    """Refit the model with each lead as an effect: its held-out RMS, its fitted curve, and
-    whether it predicts held-out poses worse than the model without it (then not proposed)."""
-    effects = fit.effects
-    chol = pose_whiteners(problem, fit) if leads else None
-    for lead in leads:
-        lead.cv_rms_before_mm = fit.cv_rms_mm
-        with lead_effect(problem, lead) as name:
-            try:
-                after = fit_model(problem, (*effects, name), seed_fit=fit)
-            except (ValueError, np.linalg.LinAlgError) as exc:
-                lead.worse = True
-                lead.notes.append(f"its refit failed: {exc}")
-                continue
-            coef = np.array([p.value for p in after.params if p.name.startswith(name + ".")])
-            basis = problem.basis(name)
-        lead.cv_rms_after_mm = after.cv_rms_mm
-        lead.fitted = basis @ coef if basis.shape[-1] == coef.size else None
-        if after.residuals.shape == fit.residuals.shape:
-            lead.explained = fit.residuals - after.residuals
-        z = heldout_gain(fit, after, chol, out.level)[1] if chol is not None else 0.0
-        if not after.cv_rms_mm < fit.cv_rms_mm:
-            lead.worse = True
-            lead.notes.append(
-                f"not proposed: with it the held-out RMS rises ({1000 * fit.cv_rms_mm:.2f} → "
-                f"{1000 * after.cv_rms_mm:.2f} µm): it fits the poses it saw, not the others"
-            )
-            out.notes.append(f"{lead.covariate.name}: " + lead.notes[-1])
-        elif not z > HELDOUT_Z:
-            # As a catalogue effect at the floor: a gain inside the poses' own scatter is no
-            # gain another set of poses would keep.
-            lead.worse = True
-            lead.notes.append(
-                f"not proposed: it predicts held-out poses better by {z:.1f} standard errors "
-                f"only (held-out RMS {1000 * fit.cv_rms_mm:.2f} → "
-                f"{1000 * after.cv_rms_mm:.2f} µm; {HELDOUT_Z:g} needed)"
-            )
-            out.notes.append(f"{lead.covariate.name}: " + lead.notes[-1])

@@ -57,6 +57,12 @@ class Lead:
     #: residual before less after: the lead's contribution less what the geometry, refitted
     #: with it, takes up again)
     explained: np.ndarray | None = None
+    #: The covariate's other cross-validated shapes, most held-out χ² first: where a shape of
+    #: many columns leads, a plainer one may predict held-out poses better once refitted for
+    #: real (:func:`hexcal.diagnosis.explorer.reshaped`)
+    alternatives: list[Lead] = field(default_factory=list, repr=False)
+    #: The model refitted with the lead as an effect (:mod:`hexcal.diagnosis.lead_refit`)
+    refit: ModelFit | None = field(default=None, repr=False)
 
     def seen_um(self) -> np.ndarray | None:
         """(M, 6) µm the refitted lead as the model's residual sees it: what the refit with
@@ -244,7 +250,10 @@ def best_of(rows: list[tuple[float, Lead, ColumnStats]], level: float, excess: f
         lead.heldout, lead.folds = float(folds.sum()), folds
         lead.heldout_se = float(np.std(folds, ddof=1) * np.sqrt(len(folds)))
         lead.share = float(lead.heldout * level / excess) if excess > 0 else float("nan")
-    return plainest([lead for _, lead, _ in rows[:N_CV]])
+    tried = [lead for _, lead, _ in rows[:N_CV]]
+    chosen = plainest(tried)
+    chosen.alternatives = sorted((t for t in tried if t is not chosen), key=lambda t: -t.heldout)
+    return chosen
 
 
 def plainest(leads: list[Lead]) -> Lead:

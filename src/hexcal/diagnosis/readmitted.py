@@ -16,9 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexcal.diagnosis.explorer import N_REFIT, Exploration, lead_effect
+from hexcal.diagnosis.explorer import Exploration
+from hexcal.diagnosis.lead_refit import lead_effect
 from hexcal.diagnosis.outliers import Subset, find_outliers
 from hexcal.estimate.effect_fit import Problem, fit_model
+
+#: The leads, best first, tried on the poses their file would keep (each an outlier search).
+N_READMITTED = 3
 
 
 def check_readmitted(
@@ -31,7 +35,7 @@ def check_readmitted(
     start = (
         np.setdiff1d(np.arange(len(session.meas)), work.rows) if isinstance(work, Subset) else None
     )
-    for lead in exploration.leads[:N_REFIT]:
+    for lead in exploration.leads[:N_READMITTED]:
         with lead_effect(session, lead) as name:
             search = find_outliers(session, (*effects, name), start)
             kept = search.problem
