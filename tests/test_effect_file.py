@@ -23,6 +23,7 @@ from hexcal.diagnosis.effect_file import effect_file_text, effect_name, write_ef
 from hexcal.diagnosis.explorer import Lead, covariate_values
 from hexcal.effects import CATALOGUE, explored, plugins
 from hexcal.effects.covariates import covariate, covariate_factors, library, product_covariate
+from hexcal.effects.lagged import LAG_SHARES
 from hexcal.io.measurements import write_measurements
 from hexcal.model.instruments import save_instruments
 from hexcal.model.robot import save_robot
@@ -133,7 +134,8 @@ def test_a_lagged_series_file_is_the_explorers_shape(quadratic, tmp_path):
     the written effect is the explorer's shape."""
     _, d = quadratic
     lagged = [c for c in library(d.problem.data) if "~lag" in c.name]
-    assert len(lagged) == 3, [c.name for c in lagged]  # the session has a temperature
+    # The session has a temperature, and a span long enough that no two lags round together.
+    assert len(lagged) == len(LAG_SHARES), [c.name for c in lagged]
     for cov in lagged:
         _assert_files_are_the_shapes(d, cov, tmp_path)
 

@@ -36,5 +36,5 @@ def test_the_name_carries_the_time_constant(tau):
 
 
 def test_the_time_constants_tried_are_shares_of_the_span():
-    assert lag_taus(np.array([5.0, 1005.0])) == [50.0, 150.0, 400.0]
+    assert lag_taus(np.array([5.0, 1005.0])) == [30.0, 50.0, 80.0, 150.0, 250.0, 400.0]
     assert lag_taus(np.array([3.0, 3.0])) == []

@@ -17,7 +17,7 @@ import re
 import numpy as np
 
 #: The time constants tried, as shares of the session's span.
-LAG_SHARES = (0.05, 0.15, 0.4)
+LAG_SHARES = (0.03, 0.05, 0.08, 0.15, 0.25, 0.4)
 _NAME = re.compile(r"^(?P<base>.+)~lag(?P<tau>\d+)s$")
 
 
