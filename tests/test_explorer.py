@@ -324,3 +324,16 @@ def test_the_headline_shape_is_settled_on_the_refit():
     assert any("chosen on the refit" in n for n in lead.notes)
     spline = lead.alternatives[0]
     assert spline.shape.kind == "spline" and spline.cv_rms_after_mm > lead.cv_rms_after_mm
+
+
+def test_a_session_without_a_temperature_is_explored_without_the_temperatures_covariates():
+    """No temperature column (a precision hexapod's session, a log without a thermometer):
+    the temperature, its lags and whether it rose or fell are not tried; the rest is."""
+    c = vc.foreign("stroke quadratic", 3)
+    columns = tuple(k for k in c.meas.columns if k != "temperature")
+    meas = dataclasses.replace(c.meas, temperature=None, columns=columns)
+    d = diagnose(meas, c.design, 42, instruments=c.instruments)
+    assert d.verdict == "unexplained" and d.exploration is not None
+    tried = {t.covariate.name for t in d.exploration.tested}
+    assert not any(n.startswith("temperature") for n in tried), sorted(tried)
+    assert d.exploration.lead is not None and d.exploration.lead.covariate.name == "stroke"

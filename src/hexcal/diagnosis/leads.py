@@ -181,7 +181,10 @@ def covariate_values(problem: Problem, fit: ModelFit, cov: Covariate) -> np.ndar
     written for it evaluates it (:class:`~hexcal.effects.explored.ExploredEffect`)."""
     data = problem.data
     series = series_of(cov.name)
-    if series == "temperature" and (data.temperature is None or np.ptp(data.temperature) < 0.2):
+    # The temperature's own covariates (its value, its lag, whether it rose or fell) need one
+    # that changed.
+    thermal = series in ("temperature", "temperature_change")
+    if thermal and (data.temperature is None or np.ptp(data.temperature) < 0.2):
         return None
     values = np.asarray(cov.values(data), float)
     if not np.all(np.isfinite(values)) or np.all(np.ptp(values, axis=0) == 0):
