@@ -12,6 +12,10 @@
 4. Verdict: the best identifiable effect with ΔBIC < −10 that — when the excess over the floor
    is significant — explains at least half of it; else ``unexplained`` when the excess is
    significant (with where it concentrates); else ``none``.
+5. An effect named over a significant excess is challenged by the covariate explorer run on
+   the model without it (:mod:`hexcal.diagnosis.challenge`): a shape outside the catalogue
+   that predicts held-out poses better takes the verdict (``unexplained``, with that lead);
+   one that predicts alike is named beside it.
 
 Before all this, gross outliers — poses the richest identifiable model cannot explain
 (:mod:`hexcal.diagnosis.outliers`) — are set aside, and everything above (the fit, the
@@ -30,6 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from hexcal.diagnosis.challenge import challenge
 from hexcal.diagnosis.changepoint import ChangePoint
 from hexcal.diagnosis.defaults import DefaultNote, default_notes
 from hexcal.diagnosis.explorer import Exploration, explore
@@ -349,9 +354,11 @@ def diagnose(
         outliers=outliers,
         changes=j.changes if verdict == ZERO_STEP else (),
     )
-    exploration, noise_factor = None, float("nan")
+    noise_factor = float("nan")
+    verdict, exploration, alike = _challenged(work, j, verdict, notes)
     if verdict == Outcome.UNEXPLAINED:
-        exploration = explore(work, fit, j.s2, max(j.level, j.s2))
+        if exploration is None:
+            exploration = explore(work, fit, j.s2, max(j.level, j.s2))
         if outliers:  # its file would judge them again: a lead must hold on the poses it keeps
             check_readmitted(problem, work, fit.effects, exploration)
         if _noise_understated(j, where, exploration, sig is not None):
@@ -367,13 +374,7 @@ def diagnose(
     if sig is None:
         accuracy = replace(accuracy, floor_estimated=True)
         work.design_pose_accuracy = replace(work.design_pose_accuracy, floor_estimated=True)
-    candidates = sorted(
-        j.candidates,
-        key=lambda c: (
-            np.isnan(c.delta_bic),
-            c.delta_bic if np.isfinite(c.delta_bic) else -c.score,
-        ),
-    )
+    candidates = _by_evidence(j.candidates)
     return Diagnosis(
         fit,
         float(np.sqrt(np.mean(j.floor**2))),
@@ -395,14 +396,47 @@ def diagnose(
         outliers_acknowledged=acknowledged,
         noise_level=j.s2,
         floor_scale=j.floor_scale,
-        alike=j.alike,
+        alike=alike,
         changes=j.changes,
         exploration=exploration,
         noise_factor=noise_factor,
         frame=j.frame,
         defaults=default_notes(work, fit, j.candidates),
-        plans=offers(work, fit, str(verdict), j.alike, j.candidates),
+        plans=offers(work, fit, str(verdict), alike, j.candidates),
     )
+
+
+def _by_evidence(candidates: list[Candidate]) -> list[Candidate]:
+    """The refitted candidates by ΔBIC, then the others by score."""
+    return sorted(
+        candidates,
+        key=lambda c: (
+            np.isnan(c.delta_bic),
+            c.delta_bic if np.isfinite(c.delta_bic) else -c.score,
+        ),
+    )
+
+
+def _challenged(
+    work: Problem, j: Judgement, verdict: Verdict, notes: list[str]
+) -> tuple[Verdict, Exploration | None, list[str]]:
+    """(the verdict, the exploration that overturned it if one did, the verdict's look-alikes):
+    the explorer's lead against a catalogue effect named over a significant excess
+    (:mod:`hexcal.diagnosis.challenge`), what it found said in ``notes``. Not where nothing
+    is named, or what is named is a property of the session (a located step, the tracker's
+    drift), or the excess is noise. Look-alikes are of an effect named: none once the lead
+    has overturned it."""
+    if isinstance(verdict, Outcome) or not j.excess or of_the_session(str(verdict)):
+        return verdict, None, j.alike
+    named = next((c for c in j.candidates if c.effect == verdict), None)
+    found = None if named is None else challenge(work, j.fit, named, j.s2, max(j.level, j.s2))
+    if found is None:
+        return verdict, None, j.alike
+    if text := found.note(j.s2):
+        notes.append(text)
+    if found.overturns:
+        return Outcome.UNEXPLAINED, found.exploration, []
+    return verdict, None, j.alike
 
 
 def _noise_understated(j: Judgement, where: dict, exploration: Exploration, stated: bool) -> bool:

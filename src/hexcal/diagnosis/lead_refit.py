@@ -23,7 +23,7 @@ import numpy as np
 
 from hexcal.diagnosis.leads import Lead
 from hexcal.diagnosis.scoring import pose_whiteners
-from hexcal.diagnosis.selection import HELDOUT_Z, heldout_gain
+from hexcal.diagnosis.selection import HELDOUT_Z, fit_apart, heldout_gain
 from hexcal.effects import CATALOGUE
 from hexcal.effects.explored import ExploredEffect
 from hexcal.estimate.effect_fit import ModelFit, Problem, fit_model
@@ -108,8 +108,9 @@ def refit_leads(
 def headline(problem: Problem, fit: ModelFit, tested: list[Lead], level: float) -> None:
     """Settle the headline on the refits: of the refitted, proposed leads in ``tested`` (the
     explorer's ranking), a lower one takes the first place where its refit predicts held-out
-    poses better than the current first's by :data:`HEADLINE_Z` standard errors, pose by pose
-    (said in its notes); ``tested`` is reordered in place."""
+    poses better than the current first's by :data:`HEADLINE_Z` standard errors, pose by pose,
+    and fits apart from it (:func:`~hexcal.diagnosis.selection.fit_apart`; said in its notes);
+    ``tested`` is reordered in place."""
     refitted = [t for t in tested if t.proposed and t.refit is not None]
     if len(refitted) < 2:
         return
@@ -118,7 +119,8 @@ def headline(problem: Problem, fit: ModelFit, tested: list[Lead], level: float) 
     for t in refitted[1:]:
         assert first.refit is not None and t.refit is not None
         z = heldout_gain(first.refit, t.refit, chol, level)[1]
-        if z > HEADLINE_Z:
+        # One model written twice (a curve in time and in the pose's rank) is not evidence.
+        if z > HEADLINE_Z and fit_apart(first.refit, t.refit, chol, level):
             t.notes.append(
                 f"it leads the {first.covariate.label} ({first.shape.describe(first.covariate.unit)}),"
                 f" ranked first on the explorer's own figure, since refitted it predicts held-out "

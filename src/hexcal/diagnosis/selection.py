@@ -155,6 +155,22 @@ def heldout_gain(
     return float(d.sum()), z
 
 
+def fit_apart(a: ModelFit, b: ModelFit, chol: np.ndarray, s2: float = 1.0) -> bool:
+    """Whether two fits of the same poses fit differently, not one model written twice: the
+    χ² of their residuals' difference (each pose's whitened by ``chol``, over ``s2``) beyond
+    :data:`ALIKE_DCHI2` plus their parameter counts' difference (what the larger takes up of
+    the noise alone). The catalogue's backlash and a step at the sign of each leg's last move
+    fit to 0.0 of each other, its compliance and a line in the force shared by the legs to
+    0.2, its lead screw and a cycle of 4.99 mm to 5, a curve in time and the same curve in
+    the pose's rank (r 1.000) to < 1; a cross-talk and gain differ by 47–81. Two fits that
+    are not apart can still differ in held-out figures beyond 2 standard errors, by the
+    folds' one-step refits alone (8 of some 400 simulated sessions): such a difference is
+    not evidence for either."""
+    d = a.residuals - b.residuals
+    w = np.linalg.solve(chol, d[..., None])[..., 0]
+    return bool(np.sum(w**2) / s2 > ALIKE_DCHI2 + abs(a.n_params - b.n_params))
+
+
 def schur_last(gram: np.ndarray) -> np.ndarray:
     """(...,) the Schur complement of the last diagonal element of Gram matrices (..., p+1,
     p+1) ``[[JᵀJ, Jᵀd], [dᵀJ, dᵀd]]``: ``|d⊥|²``, what is left of the column d once the
