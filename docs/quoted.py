@@ -20,6 +20,7 @@ import contextlib
 import difflib
 import functools
 import io
+import itertools
 import json
 import os
 import re
@@ -159,14 +160,15 @@ def walkthrough_abridged() -> None:
 # -- the Jugglebot ---------------------------------------------------------------------------
 @functools.cache
 def jugglebot() -> tuple[str, dict]:
-    """The Jugglebot's log imported and diagnosed as its README says (``--auto``): the text
-    output (--verbose) and the JSON one."""
+    """The Jugglebot's log imported and diagnosed as its README says (``--auto --explore
+    effects``): the text output (--verbose) and the JSON one."""
     with tempfile.TemporaryDirectory() as tmp:
         for name in ("108_calibration_poses.csv", "map.toml", "design-robot.json"):
             shutil.copy(JUGGLEBOT / name, tmp)
         log = ("108_calibration_poses.csv", "--map", "map.toml", "--out", "measurements.csv")
         hexcal("import", *log, where=tmp)
         args = ("diagnose", "measurements.csv", "--robot", "design-robot.json", "--auto")
+        args += ("--explore", "effects")  # the chain carried through the explorer's leads
         return hexcal(*args, "--verbose", where=tmp), json.loads(hexcal(*args, "--json", where=tmp))
 
 
@@ -186,30 +188,38 @@ def jugglebot_headline() -> None:
 
 
 def jugglebot_chain() -> None:
-    """The verdict chain: each step's effect, the share of the excess it explains and the fall
-    of the held-out leg RMS."""
+    """The verdict chain: each step's verdict, what it added (a catalogue effect, or the
+    explorer's lead through its file), the share of the excess a catalogue effect explains,
+    and the fall of the held-out leg RMS."""
     import cog
 
     text, out = jugglebot()
-    said = re.findall(
-        r"^verdict: (\w+) — (?:it explains (\d+) %|the residual is already at the noise floor)"
-        r".*?held-out RMS +([\d.]+) → +([\d.]+) µm",
-        text,
-        re.M,
-    )
-    parts = []
-    for k, (name, share, before, after) in enumerate(said):
-        fall = f"{float(before):.0f} → {float(after):.0f} µm"
-        what = f"explains {share} % of the excess; held-out leg RMS {fall}" if share else fall
-        parts.append(f"{'' if k == 0 else 'then '}`{name}` ({what})")
+    shares = dict(re.findall(r"^verdict: (\w+) — it explains (\d+) %", text, re.M))
+    steps = out["steps"]
+    parts, added = [], []
+    for k, (step, after) in enumerate(itertools.pairwise(steps)):
+        (effect,) = [e for e in after["effects"] if e not in step["effects"]]
+        added.append(effect)
+        fall = (
+            f"held-out leg RMS {1000 * step['cv_rms_mm']:.0f} → {1000 * after['cv_rms_mm']:.0f} µm"
+        )
+        if step["verdict"] == "unexplained":
+            what = f"`unexplained`, the explorer's lead `{effect}` added from its file ({fall})"
+        elif step["verdict"] in shares:
+            what = f"`{effect}` (explains {shares[effect]} % of the excess; {fall})"
+        else:
+            what = f"`{effect}` ({fall})"
+        parts.append(("" if k == 0 else "then ") + what)
+    files = [e for e in added if e.startswith("by_")]
     cog.outl(
         _bullet(
             f"**The verdict chain:** {', '.join(parts)}, then `{out['verdict']}`. No instrument "
             f"noise is known, so the floor is estimated (≈ {out['noise_floor_mm']:.2f} mm: the "
             "richest fit's residual, capped at the best held-out residual of the models tried) "
             "and every verdict is as firm as that estimate. `hexcal calibrate --add "
-            f"{' '.join(name for name, *_ in said)}` writes the same model as `diagnose --auto "
-            "--out`."
+            f"{' '.join(added)}"
+            + "".join(f" --effects effects/{e}.py" for e in files)
+            + "` writes the same model as `diagnose --auto --explore effects --out`."
         )
     )
 

@@ -24,7 +24,7 @@ def test_the_jugglebots_quotes_tell_the_whole_chain():
     """The drift the issue found: the chain was quoted as gain → compliance → none while the
     run named more. The docs' chain names every verdict of today's run in its order, the
     README's worst scale is today's, and a zero step is said exactly when the chain names
-    one (today's explorer finds the legs' steps no more significant than a smooth curve)."""
+    one (today, after the explorer's bending curve: leg 2's)."""
     text, out = quoted.jugglebot()
     verdicts = [s["verdict"] for s in out["steps"]]
     assert verdicts[-1] == "none"

@@ -55,15 +55,20 @@ def test_the_jugglebot_s_auto_chain_and_calibrate_add_write_the_same_model(tmp_p
     assert main(["import", str(log), "--map", str(mapping), "--out", str(table)]) == 0
     capsys.readouterr()
     auto, added = tmp_path / "auto.json", tmp_path / "added.json"
-    args = ["diagnose", str(table), "--robot", str(robot), "--auto", "--out", str(auto), "--json"]
-    assert main(args) == 0
+    found = tmp_path / "effects"
+    args = ["diagnose", str(table), "--robot", str(robot), "--auto", "--explore", str(found)]
+    assert main([*args, "--out", str(auto), "--json"]) == 0
     steps = json.loads(capsys.readouterr().out)["steps"]
-    effects = [s["verdict"] for s in steps[:-1]]  # what --auto named, step by step
-    # gain and compliance; the zero steps the search once located on legs 1 and 2 are not
-    # significant beyond a smooth curve of those legs' residual in time, so not named.
-    assert effects[:2] == ["gain", "compliance"] and steps[-1]["verdict"] == "none"
+    effects = steps[-1]["effects"][1:]  # what the chain added, step by step, after the offsets
+    # gain; then the legs' load: the catalogue's compliance closes it, but the explorer's
+    # bending curve (force × length²) predicts the held-out poses better, and its file carries
+    # the chain on (a zero step of leg 2 after it).
+    assert effects[:2] == ["gain", "by_force_x_length2"] and steps[-1]["verdict"] == "none"
+    assert [s["verdict"] for s in steps[:2]] == ["gain", "unexplained"]
+    files = [str(p) for p in sorted(found.glob("*.py"))]
     rc = main(
-        ["calibrate", str(table), "--robot", str(robot), "--add", *effects, "--out", str(added)]
+        ["calibrate", str(table), "--robot", str(robot), "--add", *effects, "--effects", *files]
+        + ["--out", str(added)]
     )
     assert rc == 0
     _assert_same(json.loads(auto.read_text()), json.loads(added.read_text()))
