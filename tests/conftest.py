@@ -192,3 +192,17 @@ def pytest_configure(config):
         value = config.getoption(opt)
         if value:
             os.environ[var] = value
+
+
+@pytest.fixture
+def registry_restored():
+    """The effect registry (and the record of effect files run) as the test found it, after
+    it: an in-process ``diagnose --explore`` loads the effect files it writes."""
+    from hexcal.effects import CATALOGUE, plugins
+
+    saved, files = dict(CATALOGUE), dict(plugins._files)
+    yield
+    CATALOGUE.clear()
+    CATALOGUE.update(saved)
+    plugins._files.clear()
+    plugins._files.update(files)

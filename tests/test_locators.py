@@ -49,7 +49,9 @@ def test_every_located_effect_is_a_catalogue_effect_with_a_robot_json_key():
         assert loc.none_found.startswith(f"{name}: ")
 
 
-def test_the_jugglebot_s_auto_chain_and_calibrate_add_write_the_same_model(tmp_path, capsys):
+def test_the_jugglebot_s_auto_chain_and_calibrate_add_write_the_same_model(
+    tmp_path, capsys, registry_restored
+):
     table, robot = tmp_path / "jb.csv", EXAMPLE / "design-robot.json"
     log, mapping = EXAMPLE / "108_calibration_poses.csv", EXAMPLE / "map.toml"
     assert main(["import", str(log), "--map", str(mapping), "--out", str(table)]) == 0

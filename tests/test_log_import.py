@@ -128,7 +128,9 @@ def test_diagnose_auto_on_the_jugglebot_names_gain_flags_the_stroke_ends_and_say
     assert text.count("sits at the upper end of its stroke") == 6
 
 
-def test_the_jugglebot_s_estimated_floor_is_honest_and_called_so(tmp_path, capsys):
+def test_the_jugglebot_s_estimated_floor_is_honest_and_called_so(
+    tmp_path, capsys, registry_restored
+):
     """No instruments file: the floor is estimated, never above the held-out residual of the
     best model tried (the final model's own, or a candidate's), called
     "estimated" wherever its figure appears, never "the instruments' own noise"; the ranked
