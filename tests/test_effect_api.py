@@ -49,14 +49,9 @@ def effect_file(tmp_path: Path, name: str = "height", body: str = "", **kw: str)
 
 
 @pytest.fixture(autouse=True)
-def registry():
+def registry(registry_restored):
     """Every test leaves the registry (and the record of files run) as it found it."""
-    saved, files = dict(CATALOGUE), dict(plugins._files)
     yield
-    CATALOGUE.clear()
-    CATALOGUE.update(saved)
-    plugins._files.clear()
-    plugins._files.update(files)
 
 
 def test_the_public_names_and_the_version():
