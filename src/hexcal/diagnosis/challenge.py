@@ -61,7 +61,7 @@ class Challenge:
     def alike(self) -> bool:
         return self.distinct and abs(self.z) <= CHALLENGE_Z
 
-    def note(self, s2: float) -> str:
+    def note(self) -> str:
         """What the diagnosis says of the comparison (empty where the named effect stands
         alone)."""
         eff, lead = get_effect(self.named), self.lead

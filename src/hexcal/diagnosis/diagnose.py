@@ -432,7 +432,7 @@ def _challenged(
     found = None if named is None else challenge(work, j.fit, named, j.s2, max(j.level, j.s2))
     if found is None:
         return verdict, None, j.alike
-    if text := found.note(j.s2):
+    if text := found.note():
         notes.append(text)
     if found.overturns:
         return Outcome.UNEXPLAINED, found.exploration, []
